@@ -1,0 +1,17 @@
+"""The errors caustica reports to users: one clear line, never a traceback."""
+from __future__ import annotations
+
+
+class CausticaError(Exception):
+    """Base of every error caused by the user's input; the CLI prints it and exits 2."""
+
+
+class SceneError(CausticaError):
+    """A scene file, element or mesh that cannot be loaded.
+
+    The message names the file, the line and the element, and what is allowed.
+    """
+
+
+class ParameterError(CausticaError):
+    """A render parameter out of range, misspelt, or asking for more memory than the machine has."""

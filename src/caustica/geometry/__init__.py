@@ -1,0 +1,1 @@
+"""Ray-scene intersection: primitives, the BVH and vector helpers."""

@@ -1,0 +1,41 @@
+"""The one place that decides how caustica's kernels are compiled.
+
+Every Numba kernel in the package is decorated with :func:`kernel` (serial,
+inlinable device code) or :func:`parallel_kernel` (a ``prange`` loop over
+independent work items).  Keeping the flags here means the caching policy can be
+changed, measured and documented once.
+
+Caching policy
+--------------
+* Serial kernels are cached on disk (``cache=True``) unless the environment
+  variable ``CAUSTICA_NO_CACHE=1`` is set: they are the bulk of the compile time.
+* Parallel kernels are never cached: caching ``parallel=True`` functions has
+  crashed other projects (numba issues #7518 and #8578) and they compile
+  quickly once their serial callees are cached.
+* ``fastmath`` is off: photon-map estimates and Fresnel terms must not depend on
+  reassociation, and NaN checks must keep working.
+
+``CAUSTICA_NO_CACHE=1`` turns caching off (useful when measuring cold compile time).
+"""
+from __future__ import annotations
+
+import os
+
+from numba import njit
+
+CACHE_SERIAL = os.environ.get("CAUSTICA_NO_CACHE", "0") != "1"
+
+
+def kernel(fn=None, *, inline: bool = False):
+    """Compile a serial kernel or device function (cached per CACHE_SERIAL)."""
+    def wrap(f):
+        return njit(cache=CACHE_SERIAL, fastmath=False, error_model="numpy",
+                    inline="always" if inline else "never")(f)
+    return wrap(fn) if fn is not None else wrap
+
+
+def parallel_kernel(fn=None):
+    """Compile a kernel whose outer loop is a ``prange`` (never cached, see module doc)."""
+    def wrap(f):
+        return njit(parallel=True, cache=False, fastmath=False, error_model="numpy")(f)
+    return wrap(fn) if fn is not None else wrap

@@ -1,0 +1,1 @@
+"""Random numbers and warps from the unit square to directions and surfaces."""

@@ -1,0 +1,116 @@
+"""The parsed scene: plain Python objects between the XML file and the kernels' arrays.
+
+The XML loader (:mod:`caustica.scene.xml_loader`) produces a :class:`SceneDescription`;
+:mod:`caustica.scene.compiled` flattens it into the structure-of-arrays form the
+kernels read.  Everything here is in world space and in Mitsuba's units: radiance in
+W/(m^2 sr) per RGB channel, intensity in W/sr, lengths in scene units.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Material kinds (also the integer codes stored in the kernels' material table).
+DIFFUSE = 0
+CONDUCTOR = 1
+DIELECTRIC = 2
+MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric"}
+
+
+@dataclass
+class Material:
+    """A BSDF of the supported subset.
+
+    kind: DIFFUSE (``rgb`` = reflectance), CONDUCTOR (a perfect mirror, ``rgb`` =
+    specular_reflectance) or DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
+    ``rgb`` = specular transmittance/reflectance scale, normally 1).
+    twosided: a diffuse or conductor surface that scatters on both sides
+    (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
+    black seen from the back, as in Mitsuba.
+    """
+    kind: int
+    rgb: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    int_ior: float = 1.5046
+    ext_ior: float = 1.000277
+    twosided: bool = False
+    name: str = ""
+
+    @property
+    def is_specular(self) -> bool:
+        return self.kind in (CONDUCTOR, DIELECTRIC)
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh in world space.
+
+    positions (n, 3) float64; triangles (m, 3) int64 vertex indices, counter-clockwise
+    seen from the front (the side the geometric normal points to); normals (n, 3)
+    float64 unit shading normals or None (then the geometric normal shades).
+    """
+    positions: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray | None = None
+
+
+# Shape kinds.
+MESH = "mesh"
+SPHERE = "sphere"
+DISK = "disk"
+CYLINDER = "cylinder"
+
+
+@dataclass
+class Shape:
+    """One ``<shape>``.
+
+    kind MESH holds ``mesh`` (rectangles, cubes, obj and ply become meshes).
+    The analytic kinds are a canonical shape mapped by ``to_world`` (4x4):
+    SPHERE the unit sphere at the origin, DISK the unit disk in the z = 0 plane
+    facing +z, CYLINDER the open cylinder of radius 1 from z = 0 to z = 1 facing
+    outwards.  ``flip_normals`` turns the front side around (for meshes it is
+    already applied to the winding and normals).  ``emitter_radiance`` is the RGB
+    radiance of an ``area`` emitter on the shape's front side, or None.
+    """
+    kind: str
+    material: int
+    to_world: np.ndarray | None = None
+    mesh: Mesh | None = None
+    flip_normals: bool = False
+    emitter_radiance: tuple[float, float, float] | None = None
+    id: str = ""
+    source: str = ""  # "file:line" for messages
+
+
+@dataclass
+class PointLight:
+    position: tuple[float, float, float]
+    intensity: tuple[float, float, float]  # W/sr per channel
+
+
+@dataclass
+class Camera:
+    """A perspective camera in Mitsuba's convention.
+
+    to_world maps camera space (looking along +z, +y up, +x towards the image's
+    left) to the world; fov_deg is measured along ``fov_axis`` (x, y, smaller or larger).
+    """
+    to_world: np.ndarray
+    fov_deg: float
+    fov_axis: str = "x"
+    width: int = 768
+    height: int = 576
+    near_clip: float = 1e-2
+
+
+@dataclass
+class SceneDescription:
+    camera: Camera
+    shapes: list[Shape] = field(default_factory=list)
+    materials: list[Material] = field(default_factory=list)
+    point_lights: list[PointLight] = field(default_factory=list)
+    spp: int = 4
+    integrator: str = "path"
+    integrator_props: dict = field(default_factory=dict)
+    source: str = ""  # the file it came from, or the built-in name
