@@ -1,0 +1,305 @@
+"""Output layer: EXR/PNG/JSON writers, atomicity, output names and RenderResult."""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from caustica import __version__, imageio
+from caustica.errors import ParameterError
+from caustica.result import RenderResult, peak_memory_bytes
+
+REFS = Path(__file__).resolve().parents[2] / "shared" / "refs"
+
+
+def _srgb_formula(c: float) -> int:
+    v = 12.92 * c if c <= 0.0031308 else 1.055 * c ** (1 / 2.4) - 0.055
+    return int(np.floor(v * 255 + 0.5))
+
+
+def _leftovers(directory: Path) -> list[str]:
+    return [p.name for p in directory.iterdir() if p.name.endswith(".tmp")]
+
+
+# ----------------------------------------------------------------------------- EXR
+
+
+def test_exr_round_trip_is_bit_exact(tmp_path):
+    rng = np.random.default_rng(1)
+    img = (rng.standard_normal((17, 23, 3)) * 1e3).astype(np.float32)
+    img[0, 0] = [0.0, 1e-40, 3.4e38]  # denormal and near-max survive float channels
+    path = imageio.write_exr(tmp_path / "sub" / "dir" / "a.exr", img)
+    assert path == tmp_path / "sub" / "dir" / "a.exr"
+    back = imageio.read_exr(path)
+    assert back.dtype == np.float32 and back.shape == img.shape
+    assert np.array_equal(back.view(np.uint32), img.view(np.uint32))
+    assert _leftovers(path.parent) == []
+
+
+def test_exr_channels_are_float_rgb(tmp_path):
+    import OpenEXR
+
+    imageio.write_exr(tmp_path / "a.exr", np.ones((4, 5, 3)))
+    with OpenEXR.File(str(tmp_path / "a.exr"), separate_channels=True) as f:
+        chans = f.channels()
+        assert sorted(chans) == ["B", "G", "R"]
+        assert all(ch.pixels.dtype == np.float32 and ch.pixels.shape == (4, 5) for ch in chans.values())
+
+
+def test_read_exr_missing_file_is_a_user_error(tmp_path):
+    from caustica.errors import CausticaError
+
+    with pytest.raises(CausticaError, match="nope.exr"):
+        imageio.read_exr(tmp_path / "nope.exr")
+
+
+@pytest.mark.skipif(not REFS.is_dir(), reason="shared reference renders absent (fresh clone)")
+def test_reads_mitsuba_reference_exr():
+    img = imageio.read_exr(REFS / "cornell-diacaustic_256.exr")
+    assert img.shape == (256, 256, 3) and img.dtype == np.float32
+    assert np.isfinite(img).all() and img.min() >= 0 and img.mean() > 0
+
+
+@pytest.mark.skipif(not REFS.is_dir(), reason="shared reference renders absent (fresh clone)")
+def test_reads_reference_caustic_mask():
+    masks = sorted(REFS.glob("*_caustic_mask.png"))
+    assert masks
+    m = imageio.read_png_mask(masks[0])
+    assert m.dtype == bool and m.shape == (256, 256)
+    assert 0 < m.sum() < m.size
+
+
+def test_read_png_mask_nonzero_is_inside(tmp_path):
+    from PIL import Image
+
+    arr = np.zeros((3, 4), np.uint8)
+    arr[1, 2] = 1
+    arr[2, 0] = 255
+    Image.fromarray(arr).save(tmp_path / "m.png")
+    assert np.array_equal(imageio.read_png_mask(tmp_path / "m.png"), arr != 0)
+    rgba = np.zeros((3, 4, 4), np.uint8)
+    rgba[..., 3] = 255  # opaque alpha alone does not make a pixel inside
+    rgba[0, 1, 2] = 7
+    Image.fromarray(rgba).save(tmp_path / "c.png")
+    expected = np.zeros((3, 4), bool)
+    expected[0, 1] = True
+    assert np.array_equal(imageio.read_png_mask(tmp_path / "c.png"), expected)
+
+
+# ----------------------------------------------------------------------------- sRGB
+
+
+@pytest.mark.parametrize(
+    "linear, code",
+    [(0.0, 0), (1.0, 255), (0.5, 188), (0.0031308, 10), (2.0, 255), (-1.0, 0), (0.18, 118)],
+)
+def test_srgb_transfer_values(linear, code):
+    assert _srgb_formula(min(max(linear, 0.0), 1.0)) == code  # the table agrees with the formula
+    out = imageio.to_srgb8(np.full((1, 1, 3), linear, np.float32))
+    assert out.dtype == np.uint8 and out.shape == (1, 1, 3)
+    assert (out == code).all()
+
+
+def test_srgb_is_continuous_at_the_knee():
+    knee = 0.0031308
+    lo = 12.92 * knee
+    hi = 1.055 * knee ** (1 / 2.4) - 0.055
+    assert abs(lo - hi) < 1e-6
+    vals = np.array([knee * (1 - 1e-6), knee, knee * (1 + 1e-6)], np.float64)
+    out = imageio.to_srgb8(np.repeat(vals[None, :, None], 3, axis=2))
+    assert (out == 10).all()
+
+
+def test_srgb_matches_formula_everywhere_and_exposure():
+    xs = np.linspace(0, 1, 1001)
+    img = np.repeat(xs[None, :, None], 3, axis=2)
+    out = imageio.to_srgb8(img)[0, :, 0]
+    assert np.array_equal(out, [_srgb_formula(x) for x in xs])
+    assert np.all(np.diff(out.astype(int)) >= 0)
+    # one stop up doubles linear values before encoding
+    assert np.array_equal(imageio.to_srgb8(img / 2, exposure_stops=1.0), imageio.to_srgb8(img))
+
+
+def test_srgb_nan_and_inf():
+    img = np.array([[[np.nan, np.inf, -np.inf]]])
+    assert imageio.to_srgb8(img).tolist() == [[[0, 255, 0]]]
+
+
+def test_write_png_reads_back(tmp_path):
+    from PIL import Image
+
+    img = np.random.default_rng(2).random((6, 9, 3)).astype(np.float32)
+    imageio.write_png(tmp_path / "p.png", img, exposure_stops=0.5)
+    with Image.open(tmp_path / "p.png") as im:
+        assert im.mode == "RGB" and im.size == (9, 6)
+        assert np.array_equal(np.asarray(im), imageio.to_srgb8(img, 0.5))
+
+
+# ----------------------------------------------------------------------------- atomicity
+
+
+class Boom(Exception):
+    pass
+
+
+@pytest.mark.parametrize("exc", [Boom("disk on fire"), KeyboardInterrupt()])
+def test_failed_writer_leaves_old_file_and_no_temp(tmp_path, exc):
+    dest = tmp_path / "out.json"
+    imageio.write_json(dest, {"good": 1})
+    before = dest.read_bytes()
+
+    def writer(tmp: Path) -> None:
+        tmp.write_bytes(b'{"half": ')  # half-written
+        raise exc
+
+    with pytest.raises(type(exc)):
+        imageio.atomic_write(dest, writer)
+    assert dest.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def test_failed_writer_with_no_previous_file_leaves_nothing(tmp_path):
+    def writer(tmp: Path) -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        imageio.atomic_write(tmp_path / "new.exr", writer)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_interrupted_exr_write_keeps_previous_exr(tmp_path, monkeypatch):
+    dest = tmp_path / "img.exr"
+    old = np.full((4, 4, 3), 0.25, np.float32)
+    imageio.write_exr(dest, old)
+    real_replace = imageio.os.replace
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(imageio.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        imageio.write_exr(dest, np.ones((8, 8, 3)))
+    monkeypatch.setattr(imageio.os, "replace", real_replace)
+    assert np.array_equal(imageio.read_exr(dest), old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["img.exr"]
+
+
+def test_atomic_write_replaces_and_uses_normal_permissions(tmp_path):
+    dest = tmp_path / "a.txt"
+    imageio.atomic_write(dest, lambda t: t.write_text("one"))
+    imageio.atomic_write(dest, lambda t: t.write_text("two"))
+    assert dest.read_text() == "two"
+    mode = dest.stat().st_mode & 0o777
+    assert mode == 0o666 & ~imageio._current_umask(), oct(mode)  # not mkstemp's private 0600
+
+
+# ----------------------------------------------------------------------------- JSON
+
+
+def test_write_json_converts_numpy(tmp_path):
+    data = {
+        "f": np.float32(1.5),
+        "i": np.int64(7),
+        "b": np.bool_(True),
+        "a": np.arange(3, dtype=np.uint16),
+        "t": (1, 2.0),
+        "nested": {"x": np.array([[1.0, 2.0]])},
+        "path": tmp_path / "x.exr",
+        "nan": float("nan"),
+    }
+    imageio.write_json(tmp_path / "d.json", data)
+    text = (tmp_path / "d.json").read_text()
+    assert "\n  " in text and text.endswith("\n")  # pretty-printed
+    back = json.loads(text)
+    assert back == {
+        "f": 1.5, "i": 7, "b": True, "a": [0, 1, 2], "t": [1, 2.0],
+        "nested": {"x": [[1.0, 2.0]]}, "path": str(tmp_path / "x.exr"), "nan": None,
+    }
+
+
+# ----------------------------------------------------------------------------- output names
+
+
+@pytest.mark.parametrize("given", ["out/name.exr", "out/name.png", "out/name", "out/name.EXR"])
+def test_output_paths(given):
+    exr, png, js = imageio.output_paths(given)
+    assert (exr, png, js) == (Path("out/name.exr"), Path("out/name.png"), Path("out/name.json"))
+
+
+def test_output_paths_keeps_inner_dots():
+    assert imageio.output_paths("r/cornell.v2.exr")[2] == Path("r/cornell.v2.json")
+
+
+@pytest.mark.parametrize("bad", ["out/name.jpg", "name.json", "a/b.tiff"])
+def test_output_paths_rejects_other_suffixes(bad):
+    with pytest.raises(ParameterError) as info:
+        imageio.output_paths(bad)
+    msg = str(info.value)
+    assert ".exr" in msg and ".png" in msg and "none" in msg
+
+
+# ----------------------------------------------------------------------------- RenderResult
+
+
+def _result() -> RenderResult:
+    img = np.random.default_rng(3).random((5, 8, 3)).astype(np.float32)
+    stats = {
+        "method": "spm",
+        "parameters": {"photons": 1000, "radius": np.float64(0.01)},
+        "seed": 42,
+        "timings": {"scene_load": 0.1, "photon_tracing": np.float64(1.25)},
+        "photons_emitted": np.int64(1000),
+        "map_memory_bytes": 4096,
+        "peak_memory_bytes": peak_memory_bytes(),
+    }
+    return RenderResult(img, stats)
+
+
+def test_render_result_fills_version_and_size():
+    r = _result()
+    assert r.stats["version"] == __version__
+    assert (r.stats["width"], r.stats["height"]) == (8, 5)
+    with pytest.raises(ValueError):
+        RenderResult(np.zeros((4, 4)))
+
+
+def test_render_result_save_writes_three_files(tmp_path):
+    r = _result()
+    exr, png, js = r.save(tmp_path / "renders" / "scene.exr", exposure_stops=1.0)
+    assert (exr.name, png.name, js.name) == ("scene.exr", "scene.png", "scene.json")
+    assert all(p.is_file() for p in (exr, png, js))
+    assert np.array_equal(imageio.read_exr(exr), r.image)
+    data = json.loads(js.read_text())
+    for key in ("method", "seed", "version", "width", "height"):
+        assert data[key] == r.stats[key]
+    assert data["parameters"] == {"photons": 1000, "radius": 0.01}
+    assert data["timings"]["photon_tracing"] == 1.25
+    assert data["outputs"] == {"exr": "scene.exr", "png": "scene.png", "json": "scene.json"}
+    assert data["preview_exposure_stops"] == 1.0
+    assert _leftovers(exr.parent) == []
+
+
+def test_render_result_save_rejects_bad_suffix_before_writing(tmp_path):
+    with pytest.raises(ParameterError):
+        _result().save(tmp_path / "x.jpg")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_repr_png_is_a_valid_png():
+    from PIL import Image
+
+    r = _result()
+    data = r._repr_png_()
+    assert data.startswith(b"\x89PNG\r\n\x1a\n")
+    with Image.open(io.BytesIO(data)) as im:
+        im.load()
+        assert im.size == (8, 5)
+        assert np.array_equal(np.asarray(im), r.to_srgb8())
+    assert "data:image/png;base64," in r._repr_html_()
+
+
+def test_peak_memory_is_plausible():
+    assert 10 * 2**20 < peak_memory_bytes() < 2**44
