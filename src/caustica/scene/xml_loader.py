@@ -1,0 +1,649 @@
+"""Reads the supported subset of Mitsuba 3's XML scene format into a SceneDescription.
+
+The subset is listed in SPEC §1 and in :data:`SUPPORTED`.  As in Mitsuba, every
+property given to a plugin must be used: anything outside the subset (an unknown
+element, plugin type or property name, a wrong property type, a bad number) raises
+:class:`~caustica.errors.SceneError` as ``<file>:<line>: <element>: <what is wrong>;
+supported: <list>`` rather than being silently ignored, so a scene never renders
+differently from Mitsuba without the user knowing.
+
+Parsing uses expat directly so that every element knows its line.  ``<default>``
+values and the caller's (Mitsuba's ``-D``) values are substituted for ``$name`` in
+every attribute before anything is interpreted; the caller's values win.
+"""
+from __future__ import annotations
+
+import copy
+import re
+import xml.parsers.expat
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SceneError
+from . import transforms as tf
+from .builtin import find_data_file
+from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, MESH, SPHERE, Camera,
+                          Material, PointLight, SceneDescription, Shape)
+from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
+
+# ----------------------------------------------------------------------------- the subset
+
+#: Property tags and plugin tags this loader knows.
+PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+TOP_LEVEL_TAGS = ("default", "integrator", "sensor", "bsdf", "shape", "emitter")
+
+FLOAT = ("float", "integer")
+INT = ("integer",)
+BOOL = ("boolean",)
+STR = ("string",)
+COLOR = ("rgb", "float", "integer")
+POINT = ("point", "vector")
+XFORM = ("transform",)
+
+_SHAPE_COMMON = {"to_world": XFORM, "flip_normals": BOOL}
+SHAPE_PROPS = {
+    "rectangle": {},
+    "cube": {},
+    "sphere": {"center": POINT, "radius": FLOAT},
+    "disk": {},
+    "cylinder": {"p0": POINT, "p1": POINT, "radius": FLOAT},
+    "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
+    "ply": {"filename": STR, "face_normals": BOOL},
+}
+BSDF_PROPS = {
+    "diffuse": {"reflectance": COLOR},
+    "conductor": {"material": STR, "specular_reflectance": COLOR},
+    "dielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
+                   "specular_reflectance": COLOR, "specular_transmittance": COLOR},
+    "twosided": {},
+}
+EMITTER_PROPS = {
+    "area": {"radiance": COLOR},
+    "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
+}
+SENSOR_PROPS = {"perspective": {"fov": FLOAT, "fov_axis": STR, "near_clip": FLOAT, "to_world": XFORM}}
+FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
+SAMPLER_TYPES = ("independent", "stratified", "multijitter")
+SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
+RFILTER_PROPS = {"box": {}}
+FOV_AXES = ("x", "y", "smaller", "larger")
+
+#: Indices of refraction of the materials Mitsuba knows by name (Mitsuba's ior.h).
+IOR_TABLE = {
+    "vacuum": 1.0, "helium": 1.000036, "hydrogen": 1.000132, "air": 1.000277,
+    "carbon dioxide": 1.00045, "water": 1.3330, "acetone": 1.36, "ethanol": 1.361,
+    "carbon tetrachloride": 1.461, "glycerol": 1.4729, "benzene": 1.501,
+    "silicone oil": 1.52045, "bromine": 1.661, "water ice": 1.31, "fused quartz": 1.458,
+    "pyrex": 1.470, "acrylic glass": 1.49, "polypropylene": 1.49, "bk7": 1.5046,
+    "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
+}
+
+#: Mitsuba's default BSDF for a shape without one.
+DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
+
+SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
+             "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
+             "rfilter": RFILTER_PROPS}
+
+
+def _names(items) -> str:
+    return ", ".join(items) if items else "(none)"
+
+
+# ----------------------------------------------------------------------------- XML -> nodes
+
+@dataclass
+class Node:
+    """One XML element with its source line (attributes after $-substitution)."""
+    tag: str
+    attrs: dict[str, str]
+    line: int
+    children: list["Node"] = field(default_factory=list)
+
+    def describe(self) -> str:
+        keys = [k for k in ("type", "name", "id") if k in self.attrs]
+        inner = " ".join(f'{k}="{self.attrs[k]}"' for k in keys)
+        return f"<{self.tag}{' ' + inner if inner else ''}>"
+
+
+def _parse_xml(text: str | bytes, source: str) -> Node:
+    """Parse XML text into a Node tree; SceneError with file and line for malformed XML."""
+    parser = xml.parsers.expat.ParserCreate()
+    stack: list[Node] = []
+    root: list[Node] = []
+
+    def start(tag, attrs):
+        node = Node(tag, dict(attrs), parser.CurrentLineNumber)
+        if stack:
+            stack[-1].children.append(node)
+        else:
+            root.append(node)
+        stack.append(node)
+
+    def end(tag):
+        stack.pop()
+
+    def chars(data):
+        if data.strip():
+            line = parser.CurrentLineNumber
+            where = stack[-1].describe() if stack else "document"
+            raise SceneError(f"{source}:{line}: {where}: unexpected text {data.strip()[:40]!r}; "
+                             f"Mitsuba scene elements hold only attributes and child elements")
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(text, True)
+    except xml.parsers.expat.ExpatError as exc:
+        msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
+        raise SceneError(f"{source}:{exc.lineno}: malformed XML: {msg} (column {exc.offset + 1})") from None
+    if not root:
+        raise SceneError(f"{source}:1: malformed XML: no root element")
+    return root[0]
+
+
+_PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+# ----------------------------------------------------------------------------- properties
+
+@dataclass
+class Prop:
+    tag: str
+    value: object
+    node: Node
+
+
+class Props:
+    """The properties and nested objects of one plugin element, checked against a spec.
+
+    Unknown names or wrong tags raise at once (at the property's line); ``get`` marks a
+    property as used, and :meth:`finish` is not needed because the spec already lists
+    every name the plugin consumes.
+    """
+
+    def __init__(self, loader: "_Loader", node: Node, spec: dict, child_tags: tuple[str, ...]):
+        self.node = node
+        self.props: dict[str, Prop] = {}
+        self.objects: list[Node] = []
+        for child in node.children:
+            if child.tag in PROPERTY_TAGS:
+                name = child.attrs.get("name")
+                if name is None:
+                    loader.fail(child, "a property needs a name= attribute")
+                if name not in spec:
+                    loader.fail(child, f"unknown property '{name}' of {node.describe()}",
+                                supported=list(spec))
+                if child.tag not in spec[name]:
+                    loader.fail(child, f"property '{name}' must be given as "
+                                       f"{' or '.join('<' + t + '>' for t in spec[name])}, not <{child.tag}>")
+                if name in self.props:
+                    loader.fail(child, f"property '{name}' is given twice "
+                                       f"(first on line {self.props[name].node.line})")
+                self.props[name] = Prop(child.tag, loader.property_value(child), child)
+            elif child.tag in child_tags or (child.tag == "ref" and "ref" in child_tags):
+                self.objects.append(child)
+            else:
+                supported = [f"<{t}>" for t in child_tags] + (
+                    [f"properties {_names(list(spec))}"] if spec else [])
+                loader.fail(child, f"unexpected element inside {node.describe()}", supported=supported)
+
+    def has(self, name: str) -> bool:
+        return name in self.props
+
+    def get(self, name: str, default=None):
+        p = self.props.get(name)
+        return default if p is None else p.value
+
+    def node_of(self, name: str) -> Node:
+        return self.props[name].node if name in self.props else self.node
+
+
+# ----------------------------------------------------------------------------- the loader
+
+class _Loader:
+    def __init__(self, source: str, base_dir: Path, params: dict[str, str]):
+        self.source = source
+        self.base_dir = base_dir
+        self.params = params
+        self.ids: dict[str, Node] = {}
+        self.materials: list[Material] = []
+        self.material_of_node: dict[int, int] = {}
+        self.in_progress: set[int] = set()
+        self.default_material: int | None = None
+
+    # -- errors -----------------------------------------------------------------------
+    def fail(self, node: Node, msg: str, supported=None):
+        text = f"{self.source}:{node.line}: {node.describe()}: {msg}"
+        if supported is not None:
+            text += f"; supported: {_names(supported)}"
+        raise SceneError(text)
+
+    # -- substitution and ids -----------------------------------------------------------
+    def substitute(self, node: Node) -> None:
+        """Replace $name in every attribute (except inside <default>) and collect ids."""
+        if node.tag != "default":
+            for k, v in node.attrs.items():
+                if "$" in v:
+                    def repl(m, node=node, k=k):
+                        if m.group(1) not in self.params:
+                            self.fail(node, f"attribute {k}={v!r} uses ${m.group(1)}, which is not "
+                                            f"defined; add <default name=\"{m.group(1)}\" value=\"...\"/> "
+                                            f"or pass a value for it",
+                                      supported=sorted(self.params) or None)
+                        return self.params[m.group(1)]
+                    node.attrs[k] = _PARAM.sub(repl, v)
+        if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
+            i = node.attrs["id"]
+            if i in self.ids:
+                self.fail(node, f"id '{i}' is already used on line {self.ids[i].line}")
+            self.ids[i] = node
+        for c in node.children:
+            self.substitute(c)
+
+    def check_attrs(self, node: Node, allowed: tuple[str, ...], required: tuple[str, ...] = ()):
+        for k in node.attrs:
+            if k not in allowed:
+                self.fail(node, f"unknown attribute '{k}'", supported=list(allowed))
+        for k in required:
+            if k not in node.attrs:
+                self.fail(node, f"missing attribute '{k}'")
+
+    # -- property values ----------------------------------------------------------------
+    def property_value(self, node: Node):
+        """The Python value of a property element: float, int, bool, str, RGB tuple, 3-vector or 4x4."""
+        tag = node.tag
+        try:
+            if tag == "transform":
+                self.check_attrs(node, ("name",), ("name",))
+                ops = []
+                for c in node.children:
+                    try:
+                        ops.append(tf.op_matrix(c.tag, c.attrs))
+                    except ValueError as exc:
+                        self.fail(c, str(exc))
+                m = tf.compose(ops)
+                if not np.all(np.isfinite(m)):
+                    self.fail(node, "the transform is not finite")
+                return m
+            if node.children:
+                self.fail(node.children[0], f"<{tag}> takes no child elements")
+            if tag in ("point", "vector"):
+                self.check_attrs(node, ("name", "value", "x", "y", "z"), ("name",))
+                return tf.xyz_from_attrs({k: v for k, v in node.attrs.items() if k != "name"}, 0.0)
+            self.check_attrs(node, ("name", "value"), ("name", "value"))
+            v = node.attrs["value"]
+            if tag == "float":
+                return tf.parse_float(v)
+            if tag == "integer":
+                try:
+                    return int(v.strip())
+                except ValueError:
+                    raise ValueError(f"value={v!r} is not an integer") from None
+            if tag == "boolean":
+                if v.strip().lower() not in ("true", "false"):
+                    raise ValueError(f"value={v!r} is not a boolean; use true or false")
+                return v.strip().lower() == "true"
+            if tag == "string":
+                return v
+            if tag == "rgb":
+                vals = tf.parse_floats(v)
+                if len(vals) == 1:
+                    vals = vals * 3
+                if len(vals) != 3:
+                    raise ValueError(f"value={v!r} must have 3 components (or 1)")
+                return tuple(vals)
+        except ValueError as exc:
+            self.fail(node, str(exc))
+        raise AssertionError(tag)
+
+    def color(self, props: Props, name: str, default: tuple, nonneg: bool = True) -> tuple:
+        v = props.get(name)
+        if v is None:
+            return default
+        rgb = (float(v),) * 3 if not isinstance(v, tuple) else tuple(float(c) for c in v)
+        if nonneg and min(rgb) < 0:
+            self.fail(props.node_of(name), f"'{name}' must not be negative, got {rgb}")
+        return rgb
+
+    def number(self, props: Props, name: str, default, *, positive=False, nonneg=False):
+        v = props.get(name, default)
+        if v is None:
+            return None
+        if positive and not v > 0:
+            self.fail(props.node_of(name), f"'{name}' must be positive, got {v}")
+        if nonneg and not v >= 0:
+            self.fail(props.node_of(name), f"'{name}' must not be negative, got {v}")
+        return v
+
+    def plugin(self, node: Node, table: dict, child_tags: tuple[str, ...] = (), extra=None) -> Props:
+        """Check the type= of a plugin element against table and read its properties."""
+        self.check_attrs(node, ("type", "id", "name"), ("type",))
+        kind = node.attrs["type"]
+        if kind not in table:
+            self.fail(node, f"unknown {node.tag} type '{kind}'", supported=list(table))
+        spec = dict(table[kind])
+        if extra:
+            spec.update(extra)
+        return Props(self, node, spec, child_tags)
+
+    # -- BSDFs -----------------------------------------------------------------------
+    def resolve(self, node: Node, expected: str) -> Node:
+        """A <ref id=...> to the element it names (which must be a <expected>), or node itself."""
+        if node.tag != "ref":
+            return node
+        self.check_attrs(node, ("id", "name"), ("id",))
+        target = self.ids.get(node.attrs["id"])
+        if target is None:
+            known = sorted(k for k, n in self.ids.items() if n.tag == expected)
+            self.fail(node, f"no element has id '{node.attrs['id']}'", supported=known or None)
+        if target.tag != expected:
+            self.fail(node, f"id '{node.attrs['id']}' is a <{target.tag}> (line {target.line}), "
+                            f"a <{expected}> is needed here")
+        return target
+
+    def build_material(self, node: Node) -> Material:
+        key = id(node)
+        if key in self.in_progress:
+            self.fail(node, "the BSDF refers to itself (a reference cycle)")
+        self.in_progress.add(key)
+        try:
+            return self._build_material(node)
+        finally:
+            self.in_progress.discard(key)
+
+    def _build_material(self, node: Node) -> Material:
+        props = self.plugin(node, BSDF_PROPS, ("bsdf", "ref") if node.attrs.get("type") == "twosided" else ())
+        kind = node.attrs["type"]
+        name = node.attrs.get("id", "")
+        if kind == "diffuse":
+            return Material(DIFFUSE, self.color(props, "reflectance", DEFAULT_REFLECTANCE), name=name)
+        if kind == "conductor":
+            mat = props.get("material", "none")
+            if mat.strip().lower() != "none":
+                self.fail(props.node_of("material"),
+                          f"conductor material=\"{mat}\" is not supported: only material=\"none\" "
+                          f"(a perfect mirror, scaled by specular_reflectance) is supported")
+            return Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name)
+        if kind == "dielectric":
+            for p in ("specular_reflectance", "specular_transmittance"):
+                if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
+                    self.fail(props.node_of(p), f"'{p}' other than 1 is not supported (smooth glass only)",
+                              supported=["1"])
+            iors = []
+            for p, default in (("int_ior", "bk7"), ("ext_ior", "air")):
+                v = props.get(p, default)
+                if isinstance(v, str):
+                    key = v.strip().lower()
+                    if key not in IOR_TABLE:
+                        self.fail(props.node_of(p), f"unknown material name '{v}' for {p}",
+                                  supported=list(IOR_TABLE))
+                    v = IOR_TABLE[key]
+                v = float(v)
+                if not v > 0:
+                    self.fail(props.node_of(p), f"'{p}' must be positive, got {v}")
+                iors.append(v)
+            return Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=iors[0], ext_ior=iors[1], name=name)
+        # twosided
+        if len(props.objects) != 1:
+            self.fail(node, f"twosided must wrap exactly one BSDF, found {len(props.objects)} "
+                            f"(different front and back BSDFs are not supported)")
+        inner_node = self.resolve(props.objects[0], "bsdf")
+        inner = self.build_material(inner_node)
+        if inner.kind == DIELECTRIC:
+            self.fail(props.objects[0], "twosided cannot wrap a dielectric (Mitsuba forbids "
+                                        "transmissive BSDFs inside twosided)", supported=["diffuse", "conductor"])
+        out = copy.copy(inner)
+        out.twosided = True
+        out.name = name or inner.name
+        return out
+
+    def material_index(self, node: Node) -> int:
+        """Index of the Material of a <bsdf> (or <ref> to one); each element becomes one entry."""
+        node = self.resolve(node, "bsdf")
+        key = id(node)
+        if key not in self.material_of_node:
+            mat = self.build_material(node)
+            self.material_of_node[key] = len(self.materials)
+            self.materials.append(mat)
+        return self.material_of_node[key]
+
+    def default_material_index(self) -> int:
+        if self.default_material is None:
+            self.default_material = len(self.materials)
+            self.materials.append(Material(DIFFUSE, DEFAULT_REFLECTANCE, name="default"))
+        return self.default_material
+
+    # -- shapes ----------------------------------------------------------------------
+    def shape(self, node: Node) -> Shape:
+        props = self.plugin(node, SHAPE_PROPS, ("bsdf", "ref", "emitter"), extra=_SHAPE_COMMON)
+        kind = node.attrs["type"]
+        to_world = props.get("to_world")
+        to_world = np.eye(4) if to_world is None else to_world
+        flip = bool(props.get("flip_normals", False))
+        if abs(np.linalg.det(to_world[:3, :3])) < 1e-12 * max(1.0, np.abs(to_world[:3, :3]).max() ** 3):
+            self.fail(props.node_of("to_world"), "to_world is singular (a zero scale?)")
+
+        material, radiance = None, None
+        for obj in props.objects:
+            if obj.tag in ("bsdf", "ref"):
+                if material is not None:
+                    self.fail(obj, "a shape takes only one BSDF")
+                material = self.material_index(obj)
+            else:  # emitter
+                if radiance is not None:
+                    self.fail(obj, "a shape takes only one emitter")
+                eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]})
+                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0))
+        if material is None:
+            material = self.default_material_index()
+
+        src = f"{self.source}:{node.line}"
+        common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
+                      id=node.attrs.get("id", ""), source=src)
+        if kind in ("rectangle", "cube", "obj", "ply"):
+            if kind == "rectangle":
+                # Under a mirroring to_world the front side follows the winding, as in
+                # Mitsuba 3 (its rectangle's normal is dp/du x dp/dv; checked in the tests).
+                local = rectangle_mesh()
+            elif kind == "cube":
+                local = cube_mesh()
+            else:
+                if not props.has("filename"):
+                    self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
+                try:
+                    path = find_data_file(props.get("filename"), self.base_dir)
+                    local = load_mesh_file(path, kind)
+                except SceneError as exc:
+                    self.fail(props.node_of("filename"), str(exc))
+                if props.get("face_normals", False):
+                    local.normals = None
+            try:
+                mesh = to_world_mesh(local, to_world, flip)
+            except SceneError as exc:
+                self.fail(node, str(exc))
+            return Shape(MESH, mesh=mesh, to_world=to_world, **common)
+        if kind == "sphere":
+            radius = self.number(props, "radius", 1.0, positive=True)
+            center = props.get("center", np.zeros(3))
+            m = to_world @ tf.translate(center) @ tf.scale(radius)
+            lin = m[:3, :3]
+            gram = lin.T @ lin
+            s2 = np.trace(gram) / 3.0
+            if np.abs(gram - s2 * np.eye(3)).max() > 1e-6 * s2:
+                self.fail(props.node_of("to_world"), "a sphere's to_world must not shear or scale "
+                                                     "non-uniformly (Mitsuba's sphere stays round)")
+            return Shape(SPHERE, to_world=m, **common)
+        if kind == "disk":
+            return Shape(DISK, to_world=to_world, **common)
+        # cylinder (Mitsuba: to_world @ translate(p0) @ to_frame(dir) @ scale(r, r, length))
+        radius = self.number(props, "radius", 1.0, positive=True)
+        p0 = props.get("p0", np.zeros(3))
+        p1 = props.get("p1", np.array([0.0, 0.0, 1.0]))
+        d = p1 - p0
+        length = float(np.linalg.norm(d))
+        if length == 0.0:
+            self.fail(props.node_of("p1"), "the cylinder's p0 and p1 coincide")
+        m = to_world @ tf.translate(p0) @ tf.to_frame(d / length) @ tf.scale([radius, radius, length])
+        c0, c1, c2 = m[:3, 0], m[:3, 1], m[:3, 2]
+        tol = 1e-6 * max(np.dot(c0, c0), np.dot(c1, c1))
+        if (abs(np.dot(c0, c0) - np.dot(c1, c1)) > tol or abs(np.dot(c0, c1)) > tol
+                or abs(np.dot(c0, c2)) > 1e-6 * np.linalg.norm(c0) * np.linalg.norm(c2)
+                or abs(np.dot(c1, c2)) > 1e-6 * np.linalg.norm(c1) * np.linalg.norm(c2)):
+            self.fail(props.node_of("to_world"), "a cylinder's to_world must keep its cross-section "
+                                                 "circular (no shear or non-uniform scaling across the axis)")
+        return Shape(CYLINDER, to_world=m, **common)
+
+    # -- sensor -----------------------------------------------------------------------
+    def sensor(self, node: Node) -> tuple[Camera, int]:
+        props = self.plugin(node, SENSOR_PROPS, ("film", "sampler"))
+        if not props.has("fov"):
+            self.fail(node, "the perspective sensor needs <float name=\"fov\" .../> "
+                            "(focal_length is not supported)")
+        fov = float(props.get("fov"))
+        if not 0.0 < fov < 180.0:
+            self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
+        axis = props.get("fov_axis", "x").strip().lower()
+        if axis not in FOV_AXES:
+            self.fail(props.node_of("fov_axis"), f"unknown fov_axis '{axis}'", supported=list(FOV_AXES))
+        near = float(self.number(props, "near_clip", 1e-2, positive=True))
+        to_world = props.get("to_world")
+        to_world = np.eye(4) if to_world is None else to_world
+        width, height, spp = 768, 576, 4
+        seen = set()
+        for obj in props.objects:
+            if obj.tag in seen:
+                self.fail(obj, f"the sensor takes only one <{obj.tag}>")
+            seen.add(obj.tag)
+            if obj.tag == "film":
+                fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
+                width = int(self.number(fprops, "width", width, positive=True))
+                height = int(self.number(fprops, "height", height, positive=True))
+                for rf in fprops.objects:
+                    if rf.attrs.get("type") != "box" and "type" in rf.attrs:
+                        self.fail(rf, f"reconstruction filter '{rf.attrs['type']}' is not supported "
+                                      f"(caustica's film is a box filter)", supported=["box"])
+                    self.plugin(rf, RFILTER_PROPS)
+                if len(fprops.objects) > 1:
+                    self.fail(fprops.objects[1], "the film takes only one <rfilter>")
+            else:
+                sprops = self.plugin(obj, SAMPLER_PROPS)
+                spp = int(self.number(sprops, "sample_count", spp, positive=True))
+        cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
+                     near_clip=near)
+        return cam, spp
+
+    # -- integrator -------------------------------------------------------------------
+    def generic_props(self, node: Node) -> dict:
+        """Any properties and nested plugins, for the integrator (recorded, not checked)."""
+        out = {}
+        for c in node.children:
+            if c.tag in PROPERTY_TAGS:
+                if "name" not in c.attrs:
+                    self.fail(c, "a property needs a name= attribute")
+                out[c.attrs["name"]] = self.property_value(c)
+            else:
+                key = c.attrs.get("name") or c.tag
+                out[key] = {"type": c.attrs.get("type", ""), **self.generic_props(c)}
+        return out
+
+    # -- the scene ----------------------------------------------------------------------
+    def scene(self, root: Node) -> SceneDescription:
+        camera, spp = None, 4
+        integrator, integrator_props, integrator_node = "path", {}, None
+        shapes: list[Shape] = []
+        lights: list[PointLight] = []
+        for node in root.children:
+            tag = node.tag
+            if tag == "default":
+                continue
+            if tag == "integrator":
+                if integrator_node is not None:
+                    self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
+                self.check_attrs(node, ("type", "id", "name"), ("type",))
+                integrator_node = node
+                integrator = node.attrs["type"]
+                integrator_props = self.generic_props(node)
+            elif tag == "sensor":
+                if camera is not None:
+                    self.fail(node, "only one <sensor> is supported")
+                camera, spp = self.sensor(node)
+            elif tag == "bsdf":
+                self.material_index(node)
+            elif tag == "shape":
+                shapes.append(self.shape(node))
+            elif tag == "emitter":
+                if node.attrs.get("type") == "area":
+                    self.fail(node, "an area emitter must be nested inside a <shape>")
+                if node.attrs.get("type") not in (None, "point"):
+                    self.fail(node, f"unknown emitter type '{node.attrs['type']}'",
+                              supported=["point (top level)", "area (inside a <shape>)"])
+                props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
+                if props.has("position") and props.has("to_world"):
+                    self.fail(node, "give either 'position' or 'to_world', not both")
+                if props.has("to_world"):
+                    pos = props.get("to_world")[:3, 3]
+                else:
+                    pos = props.get("position", np.zeros(3))
+                intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
+                lights.append(PointLight(tuple(float(c) for c in pos), intensity))
+            else:
+                self.fail(node, "unknown element at the top level of the scene",
+                          supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
+        if camera is None:
+            raise SceneError(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
+                             f"add <sensor type=\"perspective\">")
+        return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
+                                point_lights=lights, spp=spp, integrator=integrator,
+                                integrator_props=integrator_props, source=self.source)
+
+
+# ----------------------------------------------------------------------------- entry points
+
+def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: dict | None = None,
+                       source_name: str = "<string>") -> SceneDescription:
+    """Parse Mitsuba XML text; mesh filenames are relative to base_dir.
+
+    defaults: values for ``$name`` (Mitsuba's ``-D``), overriding the file's ``<default>``s.
+    source_name: the name used in error messages and as ``SceneDescription.source``.
+    """
+    root = _parse_xml(text, source_name)
+    loader = _Loader(source_name, Path(base_dir), {})
+    if root.tag != "scene":
+        loader.fail(root, "the root element must be <scene>", supported=["<scene>"])
+    loader.check_attrs(root, ("version",))
+    params: dict[str, str] = {}
+    for node in root.children:
+        if node.tag == "default":
+            loader.check_attrs(node, ("name", "value"), ("name", "value"))
+            if node.children:
+                loader.fail(node.children[0], "<default> takes no child elements")
+            params[node.attrs["name"]] = node.attrs["value"]
+    for k, v in (defaults or {}).items():
+        params[str(k)] = _param_str(v)
+    loader.params = params
+    loader.substitute(root)
+    return loader.scene(root)
+
+
+def _param_str(v) -> str:
+    """A -D value as the XML text Mitsuba would see (booleans as true/false)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return str(v)
+
+
+def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) -> SceneDescription:
+    """Load a Mitsuba XML scene file (the supported subset); SceneError on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: scene file not found" if not path.exists()
+                         else f"{path}: not a file")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
+    return parse_scene_string(data, path.parent, defaults, str(path))
