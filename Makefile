@@ -1,0 +1,29 @@
+# The two set-up commands of the README: `make render` and `make test`.
+# Both create .venv and install caustica into it on first use (nothing else is needed).
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: render test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+## Render the paper's diacaustic scene with streamed photon mapping to out/.
+render: $(STAMP)
+	$(VENV)/bin/caustica render cornell-diacaustic --method spm -o out/cornell-diacaustic.exr
+
+## Run the tests (pytest's exit code 5, "no tests collected", is not a failure).
+test: $(STAMP)
+	$(PY) -m pytest -q -p no:cacheprovider tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 0; fi; exit $$rc
+
+## Print the performance numbers quoted in the README.
+bench: $(STAMP)
+	$(PY) benchmarks/bench_render.py
+
+clean:
+	rm -rf $(VENV) out

@@ -1,0 +1,147 @@
+"""The Python API: ``load_scene`` and ``render``.
+
+>>> import caustica
+>>> scene = caustica.load_scene("cornell-diacaustic", res=128)
+>>> result = caustica.render(scene, method="pt", spp=16, seed=1)
+>>> result.save("out/diacaustic.exr")
+"""
+from __future__ import annotations
+
+import sys
+import time
+from contextlib import nullcontext
+
+import numba
+
+from . import __version__, methods
+from .errors import ParameterError
+from .result import RenderResult, peak_memory_bytes
+from .scene import load_scene_description
+from .scene.compiled import Scene, compile_scene
+
+#: Settings every method takes, next to its own parameters.
+COMMON = ("spp", "width", "height", "seed")
+
+
+def load_scene(path_or_name, **defaults) -> Scene:
+    """Load an XML scene file or a built-in scene (``caustica scenes`` lists them).
+
+    Keyword arguments are Mitsuba-style ``-D name=value`` defaults, e.g. ``res=256``.
+    """
+    t0 = time.perf_counter()
+    desc = load_scene_description(path_or_name, **defaults)
+    t1 = time.perf_counter()
+    scene = compile_scene(desc)
+    scene.timings["scene_parse_s"] = t1 - t0
+    scene.timings["scene_load_s"] = time.perf_counter() - t0
+    return scene
+
+
+class _QuietBar:
+    def __init__(self, *a, **k):
+        pass
+
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+    def set_postfix_str(self, s):
+        pass
+
+
+def progress_factory(show: bool):
+    """A tqdm-like constructor: real bars on a terminal when ``show``, silence otherwise."""
+    if not show:
+        return _QuietBar
+    from tqdm import tqdm
+
+    def bar(total, desc, unit="it"):
+        return tqdm(total=total, desc=desc, unit=unit, leave=False, dynamic_ncols=True,
+                    file=sys.stderr, disable=not sys.stderr.isatty())
+    return bar
+
+
+def _parse_res(res):
+    if res is None:
+        return None, None
+    if isinstance(res, int):
+        return res, res
+    if isinstance(res, (tuple, list)) and len(res) == 2:
+        return int(res[0]), int(res[1])
+    text = str(res).lower()
+    try:
+        if "x" in text:
+            w, h = text.split("x")
+            return int(w), int(h)
+        return int(text), int(text)
+    except ValueError:
+        raise ParameterError(f"--res: '{res}' is not W or WxH (e.g. 512 or 640x480)") from None
+
+
+def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
+           threads: int | None = None, progress: bool = False, **params) -> RenderResult:
+    """Render ``scene`` (a Scene, a path or a built-in name) with ``method``.
+
+    spp: samples per pixel (default: the scene's sampler); res: W, (W, H) or "WxH"
+    (default: the scene's film); seed: the random seed (the same seed gives the
+    same image whatever the thread count); threads: Numba threads (default: all);
+    progress: show progress bars on a terminal; params: the method's own
+    parameters (``caustica methods`` lists them).
+    """
+    t_start = time.perf_counter()
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    cls = methods.get(method)
+    width, height = _parse_res(res)
+    width = width or scene.width
+    height = height or scene.height
+    spp = scene.spp if spp is None else int(spp)
+    if width <= 0 or height <= 0:
+        raise ParameterError(f"--res: the image must be at least 1x1 (got {width}x{height})")
+    if spp <= 0:
+        raise ParameterError(f"--spp: samples per pixel must be >= 1 (got {spp})")
+    if not isinstance(seed, int) or seed < 0:
+        raise ParameterError(f"--seed: must be a non-negative integer (got {seed})")
+    settings = methods.params.resolve(method, cls.params, params)
+    settings.update(spp=spp, width=width, height=height, seed=seed)
+    if threads is not None:
+        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise ParameterError(f"--threads: between 1 and {numba.config.NUMBA_NUM_THREADS} (got {threads})")
+    ctx = _threads(threads) if threads else nullcontext()
+    with ctx:
+        image, stats = cls.render(scene, settings, progress_factory(progress))
+    timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
+    timings.update(stats.pop("timings", {}))
+    timings["total_s"] = time.perf_counter() - t_start
+    out = {
+        "method": method,
+        "scene": scene.name,
+        "parameters": {k: settings[k] for k in settings if k not in COMMON},
+        "spp": spp,
+        "seed": seed,
+        "width": width,
+        "height": height,
+        "version": __version__,
+        "threads": threads or numba.get_num_threads(),
+        "timings": timings,
+        **stats,
+        "peak_memory_bytes": peak_memory_bytes(),
+    }
+    out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
+    return RenderResult(image, out)
+
+
+class _threads:
+    def __init__(self, n):
+        self.n = n
+
+    def __enter__(self):
+        self.old = numba.get_num_threads()
+        numba.set_num_threads(self.n)
+
+    def __exit__(self, *exc):
+        numba.set_num_threads(self.old)
+
+

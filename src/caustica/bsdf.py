@@ -1,0 +1,108 @@
+"""The supported BSDFs: diffuse, perfect mirror (conductor) and smooth dielectric.
+
+Materials live in a :class:`MaterialTable` (structure of arrays, indexed by the
+primitive's material id).  The diffuse BSDF is sampled by cosine weighting; the
+mirror and the dielectric are Dirac deltas, handled by returning the one (or,
+for glass, the Fresnel-chosen) outgoing direction and its weight.
+
+Sidedness follows Mitsuba 3: a diffuse or conductor surface seen from the back is
+black unless wrapped in ``twosided``; a dielectric is an interface between two
+media, so both sides are active.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .geometry import vec
+from .jit import kernel
+from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneDescription  # noqa: F401
+
+
+class MaterialTable(NamedTuple):
+    kind: np.ndarray       # int32[M]: DIFFUSE, CONDUCTOR or DIELECTRIC
+    rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse), specular reflectance (conductor), scale (glass)
+    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric only)
+    twosided: np.ndarray   # int8[M]: 1 when both sides scatter
+    albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of associated photons
+
+
+def build_material_table(desc: SceneDescription) -> MaterialTable:
+    m = max(1, len(desc.materials))
+    kind = np.zeros(m, np.int32)
+    rgb = np.full((m, 3), 0.5)
+    eta = np.ones(m)
+    twosided = np.zeros(m, np.int8)
+    for i, mat in enumerate(desc.materials):
+        kind[i] = mat.kind
+        rgb[i] = mat.rgb
+        eta[i] = mat.int_ior / mat.ext_ior
+        twosided[i] = 1 if mat.twosided else 0
+    return MaterialTable(kind, rgb, eta, twosided, rgb.mean(axis=1))
+
+
+@kernel
+def reflect(d, n):
+    """Mirror direction of the incident direction d (pointing towards the surface) about n."""
+    c = 2.0 * vec.dot(d, n)
+    return (d[0] - c * n[0], d[1] - c * n[1], d[2] - c * n[2])
+
+
+@kernel
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a smooth dielectric interface.
+
+    cos_i: cosine between the incident direction and the normal on the incident
+    side (> 0); eta: relative IOR (transmitted side over incident side).
+    Returns (F, cos_t); F = 1 for total internal reflection.
+    """
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin2_t >= 1.0:
+        return 1.0, 0.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp), cos_t
+
+
+@kernel
+def refract(d, n, eta, cos_i, cos_t):
+    """Refracted direction of d through a surface with normal n on the incident side."""
+    inv = 1.0 / eta
+    k = inv * cos_i - cos_t
+    return vec.normalize((d[0] * inv + n[0] * k, d[1] * inv + n[1] * k, d[2] * inv + n[2] * k))
+
+
+@kernel
+def dielectric_interface(d, ng, ns, eta_int_over_ext):
+    """The incident-side normals and relative IOR at a dielectric hit.
+
+    Returns (n_shading, n_geometric, eta) with both normals flipped to the side
+    the ray comes from and eta = n_transmitted / n_incident.
+    """
+    if vec.dot(d, ng) < 0.0:  # entering through the front (outside -> inside)
+        return ns, ng, eta_int_over_ext
+    return vec.neg(ns), vec.neg(ng), 1.0 / eta_int_over_ext
+
+
+@kernel
+def sample_dielectric(d, ng, ns, eta_int_over_ext, u):
+    """Choose reflection or refraction at glass with probability F (Fresnel).
+
+    Returns (direction, is_reflection, eta) where eta is the relative IOR crossed
+    (1 for reflection).  Since the choice is made with probability F, the
+    throughput weight is just the material's scale colour; radiance carried by a
+    refracted camera ray is additionally scaled by 1 / eta^2 (solid-angle
+    compression), which callers apply in radiance mode only.
+    """
+    n, n_geo, eta = dielectric_interface(d, ng, ns, eta_int_over_ext)
+    cos_i = -vec.dot(d, n)
+    if cos_i <= 0.0:  # the shading normal disagrees with the geometry: use the geometric normal
+        n = n_geo
+        cos_i = -vec.dot(d, n)
+    F, cos_t = fresnel_dielectric(cos_i, eta)
+    if u < F:
+        return reflect(d, n), True, 1.0
+    return refract(d, n, eta, cos_i, cos_t), False, eta

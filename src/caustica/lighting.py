@@ -1,0 +1,146 @@
+"""Direct lighting at a diffuse point: shadow rays to the emitters.
+
+Two estimators share the same light table:
+
+* :func:`direct_one_sample` — one light chosen by power, one point on it; returns
+  the contribution and the light-sampling pdf for multiple importance sampling
+  (the path tracer).
+* :func:`direct_stratified` — every emitter, ``n x n`` stratified points on each
+  area light (or the fixed centres of the n x n grid), point lights exactly (the
+  photon-mapping methods, SPEC §2).
+
+Both return outgoing radiance *before* multiplying by the diffuse BSDF's
+reflectance/π, i.e. they return E-like sums the caller scales by f_r.
+"""
+from __future__ import annotations
+
+import math
+
+from .emitters import AREA, choose_light, sample_area_emitter
+from .geometry import vec
+from .geometry.scene_geometry import occluded
+from .jit import kernel
+from .sampling.rng import uniform
+
+
+@kernel
+def visible(geom, p, ng, q, nq):
+    """True when nothing blocks the segment from surface point p to light point q.
+
+    Both ends are moved off their surfaces (p along ng, q along nq, a zero vector
+    for a point light) before the shadow ray is traced, so neither the receiver
+    nor the light's own surface counts as a blocker.
+    """
+    to_q = vec.sub(q, p)
+    o = vec.offset_origin(p, ng, to_q)
+    target = vec.offset_origin(q, nq, vec.neg(to_q))
+    seg = vec.sub(target, o)
+    dist = vec.length(seg)
+    if dist <= 0.0:
+        return True
+    return not occluded(geom, o, vec.mul(seg, 1.0 / dist), dist)
+
+
+@kernel
+def direct_one_sample(geom, lights, p, ng, ns, key, dim):
+    """Incident irradiance-like term Σ L cos θ / pdf from one light sample, MIS-ready.
+
+    Returns (contrib_rgb, pdf_light_solid_angle, cos_surface, is_area) where contrib is
+    L_e · cos θ_s / pdf (without f_r) and MIS weighting is left to the caller (it
+    knows the BSDF pdf).  pdf is 0 for a point light (a delta: no MIS).
+    """
+    zero = (0.0, 0.0, 0.0)
+    n = lights.kind.shape[0]
+    if n == 0:
+        return zero, 0.0, 0.0, False
+    li, sel_pdf, _ = choose_light(lights, uniform(key, dim))
+    if lights.kind[li] == AREA:
+        q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
+        to_l = vec.sub(q, p)
+        dist2 = vec.dot(to_l, to_l)
+        if dist2 <= 0.0:
+            return zero, 0.0, 0.0, True
+        dist = math.sqrt(dist2)
+        wi = vec.mul(to_l, 1.0 / dist)
+        cos_l = -vec.dot(nq, wi)
+        cos_s = vec.dot(ns, wi)
+        if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+            return zero, 0.0, 0.0, True
+        if not visible(geom, p, ng, q, nq):
+            return zero, 0.0, 0.0, True
+        pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
+        s = cos_s / pdf
+        L = (lights.radiance[li, 0] * s, lights.radiance[li, 1] * s, lights.radiance[li, 2] * s)
+        return L, pdf, cos_s, True
+    # point light: irradiance I cos / r^2, chosen with probability sel_pdf
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    dist = math.sqrt(dist2)
+    wi = vec.mul(to_l, 1.0 / dist)
+    cos_s = vec.dot(ns, wi)
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return zero, 0.0, 0.0, False
+    if not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
+        return zero, 0.0, 0.0, False
+    s = cos_s / (dist2 * sel_pdf)
+    return (lights.radiance[li, 0] * s, lights.radiance[li, 1] * s, lights.radiance[li, 2] * s), 0.0, cos_s, False
+
+
+@kernel
+def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
+    """Irradiance E = Σ_lights ∫ L cos θ dω at p, every light sampled (SPEC §2).
+
+    Area lights: n_strata x n_strata stratified points (jittered, or the cell centres
+    when fixed_grid is true: the paper's grid of point lights).  Point lights exactly.
+    """
+    e0 = 0.0
+    e1 = 0.0
+    e2 = 0.0
+    n_total = n_strata * n_strata
+    for li in range(lights.kind.shape[0]):
+        if lights.kind[li] == AREA:
+            acc = 0.0
+            for s in range(n_total):
+                i = s % n_strata
+                j = s // n_strata
+                if fixed_grid:
+                    u1 = (i + 0.5) / n_strata
+                    u2 = (j + 0.5) / n_strata
+                else:
+                    u1 = (i + uniform(key, dim + 2 * s)) / n_strata
+                    u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
+                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
+                to_l = vec.sub(q, p)
+                dist2 = vec.dot(to_l, to_l)
+                if dist2 <= 0.0:
+                    continue
+                dist = math.sqrt(dist2)
+                wi = vec.mul(to_l, 1.0 / dist)
+                cos_l = -vec.dot(nq, wi)
+                cos_s = vec.dot(ns, wi)
+                if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+                    continue
+                if not visible(geom, p, ng, q, nq):
+                    continue
+                acc += cos_s * cos_l / dist2
+            w = acc * lights.area[li] / n_total
+            e0 += lights.radiance[li, 0] * w
+            e1 += lights.radiance[li, 1] * w
+            e2 += lights.radiance[li, 2] * w
+        else:
+            q = vec.row(lights.position, li)
+            to_l = vec.sub(q, p)
+            dist2 = vec.dot(to_l, to_l)
+            dist = math.sqrt(dist2)
+            wi = vec.mul(to_l, 1.0 / dist)
+            cos_s = vec.dot(ns, wi)
+            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+                continue
+            if not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
+                continue
+            w = cos_s / dist2
+            e0 += lights.radiance[li, 0] * w
+            e1 += lights.radiance[li, 1] * w
+            e2 += lights.radiance[li, 2] * w
+    return (e0, e1, e2)

@@ -1,0 +1,68 @@
+"""Method parameters: declared once, with defaults, checked on every render.
+
+Each method declares a tuple of :class:`Param`.  :func:`resolve` fills defaults,
+converts types and refuses unknown names (with the nearest spelling) and values
+out of range — a misspelt parameter stops the run instead of being ignored, as
+pbrt's ``ReportUnused`` and Mitsuba's unused-property check do.
+"""
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from ..errors import ParameterError
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str            # Python / JSON name (CLI: --name-with-dashes)
+    type: type           # int, float, str or bool
+    default: Any
+    help: str
+    check: Callable[[Any], bool] | None = None
+    allowed: str = ""    # what check accepts, for messages
+    choices: tuple = ()
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+
+def positive(x) -> bool:
+    return x > 0
+
+
+def non_negative(x) -> bool:
+    return x >= 0
+
+
+def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dict[str, Any]:
+    """Defaults + given values, converted and checked; unknown names are an error."""
+    by_name = {p.name: p for p in specs}
+    out = {p.name: p.default for p in specs}
+    for name, value in given.items():
+        if value is None:
+            continue
+        spec = by_name.get(name)
+        if spec is None:
+            close = difflib.get_close_matches(name, by_name, n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise ParameterError(
+                f"method '{method}' has no parameter '{name}'{hint}; "
+                f"its parameters: {', '.join(sorted(by_name))}")
+        try:
+            if spec.type is bool and isinstance(value, str):
+                value = value.lower() in ("1", "true", "yes", "on")
+            elif spec.type is int and isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            else:
+                value = spec.type(value)
+        except (TypeError, ValueError):
+            raise ParameterError(f"{spec.flag}: '{value}' is not a valid {spec.type.__name__}") from None
+        if spec.choices and value not in spec.choices:
+            raise ParameterError(f"{spec.flag}: '{value}' is not one of {', '.join(map(str, spec.choices))}")
+        if spec.check is not None and not spec.check(value):
+            raise ParameterError(f"{spec.flag}: {value} is out of range; allowed: {spec.allowed}")
+        out[name] = value
+    return out

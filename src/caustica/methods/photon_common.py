@@ -1,0 +1,49 @@
+"""What the photon-mapping methods (pm, spm) share: parameters, termination, the camera pass."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..photons.estimate import FILTERS
+from ..photons.gather import gather_rows
+from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
+from .params import Param, non_negative, positive
+from .tiles import render_in_tiles
+
+TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
+
+#: Parameters of the radiance estimate and the camera pass (SPEC §2-3), the paper's defaults.
+ESTIMATE_PARAMS = (
+    Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr)",
+          positive, ">= 1"),
+    Param("k", int, 100, "photons (stream records) per radiance estimate", positive, ">= 1"),
+    Param("radius", float, 3.0, "maximum search radius R (scene units)", positive, "> 0"),
+    Param("filter", str, "none", "radiance-estimate filter kernel", choices=tuple(FILTERS)),
+    Param("termination", str, "cap",
+          "cap: scale power by the albedo and stop after max_bounces (the paper); "
+          "roulette: Russian roulette with the mean albedo", choices=tuple(TERMINATIONS)),
+    Param("light_samples", int, 5, "n for n x n stratified shadow rays per area light",
+          positive, ">= 1"),
+    Param("fixed_light_grid", bool, False,
+          "use the n x n grid's cell centres (the paper's 25 point lights) instead of jittered samples"),
+    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0"),
+)
+
+
+def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):
+    """Render the image from the maps; returns (image, timings)."""
+    cam = scene.camera(settings["width"], settings["height"])
+    image = np.zeros((cam.height, cam.width, 3), np.float32)
+    filt = FILTERS[settings["filter"]]
+
+    def rows(r0, r1):
+        gather_rows(scene.geometry, scene.materials, scene.lights, cam, global_map, caustic_map,
+                    settings["seed"], settings["spp"], settings["k"], settings["radius"],
+                    k_caustic, r_caustic, filt, settings["light_samples"],
+                    settings["fixed_light_grid"], settings["max_specular_depth"], r0, r1, image)
+
+    t0 = time.perf_counter()
+    timings = render_in_tiles(rows, cam.height, progress, "camera pass")
+    timings["camera_pass_s"] = time.perf_counter() - t0
+    return image, timings

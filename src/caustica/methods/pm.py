@@ -1,0 +1,87 @@
+"""Method ``pm``: classic photon mapping (Jensen 1996), optionally with a caustic map (PM+C).
+
+1. Photon pass: ``photons`` photons leave the lights in proportion to power and
+   are traced; every diffuse hit after the first scattering event leaves a record.
+2. Caustic pass (when ``caustic_photons`` > 0): photons aimed at the specular
+   objects' bounding spheres, storing only light -> specular+ -> diffuse records in
+   a caustic map; the global map then leaves those paths out.
+3. Maps: a kd-tree over each map's positions.
+4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
+   indirect light and caustics from the maps' k-nearest radiance estimates.
+"""
+from __future__ import annotations
+
+import time
+
+from ..memory import check_budget
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers, empty_photon_map, \
+    map_from_buffers
+from ..photons.trace import trace_caustic_photons, trace_photons
+from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
+from . import register
+from .params import Param, non_negative, positive
+from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, camera_pass
+
+
+def _map_stats(prefix, pmap, emitted):
+    return {f"{prefix}_photons_emitted": emitted, f"{prefix}_photons_stored": pmap.count,
+            f"{prefix}_map_bytes": pmap.memory_bytes()}
+
+
+@register
+class PhotonMapping:
+    name = "pm"
+    summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
+    params = (
+        Param("photons", int, 100_000, "photons emitted for the global map", positive, ">= 1"),
+        Param("caustic_photons", int, 0, "photons aimed at specular objects for a caustic map "
+                                         "(0: no caustic map; the paper's PM+C uses 100,000)",
+              non_negative, ">= 0"),
+        Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1"),
+        Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", positive, "> 0"),
+    ) + ESTIMATE_PARAMS
+
+    @staticmethod
+    def render(scene, settings, progress):
+        n = settings["photons"]
+        n_c = settings["caustic_photons"]
+        mr = settings["max_bounces"]
+        check_budget(n * (mr + 1) * SLOT_BYTES + n_c * SLOT_BYTES, f"{n:,} photons x {mr + 1} records",
+                     "lower --photons or --max-bounces")
+        spheres = scene.specular_bounding_spheres()
+        use_caustic = n_c > 0 and spheres.shape[0] > 0
+        g, m, lt, seed = scene.geometry, scene.materials, scene.lights, settings["seed"]
+        timings = {}
+
+        t0 = time.perf_counter()
+        buf = allocate_buffers(n, mr + 1)
+        trace_photons(g, m, lt, seed, STREAM_PHOTON, n, mr, TERMINATIONS[settings["termination"]], *buf)
+        t1 = time.perf_counter()
+        timings["photon_trace_s"] = t1 - t0
+        cbuf = None
+        if use_caustic:
+            cbuf = allocate_buffers(n_c, 1)
+            trace_caustic_photons(g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON, n_c, *cbuf)
+            timings["caustic_trace_s"] = time.perf_counter() - t1
+
+        t2 = time.perf_counter()
+        global_map = map_from_buffers(buf, (INDIRECT,) if use_caustic else (INDIRECT, CAUSTIC))
+        caustic_map = map_from_buffers(cbuf, (CAUSTIC,)) if use_caustic else empty_photon_map()
+        timings["map_build_s"] = time.perf_counter() - t2
+        del buf, cbuf
+
+        k_c = settings["caustic_k"] or settings["k"]
+        r_c = settings["caustic_radius"] or settings["radius"]
+        image, cam_t = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        timings.update(cam_t)
+        stats = {"timings": timings,
+                 **_map_stats("global", global_map, n),
+                 "photons_emitted": n + (n_c if use_caustic else 0),
+                 "photons_stored": global_map.count + caustic_map.count,
+                 "map_bytes": global_map.memory_bytes() + caustic_map.memory_bytes()}
+        if use_caustic:
+            stats.update(_map_stats("caustic", caustic_map, n_c))
+        stats["map_mb"] = stats["map_bytes"] / 1e6
+        if n_c > 0 and not use_caustic:
+            stats["note"] = "no specular objects in the scene: the caustic map was not built"
+        return image, stats

@@ -1,0 +1,156 @@
+"""Method ``pt``: unidirectional path tracing, the unbiased reference.
+
+Next-event estimation at every diffuse vertex with multiple importance sampling
+(power heuristic) against BSDF sampling for area lights; mirrors and glass are
+followed as Dirac deltas (glass chooses reflection or refraction with the Fresnel
+probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
+``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
+only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from ..bsdf import reflect, sample_dielectric
+from ..camera import generate_ray
+from ..geometry import vec
+from ..geometry.scene_geometry import intersect, surface_at
+from ..jit import kernel, parallel_kernel
+from ..lighting import direct_one_sample
+from ..sampling.rng import STREAM_CAMERA, path_key, uniform
+from ..sampling.warps import square_to_cosine_hemisphere
+from ..scene.description import CONDUCTOR, DIFFUSE
+from . import register
+from .params import Param
+from .tiles import render_in_tiles
+
+INV_PI = 1.0 / math.pi
+DEPTH_CAP = 1024
+
+
+@kernel
+def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
+    """Radiance arriving at o from direction -d, estimated along one random path."""
+    L = (0.0, 0.0, 0.0)
+    beta = (1.0, 1.0, 1.0)
+    eta_scale = 1.0
+    specular = True
+    pdf_bsdf = 0.0
+    dim = 2
+    depth = 0
+    while True:
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if prim < 0:
+            break
+        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+        front = vec.dot(d, ng) < 0.0
+        e = geom.prim_emitter[prim]
+        if e >= 0 and front:
+            w = 1.0
+            if not specular:
+                cos_l = -vec.dot(d, ng)
+                pdf_light = lights.select_pdf[e] * t * t / (lights.area[e] * cos_l)
+                w = pdf_bsdf * pdf_bsdf / (pdf_bsdf * pdf_bsdf + pdf_light * pdf_light)
+            L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)), w)
+        depth += 1
+        if depth >= max_depth:
+            break
+        m = geom.prim_material[prim]
+        kind = mats.kind[m]
+        rgb = vec.row(mats.rgb, m)
+        if kind == DIFFUSE or kind == CONDUCTOR:
+            if not front:
+                if mats.twosided[m] == 0:
+                    break
+                ng = vec.neg(ng)
+                ns = vec.neg(ns)
+        if kind == DIFFUSE:
+            contrib, pdf_light, cos_s, is_area = direct_one_sample(geom, lights, p, ng, ns, key, dim)
+            dim += 3
+            if cos_s > 0.0:
+                w = 1.0
+                if is_area:
+                    pdf_b = cos_s * INV_PI
+                    w = pdf_light * pdf_light / (pdf_light * pdf_light + pdf_b * pdf_b)
+                L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * INV_PI)
+            local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
+            dim += 2
+            s, tt = vec.orthonormal_basis(ns)
+            wi = vec.from_local(s, tt, ns, local)
+            if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
+                break
+            beta = vec.hadamard(beta, rgb)
+            pdf_bsdf = local[2] * INV_PI
+            specular = False
+        elif kind == CONDUCTOR:
+            wi = reflect(d, ns)
+            if vec.dot(wi, ng) <= 0.0:
+                wi = reflect(d, ng)
+            beta = vec.hadamard(beta, rgb)
+            specular = True
+        else:
+            wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], uniform(key, dim))
+            dim += 1
+            beta = vec.hadamard(beta, rgb)
+            if not is_reflection:
+                beta = vec.mul(beta, 1.0 / (eta * eta))
+                eta_scale *= eta * eta
+            specular = True
+        o = vec.offset_origin(p, ng, wi)
+        d = wi
+        if depth >= rr_depth:
+            q = min(vec.max_component(beta) * eta_scale, 0.95)
+            if uniform(key, dim) >= q:
+                break
+            dim += 1
+            beta = vec.mul(beta, 1.0 / q)
+    return L
+
+
+@parallel_kernel
+def render_rows(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, row0, row1, image):
+    """Average ``spp`` jittered paths per pixel for image rows [row0, row1)."""
+    width = cam.width
+    n = (row1 - row0) * width
+    for i in prange(n):
+        y = row0 + i // width
+        x = i % width
+        acc = (0.0, 0.0, 0.0)
+        for s in range(spp):
+            key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
+            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
+            L = radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
+            if math.isfinite(L[0] + L[1] + L[2]):
+                acc = vec.add(acc, L)
+        inv = 1.0 / spp
+        image[y, x, 0] = acc[0] * inv
+        image[y, x, 1] = acc[1] * inv
+        image[y, x, 2] = acc[2] * inv
+
+
+@register
+class PathTracer:
+    name = "pt"
+    summary = "path tracing with next-event estimation and MIS (the unbiased reference)"
+    params = (
+        Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
+              lambda v: v == -1 or v >= 1, "-1 or >= 1"),
+        Param("rr_depth", int, 5, "vertices before Russian roulette starts", lambda v: v >= 1, ">= 1"),
+    )
+
+    @staticmethod
+    def render(scene, settings, progress):
+        cam = scene.camera(settings["width"], settings["height"])
+        image = np.zeros((cam.height, cam.width, 3), np.float32)
+        max_depth = DEPTH_CAP if settings["max_depth"] < 0 else settings["max_depth"]
+
+        def rows(r0, r1):
+            render_rows(scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
+                        settings["spp"], max_depth, settings["rr_depth"], r0, r1, image)
+
+        timings = render_in_tiles(rows, cam.height, progress, "camera pass")
+        return image, {"timings": timings,
+                       "camera_rays": cam.width * cam.height * settings["spp"]}

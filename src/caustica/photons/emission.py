@@ -1,0 +1,106 @@
+"""Emitting photons from the lights: everywhere (global map) or towards specular objects (caustic map).
+
+A light is chosen in proportion to its power; an area light emits from a point
+uniform by area in a cosine-weighted direction about its front normal, a point
+light uniformly over the sphere.  The photon's power is the Monte Carlo weight of
+its emission sample divided by the number of paths, so that the sum of emitted
+power equals the scene's total power Φ (SPEC §3):
+
+    area:  Φ_p = L cosθ / (pdf_area · pdf_dir · p_select · N) = π L A / (p_select N)
+    point: Φ_p = I / (pdf_dir · p_select · N)                  = 4 π I / (p_select N)
+
+Caustic photons are aimed at bounding spheres of the specular shapes: the
+direction is drawn from the mixture (uniform over spheres) of uniform cones that
+the spheres subtend, and the photon's power divides by that mixture pdf, so the
+estimate stays unbiased wherever cones overlap.
+"""
+from __future__ import annotations
+
+import math
+
+from ..emitters import AREA, choose_light, sample_area_emitter
+from ..geometry import vec
+from ..jit import kernel
+from ..sampling.rng import uniform
+from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_sphere
+
+FOUR_PI = 4.0 * math.pi
+
+
+@kernel
+def emit_photon(geom, lights, key, n_paths):
+    """A photon leaving a light: (origin, unit direction, power RGB in W, front normal or zero)."""
+    li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
+    if lights.kind[li] == AREA:
+        p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
+        local = square_to_cosine_hemisphere(uniform(key, 3), uniform(key, 4))
+        s, t = vec.orthonormal_basis(n)
+        d = vec.normalize(vec.from_local(s, t, n, local))
+        w = math.pi * lights.area[li] / (sel_pdf * n_paths)
+        power = (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w)
+        return vec.offset_origin(p, n, d), d, power, n
+    p = vec.row(lights.position, li)
+    d = square_to_uniform_sphere(uniform(key, 1), uniform(key, 2))
+    w = FOUR_PI / (sel_pdf * n_paths)
+    power = (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w)
+    return p, d, power, (0.0, 0.0, 0.0)
+
+
+@kernel
+def _cone_pdf(p, d, spheres):
+    """Mixture pdf (per steradian) of direction d from p over the spheres' cones."""
+    n = spheres.shape[0]
+    total = 0.0
+    for j in range(n):
+        c = (spheres[j, 0] - p[0], spheres[j, 1] - p[1], spheres[j, 2] - p[2])
+        dist2 = vec.dot(c, c)
+        r2 = spheres[j, 3] * spheres[j, 3]
+        if dist2 <= r2:
+            total += 1.0 / FOUR_PI  # inside the sphere: the whole sphere of directions
+            continue
+        cos_max = math.sqrt(max(0.0, 1.0 - r2 / dist2))
+        if vec.dot(c, d) >= cos_max * math.sqrt(dist2):
+            total += 1.0 / (2.0 * math.pi * (1.0 - cos_max))
+    return total / n
+
+
+@kernel
+def emit_caustic_photon(geom, lights, spheres, key, n_paths):
+    """A photon aimed at a specular object: (origin, direction, power, ok).
+
+    ok is False when the sampled direction leaves the light's back side (a
+    one-sided emitter sends nothing there); such a photon still counts in n_paths.
+    """
+    li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
+    is_area = lights.kind[li] == AREA
+    if is_area:
+        p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
+    else:
+        p = vec.row(lights.position, li)
+        n = (0.0, 0.0, 0.0)
+    m = spheres.shape[0]
+    j = min(int(uniform(key, 3) * m), m - 1)
+    c = (spheres[j, 0] - p[0], spheres[j, 1] - p[1], spheres[j, 2] - p[2])
+    dist2 = vec.dot(c, c)
+    r2 = spheres[j, 3] * spheres[j, 3]
+    if dist2 <= r2:
+        d = square_to_uniform_sphere(uniform(key, 4), uniform(key, 5))
+    else:
+        cos_max = math.sqrt(max(0.0, 1.0 - r2 / dist2))
+        axis = vec.mul(c, 1.0 / math.sqrt(dist2))
+        s, t = vec.orthonormal_basis(axis)
+        local = square_to_uniform_cone(uniform(key, 4), uniform(key, 5), cos_max)
+        d = vec.normalize(vec.from_local(s, t, axis, local))
+    pdf_dir = _cone_pdf(p, d, spheres)
+    zero = (0.0, 0.0, 0.0)
+    if pdf_dir <= 0.0:
+        return p, d, zero, False
+    if is_area:
+        cos_e = vec.dot(n, d)
+        if cos_e <= 0.0:
+            return p, d, zero, False
+        w = cos_e * lights.area[li] / (pdf_dir * sel_pdf * n_paths)
+        return (vec.offset_origin(p, n, d), d,
+                (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True)
+    w = 1.0 / (pdf_dir * sel_pdf * n_paths)
+    return p, d, (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True

@@ -1,0 +1,160 @@
+"""The camera pass shared by every photon-mapping method (SPEC §2).
+
+Camera rays are followed through mirrors and glass until they reach a diffuse
+surface.  At glass the ray is split into its reflected and refracted parts,
+weighted by Fresnel (up to :data:`SPLIT_STACK` pending branches; past that one
+branch is chosen with the Fresnel probability).  At the diffuse point the
+radiance is
+
+    L = f_r · (E_direct + Σ_global W Φ + Σ_caustic W Φ),   f_r = ρ / π,
+
+with E_direct from shadow rays to every emitter (n x n stratified samples on
+area lights) and the photon-map sums of :mod:`caustica.photons.estimate`.
+Emitters seen directly or through mirrors and glass add their radiance.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract
+from ..camera import generate_ray
+from ..geometry import vec
+from ..geometry.scene_geometry import intersect, surface_at
+from ..jit import kernel, parallel_kernel
+from ..lighting import direct_stratified
+from ..sampling.rng import STREAM_CAMERA, path_key, uniform
+from ..scene.description import CONDUCTOR, DIFFUSE
+from .estimate import flux_density
+
+SPLIT_STACK = 8
+INV_PI = 1.0 / math.pi
+
+
+
+@kernel
+def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
+                    n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth,
+                    idx, d2):
+    L = (0.0, 0.0, 0.0)
+    top = 0
+    for c in range(3):
+        st_o[0, c] = o[c]
+        st_d[0, c] = d[c]
+        st_beta[0, c] = 1.0
+    st_depth[0] = 0
+    top = 1
+    dim = 2
+    while top > 0:
+        top -= 1
+        o = vec.row(st_o, top)
+        d = vec.row(st_d, top)
+        beta = vec.row(st_beta, top)
+        depth = st_depth[top]
+        while True:
+            prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+            if prim < 0:
+                break
+            p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+            front = vec.dot(d, ng) < 0.0
+            e = geom.prim_emitter[prim]
+            if e >= 0 and front:
+                L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+            m = geom.prim_material[prim]
+            kind = mats.kind[m]
+            if kind == DIFFUSE or kind == CONDUCTOR:
+                if not front:
+                    if mats.twosided[m] == 0:
+                        break
+                    ng = vec.neg(ng)
+                    ns = vec.neg(ns)
+            if kind == DIFFUSE:
+                fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
+                E = direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid)
+                dim += 2 * n_strata * n_strata
+                Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
+                Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)
+                E = vec.add(E, vec.add(Eg, Ec))
+                L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
+                break
+            depth += 1
+            if depth > max_specular:
+                break
+            rgb = vec.row(mats.rgb, m)
+            if kind == CONDUCTOR:
+                wi = reflect(d, ns)
+                if vec.dot(wi, ng) <= 0.0:
+                    wi = reflect(d, ng)
+                beta = vec.hadamard(beta, rgb)
+                o = vec.offset_origin(p, ng, wi)
+                d = wi
+                continue
+            # glass: split into reflection and refraction, weighted by Fresnel
+            n, n_geo, eta = dielectric_interface(d, ng, ns, mats.eta[m])
+            cos_i = -vec.dot(d, n)
+            if cos_i <= 0.0:
+                n = n_geo
+                cos_i = -vec.dot(d, n)
+            F, cos_t = fresnel_dielectric(cos_i, eta)
+            beta = vec.hadamard(beta, rgb)
+            d_r = reflect(d, n)
+            if F >= 1.0:
+                o = vec.offset_origin(p, ng, d_r)
+                d = d_r
+                continue
+            d_t = refract(d, n, eta, cos_i, cos_t)
+            beta_t = vec.mul(beta, (1.0 - F) / (eta * eta))
+            if top < st_o.shape[0]:
+                o_r = vec.offset_origin(p, ng, d_r)
+                for c in range(3):
+                    st_o[top, c] = o_r[c]
+                    st_d[top, c] = d_r[c]
+                    st_beta[top, c] = beta[c] * F
+                st_depth[top] = depth
+                top += 1
+                o = vec.offset_origin(p, ng, d_t)
+                d = d_t
+                beta = beta_t
+            else:
+                u = uniform(key, dim)
+                dim += 1
+                if u < F:
+                    o = vec.offset_origin(p, ng, d_r)
+                    d = d_r
+                else:
+                    o = vec.offset_origin(p, ng, d_t)
+                    d = d_t
+                    beta = vec.mul(beta, 1.0 / (eta * eta))
+    return L
+
+
+@parallel_kernel
+def gather_rows(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
+                n_strata, fixed_grid, max_specular, row0, row1, image):
+    """The camera pass over image rows [row0, row1): spp jittered rays per pixel."""
+    width = cam.width
+    n = (row1 - row0) * width
+    kmax = max(k_g, k_c, 1)
+    for i in prange(n):
+        y = row0 + i // width
+        x = i % width
+        st_o = np.empty((SPLIT_STACK, 3))
+        st_d = np.empty((SPLIT_STACK, 3))
+        st_beta = np.empty((SPLIT_STACK, 3))
+        st_depth = np.empty(SPLIT_STACK, np.int64)
+        idx = np.empty(kmax, np.int64)
+        d2 = np.empty(kmax)
+        acc = (0.0, 0.0, 0.0)
+        for s in range(spp):
+            key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
+            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
+            L = gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
+                                n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth, idx, d2)
+            if math.isfinite(L[0] + L[1] + L[2]):
+                acc = vec.add(acc, L)
+        inv = 1.0 / spp
+        image[y, x, 0] = acc[0] * inv
+        image[y, x, 1] = acc[1] * inv
+        image[y, x, 2] = acc[2] * inv

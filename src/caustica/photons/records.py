@@ -1,0 +1,82 @@
+"""Photon records and photon maps, as structures of arrays.
+
+A photon record is what a photon leaves at a diffuse surface (SPEC §3): position,
+incoming direction (pointing towards the surface), power RGB (W) and the surface
+normal on the side the photon arrived from.  Records are float32: the map's memory
+is what the paper's Tables 2 and 3 compare, and float32 is ample for positions in
+a 20-unit box.
+
+A :class:`PhotonMap` is the records plus the kd-tree over their positions; the
+stream records of SPM become a PhotonMap too (leading position, normal, the
+stream's energy E_i as power), so one estimator serves every method.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .kdtree import KdTree, build_kdtree, memory_bytes as tree_bytes
+
+# Record kinds in the tracing buffers.
+EMPTY = 0
+INDIRECT = 1   # arrived after at least one diffuse bounce: light -> ... -> D -> ... -> here
+CAUSTIC = 2    # arrived through specular surfaces only: light -> S+ -> here
+
+
+class PhotonMap(NamedTuple):
+    tree: KdTree
+    position: np.ndarray   # float32[n, 3]
+    direction: np.ndarray  # float32[n, 3], incoming, towards the surface
+    power: np.ndarray      # float32[n, 3], W
+    normal: np.ndarray     # float32[n, 3], on the side the photon came from
+
+    @property
+    def count(self) -> int:
+        return self.position.shape[0]
+
+    def record_bytes(self) -> int:
+        """Bytes of the records themselves (position, direction, power, normal)."""
+        return sum(a.nbytes for a in (self.position, self.direction, self.power, self.normal))
+
+    def memory_bytes(self) -> int:
+        """Records plus the kd-tree's own arrays: what the map costs in memory."""
+        return self.record_bytes() + tree_bytes(self.tree)
+
+
+def build_photon_map(position, direction, power, normal) -> PhotonMap:
+    position = np.ascontiguousarray(position, dtype=np.float32)
+    tree = build_kdtree(position.astype(np.float64))
+    return PhotonMap(tree, position, np.ascontiguousarray(direction, dtype=np.float32),
+                     np.ascontiguousarray(power, dtype=np.float32),
+                     np.ascontiguousarray(normal, dtype=np.float32))
+
+
+def empty_photon_map() -> PhotonMap:
+    z = np.zeros((0, 3), np.float32)
+    return build_photon_map(z, z, z, z)
+
+
+class TraceBuffers(NamedTuple):
+    """Fixed slots per path so parallel tracing needs no atomics: path i writes slots [i*m, (i+1)*m)."""
+    position: np.ndarray
+    direction: np.ndarray
+    power: np.ndarray
+    normal: np.ndarray
+    kind: np.ndarray       # int8: EMPTY, INDIRECT or CAUSTIC
+
+
+SLOT_BYTES = 4 * 3 * 4 + 1
+
+
+def allocate_buffers(n_paths: int, slots_per_path: int) -> TraceBuffers:
+    n = n_paths * slots_per_path
+    return TraceBuffers(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
+                        np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
+                        np.zeros(n, np.int8))
+
+
+def map_from_buffers(buf: TraceBuffers, kinds: tuple[int, ...]) -> PhotonMap:
+    """The photon map of the records whose kind is in ``kinds`` (in path order: deterministic)."""
+    keep = np.isin(buf.kind, np.asarray(kinds, np.int8))
+    return build_photon_map(buf.position[keep], buf.direction[keep], buf.power[keep], buf.normal[keep])

@@ -1,0 +1,143 @@
+"""Tracing photons through the scene for photon mapping (PM and its caustic map).
+
+Each photon i is a pure function of (seed, pass, i): parallel tracing writes into
+its own fixed slots, so the maps are identical for any thread count.  At every
+diffuse hit after the first scattering event a record is stored (SPEC §2: no
+direct-light photons), tagged CAUSTIC when every earlier scattering was specular
+(light -> S+ -> D) and INDIRECT otherwise.  ``max_bounces`` (mr) counts diffuse
+bounces; mirrors and glass have their own cap (:data:`SPECULAR_CAP`).
+"""
+from __future__ import annotations
+
+from numba import prange
+
+from ..bsdf import reflect, sample_dielectric
+from ..geometry import vec
+from ..geometry.scene_geometry import intersect, surface_at
+from ..jit import kernel, parallel_kernel
+from ..sampling.rng import path_key, uniform
+from ..sampling.warps import square_to_cosine_hemisphere
+from ..scene.description import CONDUCTOR, DIFFUSE
+from .emission import emit_caustic_photon, emit_photon
+from .records import CAUSTIC, INDIRECT
+
+SPECULAR_CAP = 64
+TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
+TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled by albedo / p
+
+
+@kernel
+def diffuse_bounce(mats, m, ng, ns, power, key, dim, termination):
+    """Continue a photon from a diffuse surface: (new direction, power, alive).
+
+    ng, ns are oriented to the side the photon arrived from.
+    """
+    rgb = vec.row(mats.rgb, m)
+    if termination == TERMINATION_ROULETTE:
+        q = mats.albedo_mean[m]
+        if uniform(key, dim + 2) >= q:
+            return ng, power, False
+        power = vec.mul(vec.hadamard(power, rgb), 1.0 / q)
+    else:
+        power = vec.hadamard(power, rgb)
+    local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
+    s, t = vec.orthonormal_basis(ns)
+    d = vec.from_local(s, t, ns, local)
+    if vec.dot(d, ng) <= 0.0 or local[2] <= 0.0:
+        return d, power, False
+    return d, power, True
+
+
+@kernel
+def specular_scatter(mats, m, d, ng, ns, power, front, u):
+    """Reflect or refract at a mirror or glass: (new direction, power, alive, geometric normal on the exit side)."""
+    rgb = vec.row(mats.rgb, m)
+    if mats.kind[m] == CONDUCTOR:
+        if not front:
+            if mats.twosided[m] == 0:
+                return d, power, False, ng
+            ng = vec.neg(ng)
+            ns = vec.neg(ns)
+        wi = reflect(d, ns)
+        if vec.dot(wi, ng) <= 0.0:
+            wi = reflect(d, ng)
+        return wi, vec.hadamard(power, rgb), True, ng
+    wi, _, _ = sample_dielectric(d, ng, ns, mats.eta[m], u)
+    return wi, vec.hadamard(power, rgb), True, ng
+
+
+@kernel
+def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_only,
+              slot0, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
+    """Follow one photon, storing records in slots slot0, slot0 + 1, ...; returns records stored."""
+    dim = 8
+    diffuse_bounces = 0
+    specular_events = 0
+    scattered = False
+    stored = 0
+    while True:
+        prim, t, b1, b2 = intersect(geom, o, d, 1e30)
+        if prim < 0:
+            break
+        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+        front = vec.dot(d, ng) < 0.0
+        m = geom.prim_material[prim]
+        if mats.kind[m] == DIFFUSE:
+            if not front:
+                if mats.twosided[m] == 0:
+                    break  # the black back of a one-sided surface absorbs
+                ng = vec.neg(ng)
+                ns = vec.neg(ns)
+            if scattered:
+                s = slot0 + stored
+                for c in range(3):
+                    buf_pos[s, c] = p[c]
+                    buf_dir[s, c] = d[c]
+                    buf_pow[s, c] = power[c]
+                    buf_nrm[s, c] = ns[c]
+                buf_kind[s] = CAUSTIC if diffuse_bounces == 0 else INDIRECT
+                stored += 1
+            if caustic_only or diffuse_bounces >= max_bounces:
+                break
+            d, power, alive = diffuse_bounce(mats, m, ng, ns, power, key, dim, termination)
+            dim += 3
+            if not alive:
+                break
+            diffuse_bounces += 1
+            o = vec.offset_origin(p, ng, d)
+        else:
+            specular_events += 1
+            if specular_events > SPECULAR_CAP:
+                break
+            d_new, power, alive, ng_out = specular_scatter(mats, m, d, ng, ns, power, front, uniform(key, dim))
+            dim += 1
+            if not alive:
+                break
+            o = vec.offset_origin(p, ng_out, d_new)
+            d = d_new
+        scattered = True
+    return stored
+
+
+@parallel_kernel
+def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termination,
+                  buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
+    """Emit and trace n_paths photons; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
+    slots = max_bounces + 1
+    for i in prange(n_paths):
+        key = path_key(seed, stream, i)
+        o, d, power, _ = emit_photon(geom, lights, key, n_paths)
+        trace_one(geom, mats, key, o, d, power, max_bounces, termination, False,
+                  i * slots, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
+
+
+@parallel_kernel
+def trace_caustic_photons(geom, mats, lights, spheres, seed, stream, n_paths,
+                          buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
+    """Caustic photons aimed at the specular objects; only light -> S+ -> D records (one slot each)."""
+    for i in prange(n_paths):
+        key = path_key(seed, stream, i)
+        o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
+        if ok:
+            trace_one(geom, mats, key, o, d, power, 0, TERMINATION_CAP, True,
+                      i, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)

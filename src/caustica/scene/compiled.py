@@ -1,0 +1,82 @@
+"""A scene ready for the kernels: the description flattened into arrays.
+
+:func:`compile_scene` turns a :class:`SceneDescription` into a :class:`Scene`
+holding the geometry (primitives + BVH), the material table, the light table and
+the camera.  It is what :func:`caustica.load_scene` returns.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..bsdf import MaterialTable, build_material_table
+from ..camera import CameraParams, camera_params
+from ..emitters import LightTable, build_light_table
+from ..errors import SceneError
+from ..geometry.scene_geometry import Geometry, build_geometry
+from .description import SceneDescription
+
+
+@dataclass
+class Scene:
+    description: SceneDescription
+    geometry: Geometry
+    materials: MaterialTable
+    lights: LightTable
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.description.source
+
+    @property
+    def width(self) -> int:
+        return self.description.camera.width
+
+    @property
+    def height(self) -> int:
+        return self.description.camera.height
+
+    @property
+    def spp(self) -> int:
+        return self.description.spp
+
+    def camera(self, width: int | None = None, height: int | None = None) -> CameraParams:
+        return camera_params(self.description.camera, width, height)
+
+    def specular_shapes(self) -> list[int]:
+        """Indices of the shapes made of mirror or glass (the caustic casters)."""
+        mats = self.description.materials
+        return [i for i, s in enumerate(self.description.shapes) if mats[s.material].is_specular]
+
+    def specular_bounding_spheres(self) -> np.ndarray:
+        """(n, 4) centre + radius of a sphere around each specular shape's primitives."""
+        shapes = self.specular_shapes()
+        g = self.geometry
+        out = []
+        for s in shapes:
+            prims = np.nonzero(g.prim_shape == s)[0]
+            lo = g.prim_bounds_min[prims].min(axis=0)
+            hi = g.prim_bounds_max[prims].max(axis=0)
+            centre = 0.5 * (lo + hi)
+            out.append([*centre, 0.5 * float(np.linalg.norm(hi - lo))])
+        return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+
+    def __repr__(self) -> str:
+        d = self.description
+        return (f"Scene({d.source!r}, {len(d.shapes)} shapes, {self.geometry.prim_kind.shape[0]} primitives, "
+                f"{self.lights.kind.shape[0]} lights, {self.width}x{self.height}, spp {self.spp})")
+
+
+def compile_scene(desc: SceneDescription) -> Scene:
+    t0 = time.perf_counter()
+    geom = build_geometry(desc)
+    t1 = time.perf_counter()
+    lights = build_light_table(desc, geom)
+    if lights.kind.shape[0] == 0:
+        raise SceneError(f"{desc.source}: the scene has no emitter; add an <emitter type=\"area\"> "
+                         f"inside a shape or an <emitter type=\"point\">")
+    mats = build_material_table(desc)
+    return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0})
