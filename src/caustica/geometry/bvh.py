@@ -1,0 +1,478 @@
+"""A binned-SAH bounding volume hierarchy in a flat array (pbrt's ``LinearBVHNode``).
+
+Layout (all C-contiguous numpy arrays, ``M`` nodes, depth-first order):
+
+* ``box``   (M, 6) float64: ``xmin, ymin, zmin, xmax, ymax, zmax`` of the node.
+* ``node``  (M, 3) int32:   ``[a, count, axis]``.  A leaf has ``count > 0`` and its
+  primitives are ``order[a : a + count]``; an interior node has ``count == 0``, its
+  first child is the next node (``index + 1``) and its second child is node ``a``;
+  ``axis`` is the split axis, used to visit the nearer child first.
+* ``order`` (N,) int32: primitive ids in leaf order.
+
+The build (:func:`build_bvh`) runs entirely in Numba: at each node the primitive
+centroids are binned (``N_BINS`` bins on each of the three axes) and the split of
+lowest surface-area-heuristic cost is taken; nodes with at most ``MAX_LEAF``
+primitives become leaves when that is cheaper.  Degenerate nodes (all centroids
+equal) and nodes deeper than ``MEDIAN_DEPTH`` are split at the object median, so the
+tree depth stays below ``STACK_SIZE`` and traversal can use a fixed-size stack that
+lives in the kernel's stack frame (no heap allocation per ray).
+
+Traversal (:func:`bvh_closest_hit`, :func:`bvh_any_hit`) is pbrt's: the nearer child
+(by the sign of the ray direction on the node's split axis) is visited first,
+the farther one pushed; closest-hit shrinks ``tmax`` as it finds hits, any-hit
+returns at the first.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import carray, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from ..jit import kernel
+from .primitives import INF, borrow, intersect_primitive_arrays
+
+N_BINS = 16
+MAX_LEAF = 4
+STACK_SIZE = 128
+MEDIAN_DEPTH = 64  # beyond this depth split at the median: depth <= 64 + log2(N) < STACK_SIZE
+TRAVERSAL_COST = 0.5  # relative to one primitive test (pbrt-v4's value)
+# Box tests widen the far distances (slab exits and the current closest t) by this
+# factor.  pbrt uses 1 + 2 gamma(3) for the slab's own rounding; we take more so
+# that a primitive whose own test gives t a few ulps below the box entry (coplanar,
+# overlapping triangles) is never culled and the BVH returns exactly the brute-force
+# closest hit.
+_BOX_WIDEN = 1.0 + 1e-10
+
+
+# ---------------------------------------------------------------------------
+# A fixed-size int32 array on the stack frame
+# ---------------------------------------------------------------------------
+
+@intrinsic
+def _alloca_int32(typingctx, size):
+    """Pointer to ``size`` (a compile-time literal) int32s allocated in the function's entry block."""
+    if not isinstance(size, types.IntegerLiteral):
+        return None
+    n = size.literal_value
+
+    def codegen(context, builder, signature, args):
+        ty = context.get_value_type(types.int32)
+        return cgutils.alloca_once(builder, ty, size=n)
+
+    return types.CPointer(types.int32)(size), codegen
+
+
+@kernel(inline=True)
+def _traversal_stack():
+    return carray(_alloca_int32(128), (128,))  # literal == STACK_SIZE
+
+
+# ---------------------------------------------------------------------------
+# Build
+# ---------------------------------------------------------------------------
+
+@kernel
+def _area(lx, ly, lz, hx, hy, hz):
+    dx = hx - lx
+    dy = hy - ly
+    dz = hz - lz
+    if dx < 0.0 or dy < 0.0 or dz < 0.0:
+        return 0.0
+    return 2.0 * (dx * dy + dy * dz + dz * dx)
+
+
+@kernel
+def build_bvh(prim_box):
+    """Build the BVH over primitives with bounds ``prim_box`` (N, 6).
+
+    Returns ``(box, node, order)`` as described in the module docstring.  Runs in
+    O(N log N); all allocations happen here, once per scene.
+    """
+    n = prim_box.shape[0]
+    order = np.arange(n).astype(np.int32)
+    max_nodes = max(1, 2 * n - 1)
+    box = np.empty((max_nodes, 6), dtype=np.float64)
+    node = np.zeros((max_nodes, 3), dtype=np.int32)
+    if n == 0:
+        return box[:0].copy(), node[:0].copy(), order
+    cen = np.empty((n, 3), dtype=np.float64)
+    for i in range(n):
+        for a in range(3):
+            cen[i, a] = 0.5 * (prim_box[i, a] + prim_box[i, a + 3])
+
+    # DFS work stack: (start, end, parent-to-patch or -1, depth).
+    cap = 2 * (MEDIAN_DEPTH + 64) + 8
+    st = np.empty((cap, 4), dtype=np.int64)
+    sp = 0
+    st[0, 0] = 0
+    st[0, 1] = n
+    st[0, 2] = -1
+    st[0, 3] = 0
+    sp = 1
+    n_nodes = 0
+
+    bin_cnt = np.zeros(N_BINS, dtype=np.int64)
+    bin_box = np.empty((N_BINS, 6), dtype=np.float64)
+    right_area = np.empty(N_BINS, dtype=np.float64)
+    right_cnt = np.empty(N_BINS, dtype=np.int64)
+    keys = np.empty(n, dtype=np.float64)
+
+    while sp > 0:
+        sp -= 1
+        start = st[sp, 0]
+        end = st[sp, 1]
+        parent = st[sp, 2]
+        depth = st[sp, 3]
+        idx = n_nodes
+        n_nodes += 1
+        if parent >= 0:
+            node[parent, 0] = idx
+
+        # Bounds of the primitives and of their centroids.
+        lx = ly = lz = INF
+        hx = hy = hz = -INF
+        clx = cly = clz = INF
+        chx = chy = chz = -INF
+        for k in range(start, end):
+            p = order[k]
+            lx = min(lx, prim_box[p, 0])
+            ly = min(ly, prim_box[p, 1])
+            lz = min(lz, prim_box[p, 2])
+            hx = max(hx, prim_box[p, 3])
+            hy = max(hy, prim_box[p, 4])
+            hz = max(hz, prim_box[p, 5])
+            clx = min(clx, cen[p, 0])
+            cly = min(cly, cen[p, 1])
+            clz = min(clz, cen[p, 2])
+            chx = max(chx, cen[p, 0])
+            chy = max(chy, cen[p, 1])
+            chz = max(chz, cen[p, 2])
+        box[idx, 0] = lx
+        box[idx, 1] = ly
+        box[idx, 2] = lz
+        box[idx, 3] = hx
+        box[idx, 4] = hy
+        box[idx, 5] = hz
+        cnt = end - start
+        if cnt == 1:
+            node[idx, 0] = start
+            node[idx, 1] = 1
+            continue
+
+        clo = (clx, cly, clz)
+        chi = (chx, chy, chz)
+        ext = (chx - clx, chy - cly, chz - clz)
+        big_axis = 0
+        if ext[1] > ext[big_axis]:
+            big_axis = 1
+        if ext[2] > ext[big_axis]:
+            big_axis = 2
+
+        mid = -1
+        split_axis = big_axis
+        if ext[big_axis] > 0.0 and depth < MEDIAN_DEPTH:
+            parent_area = _area(lx, ly, lz, hx, hy, hz)
+            best_cost = INF
+            best_axis = -1
+            best_bin = -1
+            for axis in range(3):
+                if ext[axis] <= 0.0:
+                    continue
+                scale = N_BINS / ext[axis]
+                bin_cnt[:] = 0
+                for b in range(N_BINS):
+                    bin_box[b, 0] = INF
+                    bin_box[b, 1] = INF
+                    bin_box[b, 2] = INF
+                    bin_box[b, 3] = -INF
+                    bin_box[b, 4] = -INF
+                    bin_box[b, 5] = -INF
+                for k in range(start, end):
+                    p = order[k]
+                    b = int((cen[p, axis] - clo[axis]) * scale)
+                    if b >= N_BINS:
+                        b = N_BINS - 1
+                    if b < 0:
+                        b = 0
+                    bin_cnt[b] += 1
+                    for c in range(3):
+                        if prim_box[p, c] < bin_box[b, c]:
+                            bin_box[b, c] = prim_box[p, c]
+                        if prim_box[p, c + 3] > bin_box[b, c + 3]:
+                            bin_box[b, c + 3] = prim_box[p, c + 3]
+                # Sweep from the right: area and count of bins b..N_BINS-1.
+                rlx = rly = rlz = INF
+                rhx = rhy = rhz = -INF
+                rc = 0
+                for b in range(N_BINS - 1, 0, -1):
+                    rlx = min(rlx, bin_box[b, 0])
+                    rly = min(rly, bin_box[b, 1])
+                    rlz = min(rlz, bin_box[b, 2])
+                    rhx = max(rhx, bin_box[b, 3])
+                    rhy = max(rhy, bin_box[b, 4])
+                    rhz = max(rhz, bin_box[b, 5])
+                    rc += bin_cnt[b]
+                    right_area[b] = _area(rlx, rly, rlz, rhx, rhy, rhz)
+                    right_cnt[b] = rc
+                # Sweep from the left; split after bin b - 1 (left = bins < b).
+                llx = lly = llz = INF
+                lhx = lhy = lhz = -INF
+                lc = 0
+                for b in range(1, N_BINS):
+                    llx = min(llx, bin_box[b - 1, 0])
+                    lly = min(lly, bin_box[b - 1, 1])
+                    llz = min(llz, bin_box[b - 1, 2])
+                    lhx = max(lhx, bin_box[b - 1, 3])
+                    lhy = max(lhy, bin_box[b - 1, 4])
+                    lhz = max(lhz, bin_box[b - 1, 5])
+                    lc += bin_cnt[b - 1]
+                    if lc == 0 or right_cnt[b] == 0:
+                        continue
+                    cost = lc * _area(llx, lly, llz, lhx, lhy, lhz) + right_cnt[b] * right_area[b]
+                    if cost < best_cost:
+                        best_cost = cost
+                        best_axis = axis
+                        best_bin = b
+            if best_axis >= 0:
+                split_cost = TRAVERSAL_COST + (best_cost / parent_area if parent_area > 0.0 else cnt)
+                if cnt <= MAX_LEAF and cnt <= split_cost:
+                    node[idx, 0] = start
+                    node[idx, 1] = cnt
+                    continue
+                # Partition order[start:end] by bin < best_bin.
+                axis = best_axis
+                scale = N_BINS / ext[axis]
+                i = start
+                j = end - 1
+                while i <= j:
+                    p = order[i]
+                    b = int((cen[p, axis] - clo[axis]) * scale)
+                    if b >= N_BINS:
+                        b = N_BINS - 1
+                    if b < best_bin:
+                        i += 1
+                    else:
+                        order[i] = order[j]
+                        order[j] = p
+                        j -= 1
+                mid = i
+                split_axis = axis
+                if mid == start or mid == end:
+                    mid = -1
+        if mid < 0:
+            if cnt <= MAX_LEAF:
+                node[idx, 0] = start
+                node[idx, 1] = cnt
+                continue
+            # Object median along the widest centroid axis.
+            split_axis = big_axis
+            for k in range(start, end):
+                keys[k] = cen[order[k], split_axis]
+            perm = np.argsort(keys[start:end], kind="mergesort")
+            tmp = order[start:end].copy()
+            for k in range(cnt):
+                order[start + k] = tmp[perm[k]]
+            mid = start + cnt // 2
+
+        node[idx, 1] = 0
+        node[idx, 2] = split_axis
+        # Push the second (right) child first so the first child gets index idx + 1.
+        st[sp, 0] = mid
+        st[sp, 1] = end
+        st[sp, 2] = idx
+        st[sp, 3] = depth + 1
+        sp += 1
+        st[sp, 0] = start
+        st[sp, 1] = mid
+        st[sp, 2] = -1
+        st[sp, 3] = depth + 1
+        sp += 1
+    return box[:n_nodes].copy(), node[:n_nodes].copy(), order
+
+
+@kernel
+def bvh_depth(node):
+    """Depth of the tree (a single leaf has depth 1); for tests and statistics."""
+    m = node.shape[0]
+    if m == 0:
+        return 0
+    depth = np.zeros(m, dtype=np.int64)
+    depth[0] = 1
+    best = 1
+    for k in range(m):
+        if node[k, 1] == 0:
+            depth[k + 1] = depth[k] + 1
+            depth[node[k, 0]] = depth[k] + 1
+        best = max(best, depth[k])
+    return best
+
+
+# ---------------------------------------------------------------------------
+# Traversal
+# ---------------------------------------------------------------------------
+
+@kernel
+def _safe_inv(x):
+    """1 / x, with +-inf for a zero component.
+
+    A ray lying exactly in a slab's plane then gives ``0 * inf = NaN``, which the
+    comparisons in :func:`_hit_box` ignore: the ray counts as inside that slab.
+    """
+    if x == 0.0:
+        return math.copysign(INF, x)
+    return 1.0 / x
+
+
+@kernel(inline=True)
+def _hit_box(box, k, o, inv, tmax):
+    """Slab test of node ``k`` against the ray ``o + t d``, ``t`` in [0, tmax].
+
+    Written so that NaN slab distances (ray in a slab plane) never reject a box.
+    """
+    t0 = 0.0
+    t1 = tmax * _BOX_WIDEN
+    tn = (box[k, 0] - o[0]) * inv[0]
+    tf = (box[k, 3] - o[0]) * inv[0]
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_WIDEN
+    t0 = tn if tn > t0 else t0
+    t1 = tf if tf < t1 else t1
+    if t0 > t1:
+        return False
+    tn = (box[k, 1] - o[1]) * inv[1]
+    tf = (box[k, 4] - o[1]) * inv[1]
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_WIDEN
+    t0 = tn if tn > t0 else t0
+    t1 = tf if tf < t1 else t1
+    if t0 > t1:
+        return False
+    tn = (box[k, 2] - o[2]) * inv[2]
+    tf = (box[k, 5] - o[2]) * inv[2]
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_WIDEN
+    t0 = tn if tn > t0 else t0
+    t1 = tf if tf < t1 else t1
+    return t0 <= t1
+
+
+@kernel(inline=True)
+def bvh_closest_hit(geom, o, d, tmax):
+    """Closest primitive hit with ``t`` in (0, tmax): ``(prim, t, b1, b2)``; ``prim = -1``, ``t = tmax`` on a miss.
+
+    ``geom`` is a :class:`~caustica.geometry.scene_geometry.Geometry` (its
+    ``bvh_box``, ``bvh_node``, ``bvh_order`` and primitive tables).  Inlined: it
+    only hands borrowed views of the arrays it needs to the (compiled once,
+    cached) traversal, so no reference counts are touched per ray.
+    """
+    return _closest_hit(borrow(geom.bvh_box), borrow(geom.bvh_node), borrow(geom.bvh_order),
+                        borrow(geom.prim_kind), borrow(geom.prim_index), borrow(geom.tri_p0),
+                        borrow(geom.tri_e1), borrow(geom.tri_e2), borrow(geom.ana_to_local), o, d, tmax)
+
+
+@kernel(inline=True)
+def bvh_any_hit(geom, o, d, tmax):
+    """True when some primitive is hit with ``t`` in (0, tmax) (shadow rays; stops at the first hit)."""
+    return _any_hit(borrow(geom.bvh_box), borrow(geom.bvh_node), borrow(geom.bvh_order),
+                    borrow(geom.prim_kind), borrow(geom.prim_index), borrow(geom.tri_p0),
+                    borrow(geom.tri_e1), borrow(geom.tri_e2), borrow(geom.ana_to_local), o, d, tmax)
+
+
+@kernel
+def _near_first(axis, d):
+    """True when the ray direction is negative along ``axis`` (visit the second child first)."""
+    if axis == 0:
+        return d[0] < 0.0
+    if axis == 1:
+        return d[1] < 0.0
+    return d[2] < 0.0
+
+
+@kernel
+def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
+    best_prim = -1
+    best_t = tmax
+    best_b1 = 0.0
+    best_b2 = 0.0
+    if node.shape[0] == 0:
+        return best_prim, best_t, best_b1, best_b2
+    inv = (_safe_inv(d[0]), _safe_inv(d[1]), _safe_inv(d[2]))
+    stack = _traversal_stack()
+    sp = 0
+    k = 0
+    while True:
+        if _hit_box(box, k, o, inv, best_t):
+            cnt = node[k, 1]
+            if cnt > 0:
+                first = node[k, 0]
+                for s in range(first, first + cnt):
+                    prim = order[s]
+                    t, b1, b2 = intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2,
+                                                           ana_to_local, prim, o, d, best_t)
+                    if t < best_t:
+                        best_t = t
+                        best_prim = prim
+                        best_b1 = b1
+                        best_b2 = b2
+                if sp == 0:
+                    break
+                sp -= 1
+                k = stack[sp]
+            else:
+                if _near_first(node[k, 2], d):
+                    stack[sp] = k + 1
+                    k = node[k, 0]
+                else:
+                    stack[sp] = node[k, 0]
+                    k = k + 1
+                sp += 1
+        else:
+            if sp == 0:
+                break
+            sp -= 1
+            k = stack[sp]
+    return best_prim, best_t, best_b1, best_b2
+
+
+@kernel
+def _any_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
+    if node.shape[0] == 0:
+        return False
+    inv = (_safe_inv(d[0]), _safe_inv(d[1]), _safe_inv(d[2]))
+    stack = _traversal_stack()
+    sp = 0
+    k = 0
+    while True:
+        if _hit_box(box, k, o, inv, tmax):
+            cnt = node[k, 1]
+            if cnt > 0:
+                first = node[k, 0]
+                for s in range(first, first + cnt):
+                    t, b1, b2 = intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2,
+                                                           ana_to_local, order[s], o, d, tmax)
+                    if t < tmax:
+                        return True
+                if sp == 0:
+                    break
+                sp -= 1
+                k = stack[sp]
+            else:
+                if _near_first(node[k, 2], d):
+                    stack[sp] = k + 1
+                    k = node[k, 0]
+                else:
+                    stack[sp] = node[k, 0]
+                    k = k + 1
+                sp += 1
+        else:
+            if sp == 0:
+                break
+            sp -= 1
+            k = stack[sp]
+    return False

@@ -1,0 +1,532 @@
+"""The scene's geometry as flat arrays, and the four queries every method uses.
+
+:func:`build_geometry` flattens a :class:`~caustica.scene.description.SceneDescription`
+into a :class:`Geometry` (a ``NamedTuple`` of numpy arrays, passed to kernels as is)
+and builds its BVH.  The kernels
+
+* :func:`intersect`           closest hit,
+* :func:`occluded`            any hit (shadow rays),
+* :func:`surface_at`          hit point, geometric and shading normal,
+* :func:`sample_on_primitive` a point uniform by area on one primitive,
+* :func:`sample_on_emitter`   a point uniform by area on one area emitter,
+
+are Numba device functions: call them from other ``@kernel`` / ``@parallel_kernel``
+code; they allocate nothing.  They are ``inline=True`` and hand *borrowed* views
+(:func:`caustica.geometry.primitives.borrow`) of the arrays to the compiled
+traversal, so a call costs no reference counting.  Performance note for callers:
+every *non-inlined* Numba call that takes ``geom`` increfs and decrefs all of its
+~27 arrays (atomic operations, a few hundred ns, contended across threads); pass
+``geom`` into per-ray helpers only if they are ``@kernel(inline=True)`` or are the
+``prange`` body itself.
+
+Primitives
+----------
+Every primitive has an id ``prim`` in ``[0, n_prims)``: first all mesh triangles
+(shape by shape, in scene order), then the analytic shapes (sphere, disk, cylinder;
+one primitive each, in scene order).  Per primitive: ``prim_kind`` (TRIANGLE,
+SPHERE, DISK, CYLINDER of :mod:`caustica.geometry.primitives`), ``prim_index`` (row in
+the ``tri_*`` or ``ana_*`` table), ``prim_material`` (``shape.material``),
+``prim_emitter`` (area emitter index or -1), ``prim_shape`` (shape index) and
+``prim_area`` (world-space area; pdf per unit area of :func:`sample_on_primitive`
+is ``1 / prim_area[prim]``).
+
+Emitters
+--------
+Area emitter ``e`` is the ``e``-th shape with ``emitter_radiance`` in scene order.
+Its primitives are ``emitter_prim_ids[emitter_offset[e] : emitter_offset[e + 1]]``
+with the running area fraction ``emitter_cdf`` (last entry of each range is 1), its
+shape is ``emitter_shape[e]`` and its total area ``emitter_area[e]``
+(:func:`emitter_prims` returns the same as a list of arrays for Python code).
+Sampling an analytic emitter uniformly by area needs a similarity ``to_world``
+(rotation, translation, *uniform* scale) for spheres and cylinders; disks accept any
+affine map (a planar affine map keeps area ratios).  Otherwise :class:`SceneError`.
+
+Front side and normals
+----------------------
+``ng`` is always the unit normal of the *front* side (Mitsuba's: mesh winding
+counter-clockwise seen from the front, disk ``+z``, sphere and cylinder outward;
+``flip_normals`` turns analytic shapes around, meshes arrive already flipped); it is
+never turned towards the ray.  The shading normal ``ns`` is on the same side.
+
+Self-intersection
+-----------------
+The queries accept hits with ``t`` strictly in ``(0, tmax)``; there is no
+scene-scale epsilon.  A ray leaving a surface must start at
+:func:`caustica.geometry.vec.offset_origin` (which moves it ~6e-6 relative off the
+surface, far above the float64 error of the intersection tests).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import prange
+
+from ..errors import SceneError
+from ..jit import kernel, parallel_kernel
+from ..scene.description import CYLINDER as SHAPE_CYLINDER
+from ..scene.description import DISK as SHAPE_DISK
+from ..scene.description import MESH as SHAPE_MESH
+from ..scene.description import SPHERE as SHAPE_SPHERE
+from ..scene.description import SceneDescription, Shape
+from . import primitives as pr
+from .bvh import build_bvh, bvh_any_hit, bvh_closest_hit
+from .primitives import CYLINDER, DISK, SPHERE, TRIANGLE
+from .vec import dot
+
+
+class Geometry(NamedTuple):
+    """Structure-of-arrays scene geometry (world space, float64 positions, int32 indices).
+
+    Shapes of the arrays: ``T`` triangles, ``A`` analytic shapes, ``N = T + A``
+    primitives, ``M`` BVH nodes, ``E`` area emitters, ``S`` shapes.
+    """
+    # Triangles (T, 3): first vertex, edges p1 - p0 and p2 - p0, unit front normal,
+    # unit shading normals at p0, p1, p2 (the geometric normal when the mesh has none).
+    tri_p0: np.ndarray
+    tri_e1: np.ndarray
+    tri_e2: np.ndarray
+    tri_ng: np.ndarray
+    tri_n0: np.ndarray
+    tri_n1: np.ndarray
+    tri_n2: np.ndarray
+    # Analytic shapes: kind (A,) int32, to_world / to_local (A, 3, 4), normal sign (A,) +1 / -1.
+    ana_kind: np.ndarray
+    ana_to_world: np.ndarray
+    ana_to_local: np.ndarray
+    ana_flip: np.ndarray
+    # Primitives (N,).
+    prim_kind: np.ndarray
+    prim_index: np.ndarray
+    prim_material: np.ndarray
+    prim_emitter: np.ndarray
+    prim_shape: np.ndarray
+    prim_area: np.ndarray
+    # BVH (see caustica.geometry.bvh): box (M, 6), node (M, 3) int32, order (N,) int32.
+    bvh_box: np.ndarray
+    bvh_node: np.ndarray
+    bvh_order: np.ndarray
+    # Area emitters (CSR over primitives).
+    emitter_offset: np.ndarray   # (E + 1,) int32
+    emitter_prim_ids: np.ndarray  # (sum,) int32
+    emitter_cdf: np.ndarray      # (sum,) float64, running area fraction within each emitter
+    emitter_area: np.ndarray     # (E,) float64
+    emitter_shape: np.ndarray    # (E,) int32
+    # Bounds: per shape (S, 6) and of the whole scene (6,): xmin, ymin, zmin, xmax, ymax, zmax.
+    shape_box: np.ndarray
+    scene_box: np.ndarray
+
+    @property
+    def n_prims(self) -> int:
+        return int(self.prim_kind.shape[0])
+
+    @property
+    def n_emitters(self) -> int:
+        return int(self.emitter_area.shape[0])
+
+
+# ---------------------------------------------------------------------------
+# Building
+# ---------------------------------------------------------------------------
+
+def _f64(a, shape_tail=(3,)):
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape((-1,) + shape_tail))
+
+
+def _i32(a):
+    return np.ascontiguousarray(np.asarray(a, dtype=np.int32).reshape(-1))
+
+
+def _unit_rows(v, fallback):
+    """Rows of v normalised; rows of zero or non-finite length replaced by ``fallback``."""
+    n = np.linalg.norm(v, axis=1)
+    ok = np.isfinite(n) & (n > 0.0)
+    out = np.array(fallback, dtype=np.float64, copy=True)
+    out[ok] = v[ok] / n[ok, None]
+    return out
+
+
+def _mesh_triangles(shape: Shape):
+    mesh = shape.mesh
+    if mesh is None:
+        raise SceneError(f"{shape.source}: mesh shape {shape.id!r} has no mesh data")
+    pos = np.asarray(mesh.positions, dtype=np.float64)
+    tri = np.asarray(mesh.triangles)
+    if pos.ndim != 2 or pos.shape[1] != 3 or tri.ndim != 2 or tri.shape[1] != 3:
+        raise SceneError(f"{shape.source}: mesh {shape.id!r} needs (n, 3) positions and (m, 3) triangles")
+    if not np.all(np.isfinite(pos)):
+        raise SceneError(f"{shape.source}: mesh {shape.id!r} has non-finite vertex positions")
+    tri = tri.astype(np.int64)
+    if tri.size and (tri.min() < 0 or tri.max() >= len(pos)):
+        raise SceneError(f"{shape.source}: mesh {shape.id!r} has triangle indices outside its "
+                         f"{len(pos)} vertices")
+    p0 = pos[tri[:, 0]]
+    e1 = pos[tri[:, 1]] - p0
+    e2 = pos[tri[:, 2]] - p0
+    c = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(c, axis=1)
+    ng = _unit_rows(c, np.tile([0.0, 0.0, 1.0], (len(tri), 1)))
+    if mesh.normals is not None:
+        nrm = np.asarray(mesh.normals, dtype=np.float64)
+        if nrm.shape != pos.shape:
+            raise SceneError(f"{shape.source}: mesh {shape.id!r} has {len(nrm)} normals for "
+                             f"{len(pos)} vertices")
+        ns = [_unit_rows(nrm[tri[:, k]], ng) for k in range(3)]
+    else:
+        ns = [ng, ng, ng]
+    return p0, e1, e2, ng, ns[0], ns[1], ns[2], area
+
+
+def _affine(shape: Shape):
+    """(to_world 3x4, to_local 3x4) of an analytic shape, checked."""
+    m = np.eye(4) if shape.to_world is None else np.asarray(shape.to_world, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise SceneError(f"{shape.source}: {shape.kind} {shape.id!r} needs a finite 4x4 to_world")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-12):
+        raise SceneError(f"{shape.source}: {shape.kind} {shape.id!r} has a projective to_world; "
+                         "only affine transforms are supported")
+    lin = m[:3, :3]
+    det = np.linalg.det(lin)
+    scale = np.max(np.abs(lin)) if lin.size else 0.0
+    if not np.isfinite(det) or abs(det) <= 1e-300 or abs(det) <= 1e-12 * scale ** 3:
+        raise SceneError(f"{shape.source}: {shape.kind} {shape.id!r} has a singular to_world "
+                         "(zero scale?)")
+    inv = np.linalg.inv(m)
+    return np.ascontiguousarray(m[:3]), np.ascontiguousarray(inv[:3])
+
+
+def _similarity_scale(lin):
+    """Uniform scale s if lin = s * orthogonal (to 1e-6 relative), else None."""
+    g = lin.T @ lin
+    s2 = np.trace(g) / 3.0
+    if s2 <= 0.0 or np.max(np.abs(g - s2 * np.eye(3))) > 1e-6 * s2:
+        return None
+    return math.sqrt(s2)
+
+
+def _analytic_area(kind: int, lin) -> float:
+    """World area of the canonical shape mapped by the linear map ``lin``.
+
+    Nanson's formula: dA_world = |det M| |M^-T n| dA_local.  Exact for similarities and
+    the disk; Gauss-Legendre x periodic trapezoid quadrature (converges to ~1e-12) for
+    an ellipsoid or elliptic cylinder.
+    """
+    det = abs(np.linalg.det(lin))
+    mit = np.linalg.inv(lin).T
+    s = _similarity_scale(lin)
+    if kind == DISK:
+        return float(det * np.linalg.norm(mit @ [0.0, 0.0, 1.0]) * math.pi)
+    if kind == SPHERE:
+        if s is not None:
+            return 4.0 * math.pi * s * s
+        z, wz = np.polynomial.legendre.leggauss(96)
+        phi = (np.arange(192) + 0.5) * (2.0 * math.pi / 192)
+        zz, pp = np.meshgrid(z, phi, indexing="ij")
+        r = np.sqrt(1.0 - zz ** 2)
+        n = np.stack([r * np.cos(pp), r * np.sin(pp), zz], axis=-1)
+        f = np.linalg.norm(n @ mit.T, axis=-1)
+        return float(det * np.sum(f * wz[:, None]) * (2.0 * math.pi / 192))
+    if kind == CYLINDER:
+        if s is not None:
+            return 2.0 * math.pi * s * s
+        phi = (np.arange(384) + 0.5) * (2.0 * math.pi / 384)
+        n = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=-1)
+        f = np.linalg.norm(n @ mit.T, axis=-1)
+        return float(det * np.sum(f) * (2.0 * math.pi / 384))
+    raise AssertionError(kind)
+
+
+def _analytic_box(kind: int, m34):
+    """Axis-aligned bounds (6,) of the canonical shape mapped by the 3x4 affine ``m34``."""
+    lin = m34[:, :3]
+    c = m34[:, 3]
+    if kind == SPHERE:
+        h = np.linalg.norm(lin, axis=1)
+        lo, hi = c - h, c + h
+    elif kind == DISK:
+        h = np.linalg.norm(lin[:, :2], axis=1)
+        lo, hi = c - h, c + h
+    else:  # CYLINDER: union of the end disks
+        h = np.linalg.norm(lin[:, :2], axis=1)
+        c1 = c + lin[:, 2]
+        lo = np.minimum(c, c1) - h
+        hi = np.maximum(c, c1) + h
+    pad = 1e-12 * (np.abs(lo) + np.abs(hi) + (hi - lo)) + 1e-300
+    return np.concatenate([lo - pad, hi + pad])
+
+
+_ANALYTIC_KIND = {SHAPE_SPHERE: SPHERE, SHAPE_DISK: DISK, SHAPE_CYLINDER: CYLINDER}
+
+
+def build_geometry(desc: SceneDescription) -> Geometry:
+    """Flatten every shape of ``desc`` into primitive tables and build the BVH.
+
+    Raises SceneError (naming ``shape.source``) for shapes it cannot represent.
+    """
+    tri_parts = []      # per mesh shape: (shape index, p0, e1, e2, ng, n0, n1, n2, area)
+    ana_parts = []      # per analytic shape: (shape index, kind, to_world, to_local, flip, area)
+    emitter_of_shape = {}
+    for s_idx, shape in enumerate(desc.shapes):
+        if shape.emitter_radiance is not None:
+            emitter_of_shape[s_idx] = len(emitter_of_shape)
+        if shape.kind == SHAPE_MESH:
+            tri_parts.append((s_idx,) + _mesh_triangles(shape))
+        elif shape.kind in _ANALYTIC_KIND:
+            kind = _ANALYTIC_KIND[shape.kind]
+            tw, tl = _affine(shape)
+            if (shape.emitter_radiance is not None and kind != DISK
+                    and _similarity_scale(tw[:, :3]) is None):
+                raise SceneError(
+                    f"{shape.source}: area emitter on {shape.kind} {shape.id!r} needs a to_world "
+                    "with uniform scale (rotation, translation, uniform scale) so it can be "
+                    "sampled uniformly by area; use a mesh for a stretched emitter")
+            ana_parts.append((s_idx, kind, tw, tl, -1.0 if shape.flip_normals else 1.0,
+                              _analytic_area(kind, tw[:, :3])))
+        else:
+            raise SceneError(f"{shape.source}: unsupported shape kind {shape.kind!r} "
+                             "(supported: mesh, sphere, disk, cylinder)")
+
+    n_shapes = len(desc.shapes)
+    T = sum(len(p[1]) for p in tri_parts)
+    A = len(ana_parts)
+    N = T + A
+
+    def cat(k, tail=(3,)):
+        if not tri_parts:
+            return np.zeros((0,) + tail)
+        return _f64(np.concatenate([p[k] for p in tri_parts]), tail)
+
+    tri_p0, tri_e1, tri_e2, tri_ng = cat(1), cat(2), cat(3), cat(4)
+    tri_n0, tri_n1, tri_n2 = cat(5), cat(6), cat(7)
+    tri_area = np.concatenate([p[8] for p in tri_parts]) if tri_parts else np.zeros(0)
+    tri_shape = (np.concatenate([np.full(len(p[1]), p[0]) for p in tri_parts])
+                 if tri_parts else np.zeros(0, dtype=np.int64))
+
+    ana_kind = _i32([p[1] for p in ana_parts])
+    ana_to_world = np.ascontiguousarray(np.array([p[2] for p in ana_parts]).reshape(A, 3, 4))
+    ana_to_local = np.ascontiguousarray(np.array([p[3] for p in ana_parts]).reshape(A, 3, 4))
+    ana_flip = np.ascontiguousarray(np.array([p[4] for p in ana_parts], dtype=np.float64))
+    ana_area = np.array([p[5] for p in ana_parts], dtype=np.float64)
+    ana_shape = np.array([p[0] for p in ana_parts], dtype=np.int64)
+
+    prim_kind = _i32(np.concatenate([np.full(T, TRIANGLE), ana_kind]))
+    prim_index = _i32(np.concatenate([np.arange(T), np.arange(A)]))
+    prim_shape = _i32(np.concatenate([tri_shape, ana_shape]))
+    materials = np.array([s.material for s in desc.shapes], dtype=np.int64)
+    emitters = np.array([emitter_of_shape.get(i, -1) for i in range(n_shapes)], dtype=np.int64)
+    prim_material = _i32(materials[prim_shape] if N else [])
+    prim_emitter = _i32(emitters[prim_shape] if N else [])
+    prim_area = np.ascontiguousarray(np.concatenate([tri_area, ana_area]).astype(np.float64))
+
+    # Primitive bounds.
+    prim_box = np.empty((N, 6))
+    if T:
+        p1 = tri_p0 + tri_e1
+        p2 = tri_p0 + tri_e2
+        prim_box[:T, :3] = np.minimum(np.minimum(tri_p0, p1), p2)
+        prim_box[:T, 3:] = np.maximum(np.maximum(tri_p0, p1), p2)
+    for j, p in enumerate(ana_parts):
+        prim_box[T + j] = _analytic_box(p[1], p[2])
+    bvh_box, bvh_node, bvh_order = build_bvh(np.ascontiguousarray(prim_box))
+
+    shape_box = np.empty((n_shapes, 6))
+    shape_box[:, :3] = np.inf
+    shape_box[:, 3:] = -np.inf
+    if N:
+        np.minimum.at(shape_box[:, :3], prim_shape, prim_box[:, :3])
+        np.maximum.at(shape_box[:, 3:], prim_shape, prim_box[:, 3:])
+    scene_box = (np.concatenate([prim_box[:, :3].min(axis=0), prim_box[:, 3:].max(axis=0)])
+                 if N else np.zeros(6))
+
+    # Emitter CSR.
+    n_em = len(emitter_of_shape)
+    offsets = [0]
+    ids, cdfs, areas, em_shape = [], [], [], []
+    for s_idx, e in sorted(emitter_of_shape.items(), key=lambda kv: kv[1]):
+        prims = np.nonzero(prim_shape == s_idx)[0]
+        a = prim_area[prims]
+        total = float(a.sum())
+        if not (total > 0.0) or not np.isfinite(total):
+            raise SceneError(f"{desc.shapes[s_idx].source}: area emitter on shape "
+                             f"{desc.shapes[s_idx].id!r} has zero surface area")
+        c = np.cumsum(a) / total
+        c[-1] = 1.0
+        ids.append(prims)
+        cdfs.append(c)
+        areas.append(total)
+        em_shape.append(s_idx)
+        offsets.append(offsets[-1] + len(prims))
+
+    return Geometry(
+        tri_p0=tri_p0, tri_e1=tri_e1, tri_e2=tri_e2, tri_ng=tri_ng,
+        tri_n0=tri_n0, tri_n1=tri_n1, tri_n2=tri_n2,
+        ana_kind=ana_kind, ana_to_world=ana_to_world, ana_to_local=ana_to_local, ana_flip=ana_flip,
+        prim_kind=prim_kind, prim_index=prim_index, prim_material=prim_material,
+        prim_emitter=prim_emitter, prim_shape=prim_shape, prim_area=prim_area,
+        bvh_box=bvh_box, bvh_node=bvh_node, bvh_order=bvh_order,
+        emitter_offset=_i32(offsets),
+        emitter_prim_ids=_i32(np.concatenate(ids) if ids else []),
+        emitter_cdf=np.ascontiguousarray(np.concatenate(cdfs) if cdfs else np.zeros(0)),
+        emitter_area=np.ascontiguousarray(np.array(areas, dtype=np.float64).reshape(n_em)),
+        emitter_shape=_i32(em_shape),
+        shape_box=np.ascontiguousarray(shape_box),
+        scene_box=np.ascontiguousarray(scene_box.astype(np.float64)),
+    )
+
+
+def emitter_prims(geom: Geometry) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each area emitter ``e``: ``(prim ids, their areas)``; ``areas.sum() == emitter_area[e]``."""
+    out = []
+    for e in range(geom.n_emitters):
+        ids = geom.emitter_prim_ids[geom.emitter_offset[e]:geom.emitter_offset[e + 1]]
+        out.append((ids.copy(), geom.prim_area[ids].copy()))
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Queries (device functions)
+# ---------------------------------------------------------------------------
+
+@kernel(inline=True)
+def intersect(geom, o, d, tmax):
+    """Closest hit of the ray ``o + t d`` (``d`` unit) with ``t`` in (0, tmax).
+
+    Returns ``(prim, t, b1, b2)``: ``prim = -1`` and ``t = tmax`` on a miss; ``b1, b2``
+    are barycentrics for triangles (0 for analytic shapes); pass them on to
+    :func:`surface_at`.
+    """
+    return bvh_closest_hit(geom, o, d, tmax)
+
+
+@kernel(inline=True)
+def occluded(geom, o, d, tmax):
+    """True when anything is hit with ``t`` in (0, tmax) (shadow rays; pass tmax slightly below the distance)."""
+    return bvh_any_hit(geom, o, d, tmax)
+
+
+@kernel(inline=True)
+def surface_at(geom, prim, o, d, t, b1, b2):
+    """``(p, ng, ns)`` at a hit from :func:`intersect`.
+
+    ``ng`` is the unit normal of the primitive's front side (not turned towards the
+    ray); ``ns`` the unit shading normal (interpolated vertex normals for meshes),
+    flipped if needed to lie on the same side as ``ng``.
+    """
+    j = geom.prim_index[prim]
+    if geom.prim_kind[prim] == TRIANGLE:
+        b0 = 1.0 - b1 - b2
+        p = (geom.tri_p0[j, 0] + b1 * geom.tri_e1[j, 0] + b2 * geom.tri_e2[j, 0],
+             geom.tri_p0[j, 1] + b1 * geom.tri_e1[j, 1] + b2 * geom.tri_e2[j, 1],
+             geom.tri_p0[j, 2] + b1 * geom.tri_e1[j, 2] + b2 * geom.tri_e2[j, 2])
+        ng = (geom.tri_ng[j, 0], geom.tri_ng[j, 1], geom.tri_ng[j, 2])
+        nx = b0 * geom.tri_n0[j, 0] + b1 * geom.tri_n1[j, 0] + b2 * geom.tri_n2[j, 0]
+        ny = b0 * geom.tri_n0[j, 1] + b1 * geom.tri_n1[j, 1] + b2 * geom.tri_n2[j, 1]
+        nz = b0 * geom.tri_n0[j, 2] + b1 * geom.tri_n1[j, 2] + b2 * geom.tri_n2[j, 2]
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            ns = (nx / ln, ny / ln, nz / ln)
+        else:
+            ns = ng
+        if dot(ns, ng) < 0.0:
+            ns = (-ns[0], -ns[1], -ns[2])
+        return p, ng, ns
+    p, n = pr.analytic_surface(geom.prim_kind[prim], geom.ana_to_world, geom.ana_to_local, j, o, d, t)
+    f = geom.ana_flip[j]
+    ng = (n[0] * f, n[1] * f, n[2] * f)
+    return p, ng, ng
+
+
+@kernel(inline=True)
+def sample_on_primitive(geom, prim, u1, u2):
+    """``(p, ng)``: a point uniform by area on ``prim`` (pdf per area ``1 / prim_area[prim]``) and its front normal."""
+    j = geom.prim_index[prim]
+    if geom.prim_kind[prim] == TRIANGLE:
+        p0 = (geom.tri_p0[j, 0], geom.tri_p0[j, 1], geom.tri_p0[j, 2])
+        e1 = (geom.tri_e1[j, 0], geom.tri_e1[j, 1], geom.tri_e1[j, 2])
+        e2 = (geom.tri_e2[j, 0], geom.tri_e2[j, 1], geom.tri_e2[j, 2])
+        p = pr.sample_triangle(p0, e1, e2, u1, u2)
+        return p, (geom.tri_ng[j, 0], geom.tri_ng[j, 1], geom.tri_ng[j, 2])
+    p, n = pr.sample_analytic(geom.prim_kind[prim], geom.ana_to_world, geom.ana_to_local, j, u1, u2)
+    f = geom.ana_flip[j]
+    return p, (n[0] * f, n[1] * f, n[2] * f)
+
+
+@kernel(inline=True)
+def sample_on_emitter(geom, emitter, u0, u1, u2):
+    """``(p, ng, prim)``: a point uniform by area on area emitter ``emitter``.
+
+    ``u0`` picks the primitive in proportion to its area, ``u1, u2`` the point on
+    it; the pdf per unit area is ``1 / emitter_area[emitter]``.
+    """
+    lo = geom.emitter_offset[emitter]
+    hi = geom.emitter_offset[emitter + 1] - 1
+    # First entry with cdf > u0 (binary search).
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if geom.emitter_cdf[mid] > u0:
+            hi = mid
+        else:
+            lo = mid + 1
+    prim = geom.emitter_prim_ids[lo]
+    p, ng = sample_on_primitive(geom, prim, u1, u2)
+    return p, ng, prim
+
+
+# ---------------------------------------------------------------------------
+# Batches and a brute-force reference (tests, benchmarks, debugging)
+# ---------------------------------------------------------------------------
+
+@kernel(inline=True)
+def intersect_brute_force(geom, o, d, tmax):
+    """Same result as :func:`intersect`, testing every primitive (reference for tests)."""
+    best_prim = -1
+    best_t = tmax
+    best_b1 = 0.0
+    best_b2 = 0.0
+    for prim in range(geom.prim_kind.shape[0]):
+        t, b1, b2 = pr.intersect_primitive(geom, prim, o, d, best_t)
+        if t < best_t:
+            best_prim = prim
+            best_t = t
+            best_b1 = b1
+            best_b2 = b2
+    return best_prim, best_t, best_b1, best_b2
+
+
+@kernel
+def intersect_rays(geom, origins, dirs, tmax):
+    """:func:`intersect` for each row of ``origins``/``dirs`` (n, 3): arrays prim (int64), t, b1, b2."""
+    n = origins.shape[0]
+    prim = np.empty(n, dtype=np.int64)
+    tt = np.empty(n)
+    bb1 = np.empty(n)
+    bb2 = np.empty(n)
+    for i in range(n):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
+        p, t, b1, b2 = intersect(geom, o, d, tmax)
+        prim[i] = p
+        tt[i] = t
+        bb1[i] = b1
+        bb2[i] = b2
+    return prim, tt, bb1, bb2
+
+
+@parallel_kernel
+def intersect_rays_parallel(geom, origins, dirs, tmax):
+    """:func:`intersect_rays` with a ``prange`` over rays."""
+    n = origins.shape[0]
+    prim = np.empty(n, dtype=np.int64)
+    tt = np.empty(n)
+    bb1 = np.empty(n)
+    bb2 = np.empty(n)
+    for i in prange(n):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
+        p, t, b1, b2 = intersect(geom, o, d, tmax)
+        prim[i] = p
+        tt[i] = t
+        bb1[i] = b1
+        bb2[i] = b2
+    return prim, tt, bb1, bb2
