@@ -9,18 +9,16 @@ from __future__ import annotations
 
 import sys
 import time
-from contextlib import nullcontext
-
-import numba
 
 from . import __version__, methods
 from .errors import ParameterError
+from .jit import default_threads
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
 from .scene.compiled import Scene, compile_scene
 
 #: Settings every method takes, next to its own parameters.
-COMMON = ("spp", "width", "height", "seed")
+COMMON = ("spp", "width", "height", "seed", "threads")
 
 
 def load_scene(path_or_name, **defaults) -> Scene:
@@ -86,7 +84,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
 
     spp: samples per pixel (default: the scene's sampler); res: W, (W, H) or "WxH"
     (default: the scene's film); seed: the random seed (the same seed gives the
-    same image whatever the thread count); threads: Numba threads (default: all);
+    same image whatever the thread count); threads: worker threads (default: all cores);
     progress: show progress bars on a terminal; params: the method's own
     parameters (``caustica methods`` lists them).
     """
@@ -106,12 +104,12 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         raise ParameterError(f"--seed: must be a non-negative integer (got {seed})")
     settings = methods.params.resolve(method, cls.params, params)
     settings.update(spp=spp, width=width, height=height, seed=seed)
-    if threads is not None:
-        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-            raise ParameterError(f"--threads: between 1 and {numba.config.NUMBA_NUM_THREADS} (got {threads})")
-    ctx = _threads(threads) if threads else nullcontext()
-    with ctx:
-        image, stats = cls.render(scene, settings, progress_factory(progress))
+    if threads is None:
+        threads = default_threads()
+    if not isinstance(threads, int) or not 1 <= threads <= 1024:
+        raise ParameterError(f"--threads: between 1 and 1024 (got {threads})")
+    settings["threads"] = threads
+    image, stats = cls.render(scene, settings, progress_factory(progress))
     timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
     timings.update(stats.pop("timings", {}))
     timings["total_s"] = time.perf_counter() - t_start
@@ -124,24 +122,10 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "width": width,
         "height": height,
         "version": __version__,
-        "threads": threads or numba.get_num_threads(),
+        "threads": threads,
         "timings": timings,
         **stats,
         "peak_memory_bytes": peak_memory_bytes(),
     }
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     return RenderResult(image, out)
-
-
-class _threads:
-    def __init__(self, n):
-        self.n = n
-
-    def __enter__(self):
-        self.old = numba.get_num_threads()
-        numba.set_num_threads(self.n)
-
-    def __exit__(self, *exc):
-        numba.set_num_threads(self.old)
-
-

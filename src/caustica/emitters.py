@@ -40,8 +40,8 @@ class LightTable(NamedTuple):
     select_cdf: np.ndarray    # float64[L]: running sum of select_pdf (last = 1)
     prim_first: np.ndarray    # int32[L]: first index into prims / prim_cdf
     prim_count: np.ndarray    # int32[L]
-    prims: np.ndarray         # int32[*]: the emitter's primitives
-    prim_cdf: np.ndarray      # float64[*]: area CDF over the emitter's primitives
+    prims: np.ndarray         # int32[*]: the emitters' primitives (Geometry.emitter_prim_ids)
+    prim_cdf: np.ndarray      # float64[*]: area CDF within each emitter (Geometry.emitter_cdf)
     is_parallelogram: np.ndarray  # int8[L]: 1 when sampled through corner + u e1 + v e2
     corner: np.ndarray        # float64[L, 3]
     edge1: np.ndarray         # float64[L, 3]
@@ -79,27 +79,19 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     power = np.zeros((n, 3))
     first = np.zeros(n, np.int32)
     count = np.zeros(n, np.int32)
-    prims_list, cdf_list = [], []
     is_para = np.zeros(n, np.int8)
     corner = np.zeros((n, 3))
     edge1 = np.zeros((n, 3))
     edge2 = np.zeros((n, 3))
     normal = np.zeros((n, 3))
-    offset = 0
     for e, shape in enumerate(emissive):
-        prims = np.nonzero(geom.prim_emitter == e)[0].astype(np.int32)
-        areas = geom.prim_area[prims]
-        total = float(areas.sum())
+        # The geometry lists each emitter's primitives with their area CDF (CSR).
+        first[e] = geom.emitter_offset[e]
+        count[e] = geom.emitter_offset[e + 1] - geom.emitter_offset[e]
         kind[e] = AREA
         radiance[e] = shape.emitter_radiance
-        area[e] = total
-        power[e] = math.pi * total * np.asarray(shape.emitter_radiance)
-        first[e], count[e] = offset, len(prims)
-        prims_list.append(prims)
-        cdf = np.cumsum(areas) / total if total > 0 else np.ones(len(prims))
-        cdf[-1] = 1.0
-        cdf_list.append(cdf)
-        offset += len(prims)
+        area[e] = geom.emitter_area[e]
+        power[e] = math.pi * area[e] * np.asarray(shape.emitter_radiance)
         quad = _parallelogram(shape)
         if quad is not None:
             is_para[e] = 1
@@ -116,10 +108,9 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     select_cdf = np.cumsum(select_pdf)
     if n:
         select_cdf[-1] = 1.0
-    prims = np.concatenate(prims_list) if prims_list else np.zeros(0, np.int32)
-    prim_cdf = np.concatenate(cdf_list) if cdf_list else np.zeros(0)
     return LightTable(kind, radiance, position, area, power, select_pdf, select_cdf,
-                      first, count, prims.astype(np.int32), prim_cdf, is_para,
+                      first, count, geom.emitter_prim_ids.astype(np.int32),
+                      geom.emitter_cdf.astype(np.float64), is_para,
                       corner, edge1, edge2, normal)
 
 

@@ -6,10 +6,10 @@ import time
 import numpy as np
 
 from ..photons.estimate import FILTERS
-from ..photons.gather import gather_rows
+from ..jit import parallel_for
+from ..photons.gather import gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from .params import Param, non_negative, positive
-from .tiles import render_in_tiles
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
 
@@ -37,13 +37,14 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     image = np.zeros((cam.height, cam.width, 3), np.float32)
     filt = FILTERS[settings["filter"]]
 
-    def rows(r0, r1):
-        gather_rows(scene.geometry, scene.materials, scene.lights, cam, global_map, caustic_map,
-                    settings["seed"], settings["spp"], settings["k"], settings["radius"],
-                    k_caustic, r_caustic, filt, settings["light_samples"],
-                    settings["fixed_light_grid"], settings["max_specular_depth"], r0, r1, image)
-
+    n = cam.width * cam.height
+    bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
-    timings = render_in_tiles(rows, cam.height, progress, "camera pass")
-    timings["camera_pass_s"] = time.perf_counter() - t0
-    return image, timings
+    compile_s = parallel_for(gather_pixels, n, (scene.geometry, scene.materials, scene.lights, cam, global_map,
+                                                caustic_map, settings["seed"], settings["spp"], settings["k"],
+                                                settings["radius"], k_caustic, r_caustic, filt,
+                                                settings["light_samples"], settings["fixed_light_grid"],
+                                                settings["max_specular_depth"], image),
+                             threads=settings["threads"], progress=bar)
+    bar.close()
+    return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 
+from ..jit import parallel_for
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers, empty_photon_map, \
     map_from_buffers
@@ -53,16 +54,25 @@ class PhotonMapping:
         g, m, lt, seed = scene.geometry, scene.materials, scene.lights, settings["seed"]
         timings = {}
 
+        threads = settings["threads"]
         t0 = time.perf_counter()
         buf = allocate_buffers(n, mr + 1)
-        trace_photons(g, m, lt, seed, STREAM_PHOTON, n, mr, TERMINATIONS[settings["termination"]], *buf)
+        bar = progress(total=n, desc="photon tracing", unit="photon")
+        compile_s = parallel_for(trace_photons, n, (g, m, lt, seed, STREAM_PHOTON, n, mr,
+                                                    TERMINATIONS[settings["termination"]], *buf),
+                                 threads=threads, progress=bar)
+        bar.close()
         t1 = time.perf_counter()
-        timings["photon_trace_s"] = t1 - t0
+        timings["photon_trace_s"] = t1 - t0 - compile_s
         cbuf = None
         if use_caustic:
             cbuf = allocate_buffers(n_c, 1)
-            trace_caustic_photons(g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON, n_c, *cbuf)
-            timings["caustic_trace_s"] = time.perf_counter() - t1
+            bar = progress(total=n_c, desc="caustic photons", unit="photon")
+            c_s = parallel_for(trace_caustic_photons, n_c, (g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON,
+                                                            n_c, *cbuf), threads=threads, progress=bar)
+            bar.close()
+            compile_s += c_s
+            timings["caustic_trace_s"] = time.perf_counter() - t1 - c_s
 
         t2 = time.perf_counter()
         global_map = map_from_buffers(buf, (INDIRECT,) if use_caustic else (INDIRECT, CAUSTIC))
@@ -73,6 +83,7 @@ class PhotonMapping:
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]
         image, cam_t = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        cam_t["compile_s"] += compile_s
         timings.update(cam_t)
         stats = {"timings": timings,
                  **_map_stats("global", global_map, n),

@@ -10,22 +10,21 @@ only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
-from numba import prange
 
 from ..bsdf import reflect, sample_dielectric
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_kernel
+from ..jit import kernel, parallel_for
 from ..lighting import direct_one_sample
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
 from . import register
 from .params import Param
-from .tiles import render_in_tiles
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
@@ -110,13 +109,12 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
     return L
 
 
-@parallel_kernel
-def render_rows(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, row0, row1, image):
-    """Average ``spp`` jittered paths per pixel for image rows [row0, row1)."""
+@kernel
+def render_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image, i0, i1):
+    """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order."""
     width = cam.width
-    n = (row1 - row0) * width
-    for i in prange(n):
-        y = row0 + i // width
+    for i in range(i0, i1):
+        y = i // width
         x = i % width
         acc = (0.0, 0.0, 0.0)
         for s in range(spp):
@@ -147,10 +145,14 @@ class PathTracer:
         image = np.zeros((cam.height, cam.width, 3), np.float32)
         max_depth = DEPTH_CAP if settings["max_depth"] < 0 else settings["max_depth"]
 
-        def rows(r0, r1):
-            render_rows(scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
-                        settings["spp"], max_depth, settings["rr_depth"], r0, r1, image)
-
-        timings = render_in_tiles(rows, cam.height, progress, "camera pass")
+        n = cam.width * cam.height
+        bar = progress(total=n, desc="camera pass", unit="px")
+        t0 = time.perf_counter()
+        compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, cam,
+                                                    settings["seed"], settings["spp"], max_depth,
+                                                    settings["rr_depth"], image),
+                                 threads=settings["threads"], progress=bar)
+        bar.close()
+        timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, {"timings": timings,
                        "camera_rays": cam.width * cam.height * settings["spp"]}

@@ -39,11 +39,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import prange
 
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_kernel
+from ..jit import kernel, parallel_for
 from ..memory import check_budget
 from ..photons.emission import emit_photon
 from ..photons.records import build_photon_map, empty_photon_map
@@ -92,14 +91,14 @@ def place_associated(geom, mats, o, x_lead, d_lead, r_s, key, dim, n_alive, stor
     return landed
 
 
-@parallel_kernel
+@kernel
 def trace_streams(geom, mats, lights, seed, n_streams, n_assoc, r_s, max_bounces, termination,
                   rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
-                  rec_valid, assoc_pos, assoc_dir, assoc_nrm):
-    """Emit and trace n_streams streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1))."""
+                  rec_valid, assoc_pos, assoc_dir, assoc_nrm, i0, i1):
+    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1))."""
     slots = max_bounces + 1
     share = 1.0 / (n_assoc + 1)
-    for i in prange(n_streams):
+    for i in range(i0, i1):
         key = path_key(seed, STREAM_SPM, i)
         o, d, e_s, _ = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
         lead = vec.mul(e_s, share)
@@ -259,15 +258,21 @@ class StreamedPhotonMapping:
         timings = {}
         t0 = time.perf_counter()
         buf = StreamBuffers(n, n_fa, mr)
-        trace_streams(scene.geometry, scene.materials, scene.lights, settings["seed"], n, n_fa,
-                      settings["stream_radius"], mr, TERMINATIONS[settings["termination"]], *buf.rec, *buf.assoc)
+        bar = progress(total=n, desc="stream tracing", unit="stream")
+        compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
+                                                    settings["seed"], n, n_fa, settings["stream_radius"], mr,
+                                                    TERMINATIONS[settings["termination"]], *buf.rec, *buf.assoc),
+                                 threads=settings["threads"], progress=bar)
+        bar.close()
         t1 = time.perf_counter()
-        timings["photon_trace_s"] = t1 - t0
+        timings["compile_s"] = compile_s
+        timings["photon_trace_s"] = t1 - t0 - compile_s
         smap = StreamMap(buf)
         del buf
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
         timings["map_build_s"] = time.perf_counter() - t1
         image, cam_t = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
+        cam_t["compile_s"] += timings.pop("compile_s")
         timings.update(cam_t)
         stats = {"timings": timings,
                  "streams_emitted": n,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 from ..jit import kernel
-from .kdtree import knn
+from .kdtree import KdTree, knn
 
 FILTER_NONE = 0
 FILTER_CONE = 1
@@ -53,7 +53,8 @@ def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2):
     """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²)."""
     if pmap.position.shape[0] == 0 or k <= 0:
         return (0.0, 0.0, 0.0), 0
-    count, r2 = knn(pmap.tree, pmap.normal, p, n, k, r_max, scratch_idx, scratch_d2)
+    tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
+    count, r2 = knn(tree, pmap.normal, p, n, k, r_max, scratch_idx, scratch_d2)
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0

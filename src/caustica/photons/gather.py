@@ -17,13 +17,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_kernel
+from ..jit import kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE
@@ -130,15 +129,14 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
     return L
 
 
-@parallel_kernel
-def gather_rows(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
-                n_strata, fixed_grid, max_specular, row0, row1, image):
-    """The camera pass over image rows [row0, row1): spp jittered rays per pixel."""
+@kernel
+def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
+                  n_strata, fixed_grid, max_specular, image, i0, i1):
+    """The camera pass over pixels [i0, i1) in row-major order: spp jittered rays per pixel."""
     width = cam.width
-    n = (row1 - row0) * width
     kmax = max(k_g, k_c, 1)
-    for i in prange(n):
-        y = row0 + i // width
+    for i in range(i0, i1):
+        y = i // width
         x = i % width
         st_o = np.empty((SPLIT_STACK, 3))
         st_d = np.empty((SPLIT_STACK, 3))

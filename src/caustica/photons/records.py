@@ -25,11 +25,18 @@ CAUSTIC = 2    # arrived through specular surfaces only: light -> S+ -> here
 
 
 class PhotonMap(NamedTuple):
-    tree: KdTree
+    """Records plus the kd-tree's arrays, flat (Numba's parallel loops refuse nested tuples)."""
+    tree_points: np.ndarray
+    tree_index: np.ndarray
+    tree_axis: np.ndarray
     position: np.ndarray   # float32[n, 3]
     direction: np.ndarray  # float32[n, 3], incoming, towards the surface
     power: np.ndarray      # float32[n, 3], W
     normal: np.ndarray     # float32[n, 3], on the side the photon came from
+
+    @property
+    def tree(self) -> KdTree:
+        return KdTree(self.tree_points, self.tree_index, self.tree_axis)
 
     @property
     def count(self) -> int:
@@ -47,7 +54,7 @@ class PhotonMap(NamedTuple):
 def build_photon_map(position, direction, power, normal) -> PhotonMap:
     position = np.ascontiguousarray(position, dtype=np.float32)
     tree = build_kdtree(position.astype(np.float64))
-    return PhotonMap(tree, position, np.ascontiguousarray(direction, dtype=np.float32),
+    return PhotonMap(tree.points, tree.index, tree.axis, position, np.ascontiguousarray(direction, dtype=np.float32),
                      np.ascontiguousarray(power, dtype=np.float32),
                      np.ascontiguousarray(normal, dtype=np.float32))
 

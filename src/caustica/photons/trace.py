@@ -9,12 +9,10 @@ bounces; mirrors and glass have their own cap (:data:`SPECULAR_CAP`).
 """
 from __future__ import annotations
 
-from numba import prange
-
 from ..bsdf import reflect, sample_dielectric
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_kernel
+from ..jit import kernel
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
@@ -119,23 +117,23 @@ def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_on
     return stored
 
 
-@parallel_kernel
+@kernel
 def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termination,
-                  buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
-    """Emit and trace n_paths photons; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
+                  buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
+    """Emit and trace photons [i0, i1) of n_paths; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
     slots = max_bounces + 1
-    for i in prange(n_paths):
+    for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, _ = emit_photon(geom, lights, key, n_paths)
         trace_one(geom, mats, key, o, d, power, max_bounces, termination, False,
                   i * slots, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
 
 
-@parallel_kernel
+@kernel
 def trace_caustic_photons(geom, mats, lights, spheres, seed, stream, n_paths,
-                          buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
-    """Caustic photons aimed at the specular objects; only light -> S+ -> D records (one slot each)."""
-    for i in prange(n_paths):
+                          buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
+    """Caustic photons [i0, i1) aimed at the specular objects; only light -> S+ -> D records (one slot each)."""
+    for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:

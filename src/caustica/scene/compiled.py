@@ -53,13 +53,9 @@ class Scene:
 
     def specular_bounding_spheres(self) -> np.ndarray:
         """(n, 4) centre + radius of a sphere around each specular shape's primitives."""
-        shapes = self.specular_shapes()
-        g = self.geometry
         out = []
-        for s in shapes:
-            prims = np.nonzero(g.prim_shape == s)[0]
-            lo = g.prim_bounds_min[prims].min(axis=0)
-            hi = g.prim_bounds_max[prims].max(axis=0)
+        for s in self.specular_shapes():
+            lo, hi = self.geometry.shape_box[s, :3], self.geometry.shape_box[s, 3:]
             centre = 0.5 * (lo + hi)
             out.append([*centre, 0.5 * float(np.linalg.norm(hi - lo))])
         return np.asarray(out, dtype=np.float64).reshape(-1, 4)
