@@ -78,24 +78,19 @@ def _parse_res(res):
         raise ParameterError(f"--res: '{res}' is not W or WxH (e.g. 512 or 640x480)") from None
 
 
-def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
-           threads: int | None = None, progress: bool = False, **params) -> RenderResult:
-    """Render ``scene`` (a Scene, a path or a built-in name) with ``method``.
-
-    spp: samples per pixel (default: the scene's sampler); res: W, (W, H) or "WxH"
-    (default: the scene's film); seed: the random seed (the same seed gives the
-    same image whatever the thread count); threads: worker threads (default: all cores);
-    progress: show progress bars on a terminal; params: the method's own
-    parameters (``caustica methods`` lists them).
-    """
-    t_start = time.perf_counter()
+def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None, **params):
+    """(scene, method class, settings): every render setting checked and defaulted in one place."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     cls = methods.get(method)
     width, height = _parse_res(res)
     width = width or scene.width
     height = height or scene.height
-    spp = scene.spp if spp is None else int(spp)
+    if spp is None:
+        # pt follows the scene's sampler; the photon methods default to the paper's one
+        # camera ray per pixel (their direct light already takes n x n shadow rays).
+        spp = getattr(cls, "default_spp", None) or scene.spp
+    spp = int(spp)
     if width <= 0 or height <= 0:
         raise ParameterError(f"--res: the image must be at least 1x1 (got {width}x{height})")
     if spp <= 0:
@@ -109,7 +104,25 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     if not isinstance(threads, int) or not 1 <= threads <= 1024:
         raise ParameterError(f"--threads: between 1 and 1024 (got {threads})")
     settings["threads"] = threads
+    return scene, cls, settings
+
+
+def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
+           threads: int | None = None, progress: bool = False, **params) -> RenderResult:
+    """Render ``scene`` (a Scene, a path or a built-in name) with ``method``.
+
+    spp: samples per pixel (default: the scene's sampler for pt, 1 for the photon
+    methods, as in the paper); res: W, (W, H) or "WxH"
+    (default: the scene's film); seed: the random seed (the same seed gives the
+    same image whatever the thread count); threads: worker threads (default: all cores);
+    progress: show progress bars on a terminal; params: the method's own
+    parameters (``caustica methods`` lists them).
+    """
+    t_start = time.perf_counter()
+    scene, cls, settings = resolve_settings(scene, method, spp=spp, res=res, seed=seed, threads=threads,
+                                            **params)
     image, stats = cls.render(scene, settings, progress_factory(progress))
+    width, height, spp, threads = settings["width"], settings["height"], settings["spp"], settings["threads"]
     timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
     timings.update(stats.pop("timings", {}))
     timings["total_s"] = time.perf_counter() - t_start

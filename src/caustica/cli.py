@@ -1,4 +1,4 @@
-"""The command line: ``caustica render | scenes | methods``.
+"""The command line: ``caustica render | photons | scenes | methods``.
 
 Every error caused by input (a bad scene, a bad parameter) prints one line
 ``caustica: error: ...`` and exits with status 2; nothing is written then.
@@ -38,6 +38,34 @@ def _parse_defines(items):
     return out
 
 
+def _add_render_options(r, method_names, default_method, output_help):
+    """The options shared by ``render`` and ``photons``."""
+    r.add_argument("scene", help="a Mitsuba 3 XML file or a built-in scene name (see 'caustica scenes')")
+    r.add_argument("--method", "-m", default=default_method, choices=method_names,
+                   help=f"rendering method (default: {default_method}); 'caustica methods' describes them")
+    r.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler for pt, "
+                                           "1 for pm and spm as in the paper)")
+    r.add_argument("--res", help="image size W or WxH (default: the scene's film)")
+    r.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same image")
+    r.add_argument("--threads", type=int, help="worker threads (default: all cores)")
+    r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
+                   help="set a scene <default> value, as Mitsuba's -D (repeatable)")
+    r.add_argument("-o", "--output", help=output_help)
+    r.add_argument("--quiet", "-q", action="store_true", help="no progress bars or summary")
+    group = r.add_argument_group("method parameters (each belongs to the methods named)")
+    allowed = set(method_names)
+    for name, (p, owners) in sorted(_method_param_specs().items()):
+        owners = [o for o in owners if o in allowed]
+        if not owners:
+            continue
+        kw = {"type": p.type} if p.type is not bool else {"type": str}
+        if p.choices:
+            kw["choices"] = p.choices
+        group.add_argument(p.flag, dest=f"param_{name}", default=None,
+                           metavar=None if p.choices else p.type.__name__.upper(),
+                           help=f"{p.help} (default {p.default}; {', '.join(owners)})", **kw)
+
+
 def _build_parser():
     from . import methods
     parser = argparse.ArgumentParser(
@@ -50,28 +78,16 @@ def _build_parser():
     r = sub.add_parser("render", help="render a scene to EXR + PNG + JSON",
                        description="Render SCENE (an XML file or a built-in name) and write "
                                    "an OpenEXR image, a PNG preview and a JSON sidecar.")
-    r.add_argument("scene", help="a Mitsuba 3 XML file or a built-in scene name (see 'caustica scenes')")
-    names = sorted(methods.available())
-    r.add_argument("--method", "-m", default="pt", choices=names,
-                   help="rendering method (default: pt); 'caustica methods' describes them")
-    r.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler)")
-    r.add_argument("--res", help="image size W or WxH (default: the scene's film)")
-    r.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same image")
-    r.add_argument("--threads", type=int, help="worker threads (default: all cores)")
-    r.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
-                   help="set a scene <default> value, as Mitsuba's -D (repeatable)")
-    r.add_argument("-o", "--output", help="output image path, .exr (default: out/<scene>_<method>.exr); "
-                                          "the .png and .json go beside it")
+    _add_render_options(r, sorted(methods.available()), "pt",
+                        "output image path, .exr (default: out/<scene>_<method>.exr); "
+                        "the .png and .json go beside it")
     r.add_argument("--exposure", type=float, default=0.0, help="PNG preview exposure in stops (default 0)")
-    r.add_argument("--quiet", "-q", action="store_true", help="no progress bars or summary")
-    group = r.add_argument_group("method parameters (each belongs to the methods named)")
-    for name, (p, owners) in sorted(_method_param_specs().items()):
-        kw = {"type": p.type} if p.type is not bool else {"type": str}
-        if p.choices:
-            kw["choices"] = p.choices
-        group.add_argument(p.flag, dest=f"param_{name}", default=None, metavar=p.type.__name__.upper()
-                           if not p.choices else None,
-                           help=f"{p.help} (default {p.default}; {', '.join(owners)})", **kw)
+
+    ph = sub.add_parser("photons", help="picture where photons and streams land",
+                        description="Trace the photon map(s) of a photon method and write a PNG of the "
+                                    "stored records projected into the camera view, coloured by power: "
+                                    "pm shows the global | caustic map, spm the leading | associated photons.")
+    _add_render_options(ph, ["pm", "spm"], "spm", "output PNG path (default: out/<scene>_<method>_photons.png)")
 
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("methods", help="list the methods and their parameters")
@@ -98,6 +114,27 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _cmd_photons(args) -> int:
+    from .api import load_scene, progress_factory, resolve_settings
+    from .imageio import write_png
+    from .photon_view import photon_picture
+    params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
+    if args.output is None:
+        stem = Path(args.scene).stem if args.scene.endswith(".xml") else args.scene
+        args.output = f"out/{stem}_{args.method}_photons.png"
+    if Path(args.output).suffix.lower() != ".png":
+        raise ParameterError(f"-o {args.output}: the photon picture is a .png file")
+    scene = load_scene(args.scene, **_parse_defines(args.defines))
+    scene, cls, settings = resolve_settings(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
+                                            threads=args.threads, **params)
+    picture, stats = photon_picture(scene, cls, settings, progress_factory(not args.quiet))
+    write_png(args.output, picture)
+    if not args.quiet:
+        print(f"{scene.name}: {stats['photons_stored']:,} photons stored ({' | '.join(stats['panels'])}) "
+              f"-> {args.output}")
+    return 0
+
+
 def _cmd_scenes() -> int:
     from .scene.builtin import builtin_scene_names, describe_builtin
     for name in builtin_scene_names():
@@ -120,6 +157,8 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
         if args.command == "render":
             return _cmd_render(args)
+        if args.command == "photons":
+            return _cmd_photons(args)
         if args.command == "scenes":
             return _cmd_scenes()
         if args.command == "methods":

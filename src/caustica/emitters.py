@@ -139,7 +139,7 @@ def choose_light(lights, u):
     return i, p, min(max(u_rest, 0.0), 0.99999999)
 
 
-@kernel
+@kernel(inline=True)
 def sample_area_emitter(lights, geom, e, u1, u2):
     """A point uniformly by area on area emitter e: (position, front normal); pdf = 1 / area[e]."""
     if lights.is_parallelogram[e] == 1:

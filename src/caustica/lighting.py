@@ -23,7 +23,7 @@ from .jit import kernel
 from .sampling.rng import uniform
 
 
-@kernel
+@kernel(inline=True)
 def visible(geom, p, ng, q, nq):
     """True when nothing blocks the segment from surface point p to light point q.
 

@@ -33,6 +33,7 @@ def _map_stats(prefix, pmap, emitted):
 class PhotonMapping:
     name = "pm"
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
+    default_spp = 1
     params = (
         Param("photons", int, 100_000, "photons emitted for the global map", positive, ">= 1"),
         Param("caustic_photons", int, 0, "photons aimed at specular objects for a caustic map "
@@ -43,7 +44,8 @@ class PhotonMapping:
     ) + ESTIMATE_PARAMS
 
     @staticmethod
-    def render(scene, settings, progress):
+    def build_maps(scene, settings, progress):
+        """Photon pass(es) and kd-trees: (global map, caustic map, stats with timings)."""
         n = settings["photons"]
         n_c = settings["caustic_photons"]
         mr = settings["max_bounces"]
@@ -79,12 +81,7 @@ class PhotonMapping:
         caustic_map = map_from_buffers(cbuf, (CAUSTIC,)) if use_caustic else empty_photon_map()
         timings["map_build_s"] = time.perf_counter() - t2
         del buf, cbuf
-
-        k_c = settings["caustic_k"] or settings["k"]
-        r_c = settings["caustic_radius"] or settings["radius"]
-        image, cam_t = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
-        cam_t["compile_s"] += compile_s
-        timings.update(cam_t)
+        timings["compile_s"] = compile_s
         stats = {"timings": timings,
                  **_map_stats("global", global_map, n),
                  "photons_emitted": n + (n_c if use_caustic else 0),
@@ -95,4 +92,14 @@ class PhotonMapping:
         stats["map_mb"] = stats["map_bytes"] / 1e6
         if n_c > 0 and not use_caustic:
             stats["note"] = "no specular objects in the scene: the caustic map was not built"
+        return global_map, caustic_map, stats
+
+    @classmethod
+    def render(cls, scene, settings, progress):
+        global_map, caustic_map, stats = cls.build_maps(scene, settings, progress)
+        k_c = settings["caustic_k"] or settings["k"]
+        r_c = settings["caustic_radius"] or settings["radius"]
+        image, cam_t = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        cam_t["compile_s"] += stats["timings"].pop("compile_s")
+        stats["timings"].update(cam_t)
         return image, stats

@@ -242,6 +242,7 @@ class StreamMap:
 class StreamedPhotonMapping:
     name = "spm"
     summary = "streamed photon mapping (the paper's method): streams of a leading + associated photons"
+    default_spp = 1
     params = (
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
@@ -251,7 +252,8 @@ class StreamedPhotonMapping:
     ) + ESTIMATE_PARAMS
 
     @staticmethod
-    def render(scene, settings, progress):
+    def build_stream_map(scene, settings, progress):
+        """Stream tracing and the kd-tree over leading photons: (StreamMap, stats with timings)."""
         n, n_fa, mr = settings["streams"], settings["assoc"], settings["max_bounces"]
         check_budget(StreamBuffers.bytes_needed(n, n_fa, mr), f"{n:,} streams x {n_fa} associated photons",
                      "lower --streams, --assoc or --max-bounces")
@@ -268,12 +270,7 @@ class StreamedPhotonMapping:
         timings["compile_s"] = compile_s
         timings["photon_trace_s"] = t1 - t0 - compile_s
         smap = StreamMap(buf)
-        del buf
-        pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
         timings["map_build_s"] = time.perf_counter() - t1
-        image, cam_t = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
-        cam_t["compile_s"] += timings.pop("compile_s")
-        timings.update(cam_t)
         stats = {"timings": timings,
                  "streams_emitted": n,
                  "stream_records_stored": smap.n_records,
@@ -282,4 +279,15 @@ class StreamedPhotonMapping:
                  "photons_stored": smap.n_records + smap.n_associated,
                  "map_bytes": smap.memory_bytes()}
         stats["map_mb"] = stats["map_bytes"] / 1e6
+        return smap, stats
+
+    @classmethod
+    def render(cls, scene, settings, progress):
+        smap, stats = cls.build_stream_map(scene, settings, progress)
+        t0 = time.perf_counter()
+        pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
+        stats["timings"]["map_build_s"] += time.perf_counter() - t0
+        image, cam_t = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
+        cam_t["compile_s"] += stats["timings"].pop("compile_s")
+        stats["timings"].update(cam_t)
         return image, stats
