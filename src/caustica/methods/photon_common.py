@@ -32,19 +32,21 @@ ESTIMATE_PARAMS = (
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):
-    """Render the image from the maps; returns (image, timings)."""
+    """Render the image from the maps; returns (image, timings, number of k-nearest searches)."""
     cam = scene.camera(settings["width"], settings["height"])
     image = np.zeros((cam.height, cam.width, 3), np.float32)
     filt = FILTERS[settings["filter"]]
 
     n = cam.width * cam.height
+    knn_queries = np.zeros(n, np.int32)
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     compile_s = parallel_for(gather_pixels, n, (scene.geometry, scene.materials, scene.lights, cam, global_map,
                                                 caustic_map, settings["seed"], settings["spp"], settings["k"],
                                                 settings["radius"], k_caustic, r_caustic, filt,
                                                 settings["light_samples"], settings["fixed_light_grid"],
-                                                settings["max_specular_depth"], image),
+                                                settings["max_specular_depth"], image, knn_queries),
                              threads=settings["threads"], progress=bar)
     bar.close()
-    return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
+    return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}, \
+        int(knn_queries.sum())

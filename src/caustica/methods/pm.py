@@ -99,7 +99,8 @@ class PhotonMapping:
         global_map, caustic_map, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]
-        image, cam_t = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        image, cam_t, queries = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
         cam_t["compile_s"] += stats["timings"].pop("compile_s")
         stats["timings"].update(cam_t)
+        stats["knn_queries"] = queries
         return image, stats

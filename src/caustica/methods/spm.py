@@ -287,7 +287,8 @@ class StreamedPhotonMapping:
         t0 = time.perf_counter()
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
         stats["timings"]["map_build_s"] += time.perf_counter() - t0
-        image, cam_t = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
+        image, cam_t, queries = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
         cam_t["compile_s"] += stats["timings"].pop("compile_s")
         stats["timings"].update(cam_t)
+        stats["knn_queries"] = queries
         return image, stats

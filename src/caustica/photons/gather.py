@@ -38,7 +38,7 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                     n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth,
                     idx, d2):
     L = (0.0, 0.0, 0.0)
-    top = 0
+    queries = 0
     for c in range(3):
         st_o[0, c] = o[c]
         st_d[0, c] = d[c]
@@ -75,6 +75,7 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
                 Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)
+                queries += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
                 E = vec.add(E, vec.add(Eg, Ec))
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
                 break
@@ -126,13 +127,16 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                     o = vec.offset_origin(p, ng, d_t)
                     d = d_t
                     beta = vec.mul(beta, 1.0 / (eta * eta))
-    return L
+    return L, queries
 
 
 @kernel
 def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
-                  n_strata, fixed_grid, max_specular, image, i0, i1):
-    """The camera pass over pixels [i0, i1) in row-major order: spp jittered rays per pixel."""
+                  n_strata, fixed_grid, max_specular, image, knn_queries, i0, i1):
+    """The camera pass over pixels [i0, i1) in row-major order: spp jittered rays per pixel.
+
+    knn_queries[i] receives the number of k-nearest searches pixel i made.
+    """
     width = cam.width
     kmax = max(k_g, k_c, 1)
     for i in range(i0, i1):
@@ -145,13 +149,16 @@ def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c,
         idx = np.empty(kmax, np.int64)
         d2 = np.empty(kmax)
         acc = (0.0, 0.0, 0.0)
+        nq = 0
         for s in range(spp):
             key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L = gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
+            L, q = gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
                                 n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth, idx, d2)
+            nq += q
             if math.isfinite(L[0] + L[1] + L[2]):
                 acc = vec.add(acc, L)
+        knn_queries[i] = nq
         inv = 1.0 / spp
         image[y, x, 0] = acc[0] * inv
         image[y, x, 1] = acc[1] * inv
