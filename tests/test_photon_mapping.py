@@ -1,0 +1,314 @@
+"""Photon mapping (method ``pm``, SPEC §2-3): power conservation of the photon tracer,
+Russian roulette, the caustic map, agreement with the path tracer, determinism and
+parameter checking.
+
+Tolerances are derived, not tuned: a total over N independent photons is compared with
+its expectation within 5 standard errors, the standard error being the sample standard
+deviation of the per-photon contribution over sqrt(N) (with fixed seeds the tests are
+deterministic; 5 sigma keeps a reseeded run from failing by chance).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica.errors import ParameterError
+from caustica.jit import parallel_for
+from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, allocate_buffers
+from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_caustic_photons, trace_photons
+from caustica.sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
+from caustica.scene.compiled import compile_scene
+from caustica.scene.xml_loader import parse_scene_string
+
+RHO = np.array([0.6, 0.5, 0.4])
+SENSOR = """<sensor type="perspective"><float name="fov" value="60"/>
+  <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, -1" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film></sensor>"""
+WALLS = f"""<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+  <boolean name="flip_normals" value="true"/>
+  <bsdf type="diffuse"><rgb name="reflectance" value="{', '.join(map(str, RHO))}"/></bsdf></shape>"""
+POINT_I = np.array([1.0, 2.0, 3.0])
+POINT_BOX = f"""<?xml version="1.0"?><scene version="3.0.0">{SENSOR}{WALLS}
+<emitter type="point"><point name="position" x="1" y="0.5" z="-0.3"/>
+  <rgb name="intensity" value="{', '.join(map(str, POINT_I))}"/></emitter></scene>"""
+# The area light's plate reflects like the walls on both sides, so every diffuse hit scales by ρ.
+AREA_L = np.array([4.0, 3.0, 2.0])
+AREA_BOX = f"""<?xml version="1.0"?><scene version="3.0.0">{SENSOR}{WALLS}
+<shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="90"/>
+  <translate x="0.5" y="4" z="1"/></transform>
+  <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="{', '.join(map(str, RHO))}"/></bsdf></bsdf>
+  <emitter type="area"><rgb name="radiance" value="{', '.join(map(str, AREA_L))}"/></emitter></shape></scene>"""
+BOXES = {"point": (POINT_BOX, 4.0 * math.pi * POINT_I),     # Φ = 4π I
+         "area": (AREA_BOX, math.pi * AREA_L * 1.0)}        # Φ = π L A, A = 1 x 1
+
+
+def xml_scene(text, name="test.xml"):
+    return compile_scene(parse_scene_string(text, ".", None, name))
+
+
+def trace(scene, n, mr, termination=TERMINATION_CAP, seed=5, threads=None):
+    buf = allocate_buffers(n, mr + 1)
+    parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_PHOTON, n, mr,
+                                    termination, *buf), threads=threads)
+    return buf
+
+
+def per_photon_slot_power(buf, n, mr):
+    """(n, mr + 1, 3) float64: the power photon i stored in its s-th record (0 where none)."""
+    pw = buf.power.astype(np.float64).reshape(n, mr + 1, 3).copy()
+    pw[buf.kind.reshape(n, mr + 1) == EMPTY] = 0.0
+    return pw
+
+
+N_BOX, MR_BOX = 60_000, 4
+
+
+@pytest.fixture(scope="module", params=sorted(BOXES))
+def closed_box(request):
+    text, phi = BOXES[request.param]
+    scene = xml_scene(text, f"box-{request.param}.xml")
+    cap = trace(scene, N_BOX, MR_BOX, TERMINATION_CAP)
+    rr = trace(scene, N_BOX, MR_BOX, TERMINATION_ROULETTE)
+    return request.param, scene, phi, cap, rr
+
+
+# ----------------------------------------------------------------------------- power conservation
+
+def test_emitted_power_matches_light(closed_box):
+    """Each photon leaves the light with Φ / N (the photons' powers sum to the light's power)."""
+    kind, scene, phi, cap, _ = closed_box
+    from caustica.photons.emission import emit_photon
+    from caustica.sampling.rng import path_key
+    total = np.zeros(3)
+    for i in range(200):
+        key = np.uint64(path_key(5, STREAM_PHOTON, i))   # (a uint64 comes back as a Python int)
+        _, _, p, _ = emit_photon(scene.geometry, scene.lights, key, N_BOX)
+        total += p
+    np.testing.assert_allclose(total / 200 * N_BOX, phi, rtol=1e-9)
+
+
+def test_cap_stored_power_per_bounce(closed_box):
+    """termination=cap in a closed box: the record after b diffuse bounces carries Φ ρ^b / N exactly.
+
+    Records of the first hit are direct light and are not stored, so a photon's slot s
+    (s = 0 .. mr-1) holds the hit after s + 1 bounces; the last slot stays empty.  The
+    expectation is exact; the only randomness is a photon lost to a numerical leak or a
+    degenerate bounce, which the 5-standard-error band (from the per-photon sample
+    variance, ≈ 0 here) would reveal.
+    """
+    kind, scene, phi, buf, _ = closed_box
+    pw = per_photon_slot_power(buf, N_BOX, MR_BOX)
+    counts = (buf.kind.reshape(N_BOX, MR_BOX + 1) != EMPTY).sum(axis=0)
+    assert counts[MR_BOX] == 0
+    assert np.all(buf.kind[buf.kind != EMPTY] == INDIRECT)
+    for s in range(MR_BOX):
+        b = s + 1
+        expected = phi * RHO ** b
+        total = pw[:, s].sum(axis=0)
+        se = pw[:, s].std(axis=0, ddof=1) * math.sqrt(N_BOX)
+        assert np.all(np.abs(total - expected) <= 5 * se + 1e-6 * expected), (kind, b, total, expected, se)
+        assert counts[s] >= N_BOX * (1 - 1e-4), (kind, b, counts[s])   # (almost) no photon leaks
+
+
+def test_roulette_same_expected_power_as_cap(closed_box):
+    kind, scene, phi, cap, rr = closed_box
+    pw = per_photon_slot_power(rr, N_BOX, MR_BOX)
+    q = RHO.mean()
+    counts = (rr.kind.reshape(N_BOX, MR_BOX + 1) != EMPTY).sum(axis=0)
+    for s in range(MR_BOX):
+        b = s + 1
+        expected = phi * RHO ** b
+        total = pw[:, s].sum(axis=0)
+        se = pw[:, s].std(axis=0, ddof=1) * math.sqrt(N_BOX)
+        assert np.all(se > 0)
+        assert np.all(np.abs(total - expected) <= 5 * se), (kind, b, total, expected, se)
+        # survivors after b roulette games: N q^b, binomial
+        p = q ** b
+        assert abs(counts[s] - N_BOX * p) <= 5 * math.sqrt(N_BOX * p * (1 - p)), (kind, b, counts[s])
+    # and the total over all bounces
+    tot = pw.sum(axis=1)
+    se = tot.std(axis=0, ddof=1) * math.sqrt(N_BOX)
+    expected = phi * sum(RHO ** b for b in range(1, MR_BOX + 1))
+    assert np.all(np.abs(tot.sum(axis=0) - expected) <= 5 * se)
+
+
+# ----------------------------------------------------------------------------- the caustic map
+
+@pytest.fixture(scope="module")
+def diacaustic():
+    return caustica.load_scene("cornell-diacaustic")
+
+
+@pytest.fixture(scope="module")
+def pyramid():
+    return caustica.load_scene("cornell-pyramid")
+
+
+def test_caustic_map_holds_only_lsd_records_on_diffuse_surfaces(diacaustic):
+    s = diacaustic
+    spheres = s.specular_bounding_spheres()
+    assert spheres.shape == (1, 4)
+    np.testing.assert_allclose(spheres[0], [4, 4, 2, 4 * math.sqrt(3)], rtol=1e-6)  # box about the sphere
+    n_c = 40_000
+    buf = allocate_buffers(n_c, 1)
+    parallel_for(trace_caustic_photons, n_c, (s.geometry, s.materials, s.lights, spheres, 3, STREAM_CAUSTIC_PHOTON,
+                                              n_c, *buf))
+    keep = buf.kind != EMPTY
+    assert keep.sum() > 0.1 * n_c
+    assert np.all(buf.kind[keep] == CAUSTIC)
+    p = buf.position[keep].astype(np.float64)
+    # every record lies on one of the box's diffuse walls (never on the glass sphere)
+    on_wall = ((np.abs(np.abs(p[:, 0]) - 10) < 1e-3) | (np.abs(p[:, 1]) < 1e-3)
+               | (np.abs(p[:, 1] - 20) < 1e-3) | (np.abs(p[:, 2] + 10) < 1e-3)
+               | ((np.abs(p[:, 1] - 19.99) < 1e-3) & (np.abs(p[:, 0]) <= 1.5) & (np.abs(p[:, 2]) <= 1.5)))  # the light's plate
+    assert on_wall.all(), p[~on_wall][:5]
+    # and the bulk of it is the focused spot on the floor below the sphere
+    floor = np.abs(p[:, 1]) < 1e-3
+    spot = floor & (np.hypot(p[:, 0] - 5, p[:, 2] - 2.5) < 2.5)
+    pw = buf.power[keep].astype(np.float64).sum(axis=1)
+    assert pw[spot].sum() > 0.7 * pw.sum()
+
+
+def test_caustic_photons_carry_the_same_power_as_lsd_paths_of_the_global_pass(diacaustic):
+    """Aimed caustic photons are weighted by the aiming pdf: the L S+ D power they store equals,
+    in expectation, the power of the CAUSTIC records of ordinary photons (SPEC §3: unbiased)."""
+    s = diacaustic
+    n = 200_000
+    g = trace(s, n, 1, seed=9)
+    gpow = per_photon_slot_power(g, n, 1)
+    gpow[g.kind.reshape(n, 2) != CAUSTIC] = 0.0
+    x_g = gpow.sum(axis=1)
+    c = allocate_buffers(n, 1)
+    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, s.specular_bounding_spheres(), 9,
+                                            STREAM_CAUSTIC_PHOTON, n, *c))
+    x_c = c.power.astype(np.float64) * (c.kind != EMPTY)[:, None]
+    tg, tc = x_g.sum(axis=0), x_c.sum(axis=0)
+    se = np.sqrt(x_g.var(axis=0, ddof=1) * n + x_c.var(axis=0, ddof=1) * n)
+    assert np.all(np.abs(tg - tc) <= 5 * se), (tg, tc, se)
+    # the aimed photons are the better estimate: their standard error is much smaller
+    assert np.all(x_c.std(axis=0) < 0.5 * x_g.std(axis=0))
+
+
+def test_pm_c_global_map_leaves_out_caustic_paths(diacaustic):
+    n, n_c = 20_000, 5_000
+    pm = caustica.render(diacaustic, "pm", spp=1, res=8, seed=4, photons=n)
+    pmc = caustica.render(diacaustic, "pm", spp=1, res=8, seed=4, photons=n, caustic_photons=n_c)
+    buf = trace(diacaustic, n, 4, seed=4)                  # the same photons as the renders' global pass
+    n_caustic = int((buf.kind == CAUSTIC).sum())
+    n_all = int((buf.kind != EMPTY).sum())
+    assert n_caustic > 0
+    assert pm.stats["global_photons_stored"] == n_all
+    assert pmc.stats["global_photons_stored"] == n_all - n_caustic
+    assert pmc.stats["caustic_photons_emitted"] == n_c
+    assert 0 < pmc.stats["caustic_photons_stored"] <= n_c
+    assert pmc.stats["photons_emitted"] == n + n_c
+    assert pmc.stats["photons_stored"] == pmc.stats["global_photons_stored"] + pmc.stats["caustic_photons_stored"]
+    assert "note" not in pmc.stats
+
+
+def test_no_specular_objects_no_caustic_map(pyramid):
+    a = caustica.render(pyramid, "pm", spp=1, res=16, seed=2, photons=5000, caustic_photons=5000)
+    b = caustica.render(pyramid, "pm", spp=1, res=16, seed=2, photons=5000)
+    assert "caustic map was not built" in a.stats["note"]
+    assert "caustic_photons_stored" not in a.stats
+    assert a.stats["photons_emitted"] == 5000
+    assert a.stats["global_photons_stored"] == b.stats["global_photons_stored"]
+    np.testing.assert_array_equal(a.image, b.image)
+
+
+def test_pm_c_image_mean_matches_pm(diacaustic):
+    """The caustic map adds resolution, not energy.
+
+    With the same seed, PM and PM+C share the camera samples and the global photons, so their
+    difference isolates the caustic map against the global map's own L S+ D records; the
+    noise of that paired difference is measured over 6 seeds and the mean difference must
+    lie within 5 standard errors of 0 — over the image and over the 8x8 block that holds
+    the caustic.
+    """
+    d_img, d_blk, rel_blk = [], [], []
+    for seed in range(1, 7):
+        a = caustica.render(diacaustic, "pm", spp=2, res=32, seed=seed, photons=40_000).image.astype(np.float64)
+        b = caustica.render(diacaustic, "pm", spp=2, res=32, seed=seed, photons=40_000,
+                            caustic_photons=40_000).image.astype(np.float64)
+        d_img.append(b.mean() - a.mean())
+        blk = lambda im: im.reshape(4, 8, 4, 8, 3).mean(axis=(1, 3, 4))
+        d_blk.append(blk(b) - blk(a))
+        rel_blk.append(np.abs(blk(b) / blk(a) - 1).max())
+    d_img, d_blk = np.array(d_img), np.array(d_blk)
+    assert abs(d_img.mean()) <= 5 * d_img.std(ddof=1) / math.sqrt(len(d_img)) + 1e-6, d_img
+    se = d_blk.std(axis=0, ddof=1) / math.sqrt(len(d_blk))
+    assert np.all(np.abs(d_blk.mean(axis=0)) <= 5 * se + 1e-6), (d_blk.mean(axis=0), se)
+    assert max(rel_blk) < 0.1
+
+
+# ----------------------------------------------------------------------------- against the path tracer
+
+def test_pm_agrees_with_pt_on_the_pyramid(pyramid):
+    """PM (mr = 4) against pt with max_depth = mr + 2 (Mitsuba's depth: camera -> gather point ->
+    mr diffuse vertices of the photon -> emitter), the same light paths.
+
+    Pixels that see the emitter directly are left out (at low spp their antialiased edge
+    dominates the image's noise and is the same quantity in both methods).
+    Tolerances: image mean 3 % (the brief); 4x4 blocks (12x12 px, ≈ 5x5 scene units) 6 %:
+    the k = 100 estimate has r ≈ 0.35 here (≈ 300 records per unit² for 200k photons), and
+    where its disc crosses a wall's edge it underestimates by up to 1/2 (edge) or 3/4
+    (corner); that band covers ≈ 2r / 5 ≈ 15 % of a block and indirect light is ≈ 40 % of
+    it, so ≲ 3 % of bias, plus ≈ 1 % noise of pt and of the photons.  Measured: ≤ 2.6 %.
+    """
+    res, mr = 48, 4
+    emit = caustica.render(pyramid, "pt", spp=64, res=res, seed=1, max_depth=1).image.max(axis=2) > 0
+    mask = emit.copy()
+    mask[1:] |= emit[:-1]; mask[:-1] |= emit[1:]; mask[:, 1:] |= emit[:, :-1]; mask[:, :-1] |= emit[:, 1:]
+    ref = caustica.render(pyramid, "pt", spp=192, res=res, seed=1, max_depth=mr + 2).image.astype(np.float64)
+    pm = caustica.render(pyramid, "pm", spp=4, res=res, seed=1, photons=200_000,
+                         max_bounces=mr).image.astype(np.float64)
+    keep = ~mask
+    assert 0 < mask.sum() < 0.1 * mask.size
+    rel = pm[keep].mean() / ref[keep].mean() - 1
+    assert abs(rel) < 0.03, rel
+
+    def blocks(im):
+        w = np.where(keep[..., None], im, 0.0).reshape(4, 12, 4, 12, 3).sum(axis=(1, 3, 4))
+        return w / keep.reshape(4, 12, 4, 12).sum(axis=(1, 3))
+    rb = blocks(pm) / blocks(ref) - 1
+    assert np.abs(rb).max() < 0.06, np.round(rb, 3)
+
+
+# ----------------------------------------------------------------------------- determinism, parameters
+
+def test_pm_deterministic_across_threads_and_seeds(diacaustic):
+    kw = dict(spp=1, res=16, photons=8000, caustic_photons=4000)
+    a = caustica.render(diacaustic, "pm", seed=3, threads=1, **kw)
+    b = caustica.render(diacaustic, "pm", seed=3, threads=2, **kw)
+    c = caustica.render(diacaustic, "pm", seed=4, threads=2, **kw)
+    assert a.image.tobytes() == b.image.tobytes()
+    for key in ("global_photons_stored", "caustic_photons_stored", "map_bytes"):
+        assert a.stats[key] == b.stats[key]
+    assert a.image.tobytes() != c.image.tobytes()
+    # the buffers themselves, record by record
+    s = diacaustic
+    b1 = trace(s, 3000, 4, seed=8, threads=1)
+    b2 = trace(s, 3000, 4, seed=8, threads=2)
+    for x, y in zip(b1, b2):
+        assert x.tobytes() == y.tobytes()
+
+
+@pytest.mark.parametrize("params, match", [
+    (dict(photon=100), "photon"),
+    (dict(photons=-5), "photons"),
+    (dict(photons=0), "photons"),
+    (dict(caustic_photons=-1), "caustic"),
+    (dict(filter="box"), "filter"),
+    (dict(termination="never"), "termination"),
+    (dict(radius=0.0), "radius"),
+    (dict(k=0), "k"),
+    (dict(max_bounces=0), "max-bounces"),
+    (dict(photons=1.5), "photons"),
+    (dict(assoc=3), "assoc"),
+])
+def test_pm_parameter_errors(diacaustic, params, match):
+    with pytest.raises(ParameterError, match=match):
+        caustica.render(diacaustic, "pm", spp=1, res=4, **params)
