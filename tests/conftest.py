@@ -1,0 +1,53 @@
+"""Generic fixtures shared by the test modules: where the shared scenes, reference images and data live.
+
+Nothing here changes global state.  The shared folder (``../../shared`` from this file, the
+project's sibling) is not part of a fresh clone, so fixtures that need it skip cleanly when it
+is missing.  Environment variables override the locations:
+
+* ``CAUSTICA_SHARED`` — the shared folder (holding ``scenes/``, ``refs/``, ``data/``);
+* ``CAUSTICA_REFS``   — the reference images folder itself.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+TESTS_DIR = Path(__file__).resolve().parent
+
+
+def _shared_dir() -> Path:
+    env = os.environ.get("CAUSTICA_SHARED")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
+
+
+def _existing_dir_or_skip(path: Path, what: str) -> Path:
+    if not path.is_dir():
+        pytest.skip(f"{what} not found at {path}")
+    return path
+
+
+@pytest.fixture(scope="session")
+def test_scenes_dir() -> Path:
+    """tests/scenes: small XML scenes written for the tests."""
+    return TESTS_DIR / "scenes"
+
+
+@pytest.fixture(scope="session")
+def shared_scenes_dir() -> Path:
+    """The shared copies of the paper's scenes (skip when missing)."""
+    return _existing_dir_or_skip(_shared_dir() / "scenes", "shared scenes folder")
+
+
+@pytest.fixture(scope="session")
+def refs_dir() -> Path:
+    """The Mitsuba reference renders ``*_256.exr`` (+ JSON, caustic masks); skip when missing."""
+    env = os.environ.get("CAUSTICA_REFS")
+    return _existing_dir_or_skip(Path(env) if env else _shared_dir() / "refs", "reference images folder")
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    """Shared data files such as bunny.ply (skip when missing)."""
+    return _existing_dir_or_skip(_shared_dir() / "data", "shared data folder")
