@@ -74,18 +74,7 @@ def box():
     return xml_scene(CLOSED_BOX, "box.xml")
 
 
-ROULETTE_BUG = (
-    "spm.py:159-162: with termination=roulette a stream ends ('break') when its leading photon loses "
-    "Russian roulette, taking the associated photons with it, although those already play their own "
-    "roulette (survive with p = q, power * albedo / q, spm.py:163-170): they survive with q^2 per bounce "
-    "but are compensated for q only, so stored energy after b bounces is (1 + n_fa q^b) / (n_fa + 1) "
-    "of PM's (measured 0.546, 0.318, 0.203, 0.146 for b = 1..4, q = 0.5, n_fa = 10; SPEC §4.5 violated)")
-
-
-@pytest.mark.parametrize("termination", [
-    TERMINATION_CAP,
-    pytest.param(TERMINATION_ROULETTE, marks=pytest.mark.xfail(strict=True, reason=ROULETTE_BUG)),
-])
+@pytest.mark.parametrize("termination", [TERMINATION_CAP, TERMINATION_ROULETTE])
 def test_stream_energy_per_bounce_matches_pm_expectation(box, termination):
     """SPEC §4.5: SPM's stored power equals PM's, Φ ρ^b after b diffuse bounces (b = 1 .. mr).
 

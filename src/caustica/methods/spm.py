@@ -20,10 +20,12 @@ A *stream* is a leading photon plus up to n_fa associated photons.
      position, normal, incoming direction and power, and the associated photons'
      positions, directions and normals with their (common) power.  Its energy E_i
      is the sum of its photons' powers.
-   - stream decay: the leading photon's power is scaled by the albedo (or it
-     plays Russian roulette) and it bounces in a cosine-distributed direction; each
-     associated photon survives with probability p = mean albedo, its power scaled
-     by albedo / p, so streams thin out as they travel.
+   - stream decay: the leading photon's power is scaled by the albedo and it
+     bounces in a cosine-distributed direction; each associated photon survives with
+     probability p = mean albedo, its power scaled by albedo / p, so streams thin out
+     as they travel.  With ``termination=roulette`` the whole stream plays Russian
+     roulette once, with the leading photon (survival p = mean albedo, every power
+     scaled by albedo / p), which keeps the expected power right.
    - after mr diffuse bounces the stream ends.
 4. Only leading photons go into the kd-tree; the radiance estimate (eq. 2) takes
    the k nearest stream records within R: L = f_r Σ W E_i (the ``stream``
@@ -46,7 +48,7 @@ from ..jit import kernel, parallel_for
 from ..memory import check_budget
 from ..photons.emission import emit_photon
 from ..photons.records import build_photon_map, empty_photon_map
-from ..photons.trace import SPECULAR_CAP, diffuse_bounce, specular_scatter
+from ..photons.trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
 from ..sampling.rng import STREAM_SPM, path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE
@@ -161,10 +163,17 @@ def trace_streams(geom, mats, lights, seed, n_streams, n_assoc, r_s, max_bounces
             if not alive:
                 break
             q = mats.albedo_mean[m]
-            survivors = 0
-            for j in range(n_alive):
-                if uniform(key, dim + j) < q:
-                    survivors += 1
+            if termination == TERMINATION_ROULETTE:
+                # The leading photon has already survived roulette with probability q, and
+                # the stream lives or dies with it: a second, per-photon roulette would
+                # leave the associated photons alive with probability q^2 while
+                # compensating only 1 / q.  So they all survive, scaled by albedo / q.
+                survivors = n_alive
+            else:
+                survivors = 0
+                for j in range(n_alive):
+                    if uniform(key, dim + j) < q:
+                        survivors += 1
             dim += n_assoc
             if q > 0.0:
                 p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
