@@ -112,17 +112,12 @@ def test_render_writes_exr_png_and_json_side_by_side(cli, tmp_path, method):
         assert stats["photons_emitted"] == 500 * (3 + 1)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: pt's JSON has no photons_emitted/photons_stored/map_bytes/"
-                                       "map_mb (SPEC §5 lists them for every render; expected 0 for pt)")
 def test_pt_json_reports_zero_photons_and_map_memory(cli, tmp_path):
     stats = _render(cli, tmp_path / "x.exr")
     assert stats["photons_emitted"] == 0 and stats["photons_stored"] == 0
     assert stats["map_bytes"] == 0 and stats["map_mb"] == 0.0
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: timings.total_s is measured inside api.render after the CLI "
-                                       "loaded the scene, so it leaves out scene_load_s and is smaller "
-                                       "than the sum of the phases")
 def test_total_time_covers_every_phase(cli, tmp_path, monkeypatch):
     import time
 
@@ -244,9 +239,6 @@ def test_method_parameter_out_of_range_is_an_error(cli, tmp_path, args, names):
     assert _files(tmp_path) == []
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: a bool flag takes any text: '--fixed-light-grid maybe' renders "
-                                       "with fixed_light_grid=false and exits 0 (params.resolve maps every "
-                                       "word outside 1/true/yes/on to False)")
 def test_bad_bool_value_is_an_error(cli, tmp_path):
     code, _, err = cli("render", SCENE, *TINY, "--method", "pm", *SMALL["pm"], "--fixed-light-grid", "maybe",
                        "-o", tmp_path / "x.exr")
@@ -339,9 +331,6 @@ def test_mesh_without_read_permission_is_an_error(cli, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: --res 0 (and 0xN, Nx0) is taken as 'no --res': the render "
-                                       "silently uses the film size and exits 0 (api._parse_res result is "
-                                       "combined with 'width or scene.width')")
 @pytest.mark.parametrize("res", ["0", "0x8", "8x0"])
 def test_res_zero_is_an_error(cli, tmp_path, res):
     code, _, err = cli("render", SCENE, "-D", "res=8", "--spp", "1", "-q", "--res", res,
@@ -351,9 +340,6 @@ def test_res_zero_is_an_error(cli, tmp_path, res):
     assert _files(tmp_path) == []
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: an output folder that cannot be created (its parent is a file) "
-                                       "raises FileExistsError with a traceback (exit 1) after the render "
-                                       "instead of a one-line error, exit 2")
 def test_unwritable_output_path_is_an_error(cli, tmp_path):
     (tmp_path / "afile").write_text("not a folder")
     code, _, err = cli("render", SCENE, *TINY, "-o", tmp_path / "afile" / "x.exr")
@@ -370,10 +356,6 @@ def test_usage_errors_exit_2_without_traceback_or_output(cli, tmp_path, args):
     assert _files(tmp_path) == []
 
 
-@pytest.mark.xfail(strict=True, reason="BUG (minor): argparse's own errors (--spp abc, --method nope) print a "
-                                       "usage block and 'caustica render: error: ...', not the one line "
-                                       "'caustica: error: ...' that cli.py's docstring promises for every "
-                                       "input error")
 def test_usage_errors_are_one_caustica_error_line(cli, tmp_path):
     code, _, err = cli("render", SCENE, *TINY, "--spp", "abc", "-o", tmp_path / "x.exr")
     assert code == 2
@@ -400,12 +382,9 @@ def test_scenes_lists_the_four_builtins(cli):
     code, out, err = cli("scenes")
     assert code == 0 and err == ""
     lines = out.strip().splitlines()
-    assert [line.split()[0] for line in lines] == list(BUILTINS)
+    assert [line.split()[0].rstrip(':') for line in lines] == list(BUILTINS)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG (cosmetic): 'caustica scenes' prints each name twice "
-                                       "('cornell-diacaustic     cornell-diacaustic: a glass sphere...'): "
-                                       "describe_builtin already starts with the name")
 def test_scenes_names_each_scene_once_per_line(cli):
     _, out, _ = cli("scenes")
     for name, line in zip(BUILTINS, out.strip().splitlines()):
@@ -529,9 +508,9 @@ def test_interrupted_save_keeps_previous_files_whole(cli, tmp_path, monkeypatch)
     imageio.read_exr(out)  # whichever EXR is there reads back whole
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: interrupted while saving the PNG, the CLI says 'no output was "
-                                       "written' but x.exr was already replaced by the new render, beside "
-                                       "the old x.png and x.json (the set no longer matches)")
+@pytest.mark.xfail(strict=True, reason="known limitation: the EXR, PNG and JSON are each replaced "
+                                       "atomically but one after another, so an interrupt while the PNG is "
+                                       "written leaves the new x.exr beside the old x.png and x.json")
 def test_interrupted_save_leaves_previous_exr_too(cli, tmp_path, monkeypatch):
     out = tmp_path / "x.exr"
     _render(cli, out, "--seed", "1")

@@ -84,8 +84,8 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         scene = load_scene(scene)
     cls = methods.get(method)
     width, height = _parse_res(res)
-    width = width or scene.width
-    height = height or scene.height
+    width = scene.width if width is None else width
+    height = scene.height if height is None else height
     if spp is None:
         # pt follows the scene's sampler; the photon methods default to the paper's one
         # camera ray per pixel (their direct light already takes n x n shadow rays).
@@ -119,13 +119,15 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     parameters (``caustica methods`` lists them).
     """
     t_start = time.perf_counter()
+    preloaded = isinstance(scene, Scene)
     scene, cls, settings = resolve_settings(scene, method, spp=spp, res=res, seed=seed, threads=threads,
                                             **params)
     image, stats = cls.render(scene, settings, progress_factory(progress))
     width, height, spp, threads = settings["width"], settings["height"], settings["spp"], settings["threads"]
     timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
     timings.update(stats.pop("timings", {}))
-    timings["total_s"] = time.perf_counter() - t_start
+    # total_s covers the scene load too, also when the scene was loaded before render().
+    timings["total_s"] = time.perf_counter() - t_start + (timings["scene_load_s"] if preloaded else 0.0)
     out = {
         "method": method,
         "scene": scene.name,

@@ -6,6 +6,7 @@ Every error caused by input (a bad scene, a bad parameter) prints one line
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -66,14 +67,32 @@ def _add_render_options(r, method_names, default_method, output_help):
                            help=f"{p.help} (default {p.default}; {', '.join(owners)})", **kw)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``caustica: error: ...`` and exit status 2."""
+
+    def error(self, message):
+        print(f"caustica: error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        sys.exit(EXIT_USAGE)
+
+
+def _check_output_folder(path: Path) -> None:
+    folder = Path(path).parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(f"-o {path}: cannot create the folder {folder}: {exc.strerror or exc}") from None
+    if not os.access(folder, os.W_OK):
+        raise ParameterError(f"-o {path}: the folder {folder} is not writable")
+
+
 def _build_parser():
     from . import methods
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="caustica",
         description="A renderer for caustics: streamed photon mapping (SPM), photon mapping "
                     "(PM, PM + caustic map) and a reference path tracer, on Mitsuba 3 XML scenes.")
     parser.add_argument("--version", action="version", version=f"caustica {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     r = sub.add_parser("render", help="render a scene to EXR + PNG + JSON",
                        description="Render SCENE (an XML file or a built-in name) and write "
@@ -102,11 +121,14 @@ def _cmd_render(args) -> int:
     if args.output is None:
         stem = Path(args.scene).stem if args.scene.endswith(".xml") else args.scene
         args.output = f"out/{stem}_{args.method}.exr"
-    output_paths(args.output)  # refuse a bad suffix before spending time rendering
+    _check_output_folder(output_paths(args.output)[0])  # refuse before spending time rendering
     scene = load_scene(args.scene, **defines)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, **params)
-    exr, png, js = result.save(args.output, exposure_stops=args.exposure)
+    try:
+        exr, png, js = result.save(args.output, exposure_stops=args.exposure)
+    except OSError as exc:
+        raise CausticaError(f"-o {args.output}: cannot write the output: {exc.strerror or exc}") from None
     if not args.quiet:
         t = result.stats["timings"]
         print(f"{scene.name}: {result.width}x{result.height} {args.method} in {t['total_s']:.2f} s "
@@ -124,6 +146,7 @@ def _cmd_photons(args) -> int:
         args.output = f"out/{stem}_{args.method}_photons.png"
     if Path(args.output).suffix.lower() != ".png":
         raise ParameterError(f"-o {args.output}: the photon picture is a .png file")
+    _check_output_folder(Path(args.output))
     scene = load_scene(args.scene, **_parse_defines(args.defines))
     scene, cls, settings = resolve_settings(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                                             threads=args.threads, **params)
@@ -138,7 +161,7 @@ def _cmd_photons(args) -> int:
 def _cmd_scenes() -> int:
     from .scene.builtin import builtin_scene_names, describe_builtin
     for name in builtin_scene_names():
-        print(f"{name:22s} {describe_builtin(name)}")
+        print(describe_builtin(name))
     return 0
 
 
@@ -169,7 +192,8 @@ def main(argv=None) -> int:
         print(f"caustica: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("caustica: interrupted; no output was written", file=sys.stderr)
+        print("caustica: interrupted; a file being written when it happened was left as it was",
+              file=sys.stderr)
         return 130
 
 

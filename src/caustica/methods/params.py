@@ -53,7 +53,11 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
                 f"its parameters: {', '.join(sorted(by_name))}")
         try:
             if spec.type is bool and isinstance(value, str):
-                value = value.lower() in ("1", "true", "yes", "on")
+                words = {"1": True, "true": True, "yes": True, "on": True,
+                         "0": False, "false": False, "no": False, "off": False}
+                if value.lower() not in words:
+                    raise ValueError
+                value = words[value.lower()]
             elif spec.type is int and isinstance(value, float) and not value.is_integer():
                 raise ValueError
             else:

@@ -155,4 +155,6 @@ class PathTracer:
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, {"timings": timings,
-                       "camera_rays": cam.width * cam.height * settings["spp"]}
+                       "camera_rays": cam.width * cam.height * settings["spp"],
+                       # a path tracer stores no photons: reported so every sidecar has the same fields
+                       "photons_emitted": 0, "photons_stored": 0, "map_bytes": 0, "map_mb": 0.0}
