@@ -140,12 +140,16 @@ def choose_light(lights, u):
 
 
 @kernel(inline=True)
-def sample_area_emitter(lights, geom, e, u1, u2):
-    """A point uniformly by area on area emitter e: (position, front normal); pdf = 1 / area[e]."""
-    if lights.is_parallelogram[e] == 1:
-        c = vec.row(lights.corner, e)
-        p = vec.madd(vec.madd(c, vec.row(lights.edge1, e), u1), vec.row(lights.edge2, e), u2)
-        return p, vec.row(lights.normal, e)
+def parallelogram_point(lights, e, u1, u2):
+    """corner + u1 edge1 + u2 edge2 on rectangle emitter e: (position, front normal)."""
+    c = vec.row(lights.corner, e)
+    p = vec.madd(vec.madd(c, vec.row(lights.edge1, e), u1), vec.row(lights.edge2, e), u2)
+    return p, vec.row(lights.normal, e)
+
+
+@kernel
+def sample_emitter_primitives(lights, geom, e, u1, u2):
+    """A point uniformly by area on emitter e via its primitives' area CDF: (position, front normal)."""
     first = lights.prim_first[e]
     count = lights.prim_count[e]
     j = find_cdf(lights.prim_cdf, first, count, u1)
@@ -154,6 +158,19 @@ def sample_area_emitter(lights, geom, e, u1, u2):
     u1r = (u1 - lo) / width if width > 0.0 else 0.0
     u1r = min(max(u1r, 0.0), 0.99999999)
     return sample_on_primitive(geom, lights.prims[j], u1r, u2)
+
+
+@kernel(inline=True)
+def sample_area_emitter(lights, geom, e, u1, u2):
+    """A point uniformly by area on area emitter e: (position, front normal); pdf = 1 / area[e].
+
+    Rectangles take the fast path through their (u, v) parametrisation; the general
+    path is a separate call so that the common case never touches ``geom``
+    (binding Geometry's many arrays costs reference-count updates per call).
+    """
+    if lights.is_parallelogram[e] == 1:
+        return parallelogram_point(lights, e, u1, u2)
+    return sample_emitter_primitives(lights, geom, e, u1, u2)
 
 
 @kernel

@@ -44,7 +44,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 CACHE_SERIAL = os.environ.get("CAUSTICA_NO_CACHE", "0") != "1"
 
@@ -126,3 +128,31 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
             if progress is not None:
                 progress.update(size)
     return compile_s
+
+
+@intrinsic
+def borrowed(typingctx, tup):
+    """The same named tuple of arrays with every array's reference count detached.
+
+    Numba increments and decrements the reference count of every array in a tuple
+    each time the tuple is bound to a function's argument, and cannot remove those
+    pairs around loops: with the Geometry's ~27 arrays that cost ~400 ns per call and
+    made threads contend on shared counters.  Range kernels call this once on the
+    scene tuples they receive, so every call below them passes views whose
+    reference-count operations are null checks.  Only for tuples that do not outlive
+    the kernel call in which their owners are alive: never return or store one.
+    (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
+    """
+    if not isinstance(tup, types.BaseTuple) or not all(isinstance(t, types.Array) for t in tup.types):
+        return None
+
+    def codegen(context, builder, signature, args):
+        value = args[0]
+        for i, arr_ty in enumerate(tup.types):
+            arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
+            arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
+            arr.parent = cgutils.get_null_value(arr.parent.type)
+            value = builder.insert_value(value, arr._getvalue(), i)
+        return value
+
+    return tup(tup), codegen

@@ -18,7 +18,7 @@ from ..bsdf import reflect, sample_dielectric
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..lighting import direct_one_sample
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
@@ -112,6 +112,7 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
 @kernel
 def render_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image, i0, i1):
     """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order."""
+    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     width = cam.width
     for i in range(i0, i1):
         y = i // width

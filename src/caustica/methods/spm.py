@@ -44,7 +44,7 @@ import numpy as np
 
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..photons.emission import emit_photon
 from ..photons.records import build_photon_map, empty_photon_map
@@ -98,6 +98,7 @@ def trace_streams(geom, mats, lights, seed, n_streams, n_assoc, r_s, max_bounces
                   rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
                   rec_valid, assoc_pos, assoc_dir, assoc_nrm, i0, i1):
     """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1))."""
+    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     slots = max_bounces + 1
     share = 1.0 / (n_assoc + 1)
     for i in range(i0, i1):

@@ -22,7 +22,7 @@ from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel
+from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE
@@ -137,6 +137,8 @@ def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c,
 
     knn_queries[i] receives the number of k-nearest searches pixel i made.
     """
+    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+    gmap, cmap = borrowed(gmap), borrowed(cmap)
     width = cam.width
     kmax = max(k_g, k_c, 1)
     for i in range(i0, i1):

@@ -12,7 +12,7 @@ from __future__ import annotations
 from ..bsdf import reflect, sample_dielectric
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import kernel
+from ..jit import borrowed, kernel
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
@@ -121,6 +121,7 @@ def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_on
 def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termination,
                   buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
     """Emit and trace photons [i0, i1) of n_paths; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
+    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     slots = max_bounces + 1
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
@@ -133,6 +134,7 @@ def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termin
 def trace_caustic_photons(geom, mats, lights, spheres, seed, stream, n_paths,
                           buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
     """Caustic photons [i0, i1) aimed at the specular objects; only light -> S+ -> D records (one slot each)."""
+    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
