@@ -274,8 +274,8 @@ def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
     Returns (count, r2): count <= k points are in out_idx[:count] / out_d2[:count]
     (in heap order, not sorted; out_d2[0] is the largest when count > 0), and r2 is
     the squared radius of the estimate: max(out_d2[:count]) when count == k, else
-    r_max**2.  The only allocation is the traversal stack, one 1.5 KiB array
-    (64 entries of (lo, hi, bound); indices stored as float64, exact below 2**53).
+    r_max**2.  The only allocation is the traversal stack, one 3 KiB array
+    (64 entries of (lo, hi, bound, three axis offsets); indices stored as float64, exact below 2**53).
     """
     r2max = r_max * r_max
     pts = tree.points
@@ -293,14 +293,20 @@ def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
     ny = float(qn[1])
     nz = float(qn[2])
 
-    stk = np.empty(3 * STACK_SIZE, dtype=np.float64)
+    # Stack entries: (lo, hi, lower bound, offsets to the cell along x, y, z).
+    stk = np.empty(6 * STACK_SIZE, dtype=np.float64)
     sp = 0
 
     count = 0
     bound = r2max  # squared search radius: r_max^2 until the heap is full
     lo = 0
     hi = n
-    nb = 0.0  # lower bound on the squared distance to any point of [lo, hi)
+    # Incremental distance (Arya & Mount): the cell of [lo, hi) lies at least
+    # (o0, o1, o2) away from the query along each axis, nb = o0^2 + o1^2 + o2^2.
+    nb = 0.0
+    o0 = 0.0
+    o1 = 0.0
+    o2 = 0.0
     while True:
         if nb <= bound:
             if hi - lo <= LEAF_SIZE:
@@ -314,35 +320,52 @@ def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
                 ax = axis[m]
                 if ax == 0:
                     diff = qx - pts[m, 0]
+                    old = o0
                 elif ax == 1:
                     diff = qy - pts[m, 1]
+                    old = o1
                 else:
                     diff = qz - pts[m, 2]
-                fb = diff * diff
-                if fb < nb:
-                    fb = nb
+                    old = o2
+                fb = nb - old * old + diff * diff  # the far child's bound
+                if fb <= bound:
+                    f0 = o0
+                    f1 = o1
+                    f2 = o2
+                    ad = abs(diff)
+                    if ax == 0:
+                        f0 = ad
+                    elif ax == 1:
+                        f1 = ad
+                    else:
+                        f2 = ad
+                    e = 6 * sp
+                    if diff < 0.0:  # near child [lo, m), far child [m + 1, hi)
+                        stk[e] = m + 1
+                        stk[e + 1] = hi
+                    else:
+                        stk[e] = lo
+                        stk[e + 1] = m
+                    stk[e + 2] = fb
+                    stk[e + 3] = f0
+                    stk[e + 4] = f1
+                    stk[e + 5] = f2
+                    sp += 1
                 if diff < 0.0:
-                    # near child [lo, m), far child [m + 1, hi)
-                    if fb <= bound:
-                        stk[3 * sp] = m + 1
-                        stk[3 * sp + 1] = hi
-                        stk[3 * sp + 2] = fb
-                        sp += 1
                     hi = m
                 else:
-                    if fb <= bound:
-                        stk[3 * sp] = lo
-                        stk[3 * sp + 1] = m
-                        stk[3 * sp + 2] = fb
-                        sp += 1
                     lo = m + 1
                 continue
         if sp == 0:
             break
         sp -= 1
-        lo = int(stk[3 * sp])
-        hi = int(stk[3 * sp + 1])
-        nb = stk[3 * sp + 2]
+        e = 6 * sp
+        lo = int(stk[e])
+        hi = int(stk[e + 1])
+        nb = stk[e + 2]
+        o0 = stk[e + 3]
+        o1 = stk[e + 4]
+        o2 = stk[e + 5]
 
     if count == k:
         return count, out_d2[0]
