@@ -1,4 +1,4 @@
-"""The command line: ``caustica render | photons | scenes | methods``.
+"""The command line: ``caustica render | photons | experiment | compare | scenes | methods``.
 
 Every error caused by input (a bad scene, a bad parameter) prints one line
 ``caustica: error: ...`` and exits with status 2; nothing is written then.
@@ -108,6 +108,48 @@ def _build_parser():
                                     "pm shows the global | caustic map, spm the leading | associated photons.")
     _add_render_options(ph, ["pm", "spm"], "spm", "output PNG path (default: out/<scene>_<method>_photons.png)")
 
+    ex = sub.add_parser("experiment", help="run the paper's experiments against a converged reference",
+                        description="Run the paper's experiments (table1, table2, table3, fig5, fig6, fig8, "
+                                    "fig9, or all): render what the paper rendered, measure each image against "
+                                    "a converged reference (cached), write CSV and Markdown tables, PNG figures "
+                                    "and DIR/report.md. See docs/experiments.md.")
+    ex.add_argument("names", nargs="+", metavar="NAME",
+                    help="table1 | table2 | table3 | fig5 | fig6 | fig8 | fig9 | all (several may be given)")
+    ex.add_argument("-o", "--output", default="out/experiments", help="output folder (default: out/experiments)")
+    ex.add_argument("--quick", action="store_true",
+                    help="the same pipeline at 48x48 with a 64-spp reference and a 3-point budget sweep")
+    ex.add_argument("--res", type=int, help="image size (square; default 512, the paper's; 48 with --quick)")
+    ex.add_argument("--seed", type=int, default=0, help="random seed of the renders (default 0)")
+    ex.add_argument("--threads", type=int, help="worker threads (default: all cores)")
+    ex.add_argument("--reference", action="append", metavar="[SCENE=]PATH",
+                    help="use this EXR as the reference instead of caustica's pt (repeatable; SCENE=PATH for "
+                         "one scene; a folder is searched for <scene>_<res>.exr, e.g. Mitsuba's shared/refs)")
+    ex.add_argument("--reference-spp", type=int,
+                    help="samples per pixel of the pt reference (default 1024; 64 with --quick)")
+    ex.add_argument("--cache-dir", help="reference cache folder (default: $CAUSTICA_CACHE/references or "
+                                        "~/.cache/caustica/references)")
+    ex.add_argument("--quiet", "-q", action="store_true", help="no progress bars or messages")
+    group = ex.add_argument_group("method parameters (override the paper's in every render that uses them; "
+                                  "in Table 1 a swept one fixes that axis)")
+    for name, (p, owners) in sorted(_method_param_specs().items()):
+        if not set(owners) & {"pm", "spm"}:
+            continue
+        kw = {"type": p.type} if p.type is not bool else {"type": str}
+        if p.choices:
+            kw["choices"] = p.choices
+        group.add_argument(p.flag, dest=f"param_{name}", default=None,
+                           metavar=None if p.choices else p.type.__name__.upper(),
+                           help=f"{p.help} (paper: {p.default})", **kw)
+
+    cmp_ = sub.add_parser("compare", help="print error metrics of an image against a reference",
+                          description="Print relMSE, block-mean error, SSIM and FLIP of TEST against REF "
+                                      "(linear RGB EXRs of the same size), over the whole image and, with "
+                                      "--mask, over the mask's nonzero pixels.")
+    cmp_.add_argument("test", help="the image to judge (.exr)")
+    cmp_.add_argument("ref", help="the reference (.exr)")
+    cmp_.add_argument("--mask", help="a PNG; nonzero pixels form the region measured separately")
+    cmp_.add_argument("--no-flip", action="store_true", help="skip FLIP (the slowest metric)")
+
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("methods", help="list the methods and their parameters")
     return parser
@@ -158,6 +200,50 @@ def _cmd_photons(args) -> int:
     return 0
 
 
+def _cmd_experiment(args) -> int:
+    from .experiments import runner
+    params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
+    names = runner.expand(args.names)          # unknown names fail before anything is written
+    if args.seed < 0:
+        raise ParameterError(f"--seed: must be a non-negative integer (got {args.seed})")
+    for ref in args.reference or []:
+        path = Path(ref.split("=", 1)[1] if "=" in ref and not Path(ref).exists() else ref)
+        if not path.exists():
+            raise ParameterError(f"--reference {ref}: no such file or folder")
+    if params:
+        from . import methods
+        for m in ("pm", "spm"):
+            cls = methods.get(m)
+            own = {p.name for p in cls.params}
+            methods.params.resolve(m, cls.params, {k: v for k, v in params.items() if k in own})
+    out = Path(args.output)
+    _check_output_folder(out / "report.md")
+    log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
+                           reference_spp=args.reference_spp, references=args.reference or [], params=params,
+                           threads=args.threads, cache_dir=args.cache_dir, progress=not args.quiet, log=log)
+    runner.run(names, config)
+    if not args.quiet:
+        print(f"{', '.join(names)} -> {out / 'report.md'}")
+    return 0
+
+
+def _cmd_compare(args) -> int:
+    from .experiments.metrics import METRIC_LABELS, all_metrics
+    from .imageio import read_exr, read_png_mask
+    test, ref = read_exr(args.test), read_exr(args.ref)
+    mask = read_png_mask(args.mask) if args.mask else None
+    values = all_metrics(test, ref, mask, with_flip=not args.no_flip)
+    names = [m for m in METRIC_LABELS if m in values]
+    print(f"{'region':10s} " + " ".join(f"{METRIC_LABELS[m]:>12s}" for m in names))
+    regions = [("whole", "")] + ([("mask", "caustic_")] if mask is not None else [])
+    for title, prefix in regions:
+        print(f"{title:10s} " + " ".join(f"{values[prefix + m]:12.6g}" for m in names))
+    if mask is not None:
+        print(f"mask: {int(mask.sum())} of {mask.size} pixels")
+    return 0
+
+
 def _cmd_scenes() -> int:
     from .scene.builtin import builtin_scene_names, describe_builtin
     for name in builtin_scene_names():
@@ -182,6 +268,10 @@ def main(argv=None) -> int:
             return _cmd_render(args)
         if args.command == "photons":
             return _cmd_photons(args)
+        if args.command == "experiment":
+            return _cmd_experiment(args)
+        if args.command == "compare":
+            return _cmd_compare(args)
         if args.command == "scenes":
             return _cmd_scenes()
         if args.command == "methods":

@@ -1,0 +1,9 @@
+"""The paper's experiments, measured against a converged reference (issue 5).
+
+``caustica experiment NAME -o DIR`` runs :func:`runner.run`; ``caustica compare`` uses
+:mod:`metrics`.  See docs/experiments.md.
+"""
+from .metrics import METRICS, all_metrics, block_err, flip, rel_mse, ssim
+from .runner import EXPERIMENTS, Config, run
+
+__all__ = ["EXPERIMENTS", "Config", "run", "METRICS", "all_metrics", "rel_mse", "block_err", "ssim", "flip"]

@@ -1,0 +1,85 @@
+"""``report.md``: one page tying together every experiment's tables and figures found in a folder."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..imageio import atomic_write
+
+METHOD_NOTES = """\
+## How the images are measured
+
+- **Reference**: caustica's `pt` (path tracing, NEE + MIS) at a high sample count, rendered as two
+  independent halves (different seeds) and cached; the reference is their mean. Its own noise is
+  given with every table: the row *reference noise: half A vs half B* holds the metrics of one half
+  against the other, and the line below the title the estimated relative RMSE of the reference
+  itself (between-halves relative RMSE / 2). Errors smaller than that noise floor are not resolved.
+  A user's EXR can stand in (`--reference`).
+- **Caustic region**: the pixels where `pm`'s caustic map (photons shot at the mirror / glass,
+  light -> specular+ -> diffuse) is bright: records splatted into the camera with occlusion,
+  box-blurred, thresholded at 0.1 x the 99.9th percentile, dilated by one pixel. The mask is saved
+  beside each experiment's tables.
+- **relMSE**: mean over pixels and channels of (t - r)^2 / (r^2 + 0.01).
+- **block err**: relative RMS error of the means of tiles of 1/64 of the image side (8 px at 512):
+  sqrt(sum (bt - br)^2 / sum br^2); noise averages out inside a tile, bias and blur stay.
+- **SSIM**: scikit-image's `structural_similarity` on the sRGB previews (exposure 0, clamped;
+  1 = identical). **FLIP**: NVIDIA's HDR-FLIP (`flip_evaluator`) on the linear images (0 = identical).
+  Over the caustic region both are the mean of their per-pixel maps inside the mask.
+- **time s**: photon tracing + map build + camera pass (`total_s` of the render minus scene loading
+  and JIT compilation), on the machine that ran it.
+- **Equal error / equal time** (Tables 2 and 3): each configuration is also rendered with its photon
+  budget scaled (x0.25 ... x4; streams for SPM, photons for PM, both maps for PM+C). Render time is
+  fitted as a + c * budget (least squares: a fixed camera pass plus a cost per photon); the
+  caustic relMSE is interpolated piecewise-linearly in log-log against the budget. *Equal error*:
+  the budget at which a configuration's caustic relMSE equals SPM's (paper settings), and the fitted
+  time for it. *Equal time*: the budget that runs in SPM's time, and the error there. Values outside
+  the sweep are extrapolated along the end segment and marked `*`.
+"""
+
+ORDER = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9")
+
+
+def write_report(out: Path) -> Path:
+    out = Path(out)
+    parts = ["# caustica experiments\n",
+             "The paper's experiments (Guzek & Napieralski), measured against a converged reference of "
+             "the same scene. Each section links its CSV/Markdown tables and PNG figures; "
+             "`results.json` in each folder holds every number.\n"]
+    found = []
+    for name in ORDER:
+        p = out / name / "results.json"
+        if not p.is_file():
+            continue
+        try:
+            res = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        found.append(name)
+        s = res.get("settings", {})
+        parts.append(f"## {res.get('title', name)}\n")
+        if res.get("skipped"):
+            parts.append(f"**Skipped.** {res['skipped']}\n")
+            continue
+        parts.append(f"Resolution {s.get('res')}x{s.get('res')}, seed {s.get('seed')}"
+                     f"{', quick mode' if s.get('quick') else ''}"
+                     f"{', overrides: ' + json.dumps(s.get('overrides')) if s.get('overrides') else ''}; "
+                     f"wall time {res.get('wall_s', 0):.1f} s.\n")
+        if res.get("reference"):
+            parts.append(f"{res['reference']}.\n")
+        if res.get("summary"):
+            parts.append(f"**{res['summary']}**\n")
+        for title, md in (res.get("tables") or {}).items():
+            parts.append(f"### {title}\n\n{md}")
+        links = [f"[{c}]({name}/{c})" for c in res.get("csv", [])]
+        if links:
+            parts.append("Data: " + ", ".join(links) + "\n")
+        for fig in res.get("figures", []):
+            parts.append(f"![{fig}]({name}/{fig})\n")
+        if res.get("mask_image"):
+            parts.append(f"Caustic region ({res.get('mask_pixels', 0)} pixels): "
+                         f"[{res['mask_image']}]({name}/{res['mask_image']})\n")
+    parts.append(METHOD_NOTES)
+    text = "\n".join(parts)
+    path = out / "report.md"
+    atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    return path

@@ -1,0 +1,534 @@
+"""The paper's experiments: every render through ``caustica.render``, measured against a reference.
+
+``run(names, config)`` runs ``table1 table2 table3 fig5 fig6 fig8 fig9`` (or ``all``)
+into ``config.out``: per experiment a folder with the renders (EXR + PNG + JSON),
+``*.csv`` and ``*.md`` tables, PNG figures and a ``results.json``; ``report.md`` at
+the top ties them together (rebuilt after each experiment from every results.json
+present, so experiments run one at a time still make one report).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..api import load_scene, render
+from ..errors import ParameterError, SceneError
+from ..imageio import atomic_write, write_json, write_png
+from . import metrics as M
+from .masks import caustic_mask
+from .reference import Reference, pt_reference, user_reference
+
+EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9")
+
+PAPER_RES = 512
+QUICK_RES = 48
+DEFAULT_REFERENCE_SPP = 1024
+QUICK_REFERENCE_SPP = 64
+TABLE1_SCENE = "cornell-diacaustic"
+TABLE_SCENES = {"table2": "cornell-diacaustic", "table3": "cornell-catacaustic"}
+FIG_SCENES = {"fig5": "cornell-pyramid", "fig6": "cornell-bunny", "fig8": "cornell-diacaustic",
+              "fig9": "cornell-catacaustic"}
+BUDGET_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
+QUICK_BUDGET_FACTORS = (0.5, 1.0, 2.0)
+SWEEP_STREAMS = (1000, 5000, 10000)
+SWEEP_ASSOC = (10, 50, 100)
+SWEEP_RS = (0.1, 2.5, 5.0)
+
+# The paper's three configurations of Tables 2 and 3; `fixed` are keys no override touches.
+CONFIGS = {
+    "SPM": {"method": "spm", "params": {"streams": 10_000, "assoc": 10, "stream_radius": 5.0}, "fixed": ()},
+    "PM": {"method": "pm", "params": {"photons": 100_000, "caustic_photons": 0}, "fixed": ("caustic_photons",)},
+    "PM+C": {"method": "pm", "params": {"photons": 100_000, "caustic_photons": 100_000}, "fixed": ()},
+}
+BUDGET_KEYS = {"SPM": ("streams",), "PM": ("photons",), "PM+C": ("photons", "caustic_photons")}
+#: The error that equal-time / equal-error compare.
+EQUAL_METRIC = "caustic_rel_mse"
+
+ROW_COLUMNS = ("experiment", "scene", "label", "method", "streams", "assoc", "stream_radius", "photons",
+               "caustic_photons", "photons_emitted", "photons_stored", "map_mb", "time_s",
+               "rel_mse", "block_err", "ssim", "flip",
+               "caustic_rel_mse", "caustic_block_err", "caustic_ssim", "caustic_flip", "image")
+
+
+@dataclass
+class Config:
+    out: Path
+    res: int | None = None
+    seed: int = 0
+    quick: bool = False
+    reference_spp: int | None = None
+    references: list = field(default_factory=list)   # "PATH" | "SCENE=PATH" | a folder
+    params: dict = field(default_factory=dict)       # method parameters given by the user
+    threads: int | None = None
+    cache_dir: Path | None = None
+    progress: bool = True
+    log: object = None
+
+    def __post_init__(self):
+        self.out = Path(self.out)
+        if self.res is None:
+            self.res = QUICK_RES if self.quick else PAPER_RES
+        if self.reference_spp is None:
+            self.reference_spp = QUICK_REFERENCE_SPP if self.quick else DEFAULT_REFERENCE_SPP
+        if self.res < 8:
+            raise ParameterError(f"--res: experiments need at least 8 pixels (got {self.res})")
+        if self.reference_spp < 2:
+            raise ParameterError(f"--reference-spp: at least 2 (two halves; got {self.reference_spp})")
+
+
+def _fmt(v, digits=4):
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "n/a"
+        if v == 0:
+            return "0"
+        if abs(v) >= 1000:
+            return f"{v:,.0f}"
+        if abs(v) < 1e-3:
+            return f"{v:.2e}"
+        return f"{v:.{digits}g}"
+    if isinstance(v, int) and not isinstance(v, bool):
+        return f"{v:,}"
+    return str(v)
+
+
+def write_csv(path: Path, rows: list[dict], columns) -> Path:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
+    w.writeheader()
+    for row in rows:
+        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
+    text = buf.getvalue()
+    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def markdown_table(rows: list[dict], columns, headers=None) -> str:
+    headers = headers or {}
+    head = "| " + " | ".join(headers.get(c, c) for c in columns) + " |"
+    sep = "| " + " | ".join("---" for _ in columns) + " |"
+    body = ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join([head, sep, *body]) + "\n"
+
+
+HEADERS = {"label": "configuration", "photons_emitted": "photons", "map_mb": "map MB", "time_s": "time s",
+           "rel_mse": "relMSE", "block_err": "block err", "ssim": "SSIM", "flip": "FLIP",
+           "caustic_rel_mse": "caustic relMSE", "caustic_block_err": "caustic block err",
+           "caustic_ssim": "caustic SSIM", "caustic_flip": "caustic FLIP", "stream_radius": "r_s"}
+
+
+class Runner:
+    def __init__(self, config: Config):
+        self.cfg = config
+        self.scenes = {}
+        self.masks = {}
+        self.refs = {}
+        self.memo = {}       # (scene, method, params) -> (image, row)
+        self.bar = None
+        self.timings = {}
+
+    # ------------------------------------------------------------------ helpers
+    def log(self, msg):
+        if self.cfg.log:
+            self.cfg.log(msg)
+
+    def scene(self, name):
+        if name not in self.scenes:
+            self.scenes[name] = load_scene(name)
+        return self.scenes[name]
+
+    def mask(self, name):
+        if name not in self.masks:
+            r = self.cfg.res
+            photons = 20_000 if self.cfg.quick else 200_000
+            self.masks[name] = caustic_mask(self.scene(name), r, r, photons=photons, seed=self.cfg.seed,
+                                            threads=self.cfg.threads)
+        return self.masks[name]
+
+    def _user_reference_path(self, scene_name):
+        refs = self.cfg.references
+        for item in refs:
+            if "=" in item:
+                k, v = item.split("=", 1)
+                if k == scene_name:
+                    return Path(v)
+        plain = [Path(i) for i in refs if "=" not in i]
+        for p in plain:
+            if p.is_dir():
+                cand = p / f"{scene_name}_{self.cfg.res}.exr"
+                if cand.is_file():
+                    return cand
+        files = [p for p in plain if not p.is_dir()]
+        if files:
+            return files[0]
+        return None
+
+    def reference(self, name) -> Reference:
+        if name not in self.refs:
+            r = self.cfg.res
+            path = self._user_reference_path(name)
+            if path is not None:
+                self.refs[name] = user_reference(path, r, r, self.mask(name))
+            else:
+                self.refs[name] = pt_reference(self.scene(name), r, r, spp=self.cfg.reference_spp,
+                                               seed=self.cfg.seed + 1000, cache_dir=self.cfg.cache_dir,
+                                               threads=self.cfg.threads, progress=self.cfg.progress,
+                                               mask=self.mask(name), log=self.log)
+        return self.refs[name]
+
+    def params_for(self, method, params, fixed=()):
+        """The configuration's parameters with the user's overrides for the ones this method has."""
+        from .. import methods
+        names = {p.name for p in methods.get(method).params}
+        out = dict(params)
+        for k, v in self.cfg.params.items():
+            if k in names and k not in fixed:
+                out[k] = v
+        return out
+
+    def run_render(self, experiment, scene_name, label, method, params, folder: Path, measure=True) -> dict:
+        key = (scene_name, method, tuple(sorted(params.items())))
+        if key in self.memo:
+            image, row = self.memo[key]
+            row = dict(row, experiment=experiment, label=label)
+        else:
+            scene = self.scene(scene_name)
+            r = self.cfg.res
+            result = render(scene, method, res=(r, r), seed=self.cfg.seed, threads=self.cfg.threads,
+                            progress=self.cfg.progress, **params)
+            t = result.stats["timings"]
+            stats = result.stats
+            image = result.image
+            row = {"experiment": experiment, "scene": scene_name, "label": label, "method": method,
+                   **{k: params.get(k) for k in ("streams", "assoc", "stream_radius", "photons",
+                                                  "caustic_photons")},
+                   "photons_emitted": stats.get("photons_emitted"), "photons_stored": stats.get("photons_stored"),
+                   "map_mb": stats.get("map_mb"),
+                   "time_s": t["total_s"] - t.get("compile_s", 0.0) - t.get("scene_load_s", 0.0)}
+            fname = folder / "renders" / (label.replace("+", "C").replace(" ", "_").replace("/", "_")
+                                          .replace("=", "").replace(",", "").replace("×", "x") + ".exr")
+            result.save(fname)
+            row["image"] = str(fname.relative_to(self.cfg.out))
+            if measure:
+                ref = self.reference(scene_name)
+                row.update(M.all_metrics(image, ref.image, self.mask(scene_name)))
+            self.memo[key] = (image, row)
+        if self.bar is not None:
+            self.bar.update(1)
+        return row, image
+
+    # ------------------------------------------------------------------ noise row
+    def noise_row(self, experiment, scene_name):
+        ref = self.reference(scene_name)
+        row = {"experiment": experiment, "scene": scene_name, "label": "reference noise: half A vs half B",
+               "method": "pt"}
+        if ref.half_a is not None:
+            row.update(M.all_metrics(ref.half_a, ref.half_b, self.mask(scene_name)))
+        return row
+
+    # ------------------------------------------------------------------ experiments
+    def count(self, name):
+        """Renders an experiment makes (for the experiment's progress bar)."""
+        if name == "table1":
+            return len(self._table1_grid())
+        if name in TABLE_SCENES:
+            return len(self._budget_factors()) * 3
+        return {"fig5": 2, "fig6": 1, "fig8": 3, "fig9": 3}[name]
+
+    def _table1_grid(self):
+        p = self.cfg.params
+        streams = [p["streams"]] if "streams" in p else SWEEP_STREAMS
+        assoc = [p["assoc"]] if "assoc" in p else SWEEP_ASSOC
+        rs = [p["stream_radius"]] if "stream_radius" in p else SWEEP_RS
+        return [(s, a, r) for s in streams for a in assoc for r in rs]
+
+    def _budget_factors(self):
+        return QUICK_BUDGET_FACTORS if self.cfg.quick else BUDGET_FACTORS
+
+    def table1(self, folder):
+        from .figures import fig4_plot
+        scene = TABLE1_SCENE
+        rows = [self.noise_row("table1", scene)]
+        for s, a, r in self._table1_grid():
+            params = self.params_for("spm", {"streams": s, "assoc": a, "stream_radius": r})
+            params.update(streams=s, assoc=a, stream_radius=r)
+            row, _ = self.run_render("table1", scene, f"SPM {s}x{a} r_s={r:g}", "spm", params, folder)
+            rows.append(row)
+        cols = ("label", "streams", "assoc", "stream_radius", "photons_emitted", "time_s", "map_mb",
+                "rel_mse", "block_err", "ssim", "flip", "caustic_rel_mse", "caustic_block_err",
+                "caustic_ssim", "caustic_flip")
+        write_csv(folder / "table1.csv", rows, ROW_COLUMNS)
+        md = markdown_table(rows, cols, HEADERS)
+        atomic_write(folder / "table1.md", lambda tmp: tmp.write_text(md, encoding="utf-8"))
+        fig4_plot(rows[1:], folder / "fig4_error_vs_streams.png")
+        return {"title": f"Table 1: the SPM parameter sweep ({scene})", "scene": scene,
+                "tables": {"table1": md}, "csv": ["table1.csv"], "figures": ["fig4_error_vs_streams.png"],
+                "rows": rows}
+
+    def budget_table(self, name, folder):
+        scene = TABLE_SCENES[name]
+        rows_main, sweep = [], {k: [] for k in CONFIGS}
+        for factor in self._budget_factors():
+            for label, c in CONFIGS.items():
+                params = self.params_for(c["method"], c["params"], c["fixed"])
+                for k in BUDGET_KEYS[label]:
+                    params[k] = max(1, int(round(params[k] * factor)))
+                tag = label if factor == 1.0 else f"{label} x{factor:g}"
+                row, _ = self.run_render(name, scene, tag, c["method"], params, folder)
+                row = dict(row, config=label, budget_factor=factor)
+                sweep[label].append(row)
+                if factor == 1.0:
+                    rows_main.append(row)
+        order = {k: i for i, k in enumerate(CONFIGS)}
+        rows_main.sort(key=lambda r: order[r["config"]])
+        noise = self.noise_row(name, scene)
+        eq = equal_comparison(sweep, "SPM")
+        for r in rows_main:
+            r.update(eq.get(r["config"], {}))
+        cols = ("label", "photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "caustic_block_err",
+                "caustic_ssim", "caustic_flip", "rel_mse", "ssim", "flip")
+        md = markdown_table(rows_main + [noise], cols, HEADERS)
+        eq_cols = ("label", "time_s", "caustic_rel_mse", "equal_error_time_s", "equal_time_caustic_rel_mse")
+        eq_headers = {**HEADERS, "equal_error_time_s": f"time to SPM's caustic relMSE (s)",
+                      "equal_time_caustic_rel_mse": "caustic relMSE in SPM's time"}
+        eq_rows = [{**r, "equal_error_time_s": r.get("equal_error_time_s_text"),
+                    "equal_time_caustic_rel_mse": r.get("equal_time_caustic_rel_mse_text")} for r in rows_main]
+        md_eq = markdown_table(eq_rows, eq_cols, eq_headers)
+        all_rows = [r for k in CONFIGS for r in sweep[k]]
+        write_csv(folder / f"{name}.csv", rows_main + [noise],
+                  ROW_COLUMNS + ("equal_error_time_s", "equal_error_extrapolated", "equal_time_caustic_rel_mse",
+                                 "equal_time_extrapolated"))
+        write_csv(folder / f"{name}_budget_sweep.csv", all_rows, ROW_COLUMNS + ("config", "budget_factor"))
+        atomic_write(folder / f"{name}.md", lambda tmp: tmp.write_text(md + "\n" + md_eq, encoding="utf-8"))
+        from .figures import budget_plot
+        budget_plot(sweep, eq, folder / f"{name}_error_vs_time.png", scene)
+        return {"title": f"{'Table 2' if name == 'table2' else 'Table 3'}: SPM vs PM vs PM+C ({scene})",
+                "scene": scene, "tables": {name: md, f"{name} equal-error / equal-time": md_eq},
+                "csv": [f"{name}.csv", f"{name}_budget_sweep.csv"], "figures": [f"{name}_error_vs_time.png"],
+                "rows": rows_main + [noise], "equal": eq, "summary": equal_summary(eq, rows_main)}
+
+    def figure(self, name, folder):
+        from .figures import side_by_side
+        scene = FIG_SCENES[name]
+        if name == "fig5":
+            base = self.params_for("spm", CONFIGS["SPM"]["params"])
+            items = [(f"SPM r_s={rs:g}", "spm", dict(base, stream_radius=rs)) for rs in (5.0, 0.1)]
+        elif name == "fig6":
+            items = [("SPM", "spm", self.params_for("spm", CONFIGS["SPM"]["params"]))]
+        else:
+            items = [(lab, c["method"], self.params_for(c["method"], c["params"], c["fixed"]))
+                     for lab, c in CONFIGS.items()]
+        try:
+            self.scene(scene)
+        except SceneError as exc:
+            msg = f"{name} skipped: the scene {scene} cannot be loaded: {exc}"
+            self.log(msg)
+            if self.bar is not None:
+                self.bar.update(len(items))
+            return {"title": f"{name}: skipped", "scene": scene, "skipped": msg}
+        has_caustic = name in ("fig8", "fig9")
+        panels = []
+        for label, method, params in items:
+            row, image = self.run_render(name, scene, label, method, params, folder, measure=has_caustic)
+            panels.append((label, image, row))
+        mask = self.mask(scene) if has_caustic else None
+        fname = f"{name}_{scene}.png"
+        side_by_side(panels, folder / fname, title=f"{name}: {scene}, {self.cfg.res}x{self.cfg.res}",
+                     mask=mask, scene=scene)
+        out = {"title": f"{name.replace('fig', 'Figure ')}: {scene}", "scene": scene, "figures": [fname],
+               "rows": [p[2] for p in panels]}
+        if has_caustic:
+            cols = ("label", "photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "caustic_ssim",
+                    "caustic_flip")
+            out["tables"] = {name: markdown_table(out["rows"], cols, HEADERS)}
+        return out
+
+    def run_one(self, name) -> dict:
+        folder = self.cfg.out / name
+        folder.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        if name == "table1":
+            res = self.table1(folder)
+        elif name in TABLE_SCENES:
+            res = self.budget_table(name, folder)
+        else:
+            res = self.figure(name, folder)
+        res["name"] = name
+        res["wall_s"] = time.perf_counter() - t0
+        scene = res.get("scene")
+        if scene in self.refs:
+            res["reference"] = self.refs[scene].noise_line()
+            res["reference_noise"] = self.refs[scene].noise
+        if scene in self.masks:
+            m = self.masks[scene]
+            res["mask_pixels"] = int(m.sum())
+            write_png(folder / f"{scene}_caustic_mask.png", np.repeat(m[:, :, None], 3, axis=2).astype(np.float32))
+            res["mask_image"] = f"{scene}_caustic_mask.png"
+        res["settings"] = {"res": self.cfg.res, "seed": self.cfg.seed, "quick": self.cfg.quick,
+                           "reference_spp": self.cfg.reference_spp, "overrides": self.cfg.params}
+        write_json(folder / "results.json", res)
+        return res
+
+
+# ---------------------------------------------------------------------- equal time / equal error
+
+
+def _interp_loglog(x, y, x0):
+    """Piecewise-linear interpolation of log y against log x at x0; (value, extrapolated)."""
+    lx, ly = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    l0 = math.log(x0)
+    if l0 < lx[0] or l0 > lx[-1]:
+        i = 0 if l0 < lx[0] else len(lx) - 2
+        slope = (ly[i + 1] - ly[i]) / (lx[i + 1] - lx[i])
+        return float(math.exp(ly[i] + slope * (l0 - lx[i]))), True
+    return float(math.exp(np.interp(l0, lx, ly))), False
+
+
+def equal_comparison(sweep: dict, anchor: str) -> dict:
+    """Equal-error time and equal-time error of every configuration against ``anchor``'s 1x budget.
+
+    Per configuration: time(budget) is fitted as a + c * budget (least squares: a fixed
+    camera pass plus a cost per photon), error(budget) interpolated piecewise-linearly
+    on log-log over the sweep (extrapolated from the end segment outside it).
+    Equal error: the budget b* where error = anchor's error, time = a + c b*.
+    Equal time: the budget b with a + c b = anchor's time, error = error(b).
+    """
+    base = {r["budget_factor"]: r for r in sweep[anchor]}[1.0]
+    target_err, target_t = base[EQUAL_METRIC], base["time_s"]
+    out = {}
+    for label, rows in sweep.items():
+        rows = sorted(rows, key=lambda r: r["budget_factor"])
+        b = np.array([r["budget_factor"] for r in rows])
+        t = np.array([r["time_s"] for r in rows])
+        e = np.array([r[EQUAL_METRIC] for r in rows])
+        c, a = np.polyfit(b, t, 1) if len(b) > 1 else (0.0, t[0])
+        res = {"time_fit_fixed_s": float(a), "time_fit_per_budget_s": float(c)}
+        ok = np.isfinite(e) & (e > 0)
+        if ok.sum() >= 2 and math.isfinite(target_err) and target_err > 0:
+            # equal error: invert error(budget); error is interpolated on log-log
+            bb, ee = b[ok], e[ok]
+            found = None
+            for i in range(len(bb) - 1):
+                lo, hi = sorted((ee[i], ee[i + 1]))
+                if lo <= target_err <= hi and ee[i] != ee[i + 1]:
+                    found = (_interp_loglog(ee[i:i + 2][::-1] if ee[i] > ee[i + 1] else ee[i:i + 2],
+                                            bb[i:i + 2][::-1] if ee[i] > ee[i + 1] else bb[i:i + 2],
+                                            target_err)[0], False)
+                    break
+            if found is None:
+                # outside the sweep: extrapolate along the end segment nearer the target, if it falls
+                i = 0 if target_err > ee.max() else len(bb) - 2
+                slope = (math.log(ee[i + 1]) - math.log(ee[i])) / (math.log(bb[i + 1]) - math.log(bb[i]))
+                if slope < -1e-6:
+                    lb = math.log(bb[i]) + (math.log(target_err) - math.log(ee[i])) / slope
+                    found = (math.exp(lb), True)
+            if found is not None and found[0] > 0:
+                res["equal_error_budget"] = found[0]
+                res["equal_error_time_s"] = float(a + c * found[0])
+                res["equal_error_extrapolated"] = found[1]
+            else:
+                res["equal_error_time_s"] = float("nan")
+                res["equal_error_extrapolated"] = True
+                res["equal_error_note"] = "not reached: its error does not fall towards the target"
+            # equal time
+            if c > 0 and target_t > a:
+                b_t = (target_t - a) / c
+                val, extra = _interp_loglog(bb, ee, b_t)
+                res["equal_time_budget"] = b_t
+                res["equal_time_caustic_rel_mse"] = val
+                res["equal_time_extrapolated"] = extra
+            else:
+                res["equal_time_caustic_rel_mse"] = float("nan")
+                res["equal_time_extrapolated"] = True
+                res["equal_time_note"] = "its fixed cost alone exceeds the target time"
+        for key in ("equal_error_time_s", "equal_time_caustic_rel_mse"):
+            v = res.get(key)
+            if v is None:
+                res[key + "_text"] = "n/a"
+            else:
+                res[key + "_text"] = _fmt(v) + ("*" if res.get(key.replace("_time_s", "").replace(
+                    "_caustic_rel_mse", "") + "_extrapolated") else "")
+        out[label] = res
+    return out
+
+
+def equal_summary(eq: dict, rows_main: list[dict]) -> str:
+    """One plain sentence per comparison: does SPM beat PM+C at equal time and at equal error?"""
+    main = {r["config"]: r for r in rows_main}
+    spm, pmc = main.get("SPM"), main.get("PM+C")
+    if spm is None or pmc is None:
+        return ""
+    lines = []
+    t_spm = spm["time_s"]
+    t_pmc = eq["PM+C"].get("equal_error_time_s", float("nan"))
+    if math.isfinite(t_pmc):
+        verdict = "beats" if t_spm < t_pmc else "does not beat"
+        lines.append(f"Equal error (caustic relMSE {_fmt(spm[EQUAL_METRIC])}): SPM needs {t_spm:.1f} s, "
+                     f"PM+C about {t_pmc:.1f} s{' (extrapolated)' if eq['PM+C'].get('equal_error_extrapolated') else ''}"
+                     f" — SPM {verdict} PM+C.")
+    else:
+        lines.append("Equal error: PM+C's error does not come down to SPM's within its sweep "
+                     f"({eq['PM+C'].get('equal_error_note', '')}).")
+    e_pmc = eq["PM+C"].get("equal_time_caustic_rel_mse", float("nan"))
+    if math.isfinite(e_pmc):
+        verdict = "beats" if spm[EQUAL_METRIC] < e_pmc else "does not beat"
+        lines.append(f"Equal time ({t_spm:.1f} s): SPM's caustic relMSE {_fmt(spm[EQUAL_METRIC])}, "
+                     f"PM+C's about {_fmt(e_pmc)}"
+                     f"{' (extrapolated)' if eq['PM+C'].get('equal_time_extrapolated') else ''} — SPM {verdict} PM+C.")
+    else:
+        lines.append(f"Equal time: PM+C cannot run in SPM's {t_spm:.1f} s "
+                     f"({eq['PM+C'].get('equal_time_note', '')}).")
+    return " ".join(lines)
+
+
+# ---------------------------------------------------------------------- entry point
+
+
+def expand(names) -> list[str]:
+    out = []
+    for n in names:
+        if n == "all":
+            out.extend(EXPERIMENTS)
+        elif n in EXPERIMENTS:
+            out.append(n)
+        else:
+            raise ParameterError(f"unknown experiment '{n}'; choose from {', '.join(EXPERIMENTS)} or all")
+    seen = set()
+    return [n for n in out if not (n in seen or seen.add(n))]
+
+
+def run(names, config: Config) -> dict:
+    """Run the experiments ``names`` (see EXPERIMENTS, or 'all'); returns {name: results} and writes report.md."""
+    from .report import write_report
+    names = expand(names)
+    config.out.mkdir(parents=True, exist_ok=True)
+    runner = Runner(config)
+    total = sum(runner.count(n) for n in names)
+    bar = None
+    if config.progress:
+        from tqdm import tqdm
+        bar = tqdm(total=total, desc="experiment", unit="render", position=0, file=sys.stderr,
+                   dynamic_ncols=True, disable=not sys.stderr.isatty())
+    runner.bar = bar
+    results = {}
+    t0 = time.perf_counter()
+    try:
+        for n in names:
+            if bar is not None:
+                bar.set_description(f"experiment {n}")
+            results[n] = runner.run_one(n)
+            runner.log(f"{n}: done in {results[n]['wall_s']:.1f} s -> {config.out / n}")
+    finally:
+        if bar is not None:
+            bar.close()
+    report = write_report(config.out)
+    runner.log(f"{', '.join(names)} in {time.perf_counter() - t0:.1f} s; report: {report}")
+    return results

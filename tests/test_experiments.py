@@ -1,0 +1,193 @@
+"""Experiments (issue 5): the metrics, ``caustica compare`` and ``caustica experiment all --quick`` end to end."""
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from caustica import imageio
+from caustica.cli import main
+from caustica.experiments import metrics as M
+from caustica.experiments.reference import noise_stats
+from caustica.experiments.runner import CONFIGS, equal_comparison
+
+
+def _image(seed=0, shape=(32, 40)):
+    rng = np.random.default_rng(seed)
+    return (0.05 + rng.random((*shape, 3))).astype(np.float64)
+
+
+# --------------------------------------------------------------------------- metrics
+
+
+def test_identical_images_have_no_error():
+    r = _image()
+    m = M.all_metrics(r, r, r[:, :, 0] > 0.5)
+    for key in ("rel_mse", "block_err", "flip", "caustic_rel_mse", "caustic_block_err", "caustic_flip"):
+        assert m[key] == pytest.approx(0.0, abs=1e-12), key
+    assert m["ssim"] == pytest.approx(1.0)
+    assert m["caustic_ssim"] == pytest.approx(1.0)
+
+
+def test_rel_mse_of_a_known_perturbation():
+    r = _image(1)
+    t = r * 1.1
+    expected = np.mean((0.1 * r) ** 2 / (r ** 2 + M.REL_EPS))
+    assert M.rel_mse(t, r) == pytest.approx(expected, rel=1e-12)
+    # a constant image: the formula in closed form
+    c = np.full((8, 8, 3), 0.5)
+    assert M.rel_mse(c + 0.1, c) == pytest.approx(0.01 / (0.25 + M.REL_EPS))
+
+
+def test_block_err_of_a_scaled_image_is_the_scale():
+    r = _image(2)
+    assert M.block_err(r * 1.2, r) == pytest.approx(0.2)
+    # zero-mean noise inside each tile averages out: the block error stays far below the pixel error
+    rng = np.random.default_rng(3)
+    flat = np.full((64, 64, 3), 0.5)
+    noisy = flat + rng.normal(0, 0.05, flat.shape)
+    assert M.block_err(noisy, flat, block=8) < 0.3 * np.sqrt(M.rel_mse(noisy, flat) * (0.25 + M.REL_EPS) / 0.25)
+
+
+def test_mask_restricts_every_metric():
+    r = _image(4)
+    t = r.copy()
+    mask = np.zeros(r.shape[:2], bool)
+    mask[:16] = True
+    t[16:] *= 3.0             # error only outside the mask
+    m = M.all_metrics(t, r, mask)
+    assert m["caustic_rel_mse"] == pytest.approx(0.0, abs=1e-12)
+    assert m["caustic_block_err"] == pytest.approx(0.0, abs=1e-12)
+    assert m["rel_mse"] > 0.1
+    t2 = r.copy()
+    t2[:16] *= 3.0            # error only inside the mask
+    expected = np.mean(((2 * r[:16]) ** 2) / (r[:16] ** 2 + M.REL_EPS))
+    assert M.rel_mse(t2, r, mask) == pytest.approx(expected)
+    assert M.ssim(t2, r, mask) < M.ssim(t2, r, ~mask)
+    assert M.flip(t2, r, mask) > M.flip(t2, r, ~mask)
+
+
+def test_metrics_refuse_images_of_different_sizes():
+    with pytest.raises(Exception, match="differ in size"):
+        M.rel_mse(np.zeros((4, 4, 3)), np.zeros((5, 4, 3)))
+
+
+def test_noise_of_two_halves():
+    rng = np.random.default_rng(5)
+    truth = np.full((64, 64, 3), 1.0)
+    a = truth + rng.normal(0, 0.1, truth.shape)
+    b = truth + rng.normal(0, 0.1, truth.shape)
+    n = noise_stats(a, b)
+    # each half has relative sd 0.1 (eps is small next to 1): the mean of the halves 0.1 / sqrt(2)
+    assert n["est_rel_rmse_of_full"] == pytest.approx(0.1 / np.sqrt(2), rel=0.05)
+
+
+def test_equal_time_and_equal_error_interpolation():
+    # time = 1 + budget, error = 0.1 / budget (SPM) and 0.2 / budget (PM+C): PM+C needs twice SPM's budget
+    def rows(scale):
+        return [{"budget_factor": b, "time_s": 1.0 + b, "caustic_rel_mse": scale / b} for b in (0.5, 1, 2, 4)]
+    eq = equal_comparison({"SPM": rows(0.1), "PM+C": rows(0.2)}, "SPM")
+    assert eq["SPM"]["equal_error_time_s"] == pytest.approx(2.0)
+    assert eq["PM+C"]["equal_error_time_s"] == pytest.approx(3.0)
+    assert eq["PM+C"]["equal_time_caustic_rel_mse"] == pytest.approx(0.2)
+    assert not eq["PM+C"]["equal_error_extrapolated"]
+
+
+# --------------------------------------------------------------------------- caustica compare
+
+
+def test_compare_prints_metrics(tmp_path, capsys):
+    r = _image(6).astype(np.float32)
+    imageio.write_exr(tmp_path / "ref.exr", r)
+    imageio.write_exr(tmp_path / "test.exr", r * 1.1)
+    mask = np.zeros(r.shape, np.float32)
+    mask[:10] = 1.0
+    imageio.write_png(tmp_path / "mask.png", mask)
+    assert main(["compare", str(tmp_path / "test.exr"), str(tmp_path / "ref.exr"),
+                 "--mask", str(tmp_path / "mask.png")]) == 0
+    out = capsys.readouterr().out
+    for word in ("relMSE", "block err", "SSIM", "FLIP", "whole", "mask"):
+        assert word in out
+    whole = out.splitlines()[1].split()
+    assert float(whole[1]) == pytest.approx(M.rel_mse(r * 1.1, r), rel=1e-4)
+    assert float(whole[2]) == pytest.approx(0.1, rel=1e-4)
+
+
+@pytest.mark.parametrize("bad", ["missing", "size", "mask"])
+def test_compare_bad_input_is_one_line_exit_2(tmp_path, bad):
+    r = _image(7).astype(np.float32)
+    imageio.write_exr(tmp_path / "ref.exr", r)
+    imageio.write_exr(tmp_path / "small.exr", r[:8, :8])
+    args = [str(tmp_path / "ref.exr"), str(tmp_path / "ref.exr")]
+    if bad == "missing":
+        args[0] = str(tmp_path / "nope.exr")
+    elif bad == "size":
+        args[0] = str(tmp_path / "small.exr")
+    else:
+        args += ["--mask", str(tmp_path / "nope.png")]
+    proc = subprocess.run([sys.executable, "-m", "caustica", "compare", *args], capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("caustica: error:")
+
+
+def test_experiment_bad_name_is_exit_2(tmp_path, capsys):
+    assert main(["experiment", "table7", "-o", str(tmp_path / "x"), "--quick", "-q"]) == 2
+    assert "table7" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+# --------------------------------------------------------------------------- the whole pipeline
+
+
+def _csv(path):
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_experiment_all_quick_end_to_end(tmp_path):
+    out = tmp_path / "exp"
+    assert main(["experiment", "all", "--quick", "-o", str(out), "--cache-dir", str(tmp_path / "cache"),
+                 "--threads", "2", "-q"]) == 0
+
+    t1 = _csv(out / "table1" / "table1.csv")
+    assert len(t1) == 27 + 1                   # the sweep and the reference's noise row
+    assert t1[0]["label"].startswith("reference noise")
+    assert {(r["streams"], r["assoc"], r["stream_radius"]) for r in t1[1:]} == {
+        (str(s), str(a), str(float(rs))) for s in (1000, 5000, 10000) for a in (10, 50, 100) for rs in (0.1, 2.5, 5)}
+    for col in ("photons_emitted", "time_s", "map_mb", "rel_mse", "caustic_rel_mse", "caustic_ssim",
+                "caustic_flip", "caustic_block_err"):
+        assert all(r[col] != "" for r in t1[1:]), col
+    assert (out / "table1" / "fig4_error_vs_streams.png").stat().st_size > 1000
+    assert "| configuration |" in (out / "table1" / "table1.md").read_text()
+
+    for name in ("table2", "table3"):
+        rows = _csv(out / name / f"{name}.csv")
+        assert [r["label"] for r in rows[:3]] == list(CONFIGS)
+        assert rows[3]["label"].startswith("reference noise")
+        for col in ("photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "equal_error_time_s",
+                    "equal_time_caustic_rel_mse"):
+            assert col in rows[0]
+        assert float(rows[2]["photons_emitted"]) == 200_000      # PM+C: 100,000 + 100,000
+        assert len(_csv(out / name / f"{name}_budget_sweep.csv")) == 3 * 3
+        md = (out / name / f"{name}.md").read_text()
+        assert "PM+C" in md and "caustic relMSE" in md
+        assert (out / name / f"{name}_error_vs_time.png").is_file()
+
+    for name, scene in (("fig5", "cornell-pyramid"), ("fig8", "cornell-diacaustic"),
+                        ("fig9", "cornell-catacaustic")):
+        assert (out / name / f"{name}_{scene}.png").stat().st_size > 1000
+    fig6 = json.loads((out / "fig6" / "results.json").read_text())
+    assert fig6.get("skipped") or (out / "fig6" / "fig6_cornell-bunny.png").is_file()
+
+    report = (out / "report.md").read_text()
+    for text in ("Table 1", "Table 2", "Table 3", "Figure 5", "Figure 8", "Figure 9", "reference noise",
+                 "table1/fig4_error_vs_streams.png", "Equal error", "relMSE"):
+        assert text in report, text
+    # the reference is cached: a second run of one experiment renders no new reference
+    cached = list((tmp_path / "cache").iterdir())
+    assert len(cached) == 2
