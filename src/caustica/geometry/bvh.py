@@ -163,7 +163,6 @@ def build_bvh(prim_box):
             continue
 
         clo = (clx, cly, clz)
-        chi = (chx, chy, chz)
         ext = (chx - clx, chy - cly, chz - clz)
         big_axis = 0
         if ext[1] > ext[big_axis]:

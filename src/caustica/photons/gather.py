@@ -32,7 +32,6 @@ SPLIT_STACK = 8
 INV_PI = 1.0 / math.pi
 
 
-
 @kernel
 def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
                     n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth,
