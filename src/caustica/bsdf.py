@@ -43,6 +43,21 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     return MaterialTable(kind, rgb, eta, twosided, rgb.mean(axis=1))
 
 
+@kernel(inline=True)
+def scattering_side(mats, m, front, ng, ns):
+    """(scatters, ng, ns) for a ray arriving on the front (``front``) or back of material m.
+
+    Diffuse and conductor normals are turned to the side the ray came from; their
+    back is black (``scatters`` False) unless the material is two-sided, as in
+    Mitsuba.  Dielectric normals stay on the front side (both sides are active).
+    """
+    if front or mats.kind[m] == DIELECTRIC:
+        return True, ng, ns
+    if mats.twosided[m] == 0:
+        return False, ng, ns
+    return True, vec.neg(ng), vec.neg(ns)
+
+
 @kernel
 def reflect(d, n):
     """Mirror direction of the incident direction d (pointing towards the surface) about n."""

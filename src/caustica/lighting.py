@@ -41,6 +41,35 @@ def visible(geom, p, ng, q, nq):
     return not occluded(geom, o, vec.mul(seg, 1.0 / dist), dist)
 
 
+@kernel(inline=True)
+def area_light_geometry(geom, p, ng, ns, q, nq):
+    """(cos θ_surface, cos θ_light, distance²) between p and light point q, all 0 if q
+    does not light p (behind either surface, or blocked)."""
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    if dist2 <= 0.0:
+        return 0.0, 0.0, 0.0
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    cos_l = -vec.dot(nq, wi)
+    cos_s = vec.dot(ns, wi)
+    if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0 or not visible(geom, p, ng, q, nq):
+        return 0.0, 0.0, 0.0
+    return cos_s, cos_l, dist2
+
+
+@kernel(inline=True)
+def point_light_geometry(geom, lights, li, p, ng, ns):
+    """(cos θ_surface, distance²) from point light li to p, cos 0 if it does not light p."""
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    cos_s = vec.dot(ns, wi)
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0 or not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
+        return 0.0, dist2
+    return cos_s, dist2
+
+
 @kernel
 def direct_one_sample(geom, lights, p, ng, ns, key, dim):
     """Incident irradiance-like term Σ L cos θ / pdf from one light sample, MIS-ready.
@@ -50,41 +79,21 @@ def direct_one_sample(geom, lights, p, ng, ns, key, dim):
     knows the BSDF pdf).  pdf is 0 for a point light (a delta: no MIS).
     """
     zero = (0.0, 0.0, 0.0)
-    n = lights.kind.shape[0]
-    if n == 0:
+    if lights.kind.shape[0] == 0:
         return zero, 0.0, 0.0, False
     li, sel_pdf, _ = choose_light(lights, uniform(key, dim))
     if lights.kind[li] == AREA:
         q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
-        to_l = vec.sub(q, p)
-        dist2 = vec.dot(to_l, to_l)
-        if dist2 <= 0.0:
-            return zero, 0.0, 0.0, True
-        dist = math.sqrt(dist2)
-        wi = vec.mul(to_l, 1.0 / dist)
-        cos_l = -vec.dot(nq, wi)
-        cos_s = vec.dot(ns, wi)
-        if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-            return zero, 0.0, 0.0, True
-        if not visible(geom, p, ng, q, nq):
+        cos_s, cos_l, dist2 = area_light_geometry(geom, p, ng, ns, q, nq)
+        if cos_s <= 0.0:
             return zero, 0.0, 0.0, True
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
-        s = cos_s / pdf
-        L = (lights.radiance[li, 0] * s, lights.radiance[li, 1] * s, lights.radiance[li, 2] * s)
-        return L, pdf, cos_s, True
-    # point light: irradiance I cos / r^2, chosen with probability sel_pdf
-    q = vec.row(lights.position, li)
-    to_l = vec.sub(q, p)
-    dist2 = vec.dot(to_l, to_l)
-    dist = math.sqrt(dist2)
-    wi = vec.mul(to_l, 1.0 / dist)
-    cos_s = vec.dot(ns, wi)
-    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return vec.mul(vec.row(lights.radiance, li), cos_s / pdf), pdf, cos_s, True
+    # a point light: irradiance I cos / r², chosen with probability sel_pdf
+    cos_s, dist2 = point_light_geometry(geom, lights, li, p, ng, ns)
+    if cos_s <= 0.0:
         return zero, 0.0, 0.0, False
-    if not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
-        return zero, 0.0, 0.0, False
-    s = cos_s / (dist2 * sel_pdf)
-    return (lights.radiance[li, 0] * s, lights.radiance[li, 1] * s, lights.radiance[li, 2] * s), 0.0, cos_s, False
+    return vec.mul(vec.row(lights.radiance, li), cos_s / (dist2 * sel_pdf)), 0.0, cos_s, False
 
 
 @kernel
@@ -94,9 +103,7 @@ def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
     Area lights: n_strata x n_strata stratified points (jittered, or the cell centres
     when fixed_grid is true: the paper's grid of point lights).  Point lights exactly.
     """
-    e0 = 0.0
-    e1 = 0.0
-    e2 = 0.0
+    E = (0.0, 0.0, 0.0)
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):
         if lights.kind[li] == AREA:
@@ -111,36 +118,11 @@ def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
                     u1 = (i + uniform(key, dim + 2 * s)) / n_strata
                     u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
                 q, nq = sample_area_emitter(lights, geom, li, u1, u2)
-                to_l = vec.sub(q, p)
-                dist2 = vec.dot(to_l, to_l)
-                if dist2 <= 0.0:
-                    continue
-                dist = math.sqrt(dist2)
-                wi = vec.mul(to_l, 1.0 / dist)
-                cos_l = -vec.dot(nq, wi)
-                cos_s = vec.dot(ns, wi)
-                if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                    continue
-                if not visible(geom, p, ng, q, nq):
-                    continue
-                acc += cos_s * cos_l / dist2
-            w = acc * lights.area[li] / n_total
-            e0 += lights.radiance[li, 0] * w
-            e1 += lights.radiance[li, 1] * w
-            e2 += lights.radiance[li, 2] * w
+                cos_s, cos_l, dist2 = area_light_geometry(geom, p, ng, ns, q, nq)
+                if cos_s > 0.0:
+                    acc += cos_s * cos_l / dist2
+            E = vec.madd(E, vec.row(lights.radiance, li), acc * lights.area[li] / n_total)
         else:
-            q = vec.row(lights.position, li)
-            to_l = vec.sub(q, p)
-            dist2 = vec.dot(to_l, to_l)
-            dist = math.sqrt(dist2)
-            wi = vec.mul(to_l, 1.0 / dist)
-            cos_s = vec.dot(ns, wi)
-            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                continue
-            if not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
-                continue
-            w = cos_s / dist2
-            e0 += lights.radiance[li, 0] * w
-            e1 += lights.radiance[li, 1] * w
-            e2 += lights.radiance[li, 2] * w
-    return (e0, e1, e2)
+            cos_s, dist2 = point_light_geometry(geom, lights, li, p, ng, ns)
+            E = vec.madd(E, vec.row(lights.radiance, li), cos_s / dist2)
+    return E

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ..bsdf import reflect, sample_dielectric
+from ..bsdf import reflect, sample_dielectric, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -60,12 +60,9 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
         m = geom.prim_material[prim]
         kind = mats.kind[m]
         rgb = vec.row(mats.rgb, m)
-        if kind == DIFFUSE or kind == CONDUCTOR:
-            if not front:
-                if mats.twosided[m] == 0:
-                    break
-                ng = vec.neg(ng)
-                ns = vec.neg(ns)
+        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+        if not scatters:
+            break
         if kind == DIFFUSE:
             contrib, pdf_light, cos_s, is_area = direct_one_sample(geom, lights, p, ng, ns, key, dim)
             dim += 3

@@ -42,6 +42,7 @@ import time
 
 import numpy as np
 
+from ..bsdf import scattering_side
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel, parallel_for
@@ -134,11 +135,9 @@ def trace_streams(geom, mats, lights, seed, n_streams, n_assoc, r_s, max_bounces
                 d = d_new
                 scattered = True
                 continue
-            if not front:
-                if mats.twosided[m] == 0:
-                    break  # absorbed by the black back of a one-sided surface
-                ng = vec.neg(ng)
-                ns = vec.neg(ns)
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                break  # absorbed by the black back of a one-sided surface
             rec = i * slots + stored
             landed = place_associated(geom, mats, o, p, d, r_s, key, dim, n_alive, scattered, rec,
                                       assoc_pos, assoc_dir, assoc_nrm, n_assoc)

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract
+from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -62,12 +62,9 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                 L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
             m = geom.prim_material[prim]
             kind = mats.kind[m]
-            if kind == DIFFUSE or kind == CONDUCTOR:
-                if not front:
-                    if mats.twosided[m] == 0:
-                        break
-                    ng = vec.neg(ng)
-                    ns = vec.neg(ns)
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                break
             if kind == DIFFUSE:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
                 E = direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid)

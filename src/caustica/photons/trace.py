@@ -9,7 +9,7 @@ bounces; mirrors and glass have their own cap (:data:`SPECULAR_CAP`).
 """
 from __future__ import annotations
 
-from ..bsdf import reflect, sample_dielectric
+from ..bsdf import reflect, sample_dielectric, scattering_side
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
@@ -51,11 +51,9 @@ def specular_scatter(mats, m, d, ng, ns, power, front, u):
     """Reflect or refract at a mirror or glass: (new direction, power, alive, geometric normal on the exit side)."""
     rgb = vec.row(mats.rgb, m)
     if mats.kind[m] == CONDUCTOR:
-        if not front:
-            if mats.twosided[m] == 0:
-                return d, power, False, ng
-            ng = vec.neg(ng)
-            ns = vec.neg(ns)
+        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+        if not scatters:
+            return d, power, False, ng
         wi = reflect(d, ns)
         if vec.dot(wi, ng) <= 0.0:
             wi = reflect(d, ng)
@@ -81,11 +79,9 @@ def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_on
         front = vec.dot(d, ng) < 0.0
         m = geom.prim_material[prim]
         if mats.kind[m] == DIFFUSE:
-            if not front:
-                if mats.twosided[m] == 0:
-                    break  # the black back of a one-sided surface absorbs
-                ng = vec.neg(ng)
-                ns = vec.neg(ns)
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                break  # the black back of a one-sided surface absorbs
             if scattered:
                 s = slot0 + stored
                 for c in range(3):
