@@ -331,6 +331,21 @@ def test_mesh_without_read_permission_is_an_error(cli, tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("args, words", [
+    (("--res", "200000"), ("200000x200000", "GB", "--res")),
+    (("-m", "pm", "--photons", "4000000000"), ("photons", "GB", "--photons")),
+    (("-m", "spm", "--streams", "100000000", "--assoc", "100"), ("streams", "GB", "--assoc")),
+])
+def test_parameters_that_would_exhaust_memory_are_refused(cli, tmp_path, args, words):
+    """Refused before allocating, with the estimate in the message; nothing written."""
+    code, _, err = cli("render", SCENE, "--spp", "1", "-q", *args, "-o", tmp_path / "o" / "x.exr")
+    assert code == 2
+    line = _one_line_error(err)
+    for word in words:
+        assert word in line, (word, line)
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("res", ["0", "0x8", "8x0"])
 def test_res_zero_is_an_error(cli, tmp_path, res):
     code, _, err = cli("render", SCENE, "-D", "res=8", "--spp", "1", "-q", "--res", res,

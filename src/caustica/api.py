@@ -13,6 +13,7 @@ import time
 from . import __version__, methods
 from .errors import ParameterError
 from .jit import default_threads
+from .memory import check_budget
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
 from .scene.compiled import Scene, compile_scene
@@ -95,6 +96,8 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         raise ParameterError(f"--res: the image must be at least 1x1 (got {width}x{height})")
     if spp <= 0:
         raise ParameterError(f"--spp: samples per pixel must be >= 1 (got {spp})")
+    # the image (float32 RGB) plus per-pixel bookkeeping of the camera pass
+    check_budget(width * height * 20, f"a {width}x{height} image", "lower --res")
     if not isinstance(seed, int) or seed < 0:
         raise ParameterError(f"--seed: must be a non-negative integer (got {seed})")
     settings = methods.params.resolve(method, cls.params, params)

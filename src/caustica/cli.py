@@ -76,13 +76,18 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _check_output_folder(path: Path) -> None:
-    folder = Path(path).parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ParameterError(f"-o {path}: cannot create the folder {folder}: {exc.strerror or exc}") from None
-    if not os.access(folder, os.W_OK):
-        raise ParameterError(f"-o {path}: the folder {folder} is not writable")
+    """Refuse, before rendering, an output whose folder could not be created or written.
+
+    Nothing is created here: the folder is made when the files are saved.
+    """
+    folder = Path(path).parent.resolve()
+    existing = folder
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ParameterError(f"-o {path}: cannot create the folder {folder}: {existing} is a file")
+    if not os.access(existing, os.W_OK):
+        raise ParameterError(f"-o {path}: the folder {existing} is not writable")
 
 
 def _build_parser():
