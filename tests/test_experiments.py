@@ -191,3 +191,25 @@ def test_experiment_all_quick_end_to_end(tmp_path):
     # the reference is cached: a second run of one experiment renders no new reference
     cached = list((tmp_path / "cache").iterdir())
     assert len(cached) == 2
+
+
+def test_user_reference_checks_size_and_reads_noise(tmp_path):
+    from caustica.errors import CausticaError
+    from caustica.experiments.reference import user_reference
+    r = _image(8, (16, 16)).astype(np.float32)
+    imageio.write_exr(tmp_path / "ref.exr", r)
+    with pytest.raises(CausticaError, match="--res 16"):
+        user_reference(tmp_path / "ref.exr", 32, 32)
+    assert not user_reference(tmp_path / "ref.exr", 16, 16).noise          # unknown noise
+    imageio.write_json(tmp_path / "ref.json", {"noise": {"est_rel_rmse_of_full": 0.02}})
+    ref = user_reference(tmp_path / "ref.exr", 16, 16)
+    assert ref.noise["est_rel_rmse_of_full"] == 0.02
+    assert "0.0200" in ref.noise_line()
+
+
+def test_one_reference_file_for_several_scenes_is_refused(tmp_path, capsys):
+    r = _image(9, (16, 16)).astype(np.float32)
+    imageio.write_exr(tmp_path / "ref.exr", r)
+    assert main(["experiment", "table2", "table3", "--quick", "-q", "-o", str(tmp_path / "o"),
+                 "--reference", str(tmp_path / "ref.exr")]) == 2
+    assert "SCENE=PATH" in capsys.readouterr().err

@@ -50,6 +50,8 @@ CONFIGS = {
 BUDGET_KEYS = {"SPM": ("streams",), "PM": ("photons",), "PM+C": ("photons", "caustic_photons")}
 #: The error that equal-time / equal-error compare.
 EQUAL_METRIC = "caustic_rel_mse"
+#: How far beyond the budget sweep (as a factor) equal-error may extrapolate.
+MAX_EXTRAPOLATION = 2.0
 
 ROW_COLUMNS = ("experiment", "scene", "label", "method", "streams", "assoc", "stream_radius", "photons",
                "caustic_photons", "photons_emitted", "photons_stored", "map_mb", "time_s",
@@ -133,7 +135,7 @@ class Runner:
         self.refs = {}
         self.memo = {}       # (scene, method, params) -> (image, row)
         self.bar = None
-        self.timings = {}
+        self.warm = set()
 
     # ------------------------------------------------------------------ helpers
     def log(self, msg):
@@ -202,6 +204,9 @@ class Runner:
         else:
             scene = self.scene(scene_name)
             r = self.cfg.res
+            if method not in self.warm:   # the first render of a method in a process pays start-up costs
+                render(scene, method, res=(16, 16), seed=self.cfg.seed, threads=self.cfg.threads, **params)
+                self.warm.add(method)
             result = render(scene, method, res=(r, r), seed=self.cfg.seed, threads=self.cfg.threads,
                             progress=self.cfg.progress, **params)
             t = result.stats["timings"]
@@ -291,21 +296,29 @@ class Runner:
         rows_main.sort(key=lambda r: order[r["config"]])
         noise = self.noise_row(name, scene)
         eq = equal_comparison(sweep, "SPM")
+        eq_pmc = equal_comparison(sweep, "PM+C")
         for r in rows_main:
             r.update(eq.get(r["config"], {}))
+            other = eq_pmc.get(r["config"], {})
+            r["time_to_pmc_error_s"] = other.get("equal_error_time_s")
+            r["time_to_pmc_error_s_text"] = other.get("equal_error_time_s_text")
+            r["time_to_pmc_error_extrapolated"] = other.get("equal_error_extrapolated")
         cols = ("label", "photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "caustic_block_err",
                 "caustic_ssim", "caustic_flip", "rel_mse", "ssim", "flip")
         md = markdown_table(rows_main + [noise], cols, HEADERS)
-        eq_cols = ("label", "time_s", "caustic_rel_mse", "equal_error_time_s", "equal_time_caustic_rel_mse")
-        eq_headers = {**HEADERS, "equal_error_time_s": f"time to SPM's caustic relMSE (s)",
-                      "equal_time_caustic_rel_mse": "caustic relMSE in SPM's time"}
+        eq_cols = ("label", "time_s", "caustic_rel_mse", "equal_error_time_s", "equal_time_caustic_rel_mse",
+                   "time_to_pmc_error_s")
+        eq_headers = {**HEADERS, "equal_error_time_s": "time to SPM's caustic relMSE (s)",
+                      "equal_time_caustic_rel_mse": "caustic relMSE in SPM's time",
+                      "time_to_pmc_error_s": "time to PM+C's caustic relMSE (s)"}
         eq_rows = [{**r, "equal_error_time_s": r.get("equal_error_time_s_text"),
-                    "equal_time_caustic_rel_mse": r.get("equal_time_caustic_rel_mse_text")} for r in rows_main]
+                    "equal_time_caustic_rel_mse": r.get("equal_time_caustic_rel_mse_text"),
+                    "time_to_pmc_error_s": r.get("time_to_pmc_error_s_text")} for r in rows_main]
         md_eq = markdown_table(eq_rows, eq_cols, eq_headers)
         all_rows = [r for k in CONFIGS for r in sweep[k]]
         write_csv(folder / f"{name}.csv", rows_main + [noise],
                   ROW_COLUMNS + ("equal_error_time_s", "equal_error_extrapolated", "equal_time_caustic_rel_mse",
-                                 "equal_time_extrapolated"))
+                                 "equal_time_extrapolated", "time_to_pmc_error_s", "time_to_pmc_error_extrapolated"))
         write_csv(folder / f"{name}_budget_sweep.csv", all_rows, ROW_COLUMNS + ("config", "budget_factor"))
         atomic_write(folder / f"{name}.md", lambda tmp: tmp.write_text(md + "\n" + md_eq, encoding="utf-8"))
         from .figures import budget_plot
@@ -313,7 +326,8 @@ class Runner:
         return {"title": f"{'Table 2' if name == 'table2' else 'Table 3'}: SPM vs PM vs PM+C ({scene})",
                 "scene": scene, "tables": {name: md, f"{name} equal-error / equal-time": md_eq},
                 "csv": [f"{name}.csv", f"{name}_budget_sweep.csv"], "figures": [f"{name}_error_vs_time.png"],
-                "rows": rows_main + [noise], "equal": eq, "summary": equal_summary(eq, rows_main)}
+                "rows": rows_main + [noise], "equal": eq, "equal_to_pmc": eq_pmc,
+                "summary": equal_summary(eq, rows_main, eq_pmc)}
 
     def figure(self, name, folder):
         from .figures import side_by_side
@@ -410,9 +424,14 @@ def equal_comparison(sweep: dict, anchor: str) -> dict:
         t = np.array([r["time_s"] for r in rows])
         e = np.array([r[EQUAL_METRIC] for r in rows])
         c, a = np.polyfit(b, t, 1) if len(b) > 1 else (0.0, t[0])
+        if c < 0:   # timing noise larger than the photon cost: time does not grow with the budget
+            c, a = 0.0, float(np.mean(t))
         res = {"time_fit_fixed_s": float(a), "time_fit_per_budget_s": float(c)}
+        if label == anchor:
+            res.update(equal_error_time_s=float(target_t), equal_error_extrapolated=False,
+                       equal_time_caustic_rel_mse=float(target_err), equal_time_extrapolated=False)
         ok = np.isfinite(e) & (e > 0)
-        if ok.sum() >= 2 and math.isfinite(target_err) and target_err > 0:
+        if label != anchor and ok.sum() >= 2 and math.isfinite(target_err) and target_err > 0:
             # equal error: invert error(budget); error is interpolated on log-log
             bb, ee = b[ok], e[ok]
             found = None
@@ -430,7 +449,16 @@ def equal_comparison(sweep: dict, anchor: str) -> dict:
                 if slope < -1e-6:
                     lb = math.log(bb[i]) + (math.log(target_err) - math.log(ee[i])) / slope
                     found = (math.exp(lb), True)
-            if found is not None and found[0] > 0:
+            if found is not None and found[0] > 0 and found[1] and not (
+                    bb[0] / MAX_EXTRAPOLATION <= found[0] <= bb[-1] * MAX_EXTRAPOLATION):
+                res["equal_error_time_s"] = float("nan")
+                res["equal_error_extrapolated"] = True
+                res["equal_error_budget"] = found[0]
+                res["equal_error_note"] = (
+                    f"its error is {'below' if found[0] < bb[0] else 'above'} the target at every budget of the "
+                    f"sweep (x{bb[0]:g} .. x{bb[-1]:g}); log-log extrapolation puts it at x{found[0]:.3g}, too far "
+                    "to trust")
+            elif found is not None and found[0] > 0:
                 res["equal_error_budget"] = found[0]
                 res["equal_error_time_s"] = float(a + c * found[0])
                 res["equal_error_extrapolated"] = found[1]
@@ -445,6 +473,12 @@ def equal_comparison(sweep: dict, anchor: str) -> dict:
                 res["equal_time_budget"] = b_t
                 res["equal_time_caustic_rel_mse"] = val
                 res["equal_time_extrapolated"] = extra
+            elif c == 0 and target_t >= a:
+                res["equal_time_budget"] = float(bb[-1])
+                res["equal_time_caustic_rel_mse"] = float(ee[-1])
+                res["equal_time_extrapolated"] = True
+                res["equal_time_note"] = "its time does not measurably grow with the budget: the error " \
+                                         "at the largest budget of the sweep"
             else:
                 res["equal_time_caustic_rel_mse"] = float("nan")
                 res["equal_time_extrapolated"] = True
@@ -460,32 +494,42 @@ def equal_comparison(sweep: dict, anchor: str) -> dict:
     return out
 
 
-def equal_summary(eq: dict, rows_main: list[dict]) -> str:
-    """One plain sentence per comparison: does SPM beat PM+C at equal time and at equal error?"""
+def equal_summary(eq: dict, rows_main: list[dict], eq_pmc: dict | None = None) -> str:
+    """Plain sentences: does SPM beat PM+C at equal time and at equal error?"""
     main = {r["config"]: r for r in rows_main}
     spm, pmc = main.get("SPM"), main.get("PM+C")
     if spm is None or pmc is None:
         return ""
+    e_spm, t_spm = spm[EQUAL_METRIC], spm["time_s"]
+    q = eq.get("PM+C", {})
+    x = lambda d, k: " (extrapolated)" if d.get(k) else ""
     lines = []
-    t_spm = spm["time_s"]
-    t_pmc = eq["PM+C"].get("equal_error_time_s", float("nan"))
+    e_pmc = q.get("equal_time_caustic_rel_mse", float("nan"))
+    if math.isfinite(e_pmc):
+        verdict = "beats" if e_spm < e_pmc else "does not beat"
+        lines.append(f"Equal time ({t_spm:.1f} s): SPM's caustic relMSE is {_fmt(e_spm)}, PM+C's about "
+                     f"{_fmt(e_pmc)}{x(q, 'equal_time_extrapolated')}: SPM {verdict} PM+C.")
+    else:
+        lines.append(f"Equal time ({t_spm:.1f} s): PM+C cannot render in SPM's time "
+                     f"({q.get('equal_time_note', 'n/a')}); at its own {pmc['time_s']:.1f} s its caustic relMSE "
+                     f"is {_fmt(pmc[EQUAL_METRIC])} against SPM's {_fmt(e_spm)}.")
+    t_pmc = q.get("equal_error_time_s", float("nan"))
     if math.isfinite(t_pmc):
         verdict = "beats" if t_spm < t_pmc else "does not beat"
-        lines.append(f"Equal error (caustic relMSE {_fmt(spm[EQUAL_METRIC])}): SPM needs {t_spm:.1f} s, "
-                     f"PM+C about {t_pmc:.1f} s{' (extrapolated)' if eq['PM+C'].get('equal_error_extrapolated') else ''}"
-                     f" — SPM {verdict} PM+C.")
+        lines.append(f"Equal error at SPM's level ({_fmt(e_spm)}): SPM {t_spm:.1f} s, PM+C about {t_pmc:.1f} s"
+                     f"{x(q, 'equal_error_extrapolated')}: SPM {verdict} PM+C.")
     else:
-        lines.append("Equal error: PM+C's error does not come down to SPM's within its sweep "
-                     f"({eq['PM+C'].get('equal_error_note', '')}).")
-    e_pmc = eq["PM+C"].get("equal_time_caustic_rel_mse", float("nan"))
-    if math.isfinite(e_pmc):
-        verdict = "beats" if spm[EQUAL_METRIC] < e_pmc else "does not beat"
-        lines.append(f"Equal time ({t_spm:.1f} s): SPM's caustic relMSE {_fmt(spm[EQUAL_METRIC])}, "
-                     f"PM+C's about {_fmt(e_pmc)}"
-                     f"{' (extrapolated)' if eq['PM+C'].get('equal_time_extrapolated') else ''} — SPM {verdict} PM+C.")
-    else:
-        lines.append(f"Equal time: PM+C cannot run in SPM's {t_spm:.1f} s "
-                     f"({eq['PM+C'].get('equal_time_note', '')}).")
+        lines.append(f"Equal error at SPM's level ({_fmt(e_spm)}): PM+C: {q.get('equal_error_note', 'n/a')}.")
+    if eq_pmc:
+        r = eq_pmc.get("SPM", {})
+        t_s = r.get("equal_error_time_s", float("nan"))
+        if math.isfinite(t_s):
+            verdict = "beats" if t_s < pmc["time_s"] else "does not beat"
+            lines.append(f"Equal error at PM+C's level ({_fmt(pmc[EQUAL_METRIC])}): PM+C {pmc['time_s']:.1f} s, "
+                         f"SPM about {t_s:.1f} s{x(r, 'equal_error_extrapolated')}: SPM {verdict} PM+C.")
+        else:
+            lines.append(f"Equal error at PM+C's level ({_fmt(pmc[EQUAL_METRIC])}): SPM: "
+                         f"{r.get('equal_error_note', 'n/a')}: SPM does not beat PM+C.")
     return " ".join(lines)
 
 
@@ -509,6 +553,12 @@ def run(names, config: Config) -> dict:
     """Run the experiments ``names`` (see EXPERIMENTS, or 'all'); returns {name: results} and writes report.md."""
     from .report import write_report
     names = expand(names)
+    measured = {TABLE1_SCENE if n == "table1" else TABLE_SCENES.get(n) or FIG_SCENES[n]
+                for n in names if n not in ("fig5", "fig6")}
+    plain_files = [r for r in config.references if "=" not in r and not Path(r).is_dir()]
+    if plain_files and len(measured) > 1:
+        raise ParameterError(f"--reference {plain_files[0]}: these experiments measure {len(measured)} scenes "
+                             f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
     config.out.mkdir(parents=True, exist_ok=True)
     runner = Runner(config)
     total = sum(runner.count(n) for n in names)
