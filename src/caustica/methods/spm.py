@@ -48,7 +48,7 @@ from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..photons.emission import emit_photon
-from ..photons.records import build_photon_map, empty_photon_map
+from ..photons.records import build_photon_map, build_photon_map_with_order, empty_photon_map
 from ..photons.trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
 from ..sampling.rng import STREAM_SPM, path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
@@ -218,10 +218,12 @@ class StreamMap:
             self.assoc_nrm = buf.assoc[2][flat]
         else:
             self.assoc_pos = self.assoc_dir = self.assoc_nrm = np.zeros((0, 3), np.float32)
-        self.lead_power = lead_pow[keep]
         self.assoc_power = assoc_pow[keep]
         # The paper's map: leading positions in the kd-tree, each carrying its stream's energy E_i.
-        self.records = build_photon_map(pos[keep], dirs[keep], energy[keep], nrm[keep])
+        # Its records are in kd-tree order; ``count`` and ``assoc_power`` stay in tracing
+        # order, which the associated photons' flat arrays follow; ``order`` links the two.
+        self.records, self.order = build_photon_map_with_order(pos[keep], dirs[keep], energy[keep], nrm[keep])
+        self.lead_power = np.ascontiguousarray(lead_pow[keep][self.order])  # aligned with self.records
 
     @property
     def n_records(self) -> int:
@@ -234,7 +236,7 @@ class StreamMap:
     def memory_bytes(self) -> int:
         """Stream records (leading photon + energy), associated photons and the kd-tree."""
         extra = sum(a.nbytes for a in (self.count, self.assoc_pos, self.assoc_dir, self.assoc_nrm,
-                                       self.lead_power, self.assoc_power))
+                                       self.lead_power, self.assoc_power))  # ``order`` is bookkeeping only
         return self.records.memory_bytes() + extra
 
     def photon_map(self):

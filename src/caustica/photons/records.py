@@ -51,12 +51,28 @@ class PhotonMap(NamedTuple):
         return self.record_bytes() + tree_bytes(self.tree)
 
 
-def build_photon_map(position, direction, power, normal) -> PhotonMap:
-    position = np.ascontiguousarray(position, dtype=np.float32)
+def build_photon_map_with_order(position, direction, power, normal) -> tuple[PhotonMap, np.ndarray]:
+    """The photon map, its records stored in kd-tree order, and ``order``: record j was input ``order[j]``.
+
+    Storing the records in the tree's own order makes the k-nearest search read
+    normals and powers sequentially instead of jumping through an index (a third of
+    the search time on a 200k-photon map); the tree's index is then the identity.
+    """
+    position = np.asarray(position, dtype=np.float32)
     tree = build_kdtree(position.astype(np.float64))
-    return PhotonMap(tree.points, tree.index, tree.axis, position, np.ascontiguousarray(direction, dtype=np.float32),
-                     np.ascontiguousarray(power, dtype=np.float32),
-                     np.ascontiguousarray(normal, dtype=np.float32))
+    order = tree.index
+
+    def f32(a):
+        return np.ascontiguousarray(np.asarray(a, dtype=np.float32)[order])
+
+    pmap = PhotonMap(tree.points, np.arange(order.shape[0], dtype=np.int64), tree.axis, f32(position),
+                     f32(direction), f32(power), f32(normal))
+    return pmap, order
+
+
+def build_photon_map(position, direction, power, normal) -> PhotonMap:
+    """The photon map of these records (stored in kd-tree order; see :func:`build_photon_map_with_order`)."""
+    return build_photon_map_with_order(position, direction, power, normal)[0]
 
 
 def empty_photon_map() -> PhotonMap:
