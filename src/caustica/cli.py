@@ -131,6 +131,8 @@ def _build_parser():
                          "one scene; a folder is searched for <scene>_<res>.exr, e.g. Mitsuba's shared/refs)")
     ex.add_argument("--reference-spp", type=int,
                     help="samples per pixel of the pt reference (default 1024; 64 with --quick)")
+    ex.add_argument("--repeat", type=int, help="renders per configuration, the time reported is the fastest "
+                                               "(default 2; 1 with --quick): times on a busy machine vary")
     ex.add_argument("--cache-dir", help="reference cache folder (default: $CAUSTICA_CACHE/references or "
                                         "~/.cache/caustica/references)")
     ex.add_argument("--quiet", "-q", action="store_true", help="no progress bars or messages")
@@ -226,7 +228,8 @@ def _cmd_experiment(args) -> int:
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
-                           threads=args.threads, cache_dir=args.cache_dir, progress=not args.quiet, log=log)
+                           threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat,
+                           progress=not args.quiet, log=log)
     runner.run(names, config)
     if not args.quiet:
         print(f"{', '.join(names)} -> {out / 'report.md'}")

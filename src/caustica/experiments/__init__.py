@@ -6,4 +6,4 @@
 from .metrics import METRICS, all_metrics, block_err, flip, rel_mse, ssim
 from .runner import EXPERIMENTS, Config, run
 
-__all__ = ["EXPERIMENTS", "Config", "run", "METRICS", "all_metrics", "rel_mse", "block_err", "ssim", "flip"]
+__all__ = ["EXPERIMENTS", "METRICS", "Config", "all_metrics", "block_err", "flip", "rel_mse", "run", "ssim"]

@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..api import resolve_settings
-from ..api import progress_factory
+from ..api import progress_factory, resolve_settings
 
 
 def _box_blur(img: np.ndarray, r: int) -> np.ndarray:
@@ -45,7 +44,7 @@ def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, s
     """Caustic-map power splatted into the camera's pixels (H x W, summed over RGB)."""
     from ..methods.pm import PhotonMapping
     from ..photon_view import splat_records
-    scene, cls, settings = resolve_settings(scene, "pm", res=(width, height), seed=seed, threads=threads,
+    scene, _cls, settings = resolve_settings(scene, "pm", res=(width, height), seed=seed, threads=threads,
                                             photons=1, caustic_photons=photons)
     _, cmap, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
     cam = scene.camera(width, height)

@@ -142,8 +142,8 @@ def all_metrics(test, ref, mask=None, *, with_flip: bool = True) -> dict:
 
     SSIM and FLIP maps are computed once and averaged over both regions.
     """
-    from skimage.metrics import structural_similarity
     import flip_evaluator
+    from skimage.metrics import structural_similarity
     t, r, mask = _check(test, ref, mask)
     out = {}
     regions = [("", None)] + ([("caustic_", mask)] if mask is not None else [])

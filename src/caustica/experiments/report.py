@@ -26,14 +26,17 @@ METHOD_NOTES = """\
   1 = identical). **FLIP**: NVIDIA's HDR-FLIP (`flip_evaluator`) on the linear images (0 = identical).
   Over the caustic region both are the mean of their per-pixel maps inside the mask.
 - **time s**: photon tracing + map build + camera pass (`total_s` of the render minus scene loading
-  and JIT compilation), on the machine that ran it.
-- **Equal error / equal time** (Tables 2 and 3): each configuration is also rendered with its photon
-  budget scaled (x0.25 ... x4; streams for SPM, photons for PM, both maps for PM+C). Render time is
-  fitted as a + c * budget (least squares: a fixed camera pass plus a cost per photon); the
-  caustic relMSE is interpolated piecewise-linearly in log-log against the budget. *Equal error*:
-  the budget at which a configuration's caustic relMSE equals SPM's (paper settings), and the fitted
-  time for it. *Equal time*: the budget that runs in SPM's time, and the error there. Values outside
-  the sweep are extrapolated along the end segment and marked `*`.
+  and JIT compilation), on the machine that ran it; the fastest of `--repeat` renders (default 2).
+- **Equal error / equal time** (Tables 2 and 3), on the **caustic block err** (the caustic relMSE,
+  dominated by a few outlier pixels, is not monotone in the photon budget and cannot be inverted):
+  each configuration is also rendered with its photon budget scaled (x0.25 ... x4; streams for SPM,
+  photons for PM, both maps for PM+C). Render time is fitted as a + c * budget (least squares: a
+  fixed camera pass plus a cost per photon; c = 0 when timing noise makes it negative); the error is
+  interpolated piecewise-linearly in log-log against the budget. *Equal error*: the budget at which
+  a configuration's error equals SPM's (paper settings), and the fitted time for it; also the time
+  SPM needs to reach PM+C's error. *Equal time*: the budget that runs in SPM's time, and the error
+  there. Values extrapolated beyond the sweep carry `*`; beyond a factor 2 past its ends they are
+  n/a, and the summary says where the extrapolation would put them.
 """
 
 ORDER = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9")
@@ -41,10 +44,10 @@ ORDER = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9")
 
 def write_report(out: Path) -> Path:
     out = Path(out)
-    parts = ["# caustica experiments\n",
-             "The paper's experiments (Guzek & Napieralski), measured against a converged reference of "
+    intro = ("The paper's experiments (Guzek & Napieralski), measured against a converged reference of "
              "the same scene. Each section links its CSV/Markdown tables and PNG figures; "
-             "`results.json` in each folder holds every number.\n"]
+             "`results.json` in each folder holds every number.\n")
+    parts = ["# caustica experiments\n", intro]
     found = []
     for name in ORDER:
         p = out / name / "results.json"
