@@ -24,7 +24,8 @@ Caching policy
 * Numba invalidates a cached function only when *its own* file changes, not when
   a kernel it calls changes in another file (numba #1833): a stale cache would
   silently run old code.  So the cache lives in a folder named after a hash of
-  every source file of the package (``~/.cache/caustica/numba/<hash>``, or under
+  the package's source files (all but the CLI and the experiments, which no
+  kernel imports) (``~/.cache/caustica/numba/<hash>``, or under
   ``$CAUSTICA_CACHE_DIR``): any edit, upgrade or checkout starts a fresh cache.
   A ``NUMBA_CACHE_DIR`` set by the user is respected as it is.
 * Parallel kernels are never cached: caching ``parallel=True`` functions has
@@ -52,11 +53,19 @@ CACHE_SERIAL = os.environ.get("CAUSTICA_NO_CACHE", "0") != "1"
 
 
 def source_hash() -> str:
-    """A short hash of every .py file of the package: the cache's version."""
+    """A short hash of the package's sources that kernels can depend on: the cache's version.
+
+    Kernels read code and constants from every module they import, so every file
+    counts except those no kernel imports: the command line and the experiments
+    (editing them keeps the compiled cache).
+    """
     h = hashlib.sha1()
     root = Path(__file__).resolve().parent
     for path in sorted(root.rglob("*.py")):
-        h.update(str(path.relative_to(root)).encode())
+        rel = path.relative_to(root)
+        if rel.parts[0] in ("experiments", "cli.py", "__main__.py"):
+            continue
+        h.update(str(rel).encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
