@@ -53,7 +53,12 @@ def _add_render_options(r, method_names, default_method, output_help):
                    help="set a scene <default> value, as Mitsuba's -D (repeatable)")
     r.add_argument("-o", "--output", help=output_help)
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bars or summary")
-    group = r.add_argument_group("method parameters (each belongs to the methods named)")
+    _add_method_flags(r.add_argument_group("method parameters (each belongs to the methods named)"),
+                      method_names, "default")
+
+
+def _add_method_flags(group, method_names, default_word):
+    """One flag per parameter of the named methods (``--k``, ``--streams``, ...), stored as param_<name>."""
     allowed = set(method_names)
     for name, (p, owners) in sorted(_method_param_specs().items()):
         owners = [o for o in owners if o in allowed]
@@ -64,7 +69,7 @@ def _add_render_options(r, method_names, default_method, output_help):
             kw["choices"] = p.choices
         group.add_argument(p.flag, dest=f"param_{name}", default=None,
                            metavar=None if p.choices else p.type.__name__.upper(),
-                           help=f"{p.help} (default {p.default}; {', '.join(owners)})", **kw)
+                           help=f"{p.help} ({default_word} {p.default}; {', '.join(owners)})", **kw)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -138,15 +143,7 @@ def _build_parser():
     ex.add_argument("--quiet", "-q", action="store_true", help="no progress bars or messages")
     group = ex.add_argument_group("method parameters (override the paper's in every render that uses them; "
                                   "in Table 1 a swept one fixes that axis)")
-    for name, (p, owners) in sorted(_method_param_specs().items()):
-        if not set(owners) & {"pm", "spm"}:
-            continue
-        kw = {"type": p.type} if p.type is not bool else {"type": str}
-        if p.choices:
-            kw["choices"] = p.choices
-        group.add_argument(p.flag, dest=f"param_{name}", default=None,
-                           metavar=None if p.choices else p.type.__name__.upper(),
-                           help=f"{p.help} (paper: {p.default})", **kw)
+    _add_method_flags(group, ("pm", "spm"), "paper:")
 
     cmp_ = sub.add_parser("compare", help="print error metrics of an image against a reference",
                           description="Print relMSE, block-mean error, SSIM and FLIP of TEST against REF "
