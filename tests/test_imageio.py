@@ -303,3 +303,25 @@ def test_repr_png_is_a_valid_png():
 
 def test_peak_memory_is_plausible():
     assert 10 * 2**20 < peak_memory_bytes() < 2**44
+
+
+def test_atomic_write_all_replaces_nothing_when_any_writer_fails(tmp_path):
+    paths = [tmp_path / name for name in ("a.bin", "b.bin", "c.bin")]
+    for p in paths:
+        p.write_bytes(b"old " + p.name.encode())
+
+    def ok(data):
+        return lambda tmp: tmp.write_bytes(data)
+
+    def failing(tmp):
+        tmp.write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        imageio.atomic_write_all([(paths[0], ok(b"new a")), (paths[1], ok(b"new b")), (paths[2], failing)])
+    assert [p.read_bytes() for p in paths] == [b"old a.bin", b"old b.bin", b"old c.bin"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.bin", "c.bin"]  # no temporaries
+
+    imageio.atomic_write_all([(p, ok(b"new " + p.name.encode())) for p in paths])
+    assert [p.read_bytes() for p in paths] == [b"new a.bin", b"new b.bin", b"new c.bin"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.bin", "c.bin"]

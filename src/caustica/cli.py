@@ -287,8 +287,7 @@ def main(argv=None) -> int:
         print(f"caustica: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("caustica: interrupted; a file being written when it happened was left as it was",
-              file=sys.stderr)
+        print("caustica: interrupted; no output file was replaced", file=sys.stderr)
         return 130
 
 

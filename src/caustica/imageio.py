@@ -96,6 +96,42 @@ def atomic_write(path: str | os.PathLike[str], writer: Callable[[Path], Any]) ->
     return dest
 
 
+def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], Any]]]) -> list[Path]:
+    """Write several files as one: every ``writer(tmp)`` fills its temporary first, then all replace.
+
+    An exception while any file is being written (KeyboardInterrupt included) removes every
+    temporary and leaves all destinations as they were, so a render's EXR, PNG and JSON never
+    mix two renders; only the final renames, one after another, are not a single step.
+    """
+    temps = []
+    try:
+        for path, writer in files:
+            dest = Path(path)
+            parent = dest.parent if str(dest.parent) else Path(".")
+            parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
+            os.close(fd)
+            tmp = Path(tmp_name)
+            temps.append((tmp, dest))
+            writer(tmp)
+            with open(tmp, "rb+") as fh:
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_current_umask())
+    except BaseException:
+        for tmp, _ in temps:
+            try:
+                tmp.unlink()
+            except FileNotFoundError:
+                pass
+        raise
+    for tmp, dest in temps:
+        os.replace(tmp, dest)
+    for parent in {dest.parent for _, dest in temps}:
+        _fsync_dir(parent if str(parent) else Path("."))
+    return [dest for _, dest in temps]
+
+
 # --------------------------------------------------------------------------- OpenEXR
 
 
@@ -109,8 +145,8 @@ def _as_rgb(image: Any, what: str = "image") -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=np.float32)
 
 
-def write_exr(path: str | os.PathLike[str], image: Any) -> Path:
-    """Write a linear RGB image as an OpenEXR file with float32 "R", "G", "B" channels (ZIP), atomically."""
+def exr_writer(image: Any) -> Callable[[Path], None]:
+    """A writer (for `atomic_write`) of a linear RGB OpenEXR file: float32 "R", "G", "B" channels, ZIP."""
     rgb = _as_rgb(image)
 
     def writer(tmp: Path) -> None:
@@ -121,7 +157,12 @@ def write_exr(path: str | os.PathLike[str], image: Any) -> Path:
         with OpenEXR.File(header, channels) as f:
             f.write(str(tmp))
 
-    return atomic_write(path, writer)
+    return writer
+
+
+def write_exr(path: str | os.PathLike[str], image: Any) -> Path:
+    """Write a linear RGB image as an OpenEXR file with float32 "R", "G", "B" channels (ZIP), atomically."""
+    return atomic_write(path, exr_writer(image))
 
 
 def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
@@ -178,10 +219,15 @@ def encode_png(image: Any, exposure_stops: float = 0.0) -> bytes:
     return buf.getvalue()
 
 
+def png_writer(image: Any, exposure_stops: float = 0.0) -> Callable[[Path], None]:
+    """A writer (for `atomic_write`) of the sRGB preview PNG (see `to_srgb8`) of a linear image."""
+    data = encode_png(image, exposure_stops)
+    return lambda tmp: tmp.write_bytes(data)
+
+
 def write_png(path: str | os.PathLike[str], image: Any, exposure_stops: float = 0.0) -> Path:
     """Write the sRGB preview (see `to_srgb8`) of a linear image as a PNG, atomically."""
-    data = encode_png(image, exposure_stops)
-    return atomic_write(path, lambda tmp: tmp.write_bytes(data))
+    return atomic_write(path, png_writer(image, exposure_stops))
 
 
 def read_png_mask(path: str | os.PathLike[str]) -> np.ndarray:
@@ -231,10 +277,15 @@ def to_jsonable(obj: Any) -> Any:
     return str(obj)
 
 
+def json_writer(data: Any) -> Callable[[Path], None]:
+    """A writer (for `atomic_write`) of `data` as pretty-printed UTF-8 JSON (2-space indent, trailing newline)."""
+    text = json.dumps(to_jsonable(data), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    return lambda tmp: tmp.write_text(text, encoding="utf-8")
+
+
 def write_json(path: str | os.PathLike[str], data: Any) -> Path:
     """Write `data` as pretty-printed UTF-8 JSON (2-space indent, trailing newline), atomically."""
-    text = json.dumps(to_jsonable(data), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
-    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    return atomic_write(path, json_writer(data))
 
 
 # --------------------------------------------------------------------------- output names

@@ -60,19 +60,20 @@ class RenderResult:
         return imageio.to_srgb8(self.image, exposure_stops)
 
     def save(self, path: str | os.PathLike[str], exposure_stops: float = 0.0) -> tuple[Path, Path, Path]:
-        """Write name.exr, name.png (preview at `exposure_stops`) and name.json, each atomically.
+        """Write name.exr, name.png (preview at `exposure_stops`) and name.json as one set.
 
-        `path` may end in .exr, .png or nothing (see `imageio.output_paths`). The JSON is written
-        last and is `stats` plus the output file names and the preview exposure, so its presence
-        means the image files beside it are complete. Returns the three paths (exr, png, json).
+        `path` may end in .exr, .png or nothing (see `imageio.output_paths`). All three are
+        written to temporaries first and only then renamed into place (`imageio.atomic_write_all`),
+        so a failure or an interrupt while writing leaves the previous set untouched. The JSON is
+        `stats` plus the output file names and the preview exposure. Returns (exr, png, json).
         """
         exr, png, js = imageio.output_paths(path)
-        imageio.write_exr(exr, self.image)
-        imageio.write_png(png, self.image, exposure_stops)
         sidecar = dict(self.stats)
         sidecar["outputs"] = {"exr": exr.name, "png": png.name, "json": js.name}
         sidecar["preview_exposure_stops"] = float(exposure_stops)
-        imageio.write_json(js, sidecar)
+        imageio.atomic_write_all([(exr, imageio.exr_writer(self.image)),
+                                  (png, imageio.png_writer(self.image, exposure_stops)),
+                                  (js, imageio.json_writer(sidecar))])
         return exr, png, js
 
     def _repr_png_(self) -> bytes:
