@@ -9,7 +9,8 @@ from hypothesis.extra import numpy as hnp
 from numba import prange
 
 from caustica.jit import parallel_kernel
-from caustica.photons.kdtree import LEAF_SIZE, KdTree, build_kdtree, knn, memory_bytes
+from caustica.photons.kdtree import (FACING_COS, LEAF_SIZE, NO_BOUNDS, KdTree, build_kdtree, knn, memory_bytes,
+                                     normal_bounds)
 
 SETTINGS = settings(max_examples=150, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -21,16 +22,34 @@ def brute(points, normals, qp, qn, k, r_max):
     """Candidates (indices, d2) sorted by d2, computed with the kernel's own formulas."""
     d = points - np.asarray(qp, dtype=np.float64)
     d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-    facing = normals[:, 0] * qn[0] + normals[:, 1] * qn[1] + normals[:, 2] * qn[2] > 0.0
+    facing = normals[:, 0] * qn[0] + normals[:, 1] * qn[1] + normals[:, 2] * qn[2] > FACING_COS
     ok = np.nonzero((d2 <= r_max * r_max) & facing)[0]
     order = np.argsort(d2[ok], kind="stable")
     return ok[order], d2[ok][order]
 
 
+# Every test runs twice: without and with the normal bounds that let knn skip subtrees
+# whose normals all face away (the answer must not change).
+_MODE = {"bounds": False}
+
+
+@pytest.fixture(scope="module", autouse=True, params=[False, True], ids=["plain", "normal-bounds"])
+def bounds_mode(request):
+    _MODE["bounds"] = request.param
+    yield request.param
+    _MODE["bounds"] = False
+
+
+def bounds_for(tree, normals):
+    if _MODE["bounds"] and normals.shape[0] == tree.index.shape[0]:
+        return normal_bounds(tree, normals)
+    return NO_BOUNDS
+
+
 def run_knn(tree, normals, qp, qn, k, r_max):
     out_idx = np.full(max(k, 1), -7, np.int64)
     out_d2 = np.full(max(k, 1), np.nan)
-    count, r2 = knn(tree, normals, tuple(float(x) for x in qp), tuple(float(x) for x in qn),
+    count, r2 = knn(tree, normals, bounds_for(tree, normals), tuple(float(x) for x in qp), tuple(float(x) for x in qn),
                     k, r_max, out_idx, out_d2)
     return count, r2, out_idx[:count].copy(), out_d2[:count].copy()
 
@@ -44,7 +63,7 @@ def check_query(points, normals, tree, qp, qn, k, r_max):
     if count:
         dd = points[idx] - np.asarray(qp, dtype=np.float64)
         np.testing.assert_array_equal(d2, dd[:, 0] * dd[:, 0] + dd[:, 1] * dd[:, 1] + dd[:, 2] * dd[:, 2])
-        assert np.all(normals[idx, 0] * qn[0] + normals[idx, 1] * qn[1] + normals[idx, 2] * qn[2] > 0.0)
+        assert np.all(normals[idx, 0] * qn[0] + normals[idx, 1] * qn[1] + normals[idx, 2] * qn[2] > FACING_COS)
         # heap property: slot 0 is the largest
         assert d2[0] == d2.max()
     if count == k and k > 0:
@@ -208,7 +227,7 @@ def test_build_validates_and_does_not_modify_input():
 def test_out_arrays_too_small():
     tree = build_kdtree(np.random.default_rng(2).random((50, 3)))
     with pytest.raises(ValueError):
-        knn(tree, np.ones((50, 3)), (0.5, 0.5, 0.5), (1.0, 0.0, 0.0), 10, 1.0,
+        knn(tree, np.ones((50, 3)), NO_BOUNDS, (0.5, 0.5, 0.5), (1.0, 0.0, 0.0), 10, 1.0,
             np.empty(5, np.int64), np.empty(10))
 
 
@@ -245,9 +264,9 @@ def test_big_case_against_brute_force():
 # ----------------------------------------------------------------------------- parallel use
 
 @parallel_kernel
-def _knn_prange(tree, normals, qps, qns, k, r_max, out_idx, out_d2, counts, r2s):
+def _knn_prange(tree, normals, bounds, qps, qns, k, r_max, out_idx, out_d2, counts, r2s):
     for q in prange(qps.shape[0]):
-        c, r2 = knn(tree, normals, (qps[q, 0], qps[q, 1], qps[q, 2]),
+        c, r2 = knn(tree, normals, bounds, (qps[q, 0], qps[q, 1], qps[q, 2]),
                     (qns[q, 0], qns[q, 1], qns[q, 2]), k, r_max, out_idx[q], out_d2[q])
         counts[q] = c
         r2s[q] = r2
@@ -266,7 +285,7 @@ def test_knn_inside_prange_matches_serial():
     out_d2 = np.full((nq, k), np.nan)
     counts = np.empty(nq, np.int64)
     r2s = np.empty(nq)
-    _knn_prange(tree, normals, qps, qns, k, r_max, out_idx, out_d2, counts, r2s)
+    _knn_prange(tree, normals, bounds_for(tree, normals), qps, qns, k, r_max, out_idx, out_d2, counts, r2s)
     assert 0 < (counts == k).sum() < nq
     for q in range(nq):
         c, r2, idx, d2 = run_knn(tree, normals, qps[q], qns[q], k, r_max)

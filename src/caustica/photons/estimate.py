@@ -1,7 +1,7 @@
 """The radiance estimate from a photon map (SPEC §3, eq. 2 of the paper).
 
 At a diffuse point x with normal n the k nearest records within R that arrived on
-the same side (dot(n_record, n) > 0) are gathered; r is the distance of the
+the same side (dot(n_record, n) > kdtree.FACING_COS = 1/64) are gathered; r is the distance of the
 farthest one used, or R when fewer than k are found, and
 
     L(x) = f_r · Σ_p W(d_p, r) Φ_p,    f_r = ρ / π,
@@ -54,7 +54,7 @@ def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2):
     if pmap.position.shape[0] == 0 or k <= 0:
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
-    count, r2 = knn(tree, pmap.normal, p, n, k, r_max, scratch_idx, scratch_d2)
+    count, r2 = knn(tree, pmap.normal, pmap.tree_normal_bounds, p, n, k, r_max, scratch_idx, scratch_d2)
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0

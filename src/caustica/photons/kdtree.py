@@ -42,6 +42,12 @@ from ..jit import kernel
 LEAF_SIZE = 16
 #: Entries of the traversal and build stacks; the depth of any tree is < 64.
 STACK_SIZE = 64
+#: A point faces the query when dot(normal, query normal) > FACING_COS: normals more
+#: than 89.1 degrees apart never count.  Not 0: a photon on a perpendicular surface
+#: (the floor, for a query on the wall in the corner) has a dot product of about
+#: +-1e-16 from rounding, and would be counted or not by chance.  1/64 is also
+#: coarser than the normal bounds' 1/127 quantisation, so those can prune such subtrees.
+FACING_COS = 1.0 / 64.0
 
 
 class KdTree(NamedTuple):
@@ -193,6 +199,58 @@ def build_kdtree(points: np.ndarray) -> KdTree:
     return KdTree(points=pts, index=idx, axis=axis)
 
 
+@kernel
+def _normal_bounds(index, normals, leaf_size, out):
+    n = index.shape[0]
+    if n <= leaf_size:
+        return
+    stk_lo = np.empty(2 * STACK_SIZE, dtype=np.int64)
+    stk_hi = np.empty(2 * STACK_SIZE, dtype=np.int64)
+    stk_lo[0] = 0
+    stk_hi[0] = n
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        lo = stk_lo[sp]
+        hi = stk_hi[sp]
+        m = (lo + hi) >> 1
+        for a in range(3):
+            mn = 1.0
+            mx = -1.0
+            for j in range(lo, hi):
+                v = normals[index[j], a]
+                mn = min(mn, v)
+                mx = max(mx, v)
+            # quantised outwards, so the box of normals only ever grows
+            out[m, a] = max(-127, int(np.floor(mn * 127.0)))
+            out[m, 3 + a] = min(127, int(np.ceil(mx * 127.0)))
+        if hi - (m + 1) > leaf_size:
+            stk_lo[sp] = m + 1
+            stk_hi[sp] = hi
+            sp += 1
+        if m - lo > leaf_size:
+            stk_lo[sp] = lo
+            stk_hi[sp] = m
+            sp += 1
+
+
+def normal_bounds(tree: KdTree, normals: np.ndarray) -> np.ndarray:
+    """Per internal node m, the box of the unit normals of its range: int8 (n, 6), min xyz then max xyz, x127.
+
+    With it :func:`knn` skips a whole subtree whose normals all face away from the
+    query's (they could neither be counted nor shrink r), e.g. the floor's photons
+    for a query on the wall just above them.  6 bytes per point.
+    """
+    n = tree.index.shape[0]
+    out = np.zeros((n, 6), np.int8)
+    if n:
+        _normal_bounds(tree.index, np.ascontiguousarray(normals, dtype=np.float64), LEAF_SIZE, out)
+    return out
+
+
+NO_BOUNDS = np.zeros((0, 6), np.int8)
+
+
 def memory_bytes(tree: KdTree) -> int:
     """Bytes held by the tree's arrays."""
     return int(sum(a.nbytes for a in tree))
@@ -245,25 +303,27 @@ def _offer(pts, index, normals, j, qx, qy, qz, nx, ny, nz, k, count, bound, out_
     if count < k:
         if d2 <= bound:
             i = index[j]
-            if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > 0.0:
+            if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > FACING_COS:
                 count = _heap_push(out_idx, out_d2, count, i, d2)
                 if count == k:
                     bound = out_d2[0]
     elif d2 < bound:
         i = index[j]
-        if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > 0.0:
+        if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > FACING_COS:
             _heap_replace_top(out_idx, out_d2, count, i, d2)
             bound = out_d2[0]
     return count, bound
 
 
 @kernel
-def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
+def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
     """The k nearest points to qp within distance r_max whose normal faces qn.
 
     tree    -- a KdTree
     normals -- (n, 3) array, indexed by ORIGINAL point index; point i is a
-               candidate only if dot(normals[i], qn) > 0
+               candidate only if dot(normals[i], qn) > FACING_COS
+    bounds  -- :func:`normal_bounds` of these normals, or :data:`NO_BOUNDS`:
+               subtrees whose normals all face away are skipped
     qp, qn  -- query position and normal, 3-tuples of floats
     k       -- heap capacity (out_idx and out_d2 need at least k entries, else
                ValueError)
@@ -293,6 +353,7 @@ def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
     ny = float(qn[1])
     nz = float(qn[2])
 
+    use_bounds = bounds.shape[0] == n
     # Stack entries: (lo, hi, lower bound, offsets to the cell along x, y, z).
     stk = np.empty(6 * STACK_SIZE, dtype=np.float64)
     sp = 0
@@ -315,6 +376,14 @@ def knn(tree, normals, qp, qn, k, r_max, out_idx, out_d2):
                                           k, count, bound, out_idx, out_d2)
             else:
                 m = (lo + hi) >> 1
+                if use_bounds:
+                    # the largest dot(n, qn) over the node's box of normals (x127)
+                    facing = (max(nx * bounds[m, 0], nx * bounds[m, 3])
+                              + max(ny * bounds[m, 1], ny * bounds[m, 4])
+                              + max(nz * bounds[m, 2], nz * bounds[m, 5]))
+                    if facing <= FACING_COS * 127.0:
+                        lo = hi  # an empty range: the loop goes on to the stack
+                        continue
                 count, bound = _offer(pts, index, normals, m, qx, qy, qz, nx, ny, nz,
                                       k, count, bound, out_idx, out_d2)
                 ax = axis[m]

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kdtree import KdTree, build_kdtree, memory_bytes as tree_bytes
+from .kdtree import KdTree, build_kdtree, memory_bytes as tree_bytes, normal_bounds
 
 # Record kinds in the tracing buffers.
 EMPTY = 0
@@ -29,6 +29,7 @@ class PhotonMap(NamedTuple):
     tree_points: np.ndarray
     tree_index: np.ndarray
     tree_axis: np.ndarray
+    tree_normal_bounds: np.ndarray  # int8 (n, 6): kdtree.normal_bounds of ``normal``
     position: np.ndarray   # float32[n, 3]
     direction: np.ndarray  # float32[n, 3], incoming, towards the surface
     power: np.ndarray      # float32[n, 3], W
@@ -47,8 +48,8 @@ class PhotonMap(NamedTuple):
         return sum(a.nbytes for a in (self.position, self.direction, self.power, self.normal))
 
     def memory_bytes(self) -> int:
-        """Records plus the kd-tree's own arrays: what the map costs in memory."""
-        return self.record_bytes() + tree_bytes(self.tree)
+        """Records plus the kd-tree's own arrays and normal bounds: what the map costs in memory."""
+        return self.record_bytes() + tree_bytes(self.tree) + self.tree_normal_bounds.nbytes
 
 
 def build_photon_map_with_order(position, direction, power, normal) -> tuple[PhotonMap, np.ndarray]:
@@ -65,8 +66,10 @@ def build_photon_map_with_order(position, direction, power, normal) -> tuple[Pho
     def f32(a):
         return np.ascontiguousarray(np.asarray(a, dtype=np.float32)[order])
 
-    pmap = PhotonMap(tree.points, np.arange(order.shape[0], dtype=np.int64), tree.axis, f32(position),
-                     f32(direction), f32(power), f32(normal))
+    tree = KdTree(tree.points, np.arange(order.shape[0], dtype=np.int64), tree.axis)
+    normal = f32(normal)
+    pmap = PhotonMap(tree.points, tree.index, tree.axis, normal_bounds(tree, normal), f32(position),
+                     f32(direction), f32(power), normal)
     return pmap, order
 
 
