@@ -5,8 +5,8 @@ import time
 
 import numpy as np
 
-from ..photons.estimate import FILTERS
 from ..jit import parallel_for
+from ..photons.estimate import FILTERS
 from ..photons.gather import gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from .params import Param, non_negative, positive
