@@ -65,6 +65,16 @@ def reflect(d, n):
     return (d[0] - c * n[0], d[1] - c * n[1], d[2] - c * n[2])
 
 
+@kernel(inline=True)
+def mirror_reflect(d, ng, ns):
+    """The perfect mirror's direction about the shading normal; about the geometric normal
+    when the shading normal would send the ray into the surface.  Normals on the incident side."""
+    wi = reflect(d, ns)
+    if vec.dot(wi, ng) <= 0.0:
+        wi = reflect(d, ng)
+    return wi
+
+
 @kernel
 def fresnel_dielectric(cos_i, eta):
     """Unpolarised Fresnel reflectance of a smooth dielectric interface.

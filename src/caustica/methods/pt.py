@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from ..bsdf import reflect, sample_dielectric, scattering_side
+from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -82,9 +82,7 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
             pdf_bsdf = local[2] * INV_PI
             specular = False
         elif kind == CONDUCTOR:
-            wi = reflect(d, ns)
-            if vec.dot(wi, ng) <= 0.0:
-                wi = reflect(d, ng)
+            wi = mirror_reflect(d, ng, ns)
             beta = vec.hadamard(beta, rgb)
             specular = True
         else:

@@ -21,7 +21,8 @@ import math
 
 import numpy as np
 
-from ..bsdf import dielectric_interface, fresnel_dielectric, reflect, refract, scattering_side
+from ..bsdf import dielectric_interface, fresnel_dielectric, mirror_reflect, reflect, refract, \
+    scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -86,9 +87,7 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                 break
             rgb = vec.row(mats.rgb, m)
             if kind == CONDUCTOR:
-                wi = reflect(d, ns)
-                if vec.dot(wi, ng) <= 0.0:
-                    wi = reflect(d, ng)
+                wi = mirror_reflect(d, ng, ns)
                 beta = vec.hadamard(beta, rgb)
                 o = vec.offset_origin(p, ng, wi)
                 d = wi

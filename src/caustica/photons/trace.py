@@ -9,7 +9,7 @@ bounces; mirrors and glass have their own cap (:data:`SPECULAR_CAP`).
 """
 from __future__ import annotations
 
-from ..bsdf import reflect, sample_dielectric, scattering_side
+from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
@@ -54,10 +54,7 @@ def specular_scatter(mats, m, d, ng, ns, power, front, u):
         scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
         if not scatters:
             return d, power, False, ng
-        wi = reflect(d, ns)
-        if vec.dot(wi, ng) <= 0.0:
-            wi = reflect(d, ng)
-        return wi, vec.hadamard(power, rgb), True, ng
+        return mirror_reflect(d, ng, ns), vec.hadamard(power, rgb), True, ng
     wi, _, _ = sample_dielectric(d, ng, ns, mats.eta[m], u)
     return wi, vec.hadamard(power, rgb), True, ng
 
