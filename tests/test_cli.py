@@ -491,7 +491,7 @@ def test_render_interrupted_before_saving_writes_nothing(cli, tmp_path, monkeypa
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cls, "render", staticmethod(interrupted))
+    monkeypatch.setattr(cls, "run_pass", staticmethod(interrupted))
     code, _, err = cli("render", SCENE, *TINY, "-o", tmp_path / "x.exr")
     assert code == 130
     assert "interrupted" in err and "Traceback" not in err

@@ -18,7 +18,7 @@ import pytest
 import caustica
 from caustica.errors import ParameterError
 from caustica.jit import parallel_for
-from caustica.methods.spm import StreamBuffers, StreamMap, trace_streams
+from caustica.photons.streams import StreamBuffers, StreamMap, trace_streams
 from caustica.photons.records import CAUSTIC, EMPTY, allocate_buffers
 from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photons
 from caustica.sampling.rng import STREAM_PHOTON, STREAM_SPM
@@ -41,7 +41,7 @@ def rgb(v):
 
 def trace_spm(scene, n, n_fa, r_s, mr, termination=TERMINATION_CAP, seed=5, threads=None):
     buf = StreamBuffers(n, n_fa, mr)
-    parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, seed, n, n_fa, r_s, mr,
+    parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_SPM, n, n_fa, r_s, mr,
                                     termination, *buf.rec, *buf.assoc), threads=threads)
     return buf
 

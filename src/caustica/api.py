@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 import time
 
-from . import __version__, methods
+from . import __version__, driver, methods
 from .errors import ParameterError
 from .jit import default_threads
 from .memory import check_budget
@@ -79,8 +79,13 @@ def _parse_res(res):
         raise ParameterError(f"--res: '{res}' is not W or WxH (e.g. 512 or 640x480)") from None
 
 
-def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None, **params):
-    """(scene, method class, settings): every render setting checked and defaulted in one place."""
+def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,
+                     multi_pass: bool = False, **params):
+    """(scene, method class, settings): every render setting checked and defaulted in one place.
+
+    ``multi_pass``: the render runs several passes (--passes, --time); ``spp`` is then
+    per pass and defaults to 1.
+    """
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     cls = methods.get(method)
@@ -89,8 +94,9 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     height = scene.height if height is None else height
     if spp is None:
         # pt follows the scene's sampler; the photon methods default to the paper's one
-        # camera ray per pixel (their direct light already takes n x n shadow rays).
-        spp = getattr(cls, "default_spp", None) or scene.spp
+        # camera ray per pixel (their direct light already takes n x n shadow rays);
+        # a pass of a multi-pass render takes one sample per pixel.
+        spp = 1 if multi_pass else (getattr(cls, "default_spp", None) or scene.spp)
     spp = int(spp)
     if width <= 0 or height <= 0:
         raise ParameterError(f"--res: the image must be at least 1x1 (got {width}x{height})")
@@ -111,24 +117,37 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
 
 
 def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
-           threads: int | None = None, progress: bool = False, **params) -> RenderResult:
+           threads: int | None = None, progress: bool = False, passes: int | None = None,
+           time_s: float | None = None, checkpoint=None, aov=(), **params) -> RenderResult:
     """Render ``scene`` (a Scene, a path or a built-in name) with ``method``.
 
     spp: samples per pixel (default: the scene's sampler for pt, 1 for the photon
-    methods, as in the paper); res: W, (W, H) or "WxH"
-    (default: the scene's film); seed: the random seed (the same seed gives the
-    same image whatever the thread count); threads: worker threads (default: all cores);
-    progress: show progress bars on a terminal; params: the method's own
-    parameters (``caustica methods`` lists them).
+    methods, as in the paper; per pass, default 1, when rendering several passes);
+    res: W, (W, H) or "WxH" (default: the scene's film); seed: the random seed (the
+    same seed gives the same image whatever the thread count); threads: worker threads
+    (default: all cores); progress: show progress bars on a terminal.
+    Progressive methods (pt, sppm, pspm) also take passes: passes to render;
+    time_s: a time budget in seconds (passes run until the next would cross it);
+    checkpoint: a file the state is saved to after every pass and resumed from when it
+    exists; aov: names of extra per-pixel images ("radius", "count") put in
+    ``result.aovs``.  params: the method's own parameters (``caustica methods``
+    lists them).  Ctrl-C during a multi-pass render returns the passes finished so far
+    (``stats["interrupted"]``).
     """
     t_start = time.perf_counter()
     preloaded = isinstance(scene, Scene)
+    cls = methods.get(method)
+    plan = driver.check_plan(cls, passes, time_s, checkpoint)
+    aov = _check_aovs(cls, aov)
     scene, cls, settings = resolve_settings(scene, method, spp=spp, res=res, seed=seed, threads=threads,
-                                            **params)
-    image, stats = cls.render(scene, settings, progress_factory(progress))
+                                            multi_pass=plan.multi, **params)
+    state, log = driver.run(cls, scene, settings, plan, progress_factory(progress))
+    image = cls.image(scene, settings, state)
+    stats = dict(log.counters)
+    stats.update(cls.final_stats(scene, settings, state))
     width, height, spp, threads = settings["width"], settings["height"], settings["spp"], settings["threads"]
     timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
-    timings.update(stats.pop("timings", {}))
+    timings.update(log.timings)
     # total_s covers the scene load too, also when the scene was loaded before render().
     timings["total_s"] = time.perf_counter() - t_start + (timings["scene_load_s"] if preloaded else 0.0)
     out = {
@@ -143,7 +162,29 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "threads": threads,
         "timings": timings,
         **stats,
-        "peak_memory_bytes": peak_memory_bytes(),
     }
+    if plan.multi:
+        out["passes"] = state.passes
+        out["passes_this_run"] = len(log.pass_seconds)
+        out["pass_seconds"] = log.pass_seconds
+        out["time_budget_s"] = plan.time_s
+        out["interrupted"] = log.interrupted
+        if plan.checkpoint is not None:
+            out["checkpoint"] = plan.checkpoint
+            out["resumed_from_pass"] = log.resumed_from
+    out["peak_memory_bytes"] = peak_memory_bytes()
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
-    return RenderResult(image, out)
+    aovs = {name: cls.aov(scene, settings, state, name) for name in aov}
+    return RenderResult(image, out, aovs)
+
+
+def _check_aovs(cls, aov):
+    if isinstance(aov, str):
+        aov = [a.strip() for a in aov.split(",") if a.strip()]
+    aov = tuple(aov or ())
+    offered = getattr(cls, "aovs", ())
+    for name in aov:
+        if name not in offered:
+            what = ", ".join(offered) if offered else "none"
+            raise ParameterError(f"--aov: '{name}' is not an image method '{cls.name}' makes (it makes: {what})")
+    return aov

@@ -34,6 +34,8 @@ class RenderResult:
 
     image: np.ndarray
     stats: dict[str, Any] = field(default_factory=dict)
+    #: extra per-pixel images (``--aov``), name -> float32 H×W (e.g. the final gather radius)
+    aovs: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         from caustica import __version__
@@ -70,11 +72,20 @@ class RenderResult:
         exr, png, js = imageio.output_paths(path)
         sidecar = dict(self.stats)
         sidecar["outputs"] = {"exr": exr.name, "png": png.name, "json": js.name}
+        files = [(exr, imageio.exr_writer(self.image)), (png, imageio.png_writer(self.image, exposure_stops))]
+        for name, aov in self.aovs.items():
+            aov_path = self.aov_path(exr, name)
+            sidecar["outputs"][f"aov_{name}"] = aov_path.name
+            files.append((aov_path, imageio.exr_writer(np.repeat(np.asarray(aov, np.float32)[:, :, None], 3, 2))))
         sidecar["preview_exposure_stops"] = float(exposure_stops)
-        imageio.atomic_write_all([(exr, imageio.exr_writer(self.image)),
-                                  (png, imageio.png_writer(self.image, exposure_stops)),
-                                  (js, imageio.json_writer(sidecar))])
+        files.append((js, imageio.json_writer(sidecar)))
+        imageio.atomic_write_all(files)
         return exr, png, js
+
+    @staticmethod
+    def aov_path(exr: Path, name: str) -> Path:
+        """Where AOV ``name`` of the render saved as ``exr`` goes: name.<aov>.exr beside it."""
+        return exr.with_name(f"{exr.stem}.{name}.exr")
 
     def _repr_png_(self) -> bytes:
         """Jupyter shows a RenderResult as its sRGB preview."""

@@ -1,8 +1,20 @@
 """Rendering methods, registered by name: a new method is a new module, not an edit here.
 
 A method is a class with ``name``, ``summary``, ``params`` (a tuple of
-:class:`~caustica.methods.params.Param`) and ``render(scene, settings, progress)``
-returning ``(image, stats)``.  Modules register themselves with :func:`register`.
+:class:`~caustica.methods.params.Param`), ``progressive`` (whether it takes several
+passes) and the pass as its unit of work:
+
+* ``new_state(scene, settings)`` — the state before the first pass (``state.passes == 0``);
+* ``run_pass(scene, settings, state, progress)`` — one pass: ``(new state, pass stats)``,
+  never changing the old state (so an interrupt cannot leave half a pass behind);
+* ``image(scene, settings, state)`` — the image the state holds;
+* ``final_stats(scene, settings, state)`` — what the sidecar adds after the last pass;
+* progressive methods also ``state_from_arrays`` (checkpoints; ``state.to_arrays()``)
+  and may offer ``aovs`` (names) with ``aov(scene, settings, state, name)``.
+
+:mod:`caustica.driver` runs the passes (count, time budget, progress, checkpoints,
+Ctrl-C); one-shot methods (pm, spm) are the one-pass case.  Modules register
+themselves with :func:`register`.
 """
 from __future__ import annotations
 
@@ -11,7 +23,7 @@ import importlib
 from ..errors import ParameterError
 
 _REGISTRY: dict[str, type] = {}
-_MODULES = ("pt", "pm", "spm")
+_MODULES = ("pt", "pm", "spm", "sppm", "pspm")
 
 
 def register(cls):

@@ -1,4 +1,4 @@
-"""What the photon-mapping methods (pm, spm) share: parameters, termination, the camera pass."""
+"""What the photon-mapping methods (pm, spm) share: parameters, termination, the camera pass, one-shot passes."""
 from __future__ import annotations
 
 import time
@@ -50,3 +50,36 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     bar.close()
     return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}, \
         int(knn_queries.sum())
+
+
+class OneShotState:
+    """The state of a one-shot method: nothing before its one pass, the image after it."""
+
+    def __init__(self, image=None):
+        self.image = image
+
+    @property
+    def passes(self) -> int:
+        return 0 if self.image is None else 1
+
+
+class OneShot:
+    """A method whose whole render is one pass: ``render_once(scene, settings, progress) -> (image, stats)``."""
+    progressive = False
+
+    @staticmethod
+    def new_state(scene, settings):
+        return OneShotState()
+
+    @classmethod
+    def run_pass(cls, scene, settings, state, progress):
+        image, stats = cls.render_once(scene, settings, progress)
+        return OneShotState(image), stats
+
+    @staticmethod
+    def image(scene, settings, state):
+        return state.image
+
+    @staticmethod
+    def final_stats(scene, settings, state):
+        return {}

@@ -21,7 +21,7 @@ from ..photons.trace import trace_caustic_photons, trace_photons
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, camera_pass
+from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, OneShot, camera_pass
 
 
 def _map_stats(prefix, pmap, emitted):
@@ -30,7 +30,7 @@ def _map_stats(prefix, pmap, emitted):
 
 
 @register
-class PhotonMapping:
+class PhotonMapping(OneShot):
     name = "pm"
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
     default_spp = 1
@@ -95,7 +95,7 @@ class PhotonMapping:
         return global_map, caustic_map, stats
 
     @classmethod
-    def render(cls, scene, settings, progress):
+    def render_once(cls, scene, settings, progress):
         global_map, caustic_map, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]

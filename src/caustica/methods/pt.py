@@ -18,9 +18,10 @@ from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
+from ..film import Film
 from ..jit import borrowed, kernel, parallel_for
 from ..lighting import direct_one_sample
-from ..sampling.rng import STREAM_CAMERA, path_key, uniform
+from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
 from . import register
@@ -105,8 +106,11 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
 
 
 @kernel
-def render_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image, i0, i1):
-    """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order."""
+def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_depth, image, i0, i1):
+    """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order.
+
+    Sample s of pixel i is random path (i * spp + s) of ``stream`` (the pass's camera stream).
+    """
     geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     width = cam.width
     for i in range(i0, i1):
@@ -114,7 +118,7 @@ def render_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image
         x = i % width
         acc = (0.0, 0.0, 0.0)
         for s in range(spp):
-            key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
+            key = path_key(seed, stream, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
             L = radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
             if math.isfinite(L[0] + L[1] + L[2]):
@@ -125,10 +129,25 @@ def render_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image
         image[y, x, 2] = acc[2] * inv
 
 
+class PathState:
+    """The film after ``passes`` passes of ``spp`` samples per pixel each."""
+
+    def __init__(self, film: Film):
+        self.film = film
+
+    @property
+    def passes(self) -> int:
+        return self.film.passes
+
+    def to_arrays(self):
+        return self.film.to_arrays()
+
+
 @register
 class PathTracer:
     name = "pt"
     summary = "path tracing with next-event estimation and MIS (the unbiased reference)"
+    progressive = True
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
               lambda v: v == -1 or v >= 1, "-1 or >= 1"),
@@ -136,21 +155,39 @@ class PathTracer:
     )
 
     @staticmethod
-    def render(scene, settings, progress):
+    def new_state(scene, settings):
+        return PathState(Film.empty(settings["width"], settings["height"]))
+
+    @staticmethod
+    def state_from_arrays(scene, settings, arrays):
+        return PathState(Film.from_arrays(arrays))
+
+    @staticmethod
+    def run_pass(scene, settings, state, progress):
+        """One pass: ``spp`` new samples per pixel, keyed by (seed, camera, pass, sample)."""
         cam = scene.camera(settings["width"], settings["height"])
         image = np.zeros((cam.height, cam.width, 3), np.float32)
         max_depth = DEPTH_CAP if settings["max_depth"] < 0 else settings["max_depth"]
+        stream = pass_stream(STREAM_CAMERA, state.passes)
 
         n = cam.width * cam.height
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
         compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, cam,
-                                                    settings["seed"], settings["spp"], max_depth,
+                                                    settings["seed"], stream, settings["spp"], max_depth,
                                                     settings["rr_depth"], image),
                                  threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
-        return image, {"timings": timings,
-                       "camera_rays": cam.width * cam.height * settings["spp"],
-                       # a path tracer stores no photons: reported so every sidecar has the same fields
-                       "photons_emitted": 0, "photons_stored": 0, "map_bytes": 0, "map_mb": 0.0}
+        return PathState(state.film.add(state.passes, image)), {
+            "timings": timings, "camera_rays": n * settings["spp"]}
+
+    @staticmethod
+    def image(scene, settings, state):
+        return state.film.image()
+
+    @staticmethod
+    def final_stats(scene, settings, state):
+        # a path tracer stores no photons: reported so every sidecar has the same fields
+        return {"samples_per_pixel": state.passes * settings["spp"],
+                "photons_emitted": 0, "photons_stored": 0, "map_bytes": 0, "map_mb": 0.0}

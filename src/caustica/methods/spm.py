@@ -1,256 +1,31 @@
 """Method ``spm``: streamed photon mapping (Guzek & Napieralski), as pinned down in SPEC §4.
 
-A *stream* is a leading photon plus up to n_fa associated photons.
-
-1. Emission: a stream starts at a point on a light with a direction from the
-   light's emission; its power is E_s = E_z / n_fs (eq. 1; E_z the light's power,
-   chosen in proportion to power), split equally among its n_fa + 1 photons.
-2. The leading photon is traced.  At a mirror or glass surface every associated
-   photon is *merged* into the leading photon (its power is added; it ceases to
-   exist) and the leading photon reflects or refracts (Fresnel).  This is what
-   concentrates caustic energy.
-3. At a diffuse hit x_L reached from origin o:
-   - each associated photon gets a point q uniform in the disc of radius r_s about
-     x_L perpendicular to the leading direction and is traced from o towards q; it
-     lands where that ray first meets a diffuse surface.  One whose ray escapes,
-     meets a mirror or glass, or meets the black back of a one-sided surface is
-     merged into the leading photon.  A stream is a beam of width r_s that respects
-     occlusion.
-   - a *stream record* is stored (unless this is direct light): the leading
-     position, normal, incoming direction and power, and the associated photons'
-     positions, directions and normals with their (common) power.  Its energy E_i
-     is the sum of its photons' powers.
-   - stream decay: the leading photon's power is scaled by the albedo and it
-     bounces in a cosine-distributed direction; each associated photon survives with
-     probability p = mean albedo, its power scaled by albedo / p, so streams thin out
-     as they travel.  With ``termination=roulette`` the whole stream plays Russian
-     roulette once, with the leading photon (survival p = mean albedo, every power
-     scaled by albedo / p), which keeps the expected power right.
-   - after mr diffuse bounces the stream ends.
-4. Only leading photons go into the kd-tree; the radiance estimate (eq. 2) takes
-   the k nearest stream records within R: L = f_r Σ W E_i (the ``stream``
-   estimator, the paper's).  The ``photons`` estimator instead counts every
-   photon at its own position (an option, never the default).
-
-All associated photons of a stream share one power value at any moment (they
-start equal and decay by the same factor), so the tracer carries a count and a
-power rather than one power per photon.
+One pass: trace ``streams`` streams (:mod:`caustica.photons.streams`: emission,
+merging at mirrors and glass, associated photons in a disc of radius r_s, stream
+records, stream decay), build the kd-tree over the leading photons, then the camera
+pass (:mod:`caustica.methods.photon_common`).  The radiance estimate (eq. 2) takes
+the k nearest stream records within R: L = f_r Σ W E_i (the ``stream`` estimator,
+the paper's).  The ``photons`` estimator instead counts every photon at its own
+position (an option, never the default).
 """
 from __future__ import annotations
 
 import time
 
-import numpy as np
-
-from ..bsdf import scattering_side
-from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import parallel_for
 from ..memory import check_budget
-from ..photons.emission import emit_photon
-from ..photons.records import build_photon_map, build_photon_map_with_order, empty_photon_map
-from ..photons.trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
-from ..sampling.rng import STREAM_SPM, path_key, uniform
-from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import DIFFUSE
+from ..photons.records import empty_photon_map
+from ..photons.streams import StreamBuffers, StreamMap, trace_streams
+from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, camera_pass
+from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, OneShot, camera_pass
 
 ESTIMATORS = ("stream", "photons")
 
 
-@kernel
-def place_associated(geom, mats, o, x_lead, d_lead, r_s, key, dim, n_alive, store, rec,
-                     assoc_pos, assoc_dir, assoc_nrm, n_assoc):
-    """Trace the stream's associated photons from o towards the disc about x_lead; returns how many landed.
-
-    Landed photons are written to assoc slots [rec * n_assoc, ...) when ``store``.
-    """
-    s, t = vec.orthonormal_basis(d_lead)
-    landed = 0
-    for j in range(n_alive):
-        u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
-        q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
-        d = vec.normalize(vec.sub(q, o))
-        prim, th, b1, b2 = intersect(geom, o, d, 1e30)
-        if prim < 0:
-            continue  # escaped: merged into the leading photon
-        m = geom.prim_material[prim]
-        if mats.kind[m] != DIFFUSE:
-            continue  # met a mirror or glass: merged
-        p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
-        if vec.dot(d, ng) >= 0.0:
-            if mats.twosided[m] == 0:
-                continue  # the black back of a one-sided surface: merged
-            ns = vec.neg(ns)
-        if store:
-            a = rec * n_assoc + landed
-            for c in range(3):
-                assoc_pos[a, c] = p[c]
-                assoc_dir[a, c] = d[c]
-                assoc_nrm[a, c] = ns[c]
-        landed += 1
-    return landed
-
-
-@kernel
-def trace_streams(geom, mats, lights, seed, n_streams, n_assoc, r_s, max_bounces, termination,
-                  rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
-                  rec_valid, assoc_pos, assoc_dir, assoc_nrm, i0, i1):
-    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1))."""
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
-    slots = max_bounces + 1
-    share = 1.0 / (n_assoc + 1)
-    for i in range(i0, i1):
-        key = path_key(seed, STREAM_SPM, i)
-        o, d, e_s, _ = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
-        lead = vec.mul(e_s, share)
-        p_assoc = vec.mul(e_s, share)
-        n_alive = n_assoc
-        dim = 8
-        diffuse_bounces = 0
-        specular_events = 0
-        scattered = False
-        stored = 0
-        while True:
-            prim, t, b1, b2 = intersect(geom, o, d, 1e30)
-            if prim < 0:
-                break
-            p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-            front = vec.dot(d, ng) < 0.0
-            m = geom.prim_material[prim]
-            if mats.kind[m] != DIFFUSE:
-                # mirror or glass: merge every associated photon into the leading one
-                lead = vec.madd(lead, p_assoc, float(n_alive))
-                n_alive = 0
-                specular_events += 1
-                if specular_events > SPECULAR_CAP:
-                    break
-                d_new, lead, alive, ng_out = specular_scatter(mats, m, d, ng, ns, lead, front, uniform(key, dim))
-                dim += 1
-                if not alive:
-                    break
-                o = vec.offset_origin(p, ng_out, d_new)
-                d = d_new
-                scattered = True
-                continue
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # absorbed by the black back of a one-sided surface
-            rec = i * slots + stored
-            landed = place_associated(geom, mats, o, p, d, r_s, key, dim, n_alive, scattered, rec,
-                                      assoc_pos, assoc_dir, assoc_nrm, n_assoc)
-            dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones that did not land merge
-            n_alive = landed
-            if scattered:  # a stream record (direct light is not stored)
-                for c in range(3):
-                    rec_pos[rec, c] = p[c]
-                    rec_dir[rec, c] = d[c]
-                    rec_nrm[rec, c] = ns[c]
-                    rec_lead_power[rec, c] = lead[c]
-                    rec_assoc_power[rec, c] = p_assoc[c]
-                    rec_energy[rec, c] = lead[c] + landed * p_assoc[c]
-                rec_count[rec] = landed
-                rec_valid[rec] = 1
-                stored += 1
-            if diffuse_bounces >= max_bounces:
-                break
-            # stream decay
-            d_new, lead, alive = diffuse_bounce(mats, m, ng, ns, lead, key, dim, termination)
-            dim += 3
-            if not alive:
-                break
-            q = mats.albedo_mean[m]
-            if termination == TERMINATION_ROULETTE:
-                # The leading photon has already survived roulette with probability q, and
-                # the stream lives or dies with it: a second, per-photon roulette would
-                # leave the associated photons alive with probability q^2 while
-                # compensating only 1 / q.  So they all survive, scaled by albedo / q.
-                survivors = n_alive
-            else:
-                survivors = 0
-                for j in range(n_alive):
-                    if uniform(key, dim + j) < q:
-                        survivors += 1
-            dim += n_assoc
-            if q > 0.0:
-                p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
-            n_alive = survivors
-            diffuse_bounces += 1
-            o = vec.offset_origin(p, ng, d_new)
-            d = d_new
-            scattered = True
-
-
-class StreamBuffers:
-    """Fixed record and associated-photon slots of the stream tracer (float32)."""
-
-    def __init__(self, n_streams, n_assoc, max_bounces):
-        s = n_streams * (max_bounces + 1)
-        a = s * n_assoc
-        f = np.float32
-        self.rec = (np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f),
-                    np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros(s, np.int32), np.zeros(s, np.int8))
-        self.assoc = (np.zeros((a, 3), f), np.zeros((a, 3), f), np.zeros((a, 3), f))
-        self.n_assoc = n_assoc
-
-    @staticmethod
-    def bytes_needed(n_streams, n_assoc, max_bounces):
-        s = n_streams * (max_bounces + 1)
-        return s * (6 * 12 + 5) + s * n_assoc * 36
-
-
-class StreamMap:
-    """The stored stream records, compacted, with the kd-tree over leading photons."""
-
-    def __init__(self, buf: StreamBuffers):
-        pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = buf.rec
-        keep = valid == 1
-        self.count = count[keep]
-        n_fa = buf.n_assoc
-        if n_fa > 0:
-            slot_used = (np.arange(n_fa)[None, :] < count[:, None]) & keep[:, None]
-            flat = slot_used.reshape(-1)
-            self.assoc_pos = buf.assoc[0][flat]
-            self.assoc_dir = buf.assoc[1][flat]
-            self.assoc_nrm = buf.assoc[2][flat]
-        else:
-            self.assoc_pos = self.assoc_dir = self.assoc_nrm = np.zeros((0, 3), np.float32)
-        self.assoc_power = assoc_pow[keep]
-        # The paper's map: leading positions in the kd-tree, each carrying its stream's energy E_i.
-        # Its records are in kd-tree order; ``count`` and ``assoc_power`` stay in tracing
-        # order, which the associated photons' flat arrays follow; ``order`` links the two.
-        self.records, self.order = build_photon_map_with_order(pos[keep], dirs[keep], energy[keep], nrm[keep])
-        self.lead_power = np.ascontiguousarray(lead_pow[keep][self.order])  # aligned with self.records
-
-    @property
-    def n_records(self) -> int:
-        return self.records.count
-
-    @property
-    def n_associated(self) -> int:
-        return int(self.assoc_pos.shape[0])
-
-    def memory_bytes(self) -> int:
-        """Stream records (leading photon + energy), associated photons and the kd-tree."""
-        extra = sum(a.nbytes for a in (self.count, self.assoc_pos, self.assoc_dir, self.assoc_nrm,
-                                       self.lead_power, self.assoc_power))  # ``order`` is bookkeeping only
-        return self.records.memory_bytes() + extra
-
-    def photon_map(self):
-        """Every photon at its own position: leading photons and associated photons (the ``photons`` estimator)."""
-        r = self.records
-        assoc_power = np.repeat(self.assoc_power, self.count, axis=0)
-        return build_photon_map(np.concatenate([r.position, self.assoc_pos]),
-                                np.concatenate([r.direction, self.assoc_dir]),
-                                np.concatenate([self.lead_power, assoc_power]),
-                                np.concatenate([r.normal, self.assoc_nrm]))
-
-
 @register
-class StreamedPhotonMapping:
+class StreamedPhotonMapping(OneShot):
     name = "spm"
     summary = "streamed photon mapping (the paper's method): streams of a leading + associated photons"
     default_spp = 1
@@ -273,7 +48,7 @@ class StreamedPhotonMapping:
         buf = StreamBuffers(n, n_fa, mr)
         bar = progress(total=n, desc="stream tracing", unit="stream")
         compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
-                                                    settings["seed"], n, n_fa, settings["stream_radius"], mr,
+                                                    settings["seed"], STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
                                                     TERMINATIONS[settings["termination"]], *buf.rec, *buf.assoc),
                                  threads=settings["threads"], progress=bar)
         bar.close()
@@ -293,7 +68,7 @@ class StreamedPhotonMapping:
         return smap, stats
 
     @classmethod
-    def render(cls, scene, settings, progress):
+    def render_once(cls, scene, settings, progress):
         smap, stats = cls.build_stream_map(scene, settings, progress)
         t0 = time.perf_counter()
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()

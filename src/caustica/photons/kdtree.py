@@ -439,3 +439,123 @@ def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
     if count == k:
         return count, out_d2[0]
     return count, r2max
+
+
+@kernel
+def range_sum(tree, normals, bounds, power, qp, qn, r):
+    """Σ power over the points within distance r of qp whose normal faces qn, and their count.
+
+    The fixed-radius query of progressive photon mapping: every point with
+    d² <= r² and dot(normal, qn) > FACING_COS counts (the same sidedness rule as
+    :func:`knn`).  ``normals`` and ``power`` are indexed by ORIGINAL point index.
+    Returns (count, (Σ power_0, Σ power_1, Σ power_2)); sums in float64.
+    """
+    pts = tree.points
+    n = pts.shape[0]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    count = 0
+    if n == 0 or r <= 0.0:
+        return count, (s0, s1, s2)
+    index = tree.index
+    axis = tree.axis
+    qx = float(qp[0])
+    qy = float(qp[1])
+    qz = float(qp[2])
+    nx = float(qn[0])
+    ny = float(qn[1])
+    nz = float(qn[2])
+    r2 = r * r
+    use_bounds = bounds.shape[0] == n
+    stk = np.empty(6 * STACK_SIZE, dtype=np.float64)
+    sp = 0
+    lo = 0
+    hi = n
+    nb = 0.0
+    o0 = 0.0
+    o1 = 0.0
+    o2 = 0.0
+    while True:
+        if nb <= r2:
+            if hi - lo <= LEAF_SIZE:
+                for j in range(lo, hi):
+                    dx = pts[j, 0] - qx
+                    dy = pts[j, 1] - qy
+                    dz = pts[j, 2] - qz
+                    if dx * dx + dy * dy + dz * dz <= r2:
+                        i = index[j]
+                        if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > FACING_COS:
+                            count += 1
+                            s0 += power[i, 0]
+                            s1 += power[i, 1]
+                            s2 += power[i, 2]
+            else:
+                m = (lo + hi) >> 1
+                if use_bounds:
+                    facing = (max(nx * bounds[m, 0], nx * bounds[m, 3])
+                              + max(ny * bounds[m, 1], ny * bounds[m, 4])
+                              + max(nz * bounds[m, 2], nz * bounds[m, 5]))
+                    if facing <= FACING_COS * 127.0:
+                        lo = hi
+                        continue
+                dx = pts[m, 0] - qx
+                dy = pts[m, 1] - qy
+                dz = pts[m, 2] - qz
+                if dx * dx + dy * dy + dz * dz <= r2:
+                    i = index[m]
+                    if normals[i, 0] * nx + normals[i, 1] * ny + normals[i, 2] * nz > FACING_COS:
+                        count += 1
+                        s0 += power[i, 0]
+                        s1 += power[i, 1]
+                        s2 += power[i, 2]
+                ax = axis[m]
+                if ax == 0:
+                    diff = qx - pts[m, 0]
+                    old = o0
+                elif ax == 1:
+                    diff = qy - pts[m, 1]
+                    old = o1
+                else:
+                    diff = qz - pts[m, 2]
+                    old = o2
+                fb = nb - old * old + diff * diff
+                if fb <= r2:
+                    f0 = o0
+                    f1 = o1
+                    f2 = o2
+                    ad = abs(diff)
+                    if ax == 0:
+                        f0 = ad
+                    elif ax == 1:
+                        f1 = ad
+                    else:
+                        f2 = ad
+                    e = 6 * sp
+                    if diff < 0.0:
+                        stk[e] = m + 1
+                        stk[e + 1] = hi
+                    else:
+                        stk[e] = lo
+                        stk[e + 1] = m
+                    stk[e + 2] = fb
+                    stk[e + 3] = f0
+                    stk[e + 4] = f1
+                    stk[e + 5] = f2
+                    sp += 1
+                if diff < 0.0:
+                    hi = m
+                else:
+                    lo = m + 1
+                continue
+        if sp == 0:
+            break
+        sp -= 1
+        e = 6 * sp
+        lo = int(stk[e])
+        hi = int(stk[e + 1])
+        nb = stk[e + 2]
+        o0 = stk[e + 3]
+        o1 = stk[e + 4]
+        o2 = stk[e + 5]
+    return count, (s0, s1, s2)

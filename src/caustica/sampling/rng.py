@@ -22,6 +22,22 @@ STREAM_CAUSTIC_PHOTON = 3
 STREAM_SPM = 4
 STREAM_DIRECT = 5
 
+#: Bits of a stream tag that name the phase; the pass index sits above them.
+PHASE_BITS = 8
+
+
+def pass_stream(phase: int, pass_index: int) -> int:
+    """The stream tag of ``phase`` in render pass ``pass_index``: (seed, phase, pass, index) keys.
+
+    Pass 0 is the phase's own tag, so a one-pass render draws exactly the numbers a
+    one-shot render drew; later passes never share numbers with it or each other.
+    """
+    if not 0 <= phase < (1 << PHASE_BITS):
+        raise ValueError(f"phase tag {phase} out of range")
+    if not 0 <= pass_index < (1 << (63 - PHASE_BITS)):
+        raise ValueError(f"pass index {pass_index} out of range")
+    return phase + (pass_index << PHASE_BITS)
+
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)

@@ -1,0 +1,146 @@
+"""The one render loop: a method's passes under a pass count or a time budget.
+
+Every method is parameters + ``new_state`` + ``run_pass`` + ``image`` (see
+:mod:`caustica.methods`).  This module runs the passes, times them, drives the
+progress bar, writes checkpoints and turns Ctrl-C into a result of the passes
+finished so far.  ``run_pass`` returns a *new* state rather than changing the old
+one, so an interrupt in the middle of a pass leaves the last finished state whole.
+
+Time budget: passes run while the next one, predicted to take as long as the
+slowest of the last three, would still end within the budget (the first pass always
+runs).  The budget counts from the start of the first pass and includes compile time.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+from .errors import ParameterError
+from . import checkpoint as ckpt
+
+#: Upper bound of --passes: pass indices stay far inside the random-number key's range.
+MAX_PASSES = 1 << 30
+#: Upper bound of --time in seconds (a year).
+MAX_TIME_S = 365 * 24 * 3600.0
+
+
+@dataclass
+class PassPlan:
+    """How long a render runs: ``passes`` (None: as the budget allows), ``time_s`` (None: no budget)."""
+    passes: int | None = None
+    time_s: float | None = None
+    checkpoint: str | None = None
+
+    @property
+    def multi(self) -> bool:
+        return self.time_s is not None or (self.passes is not None and self.passes != 1) \
+            or self.checkpoint is not None
+
+
+def check_plan(method_cls, passes=None, time_s=None, checkpoint=None) -> PassPlan:
+    """The pass plan, checked: a one-line ParameterError for anything out of range."""
+    if passes is not None:
+        if isinstance(passes, bool) or not isinstance(passes, int) or not 1 <= passes <= MAX_PASSES:
+            raise ParameterError(f"--passes: an integer between 1 and {MAX_PASSES} (got {passes})")
+    if time_s is not None:
+        try:
+            time_s = float(time_s)
+        except (TypeError, ValueError):
+            raise ParameterError(f"--time: '{time_s}' is not a number of seconds") from None
+        if not math.isfinite(time_s) or not 0.0 < time_s <= MAX_TIME_S:
+            raise ParameterError(f"--time: seconds, > 0 and at most {MAX_TIME_S:.0f} (got {time_s})")
+    plan = PassPlan(passes, time_s, None if checkpoint is None else str(checkpoint))
+    if plan.multi and not getattr(method_cls, "progressive", False):
+        progressive = "pt, sppm, pspm"
+        raise ParameterError(f"--passes, --time and --checkpoint are for the progressive methods "
+                             f"({progressive}); '{method_cls.name}' renders in one shot")
+    if plan.checkpoint is not None and plan.passes is None and plan.time_s is None:
+        raise ParameterError("--checkpoint needs --passes or --time (how long to render)")
+    return plan
+
+
+@dataclass
+class PassLog:
+    """What the loop measured: seconds per pass, summed per-phase timings and counters."""
+    pass_seconds: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+    counters: dict = field(default_factory=dict)
+    interrupted: bool = False
+    resumed_from: int = 0
+
+    def add(self, seconds: float, stats: dict) -> None:
+        self.pass_seconds.append(seconds)
+        for k, v in stats.get("timings", {}).items():
+            self.timings[k] = self.timings.get(k, 0.0) + v
+        for k, v in stats.items():
+            if k == "timings":
+                continue
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                self.counters[k] = self.counters.get(k, 0) + v
+            else:
+                self.counters[k] = v
+
+
+def run(method_cls, scene, settings, plan: PassPlan, progress):
+    """Run the passes of ``plan``: (final state, PassLog)."""
+    state = None
+    log = PassLog()
+    if plan.checkpoint is not None:
+        state = ckpt.load(plan.checkpoint, method_cls, scene, settings)
+        if state is not None:
+            log.resumed_from = state.passes
+    if state is None:
+        state = method_cls.new_state(scene, settings)
+    multi = plan.multi
+    target = plan.passes if plan.passes is not None else (None if plan.time_s is not None else 1)
+    bar = None
+    if multi:
+        total = target if target is not None else None
+        bar = progress(total=total, desc=f"{method_cls.name} passes", unit="pass")
+        if log.resumed_from:
+            bar.update(log.resumed_from)
+    inner = progress if not multi else _quiet_factory
+    t_start = time.perf_counter()
+    try:
+        while target is None or state.passes < target:
+            elapsed = time.perf_counter() - t_start
+            if plan.time_s is not None and log.pass_seconds:
+                predicted = max(log.pass_seconds[-3:])
+                if elapsed + predicted > plan.time_s:
+                    break
+            t0 = time.perf_counter()
+            state, stats = method_cls.run_pass(scene, settings, state, inner)
+            log.add(time.perf_counter() - t0, stats)
+            if plan.checkpoint is not None:
+                ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+            if bar is not None:
+                bar.update(1)
+                if plan.time_s is not None:
+                    bar.set_postfix_str(f"{time.perf_counter() - t_start:.1f} of {plan.time_s:g} s")
+    except KeyboardInterrupt:
+        if state.passes == 0 or not multi:
+            raise
+        log.interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    return state, log
+
+
+class _QuietBar:
+    def __init__(self, *a, **k):
+        pass
+
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+    def set_postfix_str(self, s):
+        pass
+
+
+def _quiet_factory(*a, **k):
+    return _QuietBar()
