@@ -52,18 +52,25 @@ from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_
 
 
 @kernel
-def place_associated(geom, mats, o, x_lead, d_lead, r_s, key, dim, n_alive, store, rec,
+def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, store, rec,
                      assoc_pos, assoc_dir, assoc_nrm, n_assoc):
     """Trace the stream's associated photons from o towards the disc about x_lead; returns how many landed.
 
-    Landed photons are written to assoc slots [rec * n_assoc, ...) when ``store``.
+    ``n_from`` is the normal of the surface o lies on, facing the side the stream
+    leaves by (zero for a point light): a photon whose direction q - o points into
+    that surface cannot leave it and is merged into the leading photon (before this
+    check such rays met the surface again at t ~ 1e-4 and landed where the stream
+    left from).  Landed photons are written to assoc slots [rec * n_assoc, ...) when ``store``.
     """
     s, t = vec.orthonormal_basis(d_lead)
+    check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
     for j in range(n_alive):
         u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
         q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
         d = vec.normalize(vec.sub(q, o))
+        if check_side and vec.dot(d, n_from) <= 0.0:
+            continue  # into the surface it leaves: merged
         prim, th, b1, b2 = intersect(geom, o, d, 1e30)
         if prim < 0:
             continue  # escaped: merged into the leading photon
@@ -95,7 +102,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
     share = 1.0 / (n_assoc + 1)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
-        o, d, e_s, _ = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
+        o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
         lead = vec.mul(e_s, share)
         p_assoc = vec.mul(e_s, share)
         n_alive = n_assoc
@@ -123,6 +130,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
                 if not alive:
                     break
                 o = vec.offset_origin(p, ng_out, d_new)
+                n_from = (0.0, 0.0, 0.0)  # no associated photon is left to place from here
                 d = d_new
                 scattered = True
                 continue
@@ -130,7 +138,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             if not scatters:
                 break  # absorbed by the black back of a one-sided surface
             rec = i * slots + stored
-            landed = place_associated(geom, mats, o, p, d, r_s, key, dim, n_alive, scattered, rec,
+            landed = place_associated(geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, scattered, rec,
                                       assoc_pos, assoc_dir, assoc_nrm, n_assoc)
             dim += 2 * n_assoc
             lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones that did not land merge
@@ -171,6 +179,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             n_alive = survivors
             diffuse_bounces += 1
             o = vec.offset_origin(p, ng, d_new)
+            n_from = ng
             d = d_new
             scattered = True
 
