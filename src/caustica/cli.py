@@ -17,15 +17,12 @@ EXIT_USAGE = 2
 
 
 def _method_param_specs():
-    """Every method's parameters, one flag per name (methods share e.g. --max-bounces)."""
+    """Every method's parameters, one flag per name (methods share e.g. --max-bounces): name -> [(Param, method)]."""
     from . import methods
     specs = {}
     for cls in methods.available().values():
         for p in cls.params:
-            if p.name in specs:
-                specs[p.name][1].append(cls.name)
-            else:
-                specs[p.name] = (p, [cls.name])
+            specs.setdefault(p.name, []).append((p, cls.name))
     return specs
 
 
@@ -58,18 +55,28 @@ def _add_render_options(r, method_names, default_method, output_help):
 
 
 def _add_method_flags(group, method_names, default_word):
-    """One flag per parameter of the named methods (``--k``, ``--streams``, ...), stored as param_<name>."""
+    """One flag per parameter of the named methods (``--k``, ``--streams``, ...), stored as param_<name>.
+
+    Methods that share a flag but not its meaning or default are listed with their own.
+    """
     allowed = set(method_names)
-    for name, (p, owners) in sorted(_method_param_specs().items()):
-        owners = [o for o in owners if o in allowed]
-        if not owners:
+    for name, owned in sorted(_method_param_specs().items()):
+        owned = [(p, m) for p, m in owned if m in allowed]
+        if not owned:
             continue
+        p = owned[0][0]
+        groups = {}
+        for q, m in owned:
+            groups.setdefault((q.help, "auto" if q.default is None else str(q.default)), []).append(m)
+        if len({h for h, _ in groups}) == 1:
+            text = p.help + " (" + "; ".join(f"{default_word} {d}: {', '.join(ms)}" for (_, d), ms in groups.items()) + ")"
+        else:
+            text = " | ".join(f"{', '.join(ms)}: {h} ({default_word} {d})" for (h, d), ms in groups.items())
         kw = {"type": p.type} if p.type is not bool else {"type": str}
         if p.choices:
             kw["choices"] = p.choices
         group.add_argument(p.flag, dest=f"param_{name}", default=None,
-                           metavar=None if p.choices else p.type.__name__.upper(),
-                           help=f"{p.help} ({default_word} {p.default}; {', '.join(owners)})", **kw)
+                           metavar=None if p.choices else p.type.__name__.upper(), help=text, **kw)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -111,6 +118,18 @@ def _build_parser():
                         "output image path, .exr (default: out/<scene>_<method>.exr); "
                         "the .png and .json go beside it")
     r.add_argument("--exposure", type=float, default=0.0, help="PNG preview exposure in stops (default 0)")
+    prog = r.add_argument_group("progressive rendering (pt, sppm, pspm)")
+    prog.add_argument("--passes", type=int, help="passes to render (pt: --spp samples per pixel each, default 1; "
+                                                 "sppm/pspm: one visible point per pixel and a photon pass each)")
+    prog.add_argument("--time", type=float, dest="time_s", metavar="SECONDS",
+                      help="time budget: passes run until the next would end past it (with --passes: "
+                           "whichever comes first)")
+    prog.add_argument("--checkpoint", metavar="FILE",
+                      help="save the state after every pass to FILE (.npz); if FILE exists, resume from it "
+                           "(same scene and settings) up to --passes")
+    prog.add_argument("--aov", metavar="NAMES",
+                      help="also write per-pixel images NAME.<aov>.exr: radius (final gather radius) and/or "
+                           "count (photon events gathered), comma-separated (sppm, pspm)")
 
     ph = sub.add_parser("photons", help="picture where photons and streams land",
                         description="Trace the photon map(s) of a photon method and write a PNG of the "
@@ -170,14 +189,19 @@ def _cmd_render(args) -> int:
     _check_output_folder(output_paths(args.output)[0])  # refuse before spending time rendering
     scene = load_scene(args.scene, **defines)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
-                    threads=args.threads, progress=not args.quiet, **params)
+                    threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
+                    checkpoint=args.checkpoint, aov=args.aov or (), **params)
     try:
         exr, png, js = result.save(args.output, exposure_stops=args.exposure)
     except OSError as exc:
         raise CausticaError(f"-o {args.output}: cannot write the output: {exc.strerror or exc}") from None
+    if result.stats.get("interrupted"):
+        print(f"caustica: interrupted after {result.stats['passes']} passes; wrote the image of those passes",
+              file=sys.stderr)
     if not args.quiet:
         t = result.stats["timings"]
-        print(f"{scene.name}: {result.width}x{result.height} {args.method} in {t['total_s']:.2f} s "
+        passes = f", {result.stats['passes']} passes" if "passes" in result.stats else ""
+        print(f"{scene.name}: {result.width}x{result.height} {args.method} in {t['total_s']:.2f} s{passes} "
               f"-> {exr}, {png}, {js}")
     return 0
 

@@ -49,7 +49,7 @@ class StreamedPhotonMapping(OneShot):
         bar = progress(total=n, desc="stream tracing", unit="stream")
         compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
                                                     settings["seed"], STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
-                                                    TERMINATIONS[settings["termination"]], *buf.rec, *buf.assoc),
+                                                    TERMINATIONS[settings["termination"]], False, *buf.kernel_args),
                                  threads=settings["threads"], progress=bar)
         bar.close()
         t1 = time.perf_counter()

@@ -50,21 +50,76 @@ from .emission import emit_photon
 from .records import build_photon_map, build_photon_map_with_order
 from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
 
+#: Sub-stream of a stream's key for its split associated photons (one key per chain and photon).
+SPLIT_TAG = 1
+
 
 @kernel
-def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, store, rec,
-                     assoc_pos, assoc_dir, assoc_nrm, n_assoc):
-    """Trace the stream's associated photons from o towards the disc about x_lead; returns how many landed.
+def split_off(geom, mats, key, o, d, power, scattered, slot, split_pos, split_dir, split_pow, split_nrm,
+              split_valid):
+    """An associated photon that keeps its own path through mirrors and glass (``--specular split``).
 
-    ``n_from`` is the normal of the surface o lies on, facing the side the stream
-    leaves by (zero for a point light): a photon whose direction q - o points into
-    that surface cannot leave it and is merged into the leading photon (before this
-    check such rays met the surface again at t ~ 1e-4 and landed where the stream
-    left from).  Landed photons are written to assoc slots [rec * n_assoc, ...) when ``store``.
+    It follows its own specular chain (Fresnel per photon, numbers from its own key) to
+    the diffuse surface it lands on, is stored there in split slot ``slot`` (unless it is
+    direct light), and decays there like an associated photon: it survives with
+    p = mean albedo, its power scaled by albedo / p.
+    Returns (kept, survived, power): not kept when it escapes or is absorbed (the
+    caller merges it into the leading photon, as SPEC §4 does with a miss).
+    """
+    n_spec = 0
+    while True:
+        prim, t, b1, b2 = intersect(geom, o, d, 1e30)
+        if prim < 0:
+            return False, False, power
+        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+        front = vec.dot(d, ng) < 0.0
+        m = geom.prim_material[prim]
+        if mats.kind[m] == DIFFUSE:
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                return False, False, power
+            if scattered or n_spec > 0:
+                for c in range(3):
+                    split_pos[slot, c] = p[c]
+                    split_dir[slot, c] = d[c]
+                    split_pow[slot, c] = power[c]
+                    split_nrm[slot, c] = ns[c]
+                split_valid[slot] = 1
+            q = mats.albedo_mean[m]
+            if q > 0.0 and uniform(key, 2) < q:
+                return True, True, vec.mul(vec.hadamard(power, vec.row(mats.rgb, m)), 1.0 / q)
+            return True, False, power
+        n_spec += 1
+        if n_spec > SPECULAR_CAP:
+            return False, False, power
+        d_new, power, alive, ng_out = specular_scatter(mats, m, d, ng, ns, power, front, uniform(key, 2 + n_spec))
+        if not alive:
+            return False, False, power
+        o = vec.offset_origin(p, ng_out, d_new)
+        d = d_new
+
+
+@kernel
+def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, p_assoc, store, rec,
+                     assoc_pos, assoc_dir, assoc_nrm, n_assoc, split, split_row, scattered,
+                     split_pos, split_dir, split_pow, split_nrm, split_valid):
+    """Trace the stream's associated photons from o towards the disc about x_lead.
+
+    Returns (landed, split off, split survivors, their power): ``landed`` photons met a
+    diffuse surface and are written to assoc slots [rec * n_assoc, ...) when ``store``;
+    the rest merge into the leading photon — except, with ``split``, those whose ray
+    meets a mirror or glass, which follow their own path (:func:`split_off`, split slot
+    row ``split_row``).  ``n_from`` is the normal of the surface o lies on, facing the
+    side the stream leaves by (zero for a point light): a photon whose direction q - o
+    points into that surface cannot leave it and is merged (before this check such rays
+    met the surface again at t ~ 1e-4 and landed where the stream left from).
     """
     s, t = vec.orthonormal_basis(d_lead)
     check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
+    n_split = 0
+    survivors = 0
+    survivor_power = (0.0, 0.0, 0.0)
     for j in range(n_alive):
         u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
         q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
@@ -76,7 +131,16 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
             continue  # escaped: merged into the leading photon
         m = geom.prim_material[prim]
         if mats.kind[m] != DIFFUSE:
-            continue  # met a mirror or glass: merged
+            if split:
+                kj = path_key(key, SPLIT_TAG, split_row * n_assoc + j)
+                kept, alive, pw = split_off(geom, mats, kj, o, d, p_assoc, scattered, split_row * n_assoc + j,
+                                            split_pos, split_dir, split_pow, split_nrm, split_valid)
+                if kept:
+                    n_split += 1
+                    if alive:
+                        survivors += 1
+                        survivor_power = vec.add(survivor_power, pw)
+            continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
         if vec.dot(d, ng) >= 0.0:
             if mats.twosided[m] == 0:
@@ -89,16 +153,29 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
                 assoc_dir[a, c] = d[c]
                 assoc_nrm[a, c] = ns[c]
         landed += 1
-    return landed
+    return landed, n_split, survivors, survivor_power
 
 
 @kernel
-def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination,
+def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, split,
                   rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
-                  rec_valid, assoc_pos, assoc_dir, assoc_nrm, i0, i1):
-    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1))."""
+                  rec_valid, assoc_pos, assoc_dir, assoc_nrm, split_pos, split_dir, split_pow, split_nrm,
+                  split_valid, i0, i1):
+    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
+
+    ``split`` (``--specular split``): associated photons do not merge at mirrors and
+    glass.  At the leading photon's first mirror or glass of a specular chain each
+    associated photon is aimed from o through a point of the disc of radius r_s about
+    the hit (as at a diffuse hit); at a diffuse hit, those whose ray meets a mirror or
+    glass go on too.  Each follows its own specular path and is stored where it lands
+    as a photon of its own (:func:`split_off`; the stream's split slot rows
+    [i * SPLIT_ROWS(mr), ...)), decays there, and the survivors rejoin the stream after
+    the leading photon's next diffuse bounce, their powers pooled (the stream's
+    associated photons share one power), so the stream keeps its energy.
+    """
     geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     slots = max_bounces + 1
+    rows = 2 * slots
     share = 1.0 / (n_assoc + 1)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
@@ -111,6 +188,9 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
         specular_events = 0
         scattered = False
         stored = 0
+        split_rows = 0
+        pending = 0
+        pending_power = (0.0, 0.0, 0.0)
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, 1e30)
             if prim < 0:
@@ -119,7 +199,29 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             front = vec.dot(d, ng) < 0.0
             m = geom.prim_material[prim]
             if mats.kind[m] != DIFFUSE:
-                # mirror or glass: merge every associated photon into the leading one
+                if split and n_alive > 0 and split_rows < rows:
+                    # each associated photon takes its own path through the specular chain
+                    row = i * rows + split_rows
+                    s_ax, t_ax = vec.orthonormal_basis(d)
+                    check_side = vec.dot(n_from, n_from) > 0.5
+                    for j in range(n_alive):
+                        kj = path_key(key, SPLIT_TAG, row * n_assoc + j)
+                        u, v = square_to_uniform_disk(uniform(kj, 0), uniform(kj, 1))
+                        q = vec.madd(vec.madd(p, s_ax, u * r_s), t_ax, v * r_s)
+                        dj = vec.normalize(vec.sub(q, o))
+                        kept = False
+                        if not check_side or vec.dot(dj, n_from) > 0.0:
+                            kept, alive_j, pw = split_off(geom, mats, kj, o, dj, p_assoc, scattered,
+                                                          row * n_assoc + j, split_pos, split_dir, split_pow,
+                                                          split_nrm, split_valid)
+                            if kept and alive_j:
+                                pending += 1
+                                pending_power = vec.add(pending_power, pw)
+                        if not kept:
+                            lead = vec.add(lead, p_assoc)  # aimed into its surface, escaped or absorbed: merged
+                    n_alive = 0
+                    split_rows += 1
+                # mirror or glass: merge every associated photon (left) into the leading one
                 lead = vec.madd(lead, p_assoc, float(n_alive))
                 n_alive = 0
                 specular_events += 1
@@ -130,7 +232,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
                 if not alive:
                     break
                 o = vec.offset_origin(p, ng_out, d_new)
-                n_from = (0.0, 0.0, 0.0)  # no associated photon is left to place from here
+                n_from = (0.0, 0.0, 0.0)  # associated photons are placed from here only after a split
                 d = d_new
                 scattered = True
                 continue
@@ -138,11 +240,18 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             if not scatters:
                 break  # absorbed by the black back of a one-sided surface
             rec = i * slots + stored
-            landed = place_associated(geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, scattered, rec,
-                                      assoc_pos, assoc_dir, assoc_nrm, n_assoc)
+            use_row = split and n_alive > 0 and split_rows < rows
+            landed, n_split, surv, surv_power = place_associated(
+                geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc, scattered, rec,
+                assoc_pos, assoc_dir, assoc_nrm, n_assoc, use_row, i * rows + split_rows, scattered,
+                split_pos, split_dir, split_pow, split_nrm, split_valid)
+            if use_row:
+                split_rows += 1
             dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones that did not land merge
+            lead = vec.madd(lead, p_assoc, float(n_alive - landed - n_split))   # the ones that did not land merge
             n_alive = landed
+            pending += surv
+            pending_power = vec.add(pending_power, surv_power)
             if scattered:  # a stream record (direct light is not stored)
                 for c in range(3):
                     rec_pos[rec, c] = p[c]
@@ -177,6 +286,13 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             if q > 0.0:
                 p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
             n_alive = survivors
+            if pending > 0:
+                # split photons that survived their own landing rejoin the stream, powers pooled
+                total = vec.add(vec.mul(p_assoc, float(n_alive)), pending_power)
+                n_alive += pending
+                p_assoc = vec.mul(total, 1.0 / n_alive)
+                pending = 0
+                pending_power = (0.0, 0.0, 0.0)
             diffuse_bounces += 1
             o = vec.offset_origin(p, ng, d_new)
             n_from = ng
@@ -187,19 +303,51 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
 class StreamBuffers:
     """Fixed record and associated-photon slots of the stream tracer (float32)."""
 
-    def __init__(self, n_streams, n_assoc, max_bounces):
+    def __init__(self, n_streams, n_assoc, max_bounces, split=False):
         s = n_streams * (max_bounces + 1)
         a = s * n_assoc
         f = np.float32
         self.rec = (np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f),
                     np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros(s, np.int32), np.zeros(s, np.int8))
         self.assoc = (np.zeros((a, 3), f), np.zeros((a, 3), f), np.zeros((a, 3), f))
+        b = 2 * a if split else 0   # split slot rows: two per bounce (a specular chain and a diffuse hit)
+        self.split = (np.zeros((b, 3), f), np.zeros((b, 3), f), np.zeros((b, 3), f), np.zeros((b, 3), f),
+                      np.zeros(b, np.int8))
         self.n_assoc = n_assoc
 
+    @property
+    def kernel_args(self) -> tuple:
+        """The buffers in trace_streams' argument order."""
+        return (*self.rec, *self.assoc, *self.split)
+
     @staticmethod
-    def bytes_needed(n_streams, n_assoc, max_bounces):
+    def bytes_needed(n_streams, n_assoc, max_bounces, split=False):
         s = n_streams * (max_bounces + 1)
-        return s * (6 * 12 + 5) + s * n_assoc * 36
+        return s * (6 * 12 + 5) + s * n_assoc * (36 + (2 * 49 if split else 0))
+
+    def events(self, estimator: str):
+        """This pass's photon events (position, direction, power, normal) for a progressive gather.
+
+        ``stream``: each stream record's energy E_i at its leading position (eq. 2's reading);
+        ``photons``: the leading and every associated photon at its own position.  Split
+        photons (``--specular split``) are photons of their own under either estimator.
+        """
+        pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = self.rec
+        keep = valid == 1
+        parts = []
+        if estimator == "stream":
+            parts.append((pos[keep], dirs[keep], energy[keep], nrm[keep]))
+        else:
+            parts.append((pos[keep], dirs[keep], lead_pow[keep], nrm[keep]))
+            if self.n_assoc > 0:
+                used = ((np.arange(self.n_assoc)[None, :] < count[:, None]) & keep[:, None]).reshape(-1)
+                parts.append((self.assoc[0][used], self.assoc[1][used],
+                              np.repeat(assoc_pow[keep], count[keep], axis=0), self.assoc[2][used]))
+        sp, sd, spow, sn, sv = self.split
+        if sv.shape[0]:
+            ok = sv == 1
+            parts.append((sp[ok], sd[ok], spow[ok], sn[ok]))
+        return tuple(np.concatenate([part[c] for part in parts]) for c in range(4))
 
 
 class StreamMap:

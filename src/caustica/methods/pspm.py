@@ -1,0 +1,80 @@
+"""Method ``pspm``: progressive streamed photon mapping — the paper's "future work", SPEC §7.
+
+Each pass is SPPM's (:mod:`caustica.methods.progressive`: visible points, a gather
+within each pixel's own shrinking radius, the α update) with *streams* in place of
+photons: ``streams`` streams of a leading and ``assoc`` associated photons are traced
+as in SPM (:mod:`caustica.photons.streams`), keyed by (seed, stream phase, pass, index).
+What the gather sees of a pass:
+
+* ``--estimator stream`` (the paper's eq. 2): a stream record counts as one event
+  of energy E_i at its leading position;
+* ``--estimator photons``: the leading and each associated photon at its own position.
+
+``--specular merge`` is the paper's rule: at a mirror or glass the associated photons
+merge into the leading one, so every light → specular → diffuse event is one leading
+photon carrying the whole stream.  With ``--specular split`` each associated photon
+keeps its own path through the specular chain and is stored where it lands, so a
+stream keeps n_fa + 1 samples of the caustic.
+"""
+from __future__ import annotations
+
+import time
+
+from ..jit import parallel_for
+from ..memory import check_budget
+from ..photons.records import build_photon_map
+from ..photons.streams import StreamBuffers, trace_streams
+from ..sampling.rng import STREAM_SPM, pass_stream
+from . import register
+from .params import Param, non_negative, positive
+from .photon_common import TERMINATIONS
+from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod
+
+ESTIMATORS = ("stream", "photons")
+SPECULAR = ("merge", "split")
+
+
+def streams_per_pass(settings) -> int:
+    """Default: as many photons per pass as pixels, as sppm (n_fs (n_fa + 1) = pixels)."""
+    return settings["streams"] or max(1, settings["width"] * settings["height"] // (settings["assoc"] + 1))
+
+
+@register
+class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
+    name = "pspm"
+    summary = "progressive streamed photon mapping: SPPM's per-pixel statistics over streams (consistent)"
+    params = (
+        Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
+              positive, ">= 1"),
+        Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
+        Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
+        Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
+                                          "photons: every photon at its own position", choices=ESTIMATORS),
+        Param("specular", str, "merge", "merge: associated photons merge into the leading one at mirrors "
+                                        "and glass (the paper); split: each keeps its own specular path",
+              choices=SPECULAR),
+    ) + PROGRESSIVE_PARAMS
+
+    @classmethod
+    def photon_events(cls, scene, settings, pass_index, progress):
+        n = streams_per_pass(settings)
+        n_fa, mr = settings["assoc"], settings["max_bounces"]
+        split = settings["specular"] == "split"
+        check_budget(StreamBuffers.bytes_needed(n, n_fa, mr, split),
+                     f"{n:,} streams x {n_fa} associated photons per pass",
+                     "lower --streams, --assoc or --max-bounces")
+        t0 = time.perf_counter()
+        buf = StreamBuffers(n, n_fa, mr, split)
+        bar = progress(total=n, desc="stream tracing", unit="stream")
+        compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
+                                                    pass_stream(STREAM_SPM, pass_index), n, n_fa,
+                                                    settings["stream_radius"], mr,
+                                                    TERMINATIONS[settings["termination"]], split, *buf.kernel_args),
+                                 threads=settings["threads"], progress=bar)
+        bar.close()
+        t1 = time.perf_counter()
+        pmap = build_photon_map(*buf.events(settings["estimator"]))
+        t2 = time.perf_counter()
+        return pmap, n, {"timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
+                                     "map_build_s": t2 - t1},
+                         "streams_emitted": n, "photons_emitted": n * (n_fa + 1), "events_stored": pmap.count}

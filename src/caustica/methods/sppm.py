@@ -1,0 +1,58 @@
+"""Method ``sppm``: stochastic progressive photon mapping (Hachisuka & Jensen 2009), SPEC §7.
+
+A pass is (:mod:`caustica.methods.progressive`): a camera pass finding one visible
+point per pixel (through mirrors and glass) with its direct light; ``photons``
+photons traced as in PM (:mod:`caustica.photons.trace`: every diffuse hit after the
+first scattering event is an event, caustic and indirect alike), keyed by
+(seed, photon phase, pass, index); a kd-tree over them; each visible point gathers
+the events within its own radius; the per-pixel α update.  Its error goes to zero as
+passes grow: the radius shrinks while the photon count it holds grows.
+"""
+from __future__ import annotations
+
+import time
+
+from ..jit import parallel_for
+from ..memory import check_budget
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers, map_from_buffers
+from ..photons.trace import trace_photons
+from ..sampling.rng import STREAM_PHOTON, pass_stream
+from . import register
+from .params import Param, positive
+from .photon_common import TERMINATIONS
+from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod
+
+
+def photons_per_pass(settings) -> int:
+    return settings["photons"] or settings["width"] * settings["height"]
+
+
+@register
+class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
+    name = "sppm"
+    summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass (consistent)"
+    params = (
+        Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4)",
+              positive, ">= 1"),
+    ) + PROGRESSIVE_PARAMS
+
+    @classmethod
+    def photon_events(cls, scene, settings, pass_index, progress):
+        n = photons_per_pass(settings)
+        mr = settings["max_bounces"]
+        check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
+                     "lower --photons or --max-bounces")
+        t0 = time.perf_counter()
+        buf = allocate_buffers(n, mr + 1)
+        bar = progress(total=n, desc="photon tracing", unit="photon")
+        compile_s = parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
+                                                    pass_stream(STREAM_PHOTON, pass_index), n, mr,
+                                                    TERMINATIONS[settings["termination"]], *buf),
+                                 threads=settings["threads"], progress=bar)
+        bar.close()
+        t1 = time.perf_counter()
+        pmap = map_from_buffers(buf, (INDIRECT, CAUSTIC))
+        t2 = time.perf_counter()
+        return pmap, n, {"timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
+                                     "map_build_s": t2 - t1},
+                         "photons_emitted": n, "photons_stored": pmap.count}
