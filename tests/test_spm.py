@@ -42,7 +42,7 @@ def rgb(v):
 def trace_spm(scene, n, n_fa, r_s, mr, termination=TERMINATION_CAP, seed=5, threads=None):
     buf = StreamBuffers(n, n_fa, mr)
     parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_SPM, n, n_fa, r_s, mr,
-                                    termination, *buf.rec, *buf.assoc), threads=threads)
+                                    termination, False, *buf.kernel_args), threads=threads)
     return buf
 
 
