@@ -490,3 +490,96 @@ def test_against_mitsuba_mirrored_shapes_face_the_same_way(mi):
     n = face_normals(cube)
     hit = [i for i, f in enumerate(n) if abs(f[2]) > 0.99 and cube.positions[cube.triangles[i], 2].mean() < -5.5]
     assert hit and np.dot(np.array(si.n), n[hit[0]]) > 0.99
+
+
+# ----------------------------------------------------------------------------- hostile input (issue #8)
+
+def load_strict(tmp_path, body: str, sensor: str = SENSOR.replace("\n", " "), name: str = "bad-scene.xml",
+                defaults=None):
+    """Load scene(body) from a file with every warning an error: a bad input gives one clean SceneError."""
+    path = tmp_path / name
+    path.write_text(scene(body, sensor))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return load_scene_file(path, defaults)
+
+
+def scene_error(tmp_path, body: str, sensor: str = SENSOR.replace("\n", " "), defaults=None) -> str:
+    with pytest.raises(SceneError) as e:
+        load_strict(tmp_path, body, sensor, defaults=defaults)
+    msg = str(e.value)
+    assert "\n" not in msg and len(msg) < 400, msg
+    return msg
+
+
+RECT = '<shape type="rectangle">{}</shape>'
+XF = '<transform name="to_world">{}</transform>'
+#: Values that overflow float32 (the image's type) or compose to a matrix that does:
+#: (body on line 4, the element the message names, a word of the message).
+OUT_OF_RANGE = {
+    "radiance 1e300": (RECT.format('<emitter type="area">\n<rgb name="radiance" value="1e300"/></emitter>'),
+                       5, '<rgb name="radiance">', "out of range"),
+    "intensity 1e39": ('<emitter type="point">\n<rgb name="intensity" value="1, 1e39, 1"/></emitter>',
+                       5, '<rgb name="intensity">', "out of range"),
+    "scale 1e200": (RECT.format(XF.format('\n<scale value="1e200"/>')), 5, "<scale>", "out of range"),
+    "scales that compose past float32": (RECT.format('\n' + XF.format('<scale value="1e20"/><scale value="1e20"/>')),
+                                         5, '<transform name="to_world">', "1e+40"),
+    "translate 1e39": (RECT.format(XF.format('\n<translate x="1e39"/>')), 5, "<translate>", "out of range"),
+    "radius 1e308": ('<shape type="sphere">\n<float name="radius" value="1e308"/></shape>',
+                     5, '<float name="radius">', "out of range"),
+    "sphere radius x scale past float32": ('<shape type="sphere"><float name="radius" value="1e30"/>'
+                                           + XF.format('<scale value="1e10"/>') + '</shape>',
+                                           4, '<shape type="sphere">', "center and radius"),
+    "cylinder radius x scale past float32": ('<shape type="cylinder"><float name="radius" value="1e30"/>'
+                                             + XF.format('<scale value="1e10"/>') + '</shape>',
+                                             4, '<shape type="cylinder">', "p0, p1 and the radius"),
+    "mesh vertices past float32": (RECT.format(XF.format('<scale value="3e38"/><translate x="3e38"/>')),
+                                   4, '<shape type="rectangle">', "beyond"),
+    "ior 1e40": ('<bsdf type="dielectric"><float name="int_ior" value="1e40"/></bsdf>',
+                 4, '<float name="int_ior">', "out of range"),
+}
+
+
+@pytest.mark.parametrize("case", list(OUT_OF_RANGE))
+def test_values_beyond_float32_are_errors(tmp_path, case):
+    body, line, element, part = OUT_OF_RANGE[case]
+    msg = scene_error(tmp_path, body)
+    assert f"bad-scene.xml:{line}: {element}" in msg and part in msg, msg
+
+
+DEGENERATE = {
+    "shape scale 0": (RECT.format(XF.format('<scale value="0"/>')), '<transform name="to_world">'),
+    "shape scale 1e-13 in one axis": (RECT.format(XF.format('<scale x="1e-13"/>')), '<transform name="to_world">'),
+    "shape scale 1e-39 (below float32)": (RECT.format(XF.format('<scale value="1e-39"/>')),
+                                          '<transform name="to_world">'),
+    "projective matrix": (RECT.format(XF.format('<matrix value="1 0 0 0  0 1 0 0  0 0 1 0  0 0 0.5 1"/>')),
+                          '<transform name="to_world">'),
+    "point emitter scale 0": ('<emitter type="point">' + XF.format('<scale value="0"/>') + '</emitter>',
+                              '<transform name="to_world">'),
+}
+
+
+@pytest.mark.parametrize("case", list(DEGENERATE))
+def test_degenerate_transforms_are_errors(tmp_path, case):
+    body, element = DEGENERATE[case]
+    msg = scene_error(tmp_path, body)
+    assert f"bad-scene.xml:4: {element}" in msg and ("degenerate" in msg or "projective" in msg), msg
+
+
+def test_degenerate_sensor_transform_is_an_error(tmp_path):
+    """Shapes were checked, the sensor was not: a zero scale rendered black."""
+    sensor = ('<sensor type="perspective"><float name="fov" value="45"/>\n'
+              '<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/>'
+              '<scale value="0"/></transform></sensor>')
+    msg = scene_error(tmp_path, RECT.format(""), sensor)
+    assert 'bad-scene.xml:4: <transform name="to_world">' in msg and "degenerate" in msg, msg
+
+
+def test_large_but_representable_values_still_load(tmp_path):
+    d = load_strict(tmp_path, RECT.format(XF.format('<scale value="1e30"/>')
+                                          + '<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>')
+                    + '<shape type="sphere"><float name="radius" value="1e-5"/></shape>')
+    assert d.shapes[0].emitter_radiance == (1e30,) * 3
+    assert np.abs(d.shapes[0].mesh.positions).max() == pytest.approx(1e30)
+    assert d.shapes[1].to_world[0, 0] == pytest.approx(1e-5)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import SceneError
 from .description import Mesh
-from .transforms import transform_normals, transform_points
+from .transforms import MAX_ABS_FLOAT, check_transform, transform_normals, transform_points
 
 
 def _triangulate(faces) -> np.ndarray:
@@ -140,9 +140,16 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
     flip_normals reverses each triangle's winding and negates the normals.
     """
     m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
-    if abs(np.linalg.det(m[:3, :3])) < 1e-300:
-        raise SceneError("to_world is singular (a zero scale?)")
+    try:
+        check_transform(m)
+    except ValueError as exc:
+        raise SceneError(f"to_world: {exc}") from None
     positions = transform_points(m, mesh.positions)
+    far = np.abs(positions).max(axis=1)
+    if not np.all(far <= MAX_ABS_FLOAT):
+        i = int(np.argmax(~(far <= MAX_ABS_FLOAT)))
+        raise SceneError(f"to_world places vertex {i} at {tuple(float(c) for c in positions[i])}, beyond "
+                         f"±{MAX_ABS_FLOAT:.3g} (float32's range, which the image uses)")
     normals = None if mesh.normals is None else transform_normals(m, mesh.normals)
     triangles = mesh.triangles.copy()
     if flip_normals:

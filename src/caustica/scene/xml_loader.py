@@ -265,10 +265,7 @@ class _Loader:
                         ops.append(tf.op_matrix(c.tag, c.attrs))
                     except ValueError as exc:
                         self.fail(c, str(exc))
-                m = tf.compose(ops)
-                if not np.all(np.isfinite(m)):
-                    self.fail(node, "the transform is not finite")
-                return m
+                return tf.check_transform(tf.compose(ops))
             if node.children:
                 self.fail(node.children[0], f"<{tag}> takes no child elements")
             if tag in ("point", "vector"):
@@ -424,8 +421,6 @@ class _Loader:
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         flip = bool(props.get("flip_normals", False))
-        if abs(np.linalg.det(to_world[:3, :3])) < 1e-12 * max(1.0, np.abs(to_world[:3, :3]).max() ** 3):
-            self.fail(props.node_of("to_world"), "to_world is singular (a zero scale?)")
 
         material, radiance = None, None
         for obj in props.objects:
@@ -469,7 +464,8 @@ class _Loader:
         if kind == "sphere":
             radius = self.number(props, "radius", 1.0, positive=True)
             center = props.get("center", np.zeros(3))
-            m = to_world @ tf.translate(center) @ tf.scale(radius)
+            m = self.placement(node, to_world @ tf.translate(center) @ tf.scale(radius),
+                               "to_world with the center and radius")
             lin = m[:3, :3]
             gram = lin.T @ lin
             s2 = np.trace(gram) / 3.0
@@ -487,7 +483,8 @@ class _Loader:
         length = float(np.linalg.norm(d))
         if length == 0.0:
             self.fail(props.node_of("p1"), "the cylinder's p0 and p1 coincide")
-        m = to_world @ tf.translate(p0) @ tf.to_frame(d / length) @ tf.scale([radius, radius, length])
+        m = self.placement(node, to_world @ tf.translate(p0) @ tf.to_frame(d / length)
+                           @ tf.scale([radius, radius, length]), "to_world with p0, p1 and the radius")
         c0, c1, c2 = m[:3, 0], m[:3, 1], m[:3, 2]
         tol = 1e-6 * max(np.dot(c0, c0), np.dot(c1, c1))
         if (abs(np.dot(c0, c0) - np.dot(c1, c1)) > tol or abs(np.dot(c0, c1)) > tol
@@ -496,6 +493,13 @@ class _Loader:
             self.fail(props.node_of("to_world"), "a cylinder's to_world must keep its cross-section "
                                                  "circular (no shear or non-uniform scaling across the axis)")
         return Shape(CYLINDER, to_world=m, **common)
+
+    def placement(self, node: Node, m: np.ndarray, what: str) -> np.ndarray:
+        """The matrix placing an analytic shape, checked like every transform (SceneError at node)."""
+        try:
+            return tf.check_transform(m)
+        except ValueError as exc:
+            self.fail(node, f"{what}: {exc}")
 
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
