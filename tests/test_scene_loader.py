@@ -583,3 +583,45 @@ def test_large_but_representable_values_still_load(tmp_path):
     assert d.shapes[0].emitter_radiance == (1e30,) * 3
     assert np.abs(d.shapes[0].mesh.positions).max() == pytest.approx(1e30)
     assert d.shapes[1].to_world[0, 0] == pytest.approx(1e-5)
+
+
+SAMPLER = '<sampler type="independent"><integer name="sample_count" value="{}"/></sampler>'
+#: Integers the kernels cannot honour, on line 4 of the sensor: (sensor child, element named, a word).
+HUGE_INTEGERS = {
+    "sample_count 2^63": (SAMPLER.format(2**63), '<integer name="sample_count">', "int32"),
+    "sample_count 2^20 + 1": (SAMPLER.format(2**20 + 1), '<integer name="sample_count">', "1,048,576"),
+    "width 2^31": (FILM.format(f'<integer name="width" value="{2**31}"/>'), '<integer name="width">', "int32"),
+    "height -2^40": (FILM.format(f'<integer name="height" value="{-2**40}"/>'), '<integer name="height">',
+                     "int32"),
+    "film of 10^10 pixels": (FILM.format('<integer name="width" value="100000"/>'
+                                         '<integer name="height" value="100000"/>'),
+                             '<film type="hdrfilm">', "10,000,000,000 pixels"),
+    "5,000-digit width": (FILM.format(f'<integer name="width" value="{"9" * 5000}"/>'),
+                          '<integer name="width">', "(5,000 characters)"),
+}
+
+
+@pytest.mark.parametrize("case", list(HUGE_INTEGERS))
+def test_huge_integers_are_refused_with_a_bound(tmp_path, case):
+    inner, element, part = HUGE_INTEGERS[case]
+    msg = scene_error(tmp_path, "", f'<sensor type="perspective"><float name="fov" value="45"/>\n{inner}\n</sensor>')
+    assert f"bad-scene.xml:4: {element}" in msg and part in msg, msg
+    assert len(msg) < 300 and "9" * 50 not in msg, msg
+
+
+def test_largest_allowed_integers_load(tmp_path):
+    from caustica.scene.xml_loader import MAX_SAMPLE_COUNT
+    d = load_strict(tmp_path, "", f'<sensor type="perspective"><float name="fov" value="45"/>'
+                                  f'{SAMPLER.format(MAX_SAMPLE_COUNT)}'
+                                  + FILM.format('<integer name="width" value="46340"/>'
+                                                '<integer name="height" value="46340"/>') + '</sensor>')
+    assert d.spp == 2**20 and (d.camera.width, d.camera.height) == (46340, 46340)
+    assert tf.parse_int(" +0000000000000000000000000000000000000000007 ") == 7
+
+
+def test_echoed_values_are_shortened(tmp_path):
+    long_type = "torus" * 1000
+    msg = scene_error(tmp_path, f'<shape type="{long_type}"/>')
+    assert "bad-scene.xml:4:" in msg and "(5,000 characters)" in msg and long_type not in msg, msg
+    msg = scene_error(tmp_path, f'<shape type="sphere"><float name="radius" value="{"1" * 3000}.x"/></shape>')
+    assert "(3,002 characters)" in msg and "1" * 100 not in msg, msg

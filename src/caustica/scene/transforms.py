@@ -67,6 +67,23 @@ def parse_float(text: str, what: str = "value") -> float:
     return vals[0]
 
 
+#: The range of an ``<integer>`` in a scene: int32, which every size and count in the kernels fits.
+INT32_MAX = 2**31 - 1
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+
+
+def parse_int(text: str, what: str = "value") -> int:
+    """An integer within ±INT32_MAX; ValueError for anything else (without converting 5,000 digits)."""
+    t = text.strip()
+    if not _INTEGER.fullmatch(t):
+        raise ValueError(f"{what}={quoted(text)} is not an integer")
+    digits = t.lstrip("+-").lstrip("0")
+    if len(digits) > len(str(INT32_MAX)) or int(digits or "0") > INT32_MAX:
+        raise ValueError(f"{what}={quoted(text)} is out of range: integers in a scene must lie within "
+                         f"±{INT32_MAX:,} (int32)")
+    return int(t)
+
+
 def check_transform(m: np.ndarray) -> np.ndarray:
     """m if it is a usable 4x4 affine transform; ValueError saying what is wrong otherwise.
 

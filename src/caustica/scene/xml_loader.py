@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import SceneError, quoted, shorten
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, MESH, SPHERE, Camera,
@@ -70,6 +70,14 @@ SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
 RFILTER_PROPS = {"box": {}}
 FOV_AXES = ("x", "y", "smaller", "larger")
 
+#: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
+#: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
+#: MAX_FILM_PIXELS keep far from overflow).  The command line's ``--spp`` bound, checked
+#: where render parameters are read, is meant to be the same number.
+MAX_SAMPLE_COUNT = 2**20
+#: The most pixels a film may have: int32, which the kernels' pixel indices fit.
+MAX_FILM_PIXELS = tf.INT32_MAX
+
 #: Indices of refraction of the materials Mitsuba knows by name (Mitsuba's ior.h).
 IOR_TABLE = {
     "vacuum": 1.0, "helium": 1.000036, "hydrogen": 1.000132, "air": 1.000277,
@@ -104,7 +112,7 @@ class Node:
 
     def describe(self) -> str:
         keys = [k for k in ("type", "name", "id") if k in self.attrs]
-        inner = " ".join(f'{k}="{self.attrs[k]}"' for k in keys)
+        inner = " ".join(f'{k}="{shorten(self.attrs[k])}"' for k in keys)
         return f"<{self.tag}{' ' + inner if inner else ''}>"
 
 
@@ -129,7 +137,7 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
         if data.strip():
             line = parser.CurrentLineNumber
             where = stack[-1].describe() if stack else "document"
-            raise SceneError(f"{source}:{line}: {where}: unexpected text {data.strip()[:40]!r}; "
+            raise SceneError(f"{source}:{line}: {where}: unexpected text {quoted(data.strip())}; "
                              f"Mitsuba scene elements hold only attributes and child elements")
 
     parser.StartElementHandler = start
@@ -175,7 +183,7 @@ class Props:
                 if name is None:
                     loader.fail(child, "a property needs a name= attribute")
                 if name not in spec:
-                    loader.fail(child, f"unknown property '{name}' of {node.describe()}",
+                    loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
                                 supported=list(spec))
                 if child.tag not in spec[name]:
                     loader.fail(child, f"property '{name}' must be given as "
@@ -230,8 +238,9 @@ class _Loader:
                 if "$" in v:
                     def repl(m, node=node, k=k):
                         if m.group(1) not in self.params:
-                            self.fail(node, f"attribute {k}={v!r} uses ${m.group(1)}, which is not "
-                                            f"defined; add <default name=\"{m.group(1)}\" value=\"...\"/> "
+                            name = shorten(m.group(1))
+                            self.fail(node, f"attribute {k}={quoted(v)} uses ${name}, which is not "
+                                            f"defined; add <default name=\"{name}\" value=\"...\"/> "
                                             f"or pass a value for it",
                                       supported=sorted(self.params) or None)
                         return self.params[m.group(1)]
@@ -239,7 +248,7 @@ class _Loader:
         if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
             i = node.attrs["id"]
             if i in self.ids:
-                self.fail(node, f"id '{i}' is already used on line {self.ids[i].line}")
+                self.fail(node, f"id {quoted(i)} is already used on line {self.ids[i].line}")
             self.ids[i] = node
         for c in node.children:
             self.substitute(c)
@@ -247,7 +256,7 @@ class _Loader:
     def check_attrs(self, node: Node, allowed: tuple[str, ...], required: tuple[str, ...] = ()):
         for k in node.attrs:
             if k not in allowed:
-                self.fail(node, f"unknown attribute '{k}'", supported=list(allowed))
+                self.fail(node, f"unknown attribute {quoted(k)}", supported=list(allowed))
         for k in required:
             if k not in node.attrs:
                 self.fail(node, f"missing attribute '{k}'")
@@ -276,13 +285,10 @@ class _Loader:
             if tag == "float":
                 return tf.parse_float(v)
             if tag == "integer":
-                try:
-                    return int(v.strip())
-                except ValueError:
-                    raise ValueError(f"value={v!r} is not an integer") from None
+                return tf.parse_int(v)
             if tag == "boolean":
                 if v.strip().lower() not in ("true", "false"):
-                    raise ValueError(f"value={v!r} is not a boolean; use true or false")
+                    raise ValueError(f"value={quoted(v)} is not a boolean; use true or false")
                 return v.strip().lower() == "true"
             if tag == "string":
                 return v
@@ -291,7 +297,7 @@ class _Loader:
                 if len(vals) == 1:
                     vals = vals * 3
                 if len(vals) != 3:
-                    raise ValueError(f"value={v!r} must have 3 components (or 1)")
+                    raise ValueError(f"value={quoted(v)} must have 3 components (or 1)")
                 return tuple(vals)
         except ValueError as exc:
             self.fail(node, str(exc))
@@ -321,7 +327,7 @@ class _Loader:
         self.check_attrs(node, ("type", "id", "name"), ("type",))
         kind = node.attrs["type"]
         if kind not in table:
-            self.fail(node, f"unknown {node.tag} type '{kind}'", supported=list(table))
+            self.fail(node, f"unknown {node.tag} type {quoted(kind)}", supported=list(table))
         spec = dict(table[kind])
         if extra:
             spec.update(extra)
@@ -336,9 +342,9 @@ class _Loader:
         target = self.ids.get(node.attrs["id"])
         if target is None:
             known = sorted(k for k, n in self.ids.items() if n.tag == expected)
-            self.fail(node, f"no element has id '{node.attrs['id']}'", supported=known or None)
+            self.fail(node, f"no element has id {quoted(node.attrs['id'])}", supported=known or None)
         if target.tag != expected:
-            self.fail(node, f"id '{node.attrs['id']}' is a <{target.tag}> (line {target.line}), "
+            self.fail(node, f"id {quoted(node.attrs['id'])} is a <{target.tag}> (line {target.line}), "
                             f"a <{expected}> is needed here")
         return target
 
@@ -362,7 +368,7 @@ class _Loader:
             mat = props.get("material", "none")
             if mat.strip().lower() != "none":
                 self.fail(props.node_of("material"),
-                          f"conductor material=\"{mat}\" is not supported: only material=\"none\" "
+                          f"conductor material=\"{shorten(mat)}\" is not supported: only material=\"none\" "
                           f"(a perfect mirror, scaled by specular_reflectance) is supported")
             return Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name)
         if kind == "dielectric":
@@ -376,7 +382,7 @@ class _Loader:
                 if isinstance(v, str):
                     key = v.strip().lower()
                     if key not in IOR_TABLE:
-                        self.fail(props.node_of(p), f"unknown material name '{v}' for {p}",
+                        self.fail(props.node_of(p), f"unknown material name {quoted(v)} for {p}",
                                   supported=list(IOR_TABLE))
                     v = IOR_TABLE[key]
                 v = float(v)
@@ -512,7 +518,7 @@ class _Loader:
             self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
         axis = props.get("fov_axis", "x").strip().lower()
         if axis not in FOV_AXES:
-            self.fail(props.node_of("fov_axis"), f"unknown fov_axis '{axis}'", supported=list(FOV_AXES))
+            self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
         near = float(self.number(props, "near_clip", 1e-2, positive=True))
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
@@ -526,9 +532,13 @@ class _Loader:
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
+                if width * height > MAX_FILM_PIXELS:
+                    self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
+                                   f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
+                                   f"lower width or height")
                 for rf in fprops.objects:
                     if rf.attrs.get("type") != "box" and "type" in rf.attrs:
-                        self.fail(rf, f"reconstruction filter '{rf.attrs['type']}' is not supported "
+                        self.fail(rf, f"reconstruction filter {quoted(rf.attrs['type'])} is not supported "
                                       f"(caustica's film is a box filter)", supported=["box"])
                     self.plugin(rf, RFILTER_PROPS)
                 if len(fprops.objects) > 1:
@@ -536,6 +546,10 @@ class _Loader:
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
                 spp = int(self.number(sprops, "sample_count", spp, positive=True))
+                if spp > MAX_SAMPLE_COUNT:
+                    self.fail(sprops.node_of("sample_count"), f"sample_count={spp:,} is more than "
+                                                              f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
+                                                              f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
                      near_clip=near)
         return cam, spp
@@ -583,7 +597,7 @@ class _Loader:
                 if node.attrs.get("type") == "area":
                     self.fail(node, "an area emitter must be nested inside a <shape>")
                 if node.attrs.get("type") not in (None, "point"):
-                    self.fail(node, f"unknown emitter type '{node.attrs['type']}'",
+                    self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
                               supported=["point (top level)", "area (inside a <shape>)"])
                 props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
                 if props.has("position") and props.has("to_world"):
