@@ -625,3 +625,39 @@ def test_echoed_values_are_shortened(tmp_path):
     assert "bad-scene.xml:4:" in msg and "(5,000 characters)" in msg and long_type not in msg, msg
     msg = scene_error(tmp_path, f'<shape type="sphere"><float name="radius" value="{"1" * 3000}.x"/></shape>')
     assert "(3,002 characters)" in msg and "1" * 100 not in msg, msg
+
+
+def test_deep_nesting_is_one_error_not_a_recursion_error(tmp_path):
+    from caustica.scene.xml_loader import MAX_NESTING_DEPTH
+    n = 5000
+    msg = scene_error(tmp_path, RECT.format('<bsdf type="twosided">' * n + '<bsdf type="diffuse"/>' + "</bsdf>" * n))
+    assert "bad-scene.xml:4: <bsdf type=\"twosided\">" in msg and f"at most {MAX_NESTING_DEPTH} levels" in msg, msg
+    msg = scene_error(tmp_path, "<a>\n" * n + "</a>" * n)
+    assert f"bad-scene.xml:{4 + MAX_NESTING_DEPTH - 1}: <a>" in msg and "nested" in msg, msg
+    # 500 twosided BSDFs wrapping each other through <ref>: each element is shallow, the chain is not
+    chain = '<bsdf type="diffuse" id="b0"/>\n' + "".join(
+        f'<bsdf type="twosided" id="b{i}"><ref id="b{i - 1}"/></bsdf>\n' for i in range(1, 500))
+    msg = scene_error(tmp_path, chain + RECT.format('<ref id="b499"/>'))
+    assert "bad-scene.xml:" in msg and f"more than {MAX_NESTING_DEPTH} deep" in msg, msg
+    # Twosided nested a few levels still loads.
+    d = load_strict(tmp_path, RECT.format('<bsdf type="twosided">' * 3 + '<bsdf type="diffuse"/>' + "</bsdf>" * 3))
+    assert d.materials[d.shapes[0].material].twosided
+
+
+@pytest.mark.parametrize("encoding", ["klingon", "shift_jis", "rot13"])
+def test_unknown_xml_encoding_is_one_error(tmp_path, encoding):
+    path = tmp_path / "enc.xml"
+    path.write_text(scene(RECT.format("")).replace('<?xml version="1.0"?>',
+                                                   f'<?xml version="1.0" encoding="{encoding}"?>'))
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path)
+    msg = str(e.value)
+    assert f"enc.xml:1: <?xml encoding='{encoding}'?>" in msg and "supported: UTF-8" in msg, msg
+
+
+def test_single_byte_xml_encoding_loads(tmp_path):
+    path = tmp_path / "latin.xml"
+    path.write_bytes(scene(RECT.format("")).replace('<?xml version="1.0"?>',
+                                                    '<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- caf\xe9 -->')
+                     .encode("latin-1"))
+    assert load_scene_file(path).shapes[0].kind == MESH

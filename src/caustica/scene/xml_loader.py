@@ -113,7 +113,15 @@ class Node:
     def describe(self) -> str:
         keys = [k for k in ("type", "name", "id") if k in self.attrs]
         inner = " ".join(f'{k}="{shorten(self.attrs[k])}"' for k in keys)
-        return f"<{self.tag}{' ' + inner if inner else ''}>"
+        return f"<{shorten(self.tag)}{' ' + inner if inner else ''}>"
+
+
+#: How deep elements may nest.  A Mitsuba scene needs a handful of levels (scene > shape >
+#: bsdf > bsdf > rgb); the limit keeps the loader's recursive passes far from Python's
+#: recursion limit, and it also bounds chains of twosided BSDFs through <ref>.
+MAX_NESTING_DEPTH = 64
+
+_XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
 def _parse_xml(text: str | bytes, source: str) -> Node:
@@ -124,6 +132,9 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
 
     def start(tag, attrs):
         node = Node(tag, dict(attrs), parser.CurrentLineNumber)
+        if len(stack) >= MAX_NESTING_DEPTH:
+            raise SceneError(f"{source}:{node.line}: {node.describe()}: elements are nested more than "
+                             f"{MAX_NESTING_DEPTH} deep; a scene may nest at most {MAX_NESTING_DEPTH} levels")
         if stack:
             stack[-1].children.append(node)
         else:
@@ -145,6 +156,14 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
     parser.CharacterDataHandler = chars
     try:
         parser.Parse(text, True)
+    except (LookupError, ValueError):
+        # expat asks Python for an encoding it does not know itself: unknown names raise
+        # LookupError, multi-byte codecs ValueError.
+        found = _XML_ENCODING.match(text if isinstance(text, bytes) else text.encode("utf-8", "replace"))
+        name = found.group(1).decode("ascii", "replace") if found else "?"
+        raise SceneError(f"{source}:1: <?xml encoding={quoted(name)}?>: unknown or unsupported encoding; "
+                         f"supported: UTF-8 (Mitsuba's), UTF-16, US-ASCII and single-byte encodings "
+                         f"such as ISO-8859-1 or cp1252") from None
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
         raise SceneError(f"{source}:{exc.lineno}: malformed XML: {msg} (column {exc.offset + 1})") from None
@@ -352,6 +371,9 @@ class _Loader:
         key = id(node)
         if key in self.in_progress:
             self.fail(node, "the BSDF refers to itself (a reference cycle)")
+        if len(self.in_progress) >= MAX_NESTING_DEPTH:
+            self.fail(node, f"BSDFs wrap each other (through twosided and <ref>) more than "
+                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed")
         self.in_progress.add(key)
         try:
             return self._build_material(node)
