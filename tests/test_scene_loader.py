@@ -661,3 +661,58 @@ def test_single_byte_xml_encoding_loads(tmp_path):
                                                     '<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- caf\xe9 -->')
                      .encode("latin-1"))
     assert load_scene_file(path).shapes[0].kind == MESH
+
+
+def write_ascii_ply(path, vertex_count_claimed: int, rows=("0 0 0", "1 0 0", "0 1 0"), comment: str = ""):
+    head = ["ply", "format ascii 1.0"] + ([f"comment {comment}"] if comment else []) + [
+        f"element vertex {vertex_count_claimed}", "property float x", "property float y", "property float z",
+        "element face 1", "property list uchar int vertex_indices", "end_header"]
+    path.write_bytes("\n".join(head + list(rows) + ["3 0 1 2", ""]).encode("latin-1"))
+
+
+def mesh_error(path) -> str:
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SceneError) as e:
+            load_mesh_file(path)
+    msg = str(e.value)
+    assert "\n" not in msg and path.name in msg, msg
+    return msg
+
+
+def test_ply_header_promising_more_than_the_file_holds(tmp_path):
+    """A header claiming 2e9 vertices was reported as 'holds no triangles'."""
+    write_ascii_ply(tmp_path / "claims.ply", 2_000_000_000)
+    msg = mesh_error(tmp_path / "claims.ply")
+    assert "2,000,000,000 'vertex' and 1 'face'" in msg and "only 4 lines follow end_header" in msg, msg
+    write_ascii_ply(tmp_path / "toomany.ply", 3_000_000_000)
+    assert "at most 2,147,483,647" in mesh_error(tmp_path / "toomany.ply")
+    # binary: 2e9 float vertices need 24 GB; the file has 36 bytes
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+            b"property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\n"
+            b"end_header\n")
+    (tmp_path / "claims-bin.ply").write_bytes(head + np.zeros(9, np.float32).tobytes())
+    msg = mesh_error(tmp_path / "claims-bin.ply")
+    assert "at least 24,000,000,000 bytes" in msg and "only 36 bytes" in msg, msg
+
+
+def test_mesh_vertex_beyond_float32_is_one_clean_error(tmp_path):
+    """A PLY 'float' of 1e39 printed numpy's overflow warning before the error."""
+    write_ascii_ply(tmp_path / "big.ply", 3, rows=("1e39 0 0", "1 0 0", "0 1 0"))
+    msg = mesh_error(tmp_path / "big.ply")
+    assert "vertex 0 is (inf, 0.0, 0.0)" in msg and "float32" in msg, msg
+    (tmp_path / "big.obj").write_text("v 0 0 1e300\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert "vertex 0 is (0.0, 0.0, 1e+300)" in mesh_error(tmp_path / "big.obj")
+
+
+def test_meshes_with_latin1_bytes_load(tmp_path):
+    """One Latin-1 byte in an OBJ comment failed with ModuleNotFoundError: charset_normalizer."""
+    (tmp_path / "latin.obj").write_bytes(b"# mod\xe8le de caf\xe9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    m = load_mesh_file(tmp_path / "latin.obj")
+    assert m.triangles.tolist() == [[0, 1, 2]] and np.allclose(face_normals(m), [0, 0, 1])
+    write_ascii_ply(tmp_path / "latin.ply", 3, comment="mod\xe8le")
+    assert load_mesh_file(tmp_path / "latin.ply").triangles.tolist() == [[0, 1, 2]]
+    # and through a scene file
+    d = load_strict(tmp_path, '<shape type="obj"><string name="filename" value="latin.obj"/></shape>')
+    assert d.shapes[0].mesh.triangles.shape == (1, 3)
