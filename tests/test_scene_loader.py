@@ -716,3 +716,42 @@ def test_meshes_with_latin1_bytes_load(tmp_path):
     # and through a scene file
     d = load_strict(tmp_path, '<shape type="obj"><string name="filename" value="latin.obj"/></shape>')
     assert d.shapes[0].mesh.triangles.shape == (1, 3)
+
+
+PARAM_SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/>'
+                '<film type="hdrfilm"><integer name="width" value="$res"/><integer name="height" value="$res"/></film>'
+                '<sampler type="independent"><integer name="sample_count" value="$spp"/></sampler></sensor>')
+
+
+def test_unused_or_empty_defines_are_errors(tmp_path):
+    body = '<default name="res" value="8"/>\n<default name="spp" value="2"/>\n<default name="unused" value="1"/>'
+    assert load_strict(tmp_path, body, PARAM_SENSOR, defaults={"res": "4", "spp": 3}).spp == 3
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"nosuch": "3"})
+    assert "bad-scene.xml: -D nosuch=3: the scene has no parameter $nosuch" in msg, msg
+    assert msg.endswith("the scene's parameters: res, spp"), msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"rse": "3"})
+    assert "(did you mean 'res'?)" in msg, msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"": "16"})
+    assert "-D =16: a define needs a name" in msg, msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"unused": "2"})
+    assert "line 6" in msg and "never uses $unused" in msg, msg
+    # a scene without parameters
+    assert "parameters: (none)" in scene_error(tmp_path, RECT.format(""), defaults={"res": "4"})
+
+
+def test_duplicate_default_is_an_error(tmp_path):
+    msg = scene_error(tmp_path, '<default name="res" value="8"/>\n<default name="res" value="16"/>', PARAM_SENSOR
+                      .replace("$spp", "1"))
+    assert "bad-scene.xml:5: <default name=\"res\">" in msg and "given twice (first on line 4)" in msg, msg
+    msg = scene_error(tmp_path, '<default name="2x" value="8"/>')
+    assert "bad-scene.xml:4:" in msg and "cannot be used as $name" in msg, msg
+
+
+@pytest.mark.parametrize("define", ["nosuch=3", "=16", "rse=64"])
+def test_cli_refuses_unused_defines(tmp_path, capsys, define):
+    from caustica.cli import main
+    code = main(["render", "cornell-diacaustic", "-D", define, "-q", "-o", str(tmp_path / "x.exr")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("caustica: error: ") and err.count("\n") == 1, err
+    assert f"cornell-diacaustic.xml: -D {define}: " in err, err
+    assert "the scene's parameters: max_depth, res, spp" in err and not list(tmp_path.iterdir()), err

@@ -14,6 +14,7 @@ every attribute before anything is interpreted; the caller's values win.
 from __future__ import annotations
 
 import copy
+import difflib
 import re
 import xml.parsers.expat
 from dataclasses import dataclass, field
@@ -241,6 +242,7 @@ class _Loader:
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
         self.default_material: int | None = None
+        self.used_params: set[str] = set()
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None):
@@ -256,6 +258,7 @@ class _Loader:
             for k, v in node.attrs.items():
                 if "$" in v:
                     def repl(m, node=node, k=k):
+                        self.used_params.add(m.group(1))
                         if m.group(1) not in self.params:
                             name = shorten(m.group(1))
                             self.fail(node, f"attribute {k}={quoted(v)} uses ${name}, which is not "
@@ -656,17 +659,48 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
         loader.fail(root, "the root element must be <scene>", supported=["<scene>"])
     loader.check_attrs(root, ("version",))
     params: dict[str, str] = {}
+    declared: dict[str, Node] = {}
     for node in root.children:
         if node.tag == "default":
             loader.check_attrs(node, ("name", "value"), ("name", "value"))
             if node.children:
                 loader.fail(node.children[0], "<default> takes no child elements")
-            params[node.attrs["name"]] = node.attrs["value"]
-    for k, v in (defaults or {}).items():
-        params[str(k)] = _param_str(v)
+            name = node.attrs["name"]
+            if not _PARAM_NAME.fullmatch(name):
+                loader.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
+                                  f"digits and _, not starting with a digit")
+            if name in declared:
+                loader.fail(node, f"default {quoted(name)} is given twice (first on line {declared[name].line})")
+            declared[name] = node
+            params[name] = node.attrs["value"]
+    given = {str(k): _param_str(v) for k, v in (defaults or {}).items()}
+    params.update(given)
     loader.params = params
     loader.substitute(root)
+    _check_defines(source_name, given, declared, loader.used_params)
     return loader.scene(root)
+
+
+_PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _check_defines(source: str, given: dict[str, str], declared: dict[str, Node], used: set[str]) -> None:
+    """Every caller's value (``-D name=value``) must reach a ``$name`` the scene uses, as every
+    method parameter must be a known one: a misspelt or empty name is an error, not ignored."""
+    names = sorted(used)
+    for k, v in given.items():
+        if k in used:
+            continue
+        what = f"{source}: -D {shorten(k)}={shorten(v)}"
+        if not k:
+            problem = "a define needs a name (-D name=value)"
+        elif k in declared:
+            problem = (f"the scene declares <default name=\"{k}\"> (line {declared[k].line}) but never uses ${k}, "
+                       f"so the value would change nothing")
+        else:
+            close = difflib.get_close_matches(k, names, n=1)
+            problem = f"the scene has no parameter ${shorten(k)}" + (f" (did you mean '{close[0]}'?)" if close else "")
+        raise SceneError(f"{what}: {problem}; the scene's parameters: {_names(names)}")
 
 
 def _param_str(v) -> str:
