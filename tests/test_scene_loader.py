@@ -755,3 +755,44 @@ def test_cli_refuses_unused_defines(tmp_path, capsys, define):
     assert code == 2 and err.startswith("caustica: error: ") and err.count("\n") == 1, err
     assert f"cornell-diacaustic.xml: -D {define}: " in err, err
     assert "the scene's parameters: max_depth, res, spp" in err and not list(tmp_path.iterdir()), err
+
+
+def test_integrator_note_says_what_caustica_does_with_the_scenes_integrator(tmp_path):
+    d = load_strict(tmp_path, '<integrator type="bdpt"><integer name="max_depth" value="8"/></integrator>')
+    assert d.integrator == "bdpt" and d.integrator_source.endswith("bad-scene.xml:4")
+    note = d.integrator_note("spm", {})
+    assert note == f"integrator 'bdpt' in {d.integrator_source} is not used; the method is --method spm " \
+                   f"('caustica methods' lists them)"
+    assert d.integrator_note("pt", {"max_depth": 8}).startswith("integrator 'bdpt'")
+    # Mitsuba's path is pt: a note only when pt runs with settings other than the file's
+    d = load_strict(tmp_path, '<integrator type="path"><integer name="max_depth" value="5"/></integrator>')
+    assert d.integrator_note("pt", {"max_depth": 5, "rr_depth": 5}) is None
+    assert d.integrator_note("spm", {"max_bounces": 4}) is None
+    note = d.integrator_note("pt", {"max_depth": -1, "rr_depth": 5})
+    assert "asks for max_depth=5, which is not read; pt runs with max_depth=-1" in note, note
+    # no <integrator>: nothing to say
+    assert load_strict(tmp_path, "").integrator_note("pt", {}) is None
+    assert load_scene_description("cornell-diacaustic").integrator_note("pt", {"max_depth": -1}) is None
+
+
+def test_cli_notes_an_unused_integrator_before_rendering(tmp_path, capsys):
+    from caustica.cli import main
+    path = tmp_path / "bdpt.xml"
+    path.write_text(scene('<integrator type="bdpt"/>\n' + RECT.format('<emitter type="area"/>')))
+    # --res 0 is refused when the render starts: the note comes first, on its own line
+    code = main(["render", str(path), "--method", "pm", "--res", "0", "-q", "-o", str(tmp_path / "x.exr")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 2, err
+    assert err[0] == f"caustica: note: integrator 'bdpt' in {path}:5 is not used; the method is --method pm " \
+                     f"('caustica methods' lists them)"
+    assert err[1].startswith("caustica: error: --res"), err
+
+
+def test_render_records_the_integrator_note(tmp_path):
+    import caustica
+    path = tmp_path / "bdpt.xml"
+    path.write_text(scene('<integrator type="bdpt"/>\n<emitter type="point"><point name="position" value="0, 0, 3"/>'
+                          '</emitter>\n' + RECT.format("")))
+    result = caustica.render(str(path), "pt", res=4, spp=1, threads=1)
+    assert result.stats["integrator_note"].startswith(f"integrator 'bdpt' in {path}:5 is not used")
+    assert caustica.render("cornell-diacaustic", "pt", res=4, spp=1, threads=1).stats["integrator_note"] is None

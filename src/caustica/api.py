@@ -161,6 +161,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "version": __version__,
         "threads": threads,
         "timings": timings,
+        "integrator_note": scene.description.integrator_note(method, settings),
         **stats,
     }
     if plan.multi:

@@ -641,7 +641,9 @@ class _Loader:
                              f"add <sensor type=\"perspective\">")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=integrator,
-                                integrator_props=integrator_props, source=self.source)
+                                integrator_props=integrator_props, source=self.source,
+                                integrator_source="" if integrator_node is None
+                                else f"{self.source}:{integrator_node.line}")
 
 
 # ----------------------------------------------------------------------------- entry points
