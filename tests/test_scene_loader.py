@@ -796,3 +796,25 @@ def test_render_records_the_integrator_note(tmp_path):
     result = caustica.render(str(path), "pt", res=4, spp=1, threads=1)
     assert result.stats["integrator_note"].startswith(f"integrator 'bdpt' in {path}:5 is not used")
     assert caustica.render("cornell-diacaustic", "pt", res=4, spp=1, threads=1).stats["integrator_note"] is None
+
+
+def test_film_too_large_for_memory_names_the_film(tmp_path, monkeypatch):
+    """A film too large for memory said "lower --res" without naming the file and line."""
+    import caustica
+    from caustica import memory
+    from caustica.errors import ParameterError
+    path = tmp_path / "big-film.xml"
+    path.write_text(scene(RECT.format('<emitter type="area"/>'),
+                          '<sensor type="perspective"><float name="fov" value="45"/>\n'
+                          + FILM.format('<integer name="width" value="1000"/><integer name="height" value="1000"/>')
+                          + "</sensor>"))
+    loaded = caustica.load_scene(str(path))
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 10_000_000)
+    with pytest.raises(ParameterError) as e:
+        caustica.api.resolve_settings(loaded, "pt")
+    msg = str(e.value)
+    assert msg.startswith(f"{path}:4: <film>: a 1000x1000 image would need about") and "pass --res" in msg, msg
+    with pytest.raises(ParameterError) as e:
+        caustica.api.resolve_settings(loaded, "pt", res="900x900")
+    assert str(e.value).startswith("a 900x900 image") and str(e.value).endswith("lower --res"), str(e.value)
+    assert caustica.api.resolve_settings(loaded, "pt", res=16)[2]["width"] == 16

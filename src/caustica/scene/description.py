@@ -104,6 +104,7 @@ class Camera:
     width: int = 768
     height: int = 576
     near_clip: float = 1e-2
+    film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
 
 
 @dataclass

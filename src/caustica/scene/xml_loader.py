@@ -548,12 +548,14 @@ class _Loader:
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
+        film_line = node.line
         seen = set()
         for obj in props.objects:
             if obj.tag in seen:
                 self.fail(obj, f"the sensor takes only one <{obj.tag}>")
             seen.add(obj.tag)
             if obj.tag == "film":
+                film_line = obj.line
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
@@ -576,7 +578,7 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near)
+                     near_clip=near, film_source=f"{self.source}:{film_line}")
         return cam, spp
 
     # -- integrator -------------------------------------------------------------------
