@@ -818,3 +818,20 @@ def test_film_too_large_for_memory_names_the_film(tmp_path, monkeypatch):
         caustica.api.resolve_settings(loaded, "pt", res="900x900")
     assert str(e.value).startswith("a 900x900 image") and str(e.value).endswith("lower --res"), str(e.value)
     assert caustica.api.resolve_settings(loaded, "pt", res=16)[2]["width"] == 16
+
+
+def test_emitted_power_beyond_float32_is_an_error(tmp_path):
+    """Radiance and size each within float32, their product not: photon powers would be infinite."""
+    from caustica.scene.compiled import compile_scene
+    d = load_strict(tmp_path, RECT.format('<emitter type="area"/>') + "\n"
+                    + '<shape type="sphere"><float name="radius" value="1e10"/>\n'
+                      '<emitter type="area"><rgb name="radiance" value="1e20"/></emitter></shape>')
+    with pytest.raises(SceneError) as e:
+        compile_scene(d)
+    msg = str(e.value)
+    assert msg.startswith(f"{d.source}:5: the emitter's power (pi x radiance x area) is 3.95e+41 W"), msg
+    d = load_strict(tmp_path, RECT.format("") + '\n<emitter type="point"><rgb name="intensity" value="1e38"/></emitter>')
+    with pytest.raises(SceneError, match=r"bad-scene.xml:5: the emitter's power \(4 pi x intensity\)"):
+        compile_scene(d)
+    d = load_strict(tmp_path, RECT.format('<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>'))
+    assert compile_scene(d).lights.power.max() == pytest.approx(4e30 * math.pi)

@@ -89,6 +89,7 @@ class Shape:
 class PointLight:
     position: tuple[float, float, float]
     intensity: tuple[float, float, float]  # W/sr per channel
+    source: str = ""  # "file:line" for messages
 
 
 @dataclass

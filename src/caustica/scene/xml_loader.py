@@ -634,7 +634,8 @@ class _Loader:
                 else:
                     pos = props.get("position", np.zeros(3))
                 intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
-                lights.append(PointLight(tuple(float(c) for c in pos), intensity))
+                lights.append(PointLight(tuple(float(c) for c in pos), intensity,
+                                         source=f"{self.source}:{node.line}"))
             else:
                 self.fail(node, "unknown element at the top level of the scene",
                           supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
