@@ -830,7 +830,8 @@ def test_emitted_power_beyond_float32_is_an_error(tmp_path):
         compile_scene(d)
     msg = str(e.value)
     assert msg.startswith(f"{d.source}:5: the emitter's power (pi x radiance x area) is 3.95e+41 W"), msg
-    d = load_strict(tmp_path, RECT.format("") + '\n<emitter type="point"><rgb name="intensity" value="1e38"/></emitter>')
+    d = load_strict(tmp_path, RECT.format("")
+                    + '\n<emitter type="point"><rgb name="intensity" value="1e38"/></emitter>')
     with pytest.raises(SceneError, match=r"bad-scene.xml:5: the emitter's power \(4 pi x intensity\)"):
         compile_scene(d)
     d = load_strict(tmp_path, RECT.format('<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>'))
