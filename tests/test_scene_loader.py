@@ -490,3 +490,349 @@ def test_against_mitsuba_mirrored_shapes_face_the_same_way(mi):
     n = face_normals(cube)
     hit = [i for i, f in enumerate(n) if abs(f[2]) > 0.99 and cube.positions[cube.triangles[i], 2].mean() < -5.5]
     assert hit and np.dot(np.array(si.n), n[hit[0]]) > 0.99
+
+
+# ----------------------------------------------------------------------------- hostile input (issue #8)
+
+def load_strict(tmp_path, body: str, sensor: str = SENSOR.replace("\n", " "), name: str = "bad-scene.xml",
+                defaults=None):
+    """Load scene(body) from a file with every warning an error: a bad input gives one clean SceneError."""
+    path = tmp_path / name
+    path.write_text(scene(body, sensor))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return load_scene_file(path, defaults)
+
+
+def scene_error(tmp_path, body: str, sensor: str = SENSOR.replace("\n", " "), defaults=None) -> str:
+    with pytest.raises(SceneError) as e:
+        load_strict(tmp_path, body, sensor, defaults=defaults)
+    msg = str(e.value)
+    assert "\n" not in msg and len(msg) < 400, msg
+    return msg
+
+
+RECT = '<shape type="rectangle">{}</shape>'
+XF = '<transform name="to_world">{}</transform>'
+#: Values that overflow float32 (the image's type) or compose to a matrix that does:
+#: (body on line 4, the element the message names, a word of the message).
+OUT_OF_RANGE = {
+    "radiance 1e300": (RECT.format('<emitter type="area">\n<rgb name="radiance" value="1e300"/></emitter>'),
+                       5, '<rgb name="radiance">', "out of range"),
+    "intensity 1e39": ('<emitter type="point">\n<rgb name="intensity" value="1, 1e39, 1"/></emitter>',
+                       5, '<rgb name="intensity">', "out of range"),
+    "scale 1e200": (RECT.format(XF.format('\n<scale value="1e200"/>')), 5, "<scale>", "out of range"),
+    "scales that compose past float32": (RECT.format('\n' + XF.format('<scale value="1e20"/><scale value="1e20"/>')),
+                                         5, '<transform name="to_world">', "1e+40"),
+    "translate 1e39": (RECT.format(XF.format('\n<translate x="1e39"/>')), 5, "<translate>", "out of range"),
+    "radius 1e308": ('<shape type="sphere">\n<float name="radius" value="1e308"/></shape>',
+                     5, '<float name="radius">', "out of range"),
+    "sphere radius x scale past float32": ('<shape type="sphere"><float name="radius" value="1e30"/>'
+                                           + XF.format('<scale value="1e10"/>') + '</shape>',
+                                           4, '<shape type="sphere">', "center and radius"),
+    "cylinder radius x scale past float32": ('<shape type="cylinder"><float name="radius" value="1e30"/>'
+                                             + XF.format('<scale value="1e10"/>') + '</shape>',
+                                             4, '<shape type="cylinder">', "p0, p1 and the radius"),
+    "mesh vertices past float32": (RECT.format(XF.format('<scale value="3e38"/><translate x="3e38"/>')),
+                                   4, '<shape type="rectangle">', "beyond"),
+    "ior 1e40": ('<bsdf type="dielectric"><float name="int_ior" value="1e40"/></bsdf>',
+                 4, '<float name="int_ior">', "out of range"),
+}
+
+
+@pytest.mark.parametrize("case", list(OUT_OF_RANGE))
+def test_values_beyond_float32_are_errors(tmp_path, case):
+    body, line, element, part = OUT_OF_RANGE[case]
+    msg = scene_error(tmp_path, body)
+    assert f"bad-scene.xml:{line}: {element}" in msg and part in msg, msg
+
+
+DEGENERATE = {
+    "shape scale 0": (RECT.format(XF.format('<scale value="0"/>')), '<transform name="to_world">'),
+    "shape scale 1e-13 in one axis": (RECT.format(XF.format('<scale x="1e-13"/>')), '<transform name="to_world">'),
+    "shape scale 1e-39 (below float32)": (RECT.format(XF.format('<scale value="1e-39"/>')),
+                                          '<transform name="to_world">'),
+    "projective matrix": (RECT.format(XF.format('<matrix value="1 0 0 0  0 1 0 0  0 0 1 0  0 0 0.5 1"/>')),
+                          '<transform name="to_world">'),
+    "point emitter scale 0": ('<emitter type="point">' + XF.format('<scale value="0"/>') + '</emitter>',
+                              '<transform name="to_world">'),
+}
+
+
+@pytest.mark.parametrize("case", list(DEGENERATE))
+def test_degenerate_transforms_are_errors(tmp_path, case):
+    body, element = DEGENERATE[case]
+    msg = scene_error(tmp_path, body)
+    assert f"bad-scene.xml:4: {element}" in msg and ("degenerate" in msg or "projective" in msg), msg
+
+
+def test_degenerate_sensor_transform_is_an_error(tmp_path):
+    """Shapes were checked, the sensor was not: a zero scale rendered black."""
+    sensor = ('<sensor type="perspective"><float name="fov" value="45"/>\n'
+              '<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/>'
+              '<scale value="0"/></transform></sensor>')
+    msg = scene_error(tmp_path, RECT.format(""), sensor)
+    assert 'bad-scene.xml:4: <transform name="to_world">' in msg and "degenerate" in msg, msg
+
+
+def test_large_but_representable_values_still_load(tmp_path):
+    d = load_strict(tmp_path, RECT.format(XF.format('<scale value="1e30"/>')
+                                          + '<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>')
+                    + '<shape type="sphere"><float name="radius" value="1e-5"/></shape>')
+    assert d.shapes[0].emitter_radiance == (1e30,) * 3
+    assert np.abs(d.shapes[0].mesh.positions).max() == pytest.approx(1e30)
+    assert d.shapes[1].to_world[0, 0] == pytest.approx(1e-5)
+
+
+SAMPLER = '<sampler type="independent"><integer name="sample_count" value="{}"/></sampler>'
+#: Integers the kernels cannot honour, on line 4 of the sensor: (sensor child, element named, a word).
+HUGE_INTEGERS = {
+    "sample_count 2^63": (SAMPLER.format(2**63), '<integer name="sample_count">', "int32"),
+    "sample_count 2^20 + 1": (SAMPLER.format(2**20 + 1), '<integer name="sample_count">', "1,048,576"),
+    "width 2^31": (FILM.format(f'<integer name="width" value="{2**31}"/>'), '<integer name="width">', "int32"),
+    "height -2^40": (FILM.format(f'<integer name="height" value="{-2**40}"/>'), '<integer name="height">',
+                     "int32"),
+    "film of 10^10 pixels": (FILM.format('<integer name="width" value="100000"/>'
+                                         '<integer name="height" value="100000"/>'),
+                             '<film type="hdrfilm">', "10,000,000,000 pixels"),
+    "5,000-digit width": (FILM.format(f'<integer name="width" value="{"9" * 5000}"/>'),
+                          '<integer name="width">', "(5,000 characters)"),
+}
+
+
+@pytest.mark.parametrize("case", list(HUGE_INTEGERS))
+def test_huge_integers_are_refused_with_a_bound(tmp_path, case):
+    inner, element, part = HUGE_INTEGERS[case]
+    msg = scene_error(tmp_path, "", f'<sensor type="perspective"><float name="fov" value="45"/>\n{inner}\n</sensor>')
+    assert f"bad-scene.xml:4: {element}" in msg and part in msg, msg
+    assert len(msg) < 300 and "9" * 50 not in msg, msg
+
+
+def test_largest_allowed_integers_load(tmp_path):
+    from caustica.scene.xml_loader import MAX_SAMPLE_COUNT
+    d = load_strict(tmp_path, "", f'<sensor type="perspective"><float name="fov" value="45"/>'
+                                  f'{SAMPLER.format(MAX_SAMPLE_COUNT)}'
+                                  + FILM.format('<integer name="width" value="46340"/>'
+                                                '<integer name="height" value="46340"/>') + '</sensor>')
+    assert d.spp == 2**20 and (d.camera.width, d.camera.height) == (46340, 46340)
+    assert tf.parse_int(" +0000000000000000000000000000000000000000007 ") == 7
+
+
+def test_echoed_values_are_shortened(tmp_path):
+    long_type = "torus" * 1000
+    msg = scene_error(tmp_path, f'<shape type="{long_type}"/>')
+    assert "bad-scene.xml:4:" in msg and "(5,000 characters)" in msg and long_type not in msg, msg
+    msg = scene_error(tmp_path, f'<shape type="sphere"><float name="radius" value="{"1" * 3000}.x"/></shape>')
+    assert "(3,002 characters)" in msg and "1" * 100 not in msg, msg
+
+
+def test_deep_nesting_is_one_error_not_a_recursion_error(tmp_path):
+    from caustica.scene.xml_loader import MAX_NESTING_DEPTH
+    n = 5000
+    msg = scene_error(tmp_path, RECT.format('<bsdf type="twosided">' * n + '<bsdf type="diffuse"/>' + "</bsdf>" * n))
+    assert "bad-scene.xml:4: <bsdf type=\"twosided\">" in msg and f"at most {MAX_NESTING_DEPTH} levels" in msg, msg
+    msg = scene_error(tmp_path, "<a>\n" * n + "</a>" * n)
+    assert f"bad-scene.xml:{4 + MAX_NESTING_DEPTH - 1}: <a>" in msg and "nested" in msg, msg
+    # 500 twosided BSDFs wrapping each other through <ref>: each element is shallow, the chain is not
+    chain = '<bsdf type="diffuse" id="b0"/>\n' + "".join(
+        f'<bsdf type="twosided" id="b{i}"><ref id="b{i - 1}"/></bsdf>\n' for i in range(1, 500))
+    msg = scene_error(tmp_path, chain + RECT.format('<ref id="b499"/>'))
+    assert "bad-scene.xml:" in msg and f"more than {MAX_NESTING_DEPTH} deep" in msg, msg
+    # Twosided nested a few levels still loads.
+    d = load_strict(tmp_path, RECT.format('<bsdf type="twosided">' * 3 + '<bsdf type="diffuse"/>' + "</bsdf>" * 3))
+    assert d.materials[d.shapes[0].material].twosided
+
+
+@pytest.mark.parametrize("encoding", ["klingon", "shift_jis", "rot13"])
+def test_unknown_xml_encoding_is_one_error(tmp_path, encoding):
+    path = tmp_path / "enc.xml"
+    path.write_text(scene(RECT.format("")).replace('<?xml version="1.0"?>',
+                                                   f'<?xml version="1.0" encoding="{encoding}"?>'))
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path)
+    msg = str(e.value)
+    assert f"enc.xml:1: <?xml encoding='{encoding}'?>" in msg and "supported: UTF-8" in msg, msg
+
+
+def test_single_byte_xml_encoding_loads(tmp_path):
+    path = tmp_path / "latin.xml"
+    path.write_bytes(scene(RECT.format("")).replace('<?xml version="1.0"?>',
+                                                    '<?xml version="1.0" encoding="ISO-8859-1"?>\n<!-- caf\xe9 -->')
+                     .encode("latin-1"))
+    assert load_scene_file(path).shapes[0].kind == MESH
+
+
+def write_ascii_ply(path, vertex_count_claimed: int, rows=("0 0 0", "1 0 0", "0 1 0"), comment: str = ""):
+    head = ["ply", "format ascii 1.0"] + ([f"comment {comment}"] if comment else []) + [
+        f"element vertex {vertex_count_claimed}", "property float x", "property float y", "property float z",
+        "element face 1", "property list uchar int vertex_indices", "end_header"]
+    path.write_bytes("\n".join(head + list(rows) + ["3 0 1 2", ""]).encode("latin-1"))
+
+
+def mesh_error(path) -> str:
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SceneError) as e:
+            load_mesh_file(path)
+    msg = str(e.value)
+    assert "\n" not in msg and path.name in msg, msg
+    return msg
+
+
+def test_ply_header_promising_more_than_the_file_holds(tmp_path):
+    """A header claiming 2e9 vertices was reported as 'holds no triangles'."""
+    write_ascii_ply(tmp_path / "claims.ply", 2_000_000_000)
+    msg = mesh_error(tmp_path / "claims.ply")
+    assert "2,000,000,000 'vertex' and 1 'face'" in msg and "only 4 lines follow end_header" in msg, msg
+    write_ascii_ply(tmp_path / "toomany.ply", 3_000_000_000)
+    assert "at most 2,147,483,647" in mesh_error(tmp_path / "toomany.ply")
+    # binary: 2e9 float vertices need 24 GB; the file has 36 bytes
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+            b"property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\n"
+            b"end_header\n")
+    (tmp_path / "claims-bin.ply").write_bytes(head + np.zeros(9, np.float32).tobytes())
+    msg = mesh_error(tmp_path / "claims-bin.ply")
+    assert "at least 24,000,000,000 bytes" in msg and "only 36 bytes" in msg, msg
+
+
+def test_mesh_vertex_beyond_float32_is_one_clean_error(tmp_path):
+    """A PLY 'float' of 1e39 printed numpy's overflow warning before the error."""
+    write_ascii_ply(tmp_path / "big.ply", 3, rows=("1e39 0 0", "1 0 0", "0 1 0"))
+    msg = mesh_error(tmp_path / "big.ply")
+    assert "vertex 0 is (inf, 0.0, 0.0)" in msg and "float32" in msg, msg
+    (tmp_path / "big.obj").write_text("v 0 0 1e300\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert "vertex 0 is (0.0, 0.0, 1e+300)" in mesh_error(tmp_path / "big.obj")
+
+
+def test_meshes_with_latin1_bytes_load(tmp_path):
+    """One Latin-1 byte in an OBJ comment failed with ModuleNotFoundError: charset_normalizer."""
+    (tmp_path / "latin.obj").write_bytes(b"# mod\xe8le de caf\xe9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    m = load_mesh_file(tmp_path / "latin.obj")
+    assert m.triangles.tolist() == [[0, 1, 2]] and np.allclose(face_normals(m), [0, 0, 1])
+    write_ascii_ply(tmp_path / "latin.ply", 3, comment="mod\xe8le")
+    assert load_mesh_file(tmp_path / "latin.ply").triangles.tolist() == [[0, 1, 2]]
+    # and through a scene file
+    d = load_strict(tmp_path, '<shape type="obj"><string name="filename" value="latin.obj"/></shape>')
+    assert d.shapes[0].mesh.triangles.shape == (1, 3)
+
+
+PARAM_SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/>'
+                '<film type="hdrfilm"><integer name="width" value="$res"/><integer name="height" value="$res"/></film>'
+                '<sampler type="independent"><integer name="sample_count" value="$spp"/></sampler></sensor>')
+
+
+def test_unused_or_empty_defines_are_errors(tmp_path):
+    body = '<default name="res" value="8"/>\n<default name="spp" value="2"/>\n<default name="unused" value="1"/>'
+    assert load_strict(tmp_path, body, PARAM_SENSOR, defaults={"res": "4", "spp": 3}).spp == 3
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"nosuch": "3"})
+    assert "bad-scene.xml: -D nosuch=3: the scene has no parameter $nosuch" in msg, msg
+    assert msg.endswith("the scene's parameters: res, spp"), msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"rse": "3"})
+    assert "(did you mean 'res'?)" in msg, msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"": "16"})
+    assert "-D =16: a define needs a name" in msg, msg
+    msg = scene_error(tmp_path, body, PARAM_SENSOR, defaults={"unused": "2"})
+    assert "line 6" in msg and "never uses $unused" in msg, msg
+    # a scene without parameters
+    assert "parameters: (none)" in scene_error(tmp_path, RECT.format(""), defaults={"res": "4"})
+
+
+def test_duplicate_default_is_an_error(tmp_path):
+    msg = scene_error(tmp_path, '<default name="res" value="8"/>\n<default name="res" value="16"/>', PARAM_SENSOR
+                      .replace("$spp", "1"))
+    assert "bad-scene.xml:5: <default name=\"res\">" in msg and "given twice (first on line 4)" in msg, msg
+    msg = scene_error(tmp_path, '<default name="2x" value="8"/>')
+    assert "bad-scene.xml:4:" in msg and "cannot be used as $name" in msg, msg
+
+
+@pytest.mark.parametrize("define", ["nosuch=3", "=16", "rse=64"])
+def test_cli_refuses_unused_defines(tmp_path, capsys, define):
+    from caustica.cli import main
+    code = main(["render", "cornell-diacaustic", "-D", define, "-q", "-o", str(tmp_path / "x.exr")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("caustica: error: ") and err.count("\n") == 1, err
+    assert f"cornell-diacaustic.xml: -D {define}: " in err, err
+    assert "the scene's parameters: max_depth, res, spp" in err and not list(tmp_path.iterdir()), err
+
+
+def test_integrator_note_says_what_caustica_does_with_the_scenes_integrator(tmp_path):
+    d = load_strict(tmp_path, '<integrator type="bdpt"><integer name="max_depth" value="8"/></integrator>')
+    assert d.integrator == "bdpt" and d.integrator_source.endswith("bad-scene.xml:4")
+    note = d.integrator_note("spm", {})
+    assert note == f"integrator 'bdpt' in {d.integrator_source} is not used; the method is --method spm " \
+                   f"('caustica methods' lists them)"
+    assert d.integrator_note("pt", {"max_depth": 8}).startswith("integrator 'bdpt'")
+    # Mitsuba's path is pt: a note only when pt runs with settings other than the file's
+    d = load_strict(tmp_path, '<integrator type="path"><integer name="max_depth" value="5"/></integrator>')
+    assert d.integrator_note("pt", {"max_depth": 5, "rr_depth": 5}) is None
+    assert d.integrator_note("spm", {"max_bounces": 4}) is None
+    note = d.integrator_note("pt", {"max_depth": -1, "rr_depth": 5})
+    assert "asks for max_depth=5, which is not read; pt runs with max_depth=-1" in note, note
+    # no <integrator>: nothing to say
+    assert load_strict(tmp_path, "").integrator_note("pt", {}) is None
+    assert load_scene_description("cornell-diacaustic").integrator_note("pt", {"max_depth": -1}) is None
+
+
+def test_cli_notes_an_unused_integrator_before_rendering(tmp_path, capsys):
+    from caustica.cli import main
+    path = tmp_path / "bdpt.xml"
+    path.write_text(scene('<integrator type="bdpt"/>\n' + RECT.format('<emitter type="area"/>')))
+    # --res 0 is refused when the render starts: the note comes first, on its own line
+    code = main(["render", str(path), "--method", "pm", "--res", "0", "-q", "-o", str(tmp_path / "x.exr")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 2, err
+    assert err[0] == f"caustica: note: integrator 'bdpt' in {path}:5 is not used; the method is --method pm " \
+                     f"('caustica methods' lists them)"
+    assert err[1].startswith("caustica: error: --res"), err
+
+
+def test_render_records_the_integrator_note(tmp_path):
+    import caustica
+    path = tmp_path / "bdpt.xml"
+    path.write_text(scene('<integrator type="bdpt"/>\n<emitter type="point"><point name="position" value="0, 0, 3"/>'
+                          '</emitter>\n' + RECT.format("")))
+    result = caustica.render(str(path), "pt", res=4, spp=1, threads=1)
+    assert result.stats["integrator_note"].startswith(f"integrator 'bdpt' in {path}:5 is not used")
+    assert caustica.render("cornell-diacaustic", "pt", res=4, spp=1, threads=1).stats["integrator_note"] is None
+
+
+def test_film_too_large_for_memory_names_the_film(tmp_path, monkeypatch):
+    """A film too large for memory said "lower --res" without naming the file and line."""
+    import caustica
+    from caustica import memory
+    from caustica.errors import ParameterError
+    path = tmp_path / "big-film.xml"
+    path.write_text(scene(RECT.format('<emitter type="area"/>'),
+                          '<sensor type="perspective"><float name="fov" value="45"/>\n'
+                          + FILM.format('<integer name="width" value="1000"/><integer name="height" value="1000"/>')
+                          + "</sensor>"))
+    loaded = caustica.load_scene(str(path))
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 10_000_000)
+    with pytest.raises(ParameterError) as e:
+        caustica.api.resolve_settings(loaded, "pt")
+    msg = str(e.value)
+    assert msg.startswith(f"{path}:4: <film>: a 1000x1000 image would need about") and "pass --res" in msg, msg
+    with pytest.raises(ParameterError) as e:
+        caustica.api.resolve_settings(loaded, "pt", res="900x900")
+    assert str(e.value).startswith("a 900x900 image") and str(e.value).endswith("lower --res"), str(e.value)
+    assert caustica.api.resolve_settings(loaded, "pt", res=16)[2]["width"] == 16
+
+
+def test_emitted_power_beyond_float32_is_an_error(tmp_path):
+    """Radiance and size each within float32, their product not: photon powers would be infinite."""
+    from caustica.scene.compiled import compile_scene
+    d = load_strict(tmp_path, RECT.format('<emitter type="area"/>') + "\n"
+                    + '<shape type="sphere"><float name="radius" value="1e10"/>\n'
+                      '<emitter type="area"><rgb name="radiance" value="1e20"/></emitter></shape>')
+    with pytest.raises(SceneError) as e:
+        compile_scene(d)
+    msg = str(e.value)
+    assert msg.startswith(f"{d.source}:5: the emitter's power (pi x radiance x area) is 3.95e+41 W"), msg
+    d = load_strict(tmp_path, RECT.format("")
+                    + '\n<emitter type="point"><rgb name="intensity" value="1e38"/></emitter>')
+    with pytest.raises(SceneError, match=r"bad-scene.xml:5: the emitter's power \(4 pi x intensity\)"):
+        compile_scene(d)
+    d = load_strict(tmp_path, RECT.format('<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>'))
+    assert compile_scene(d).lights.power.max() == pytest.approx(4e30 * math.pi)

@@ -103,7 +103,11 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     if spp <= 0:
         raise ParameterError(f"--spp: samples per pixel must be >= 1 (got {spp})")
     # the image (float32 RGB) plus per-pixel bookkeeping of the camera pass
-    check_budget(width * height * 20, f"a {width}x{height} image", "lower --res")
+    what, hint = f"a {width}x{height} image", "lower --res"
+    if res is None:  # the scene's film: name its file and line
+        what = f"{scene.description.camera.film_source}: <film>: {what}"
+        hint = "lower the film's width and height, or pass --res"
+    check_budget(width * height * 20, what, hint)
     if not isinstance(seed, int) or seed < 0:
         raise ParameterError(f"--seed: must be a non-negative integer (got {seed})")
     settings = methods.params.resolve(method, cls.params, params)
@@ -161,6 +165,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "version": __version__,
         "threads": threads,
         "timings": timings,
+        "integrator_note": scene.description.integrator_note(method, settings),
         **stats,
     }
     if plan.multi:

@@ -178,6 +178,15 @@ def _build_parser():
     return parser
 
 
+def _note_integrator(scene, method: str, params: dict) -> None:
+    """One line on stderr when the scene's <integrator> is not what this render does."""
+    from . import methods
+    note = scene.description.integrator_note(method, methods.params.resolve(method, methods.get(method).params,
+                                                                            params))
+    if note:
+        print(f"caustica: note: {note}", file=sys.stderr)
+
+
 def _cmd_render(args) -> int:
     from .api import load_scene, render
     from .imageio import output_paths
@@ -188,6 +197,7 @@ def _cmd_render(args) -> int:
         args.output = f"out/{stem}_{args.method}.exr"
     _check_output_folder(output_paths(args.output)[0])  # refuse before spending time rendering
     scene = load_scene(args.scene, **defines)
+    _note_integrator(scene, args.method, params)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
                     checkpoint=args.checkpoint, aov=args.aov or (), **params)
@@ -220,6 +230,7 @@ def _cmd_photons(args) -> int:
     scene = load_scene(args.scene, **_parse_defines(args.defines))
     scene, cls, settings = resolve_settings(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                                             threads=args.threads, **params)
+    _note_integrator(scene, args.method, params)
     picture, stats = photon_picture(scene, cls, settings, progress_factory(not args.quiet))
     write_png(args.output, picture)
     if not args.quiet:

@@ -15,3 +15,31 @@ class SceneError(CausticaError):
 
 class ParameterError(CausticaError):
     """A render parameter out of range, misspelt, or asking for more memory than the machine has."""
+
+
+#: How many characters of a user's value an error message repeats.
+QUOTE_LIMIT = 40
+
+
+def _cut(text: str, limit: int) -> tuple[str, str]:
+    """(text cut to about limit characters, "" or " (N characters)" when it was cut)."""
+    if len(text) <= limit:
+        return text, ""
+    return text[:limit - 11] + "..." + text[-8:], f" ({len(text):,} characters)"
+
+
+def shorten(value, limit: int = QUOTE_LIMIT) -> str:
+    """A user's value as an error message repeats it: at most about limit characters.
+
+    A 5,000-digit number or a pasted paragraph becomes its start and end with its
+    length, ``99999999999999999999999999999...99999999 (5,000 characters)``, so a
+    message stays one readable line.
+    """
+    cut, length = _cut(str(value), limit)
+    return cut + length
+
+
+def quoted(value, limit: int = QUOTE_LIMIT) -> str:
+    """:func:`shorten`, quoted like repr(): ``'1.x'``, ``'99999...99999999' (5,000 characters)``."""
+    cut, length = _cut(str(value), limit)
+    return repr(cut) + length

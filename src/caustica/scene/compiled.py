@@ -17,6 +17,7 @@ from ..emitters import LightTable, build_light_table
 from ..errors import SceneError
 from ..geometry.scene_geometry import Geometry, build_geometry
 from .description import SceneDescription
+from .transforms import MAX_ABS_FLOAT
 
 
 @dataclass
@@ -74,5 +75,27 @@ def compile_scene(desc: SceneDescription) -> Scene:
     if lights.kind.shape[0] == 0:
         raise SceneError(f"{desc.source}: the scene has no emitter; add an <emitter type=\"area\"> "
                          f"inside a shape or an <emitter type=\"point\">")
+    _check_light_power(desc, lights)
     mats = build_material_table(desc)
     return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0})
+
+
+def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:
+    """The emitted power must stay within float32, in which photon powers are stored.
+
+    Radiance and sizes are each checked when read, but their product (pi x radiance x
+    area) is not: a radiance of 1e30 on a shape of area 1e20 would make every photon's
+    power infinite.  The lights table lists the area emitters in shape order, then the
+    point lights.
+    """
+    sources = ([s.source for s in desc.shapes if s.emitter_radiance is not None]
+               + [p.source for p in desc.point_lights])
+    total = lights.power.sum(axis=0)
+    if np.all(total <= MAX_ABS_FLOAT):
+        return
+    i = int(np.argmax(lights.power.max(axis=1)))
+    what = "pi x radiance x area" if i < len(sources) - len(desc.point_lights) else "4 pi x intensity"
+    raise SceneError(f"{sources[i] or desc.source}: the emitter's power ({what}) is "
+                     f"{float(lights.power[i].max()):.3g} W, and the scene's lights emit "
+                     f"{float(total.max()):.3g} W in all, beyond {MAX_ABS_FLOAT:.3g} (float32, in which photon "
+                     f"powers are stored); lower the radiance or the emitter's size")

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import shorten
+
 # Material kinds (also the integer codes stored in the kernels' material table).
 DIFFUSE = 0
 CONDUCTOR = 1
@@ -87,6 +89,7 @@ class Shape:
 class PointLight:
     position: tuple[float, float, float]
     intensity: tuple[float, float, float]  # W/sr per channel
+    source: str = ""  # "file:line" for messages
 
 
 @dataclass
@@ -102,10 +105,15 @@ class Camera:
     width: int = 768
     height: int = 576
     near_clip: float = 1e-2
+    film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
 
 
 @dataclass
 class SceneDescription:
+    """A whole scene.  ``integrator`` / ``integrator_props`` record the file's
+    ``<integrator>`` (at ``integrator_source``, "file:line", or "" when it has none);
+    caustica does not read them: the method is chosen when rendering (see
+    :meth:`integrator_note` and docs/methods.md)."""
     camera: Camera
     shapes: list[Shape] = field(default_factory=list)
     materials: list[Material] = field(default_factory=list)
@@ -114,3 +122,30 @@ class SceneDescription:
     integrator: str = "path"
     integrator_props: dict = field(default_factory=dict)
     source: str = ""  # the file it came from, or the built-in name
+    integrator_source: str = ""
+
+    def integrator_note(self, method: str, parameters: dict) -> str | None:
+        """What a render with ``method`` and its ``parameters`` does with the scene's
+        ``<integrator>``, when that differs from what the file asks; None otherwise.
+
+        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, so it
+        goes without a word unless the render is ``pt`` with settings other than the
+        file's (e.g. ``max_depth``); any other integrator (``bdpt``, ``volpath``, ...)
+        gets a note whatever the method, so a scene never renders differently from what
+        it asks without the user being told.
+        """
+        if not self.integrator_source:
+            return None
+        kind, where = self.integrator, self.integrator_source
+        if kind != "path":
+            return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
+                    f"('caustica methods' lists them)")
+        if method != "pt":
+            return None
+        differ = {k: v for k, v in self.integrator_props.items() if parameters.get(k, object()) != v}
+        if not differ:
+            return None
+        asked = ", ".join(f"{k}={v}" for k, v in differ.items())
+        ran = ", ".join(f"{k}={parameters[k]}" if k in parameters else f"no {k}" for k in differ)
+        return (f"integrator 'path' in {where} asks for {asked}, which is not read; pt runs with {ran} "
+                f"(set pt's own flags, e.g. --max-depth, to change it)")

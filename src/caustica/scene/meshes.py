@@ -8,13 +8,20 @@ world the way Mitsuba does: points by the matrix, normals by its inverse transpo
 """
 from __future__ import annotations
 
+import io
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import SceneError, quoted
 from .description import Mesh
-from .transforms import transform_normals, transform_points
+from .transforms import INT32_MAX, MAX_ABS_FLOAT, check_transform, transform_normals, transform_points
+
+#: Bytes of each PLY scalar type (the PLY spec's names and their sized aliases).
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
+              "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4,
+              "double": 8, "float64": 8}
 
 
 def _triangulate(faces) -> np.ndarray:
@@ -54,6 +61,77 @@ def _single_geometry(loaded: dict, path: Path) -> dict:
     return loaded
 
 
+def _obj_text(data: bytes) -> str:
+    """An OBJ file's text.  OBJ has no declared encoding and its numbers are ASCII; a name
+    or comment in another encoding (Latin-1, say) is decoded byte for byte rather than
+    handed to trimesh, whose fallback needs the optional charset_normalizer package."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
+
+def _ply_checked(data: bytes, path: Path) -> bytes:
+    """The PLY file's bytes once its header agrees with its data; SceneError otherwise.
+
+    trimesh reads a header that promises more data than the file holds as an empty mesh
+    (or tries to allocate it), so the element counts are checked here first: each must fit
+    int32, and an ASCII body needs a line per element, a binary one at least the bytes of
+    the fixed-size properties.  Non-ASCII bytes in the header (comments) become '?', since
+    trimesh decodes the header as UTF-8.
+    """
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise SceneError(f"mesh file '{path}' is not a PLY file (it must start with 'ply' "
+                         f"and have an 'end_header' line)")
+    nl = data.find(b"\n", end)
+    body_start = len(data) if nl < 0 else nl + 1
+    header = data[:body_start].decode("latin-1").splitlines()
+    fmt, elements = "", []  # elements: [name, count, fixed bytes per element, list count sizes, known]
+    for line in header:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format" and len(words) > 1:
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3:
+            try:
+                count = int(words[2])
+            except ValueError:
+                raise SceneError(f"mesh file '{path}': header line {quoted(line)} has no element count") from None
+            if not 0 <= count <= INT32_MAX:
+                raise SceneError(f"mesh file '{path}': its header declares {count:,} '{words[1][:20]}' elements; "
+                                 f"caustica's meshes hold at most {INT32_MAX:,} (int32)")
+            elements.append([words[1][:20], count, 0, 0, True])
+        elif words[0] == "property" and elements:
+            el = elements[-1]
+            if len(words) >= 5 and words[1] == "list":
+                el[3] += _PLY_SIZES.get(words[2], 0)
+                el[4] &= words[2] in _PLY_SIZES
+            elif len(words) >= 3:
+                el[2] += _PLY_SIZES.get(words[1], 0)
+                el[4] &= words[1] in _PLY_SIZES
+    body = data[body_start:]
+    declared = " and ".join(f"{count:,} '{name}'" for name, count, *_ in elements) or "no"
+    if fmt == "ascii":
+        needed = sum(el[1] for el in elements)
+        lines = sum(1 for ln in body.splitlines() if ln.strip())
+        if lines < needed:
+            raise SceneError(f"mesh file '{path}': its header declares {declared} elements ({needed:,} lines of "
+                             f"data), but only {lines:,} lines follow end_header; the file is cut short or "
+                             f"its header is wrong")
+    elif all(el[4] for el in elements):
+        needed = sum(el[1] * (el[2] + el[3]) for el in elements)
+        if len(body) < needed:
+            raise SceneError(f"mesh file '{path}': its header declares {declared} elements (at least {needed:,} "
+                             f"bytes of data), but only {len(body):,} bytes follow end_header; the file is cut "
+                             f"short or its header is wrong")
+    head = data[:body_start]
+    if not head.isascii():
+        head = bytes(b if b < 128 else 0x3F for b in head)
+    return head + body
+
+
 def load_mesh_file(path: str | Path, kind: str | None = None) -> Mesh:
     """Read an OBJ or PLY file into an object-space :class:`Mesh`.
 
@@ -64,33 +142,47 @@ def load_mesh_file(path: str | Path, kind: str | None = None) -> Mesh:
     kind = (kind or path.suffix.lstrip(".")).lower()
     if not path.is_file():
         raise SceneError(f"mesh file '{path}' not found")
+    if kind not in ("obj", "ply"):
+        raise SceneError(f"mesh file '{path}': unknown mesh format {quoted(kind)}; supported: obj, ply")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f"mesh file '{path}' cannot be read: {exc.strerror or exc}") from None
+    if kind == "ply":
+        data = _ply_checked(data, path)
     try:
         from trimesh.exchange.obj import load_obj
         from trimesh.exchange.ply import load_ply
 
-        with open(path, "rb") as f:
+        # A number beyond float32 in a PLY 'float' overflows in trimesh's cast: the result
+        # is checked below, so numpy's warnings would only precede that error.
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
             if kind == "obj":
-                loaded = load_obj(f, maintain_order=True, skip_materials=True)
-            elif kind == "ply":
-                loaded = load_ply(f)
+                loaded = load_obj(io.StringIO(_obj_text(data)), maintain_order=True, skip_materials=True)
             else:
-                raise SceneError(f"mesh file '{path}': unknown mesh format '{kind}'; supported: obj, ply")
+                loaded = load_ply(io.BytesIO(data))
         geom = _single_geometry(loaded, path)
-    except SceneError:
-        raise
     except Exception as exc:  # trimesh raises many kinds of errors on corrupt files
         raise SceneError(f"mesh file '{path}' cannot be read as {kind.upper()}: "
-                         f"{type(exc).__name__}: {exc}") from None
+                         f"{type(exc).__name__}: {quoted(exc, 120)}") from None
     verts = geom.get("vertices")
     faces = geom.get("faces")
     if verts is None or faces is None or len(verts) == 0 or len(faces) == 0:
         raise SceneError(f"mesh file '{path}' holds no triangles")
     positions = np.ascontiguousarray(np.asarray(verts, dtype=np.float64).reshape(-1, 3))
     triangles = np.ascontiguousarray(_triangulate(faces))
+    if len(positions) > INT32_MAX or len(triangles) > INT32_MAX:
+        raise SceneError(f"mesh file '{path}': {len(positions):,} vertices and {len(triangles):,} triangles; "
+                         f"caustica's meshes hold at most {INT32_MAX:,} (int32) of each")
     if triangles.min() < 0 or triangles.max() >= len(positions):
         raise SceneError(f"mesh file '{path}': a face refers to a vertex that does not exist")
-    if not np.all(np.isfinite(positions)):
-        raise SceneError(f"mesh file '{path}': vertex positions contain NaN or infinity")
+    bad = ~(np.abs(positions).max(axis=1) <= MAX_ABS_FLOAT)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SceneError(f"mesh file '{path}': vertex {i} is {tuple(float(c) for c in positions[i])}; "
+                         f"coordinates must be finite numbers within ±{MAX_ABS_FLOAT:.3g} (float32's range: "
+                         f"a PLY 'float' beyond it reads as infinity)")
     normals = geom.get("vertex_normals")
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -140,9 +232,16 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
     flip_normals reverses each triangle's winding and negates the normals.
     """
     m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
-    if abs(np.linalg.det(m[:3, :3])) < 1e-300:
-        raise SceneError("to_world is singular (a zero scale?)")
+    try:
+        check_transform(m)
+    except ValueError as exc:
+        raise SceneError(f"to_world: {exc}") from None
     positions = transform_points(m, mesh.positions)
+    far = np.abs(positions).max(axis=1)
+    if not np.all(far <= MAX_ABS_FLOAT):
+        i = int(np.argmax(~(far <= MAX_ABS_FLOAT)))
+        raise SceneError(f"to_world places vertex {i} at {tuple(float(c) for c in positions[i])}, beyond "
+                         f"±{MAX_ABS_FLOAT:.3g} (float32's range, which the image uses)")
     normals = None if mesh.normals is None else transform_normals(m, mesh.normals)
     triangles = mesh.triangles.copy()
     if flip_normals:

@@ -6,6 +6,10 @@ scales first.  The functions here build the individual operations from the
 (already ``$``-substituted) XML attributes; they raise :class:`ValueError` with a
 short message, which the XML loader turns into a :class:`~caustica.errors.SceneError`
 naming the file and line.
+
+Every number read here is checked finite and within :data:`MAX_ABS_FLOAT` (float32's
+range: the image is float32, and a value beyond it overflows long before it is useful),
+and every matrix a scene uses passes :func:`check_transform`.
 """
 from __future__ import annotations
 
@@ -14,32 +18,97 @@ import re
 
 import numpy as np
 
+from ..errors import quoted
+
 #: The operations allowed inside ``<transform>``, in the order of the docs.
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix", "lookat")
 
 _SPLIT = re.compile(r"[,\s]+")
 
+#: The largest magnitude a number in a scene may have: float32's largest finite value
+#: (about 3.4e38).  The image is float32, and geometry beyond it overflows in the kernels.
+MAX_ABS_FLOAT = float(np.finfo(np.float32).max)
+_RANGE = f"±{MAX_ABS_FLOAT:.3g} (float32's range, which the image uses)"
+
+#: A transform whose smallest singular value is below this fraction of its largest
+#: squashes space flat (a zero scale, or a scale so small that float64 cannot tell it from zero).
+MIN_SINGULAR_RATIO = 1e-12
+
+#: float32's smallest normal number: a transform that shrinks everything below it is degenerate too.
+MIN_SCALE = float(np.finfo(np.float32).tiny)
+
+
+def check_finite(value: float, what: str) -> float:
+    """value if it is finite and within ±MAX_ABS_FLOAT; ValueError naming `what` otherwise."""
+    if not math.isfinite(value):
+        raise ValueError(f"{what} is not a finite number")
+    if abs(value) > MAX_ABS_FLOAT:
+        raise ValueError(f"{what} is out of range: numbers in a scene must lie within {_RANGE}")
+    return value
+
 
 def parse_floats(text: str, what: str = "value") -> list[float]:
-    """Split "1, 2 3" (commas and/or spaces, as Mitsuba) into finite floats."""
+    """Split "1, 2 3" (commas and/or spaces, as Mitsuba) into finite floats within ±MAX_ABS_FLOAT."""
     parts = [p for p in _SPLIT.split(text.strip()) if p]
     out = []
     for p in parts:
         try:
             v = float(p)
         except ValueError:
-            raise ValueError(f"{what}={text!r} is not a number") from None
-        if not math.isfinite(v):
-            raise ValueError(f"{what}={text!r} is not a finite number")
-        out.append(v)
+            raise ValueError(f"{what}={quoted(text)} is not a number") from None
+        out.append(check_finite(v, f"{what}={quoted(text)}"))
     return out
 
 
 def parse_float(text: str, what: str = "value") -> float:
     vals = parse_floats(text, what)
     if len(vals) != 1:
-        raise ValueError(f"{what}={text!r} must be a single number")
+        raise ValueError(f"{what}={quoted(text)} must be a single number")
     return vals[0]
+
+
+#: The range of an ``<integer>`` in a scene: int32, which every size and count in the kernels fits.
+INT32_MAX = 2**31 - 1
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+
+
+def parse_int(text: str, what: str = "value") -> int:
+    """An integer within ±INT32_MAX; ValueError for anything else (without converting 5,000 digits)."""
+    t = text.strip()
+    if not _INTEGER.fullmatch(t):
+        raise ValueError(f"{what}={quoted(text)} is not an integer")
+    digits = t.lstrip("+-").lstrip("0")
+    if len(digits) > len(str(INT32_MAX)) or int(digits or "0") > INT32_MAX:
+        raise ValueError(f"{what}={quoted(text)} is out of range: integers in a scene must lie within "
+                         f"±{INT32_MAX:,} (int32)")
+    return int(t)
+
+
+def check_transform(m: np.ndarray) -> np.ndarray:
+    """m if it is a usable 4x4 affine transform; ValueError saying what is wrong otherwise.
+
+    Usable: every entry finite and within ±MAX_ABS_FLOAT, the last row (0, 0, 0, 1)
+    (caustica's shapes and camera are affine; Mitsuba's are too), and the 3x3 part not
+    degenerate: its singular values all above MIN_SINGULAR_RATIO times the largest and
+    above MIN_SCALE.
+    The one check for every transform: shapes, the sensor, emitters, and the matrices a
+    shape's own parameters (radius, center, p0/p1) add.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    if not np.all(np.isfinite(m)):
+        raise ValueError("the transform is not finite")
+    big = float(np.abs(m).max())
+    if big > MAX_ABS_FLOAT:
+        raise ValueError(f"the transform has an entry of {big:.3g}, beyond {_RANGE}")
+    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"the transform's last row is {tuple(float(c) for c in m[3])}, not (0, 0, 0, 1): "
+                         f"projective transforms are not supported")
+    sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+    if not sv[-1] > max(MIN_SINGULAR_RATIO * sv[0], MIN_SCALE):
+        raise ValueError(f"the transform is degenerate (a zero scale?): its scales (singular values) are "
+                         f"{', '.join(f'{v:.3g}' for v in sv)}; the smallest must exceed "
+                         f"{MIN_SINGULAR_RATIO:g} x the largest and {MIN_SCALE:.3g} (float32's smallest normal)")
+    return m
 
 
 def xyz_from_attrs(attrs: dict[str, str], default: float, allow_uniform: bool = False) -> np.ndarray:
@@ -55,7 +124,7 @@ def xyz_from_attrs(attrs: dict[str, str], default: float, allow_uniform: bool = 
         if len(vals) == 1 and allow_uniform:
             vals = vals * 3
         if len(vals) != 3:
-            raise ValueError(f"value={attrs['value']!r} must have 3 components")
+            raise ValueError(f"value={quoted(attrs['value'])} must have 3 components")
         return np.array(vals, dtype=np.float64)
     return np.array([parse_float(attrs[k], k) if k in attrs else default for k in "xyz"],
                     dtype=np.float64)
@@ -184,16 +253,21 @@ def op_matrix(op: str, attrs: dict[str, str]) -> np.ndarray:
             raise ValueError(f"lookat needs {k}=")
         v = parse_floats(attrs[k], k)
         if len(v) != 3:
-            raise ValueError(f"{k}={attrs[k]!r} must have 3 components")
+            raise ValueError(f"{k}={quoted(attrs[k])} must have 3 components")
         vec[k] = v
     return look_at(vec["origin"], vec["target"], vec["up"])
 
 
 def compose(ops: list[np.ndarray]) -> np.ndarray:
-    """Ops in document order -> one matrix (each new op on the left)."""
+    """Ops in document order -> one matrix (each new op on the left).
+
+    Many large scales can overflow float64; the result is then not finite, which
+    :func:`check_transform` reports, so the overflow itself stays silent.
+    """
     m = np.eye(4)
-    for op in ops:
-        m = op @ m
+    with np.errstate(over="ignore", invalid="ignore"):
+        for op in ops:
+            m = op @ m
     return m
 
 

@@ -14,6 +14,7 @@ every attribute before anything is interpreted; the caller's values win.
 from __future__ import annotations
 
 import copy
+import difflib
 import re
 import xml.parsers.expat
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import SceneError, quoted, shorten
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, MESH, SPHERE, Camera,
@@ -70,6 +71,14 @@ SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
 RFILTER_PROPS = {"box": {}}
 FOV_AXES = ("x", "y", "smaller", "larger")
 
+#: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
+#: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
+#: MAX_FILM_PIXELS keep far from overflow).  The command line's ``--spp`` bound, checked
+#: where render parameters are read, is meant to be the same number.
+MAX_SAMPLE_COUNT = 2**20
+#: The most pixels a film may have: int32, which the kernels' pixel indices fit.
+MAX_FILM_PIXELS = tf.INT32_MAX
+
 #: Indices of refraction of the materials Mitsuba knows by name (Mitsuba's ior.h).
 IOR_TABLE = {
     "vacuum": 1.0, "helium": 1.000036, "hydrogen": 1.000132, "air": 1.000277,
@@ -104,8 +113,16 @@ class Node:
 
     def describe(self) -> str:
         keys = [k for k in ("type", "name", "id") if k in self.attrs]
-        inner = " ".join(f'{k}="{self.attrs[k]}"' for k in keys)
-        return f"<{self.tag}{' ' + inner if inner else ''}>"
+        inner = " ".join(f'{k}="{shorten(self.attrs[k])}"' for k in keys)
+        return f"<{shorten(self.tag)}{' ' + inner if inner else ''}>"
+
+
+#: How deep elements may nest.  A Mitsuba scene needs a handful of levels (scene > shape >
+#: bsdf > bsdf > rgb); the limit keeps the loader's recursive passes far from Python's
+#: recursion limit, and it also bounds chains of twosided BSDFs through <ref>.
+MAX_NESTING_DEPTH = 64
+
+_XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
 def _parse_xml(text: str | bytes, source: str) -> Node:
@@ -116,6 +133,9 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
 
     def start(tag, attrs):
         node = Node(tag, dict(attrs), parser.CurrentLineNumber)
+        if len(stack) >= MAX_NESTING_DEPTH:
+            raise SceneError(f"{source}:{node.line}: {node.describe()}: elements are nested more than "
+                             f"{MAX_NESTING_DEPTH} deep; a scene may nest at most {MAX_NESTING_DEPTH} levels")
         if stack:
             stack[-1].children.append(node)
         else:
@@ -129,7 +149,7 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
         if data.strip():
             line = parser.CurrentLineNumber
             where = stack[-1].describe() if stack else "document"
-            raise SceneError(f"{source}:{line}: {where}: unexpected text {data.strip()[:40]!r}; "
+            raise SceneError(f"{source}:{line}: {where}: unexpected text {quoted(data.strip())}; "
                              f"Mitsuba scene elements hold only attributes and child elements")
 
     parser.StartElementHandler = start
@@ -137,6 +157,14 @@ def _parse_xml(text: str | bytes, source: str) -> Node:
     parser.CharacterDataHandler = chars
     try:
         parser.Parse(text, True)
+    except (LookupError, ValueError):
+        # expat asks Python for an encoding it does not know itself: unknown names raise
+        # LookupError, multi-byte codecs ValueError.
+        found = _XML_ENCODING.match(text if isinstance(text, bytes) else text.encode("utf-8", "replace"))
+        name = found.group(1).decode("ascii", "replace") if found else "?"
+        raise SceneError(f"{source}:1: <?xml encoding={quoted(name)}?>: unknown or unsupported encoding; "
+                         f"supported: UTF-8 (Mitsuba's), UTF-16, US-ASCII and single-byte encodings "
+                         f"such as ISO-8859-1 or cp1252") from None
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
         raise SceneError(f"{source}:{exc.lineno}: malformed XML: {msg} (column {exc.offset + 1})") from None
@@ -175,7 +203,7 @@ class Props:
                 if name is None:
                     loader.fail(child, "a property needs a name= attribute")
                 if name not in spec:
-                    loader.fail(child, f"unknown property '{name}' of {node.describe()}",
+                    loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
                                 supported=list(spec))
                 if child.tag not in spec[name]:
                     loader.fail(child, f"property '{name}' must be given as "
@@ -214,6 +242,7 @@ class _Loader:
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
         self.default_material: int | None = None
+        self.used_params: set[str] = set()
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None):
@@ -229,9 +258,11 @@ class _Loader:
             for k, v in node.attrs.items():
                 if "$" in v:
                     def repl(m, node=node, k=k):
+                        self.used_params.add(m.group(1))
                         if m.group(1) not in self.params:
-                            self.fail(node, f"attribute {k}={v!r} uses ${m.group(1)}, which is not "
-                                            f"defined; add <default name=\"{m.group(1)}\" value=\"...\"/> "
+                            name = shorten(m.group(1))
+                            self.fail(node, f"attribute {k}={quoted(v)} uses ${name}, which is not "
+                                            f"defined; add <default name=\"{name}\" value=\"...\"/> "
                                             f"or pass a value for it",
                                       supported=sorted(self.params) or None)
                         return self.params[m.group(1)]
@@ -239,7 +270,7 @@ class _Loader:
         if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
             i = node.attrs["id"]
             if i in self.ids:
-                self.fail(node, f"id '{i}' is already used on line {self.ids[i].line}")
+                self.fail(node, f"id {quoted(i)} is already used on line {self.ids[i].line}")
             self.ids[i] = node
         for c in node.children:
             self.substitute(c)
@@ -247,7 +278,7 @@ class _Loader:
     def check_attrs(self, node: Node, allowed: tuple[str, ...], required: tuple[str, ...] = ()):
         for k in node.attrs:
             if k not in allowed:
-                self.fail(node, f"unknown attribute '{k}'", supported=list(allowed))
+                self.fail(node, f"unknown attribute {quoted(k)}", supported=list(allowed))
         for k in required:
             if k not in node.attrs:
                 self.fail(node, f"missing attribute '{k}'")
@@ -265,10 +296,7 @@ class _Loader:
                         ops.append(tf.op_matrix(c.tag, c.attrs))
                     except ValueError as exc:
                         self.fail(c, str(exc))
-                m = tf.compose(ops)
-                if not np.all(np.isfinite(m)):
-                    self.fail(node, "the transform is not finite")
-                return m
+                return tf.check_transform(tf.compose(ops))
             if node.children:
                 self.fail(node.children[0], f"<{tag}> takes no child elements")
             if tag in ("point", "vector"):
@@ -279,13 +307,10 @@ class _Loader:
             if tag == "float":
                 return tf.parse_float(v)
             if tag == "integer":
-                try:
-                    return int(v.strip())
-                except ValueError:
-                    raise ValueError(f"value={v!r} is not an integer") from None
+                return tf.parse_int(v)
             if tag == "boolean":
                 if v.strip().lower() not in ("true", "false"):
-                    raise ValueError(f"value={v!r} is not a boolean; use true or false")
+                    raise ValueError(f"value={quoted(v)} is not a boolean; use true or false")
                 return v.strip().lower() == "true"
             if tag == "string":
                 return v
@@ -294,7 +319,7 @@ class _Loader:
                 if len(vals) == 1:
                     vals = vals * 3
                 if len(vals) != 3:
-                    raise ValueError(f"value={v!r} must have 3 components (or 1)")
+                    raise ValueError(f"value={quoted(v)} must have 3 components (or 1)")
                 return tuple(vals)
         except ValueError as exc:
             self.fail(node, str(exc))
@@ -324,7 +349,7 @@ class _Loader:
         self.check_attrs(node, ("type", "id", "name"), ("type",))
         kind = node.attrs["type"]
         if kind not in table:
-            self.fail(node, f"unknown {node.tag} type '{kind}'", supported=list(table))
+            self.fail(node, f"unknown {node.tag} type {quoted(kind)}", supported=list(table))
         spec = dict(table[kind])
         if extra:
             spec.update(extra)
@@ -339,9 +364,9 @@ class _Loader:
         target = self.ids.get(node.attrs["id"])
         if target is None:
             known = sorted(k for k, n in self.ids.items() if n.tag == expected)
-            self.fail(node, f"no element has id '{node.attrs['id']}'", supported=known or None)
+            self.fail(node, f"no element has id {quoted(node.attrs['id'])}", supported=known or None)
         if target.tag != expected:
-            self.fail(node, f"id '{node.attrs['id']}' is a <{target.tag}> (line {target.line}), "
+            self.fail(node, f"id {quoted(node.attrs['id'])} is a <{target.tag}> (line {target.line}), "
                             f"a <{expected}> is needed here")
         return target
 
@@ -349,6 +374,9 @@ class _Loader:
         key = id(node)
         if key in self.in_progress:
             self.fail(node, "the BSDF refers to itself (a reference cycle)")
+        if len(self.in_progress) >= MAX_NESTING_DEPTH:
+            self.fail(node, f"BSDFs wrap each other (through twosided and <ref>) more than "
+                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed")
         self.in_progress.add(key)
         try:
             return self._build_material(node)
@@ -365,7 +393,7 @@ class _Loader:
             mat = props.get("material", "none")
             if mat.strip().lower() != "none":
                 self.fail(props.node_of("material"),
-                          f"conductor material=\"{mat}\" is not supported: only material=\"none\" "
+                          f"conductor material=\"{shorten(mat)}\" is not supported: only material=\"none\" "
                           f"(a perfect mirror, scaled by specular_reflectance) is supported")
             return Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name)
         if kind == "dielectric":
@@ -379,7 +407,7 @@ class _Loader:
                 if isinstance(v, str):
                     key = v.strip().lower()
                     if key not in IOR_TABLE:
-                        self.fail(props.node_of(p), f"unknown material name '{v}' for {p}",
+                        self.fail(props.node_of(p), f"unknown material name {quoted(v)} for {p}",
                                   supported=list(IOR_TABLE))
                     v = IOR_TABLE[key]
                 v = float(v)
@@ -424,8 +452,6 @@ class _Loader:
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         flip = bool(props.get("flip_normals", False))
-        if abs(np.linalg.det(to_world[:3, :3])) < 1e-12 * max(1.0, np.abs(to_world[:3, :3]).max() ** 3):
-            self.fail(props.node_of("to_world"), "to_world is singular (a zero scale?)")
 
         material, radiance = None, None
         for obj in props.objects:
@@ -469,7 +495,8 @@ class _Loader:
         if kind == "sphere":
             radius = self.number(props, "radius", 1.0, positive=True)
             center = props.get("center", np.zeros(3))
-            m = to_world @ tf.translate(center) @ tf.scale(radius)
+            m = self.placement(node, to_world @ tf.translate(center) @ tf.scale(radius),
+                               "to_world with the center and radius")
             lin = m[:3, :3]
             gram = lin.T @ lin
             s2 = np.trace(gram) / 3.0
@@ -487,7 +514,8 @@ class _Loader:
         length = float(np.linalg.norm(d))
         if length == 0.0:
             self.fail(props.node_of("p1"), "the cylinder's p0 and p1 coincide")
-        m = to_world @ tf.translate(p0) @ tf.to_frame(d / length) @ tf.scale([radius, radius, length])
+        m = self.placement(node, to_world @ tf.translate(p0) @ tf.to_frame(d / length)
+                           @ tf.scale([radius, radius, length]), "to_world with p0, p1 and the radius")
         c0, c1, c2 = m[:3, 0], m[:3, 1], m[:3, 2]
         tol = 1e-6 * max(np.dot(c0, c0), np.dot(c1, c1))
         if (abs(np.dot(c0, c0) - np.dot(c1, c1)) > tol or abs(np.dot(c0, c1)) > tol
@@ -496,6 +524,13 @@ class _Loader:
             self.fail(props.node_of("to_world"), "a cylinder's to_world must keep its cross-section "
                                                  "circular (no shear or non-uniform scaling across the axis)")
         return Shape(CYLINDER, to_world=m, **common)
+
+    def placement(self, node: Node, m: np.ndarray, what: str) -> np.ndarray:
+        """The matrix placing an analytic shape, checked like every transform (SceneError at node)."""
+        try:
+            return tf.check_transform(m)
+        except ValueError as exc:
+            self.fail(node, f"{what}: {exc}")
 
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
@@ -508,23 +543,29 @@ class _Loader:
             self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
         axis = props.get("fov_axis", "x").strip().lower()
         if axis not in FOV_AXES:
-            self.fail(props.node_of("fov_axis"), f"unknown fov_axis '{axis}'", supported=list(FOV_AXES))
+            self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
         near = float(self.number(props, "near_clip", 1e-2, positive=True))
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
+        film_line = node.line
         seen = set()
         for obj in props.objects:
             if obj.tag in seen:
                 self.fail(obj, f"the sensor takes only one <{obj.tag}>")
             seen.add(obj.tag)
             if obj.tag == "film":
+                film_line = obj.line
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
+                if width * height > MAX_FILM_PIXELS:
+                    self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
+                                   f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
+                                   f"lower width or height")
                 for rf in fprops.objects:
                     if rf.attrs.get("type") != "box" and "type" in rf.attrs:
-                        self.fail(rf, f"reconstruction filter '{rf.attrs['type']}' is not supported "
+                        self.fail(rf, f"reconstruction filter {quoted(rf.attrs['type'])} is not supported "
                                       f"(caustica's film is a box filter)", supported=["box"])
                     self.plugin(rf, RFILTER_PROPS)
                 if len(fprops.objects) > 1:
@@ -532,8 +573,12 @@ class _Loader:
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
                 spp = int(self.number(sprops, "sample_count", spp, positive=True))
+                if spp > MAX_SAMPLE_COUNT:
+                    self.fail(sprops.node_of("sample_count"), f"sample_count={spp:,} is more than "
+                                                              f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
+                                                              f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near)
+                     near_clip=near, film_source=f"{self.source}:{film_line}")
         return cam, spp
 
     # -- integrator -------------------------------------------------------------------
@@ -579,7 +624,7 @@ class _Loader:
                 if node.attrs.get("type") == "area":
                     self.fail(node, "an area emitter must be nested inside a <shape>")
                 if node.attrs.get("type") not in (None, "point"):
-                    self.fail(node, f"unknown emitter type '{node.attrs['type']}'",
+                    self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
                               supported=["point (top level)", "area (inside a <shape>)"])
                 props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
                 if props.has("position") and props.has("to_world"):
@@ -589,7 +634,8 @@ class _Loader:
                 else:
                     pos = props.get("position", np.zeros(3))
                 intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
-                lights.append(PointLight(tuple(float(c) for c in pos), intensity))
+                lights.append(PointLight(tuple(float(c) for c in pos), intensity,
+                                         source=f"{self.source}:{node.line}"))
             else:
                 self.fail(node, "unknown element at the top level of the scene",
                           supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
@@ -598,7 +644,9 @@ class _Loader:
                              f"add <sensor type=\"perspective\">")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=integrator,
-                                integrator_props=integrator_props, source=self.source)
+                                integrator_props=integrator_props, source=self.source,
+                                integrator_source="" if integrator_node is None
+                                else f"{self.source}:{integrator_node.line}")
 
 
 # ----------------------------------------------------------------------------- entry points
@@ -616,17 +664,48 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
         loader.fail(root, "the root element must be <scene>", supported=["<scene>"])
     loader.check_attrs(root, ("version",))
     params: dict[str, str] = {}
+    declared: dict[str, Node] = {}
     for node in root.children:
         if node.tag == "default":
             loader.check_attrs(node, ("name", "value"), ("name", "value"))
             if node.children:
                 loader.fail(node.children[0], "<default> takes no child elements")
-            params[node.attrs["name"]] = node.attrs["value"]
-    for k, v in (defaults or {}).items():
-        params[str(k)] = _param_str(v)
+            name = node.attrs["name"]
+            if not _PARAM_NAME.fullmatch(name):
+                loader.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
+                                  f"digits and _, not starting with a digit")
+            if name in declared:
+                loader.fail(node, f"default {quoted(name)} is given twice (first on line {declared[name].line})")
+            declared[name] = node
+            params[name] = node.attrs["value"]
+    given = {str(k): _param_str(v) for k, v in (defaults or {}).items()}
+    params.update(given)
     loader.params = params
     loader.substitute(root)
+    _check_defines(source_name, given, declared, loader.used_params)
     return loader.scene(root)
+
+
+_PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _check_defines(source: str, given: dict[str, str], declared: dict[str, Node], used: set[str]) -> None:
+    """Every caller's value (``-D name=value``) must reach a ``$name`` the scene uses, as every
+    method parameter must be a known one: a misspelt or empty name is an error, not ignored."""
+    names = sorted(used)
+    for k, v in given.items():
+        if k in used:
+            continue
+        what = f"{source}: -D {shorten(k)}={shorten(v)}"
+        if not k:
+            problem = "a define needs a name (-D name=value)"
+        elif k in declared:
+            problem = (f"the scene declares <default name=\"{k}\"> (line {declared[k].line}) but never uses ${k}, "
+                       f"so the value would change nothing")
+        else:
+            close = difflib.get_close_matches(k, names, n=1)
+            problem = f"the scene has no parameter ${shorten(k)}" + (f" (did you mean '{close[0]}'?)" if close else "")
+        raise SceneError(f"{what}: {problem}; the scene's parameters: {_names(names)}")
 
 
 def _param_str(v) -> str:
