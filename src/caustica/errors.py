@@ -15,3 +15,14 @@ class SceneError(CausticaError):
 
 class ParameterError(CausticaError):
     """A render parameter out of range, misspelt, or asking for more memory than the machine has."""
+
+
+class OutputError(CausticaError, OSError):
+    """An output that cannot be written (a folder in the way, an input, a full disk, no permission).
+
+    It is also an OSError, so code that handles I/O failures keeps working; nothing was replaced.
+    """
+
+
+class InterruptedAfterSaving(KeyboardInterrupt):
+    """Ctrl-C arrived while a set of outputs was being renamed into place: the set was completed first."""
