@@ -114,3 +114,4 @@ class SceneDescription:
     integrator: str = "path"
     integrator_props: dict = field(default_factory=dict)
     source: str = ""  # the file it came from, or the built-in name
+    files: list = field(default_factory=list)  # the scene file and every mesh file it read (Paths)

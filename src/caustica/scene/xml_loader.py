@@ -214,6 +214,7 @@ class _Loader:
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
         self.default_material: int | None = None
+        self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None):
@@ -456,6 +457,7 @@ class _Loader:
                     self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
                 try:
                     path = find_data_file(props.get("filename"), self.base_dir)
+                    self.files.append(Path(path))
                     local = load_mesh_file(path, kind)
                 except SceneError as exc:
                     self.fail(props.node_of("filename"), str(exc))
@@ -626,7 +628,9 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
         params[str(k)] = _param_str(v)
     loader.params = params
     loader.substitute(root)
-    return loader.scene(root)
+    desc = loader.scene(root)
+    desc.files = loader.files
+    return desc
 
 
 def _param_str(v) -> str:
@@ -646,4 +650,6 @@ def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) ->
         data = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
-    return parse_scene_string(data, path.parent, defaults, str(path))
+    desc = parse_scene_string(data, path.parent, defaults, str(path))
+    desc.files.insert(0, path)
+    return desc
