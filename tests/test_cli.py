@@ -704,3 +704,58 @@ def test_exposure_at_the_limit_is_accepted(cli, tmp_path):
     with Image.open(tmp_path / "x.png") as im:
         assert np.asarray(im).max() == 255
 
+
+# ----------------------------------------------------------------------------- compare
+
+
+def _exr(path: Path, image) -> Path:
+    imageio.write_exr(path, np.asarray(image, np.float32))
+    return path
+
+
+def test_compare_refuses_images_with_non_finite_pixels(cli, tmp_path):
+    """An all-NaN image used to be scored exactly like an all-black one."""
+    ref = _exr(tmp_path / "ref.exr", np.full((8, 8, 3), 0.5))
+    nan = _exr(tmp_path / "nan.exr", np.full((8, 8, 3), np.nan))
+    one_inf = np.full((8, 8, 3), 0.5)
+    one_inf[2, 5, 1] = np.inf
+    inf = _exr(tmp_path / "inf.exr", one_inf)
+    code, out, err = cli("compare", nan, ref, "--no-flip")
+    assert code == 2 and out == ""
+    assert "nan.exr" in _one_line_error(err) and "64 of 64" in err and "not finite" in err
+    code, _, err = cli("compare", ref, inf, "--no-flip")
+    assert code == 2 and "inf.exr" in _one_line_error(err) and "x=5, y=2" in err
+
+
+def test_compare_explains_a_zero_reference(cli, tmp_path):
+    zero = _exr(tmp_path / "zero.exr", np.zeros((8, 8, 3)))
+    test = _exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5))
+    code, out, err = cli("compare", test, zero, "--no-flip")
+    assert code == 0 and err == ""
+    notes = [line for line in out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and "block err" in notes[0] and "reference is zero" in notes[0]
+    code, out, _ = cli("compare", zero, zero, "--no-flip")
+    assert code == 0 and "note:" not in out  # equal images: every error is 0, even against zero
+    assert out.splitlines()[1].split()[1:3] == ["0", "0"]
+
+
+def test_compare_flip_against_a_black_reference_is_explained_not_fatal(tmp_path):
+    """FLIP ends the whole process (exit 255) on a black reference; run it in a subprocess to see."""
+    zero = _exr(tmp_path / "zero.exr", np.zeros((8, 8, 3)))
+    test = _exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5))
+    proc = subprocess.run([sys.executable, "-m", "caustica", "compare", str(test), str(zero)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "note: FLIP over the whole image is nan" in proc.stdout and "exposure" in proc.stdout
+
+
+def test_compare_unreadable_files_are_one_line(cli, tmp_path):
+    good = _exr(tmp_path / "a.exr", np.random.default_rng(6).random((8, 8, 3)))
+    data = good.read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
+    (tmp_path / "mask.png").write_text("this is not a PNG")
+    for args, word in (((tmp_path / "cut.exr", good), "cut.exr"), ((good, tmp_path / "cut.exr"), "cut.exr"),
+                       ((good, good, "--mask", tmp_path / "mask.png"), "mask.png")):
+        code, out, err = cli("compare", *args, "--no-flip")
+        assert code == 2 and out == ""
+        assert word in _one_line_error(err)

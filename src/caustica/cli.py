@@ -244,18 +244,27 @@ def _cmd_experiment(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from .experiments.metrics import METRIC_LABELS, all_metrics
+    import math
+
+    from .experiments.metrics import METRIC_LABELS, all_metrics, require_finite, undefined_reason
     from .imageio import read_exr, read_png_mask
     test, ref = read_exr(args.test), read_exr(args.ref)
+    require_finite(test, args.test)
+    require_finite(ref, args.ref)
     mask = read_png_mask(args.mask) if args.mask else None
     values = all_metrics(test, ref, mask, with_flip=not args.no_flip)
     names = [m for m in METRIC_LABELS if m in values]
     print(f"{'region':10s} " + " ".join(f"{METRIC_LABELS[m]:>12s}" for m in names))
-    regions = [("whole", "")] + ([("mask", "caustic_")] if mask is not None else [])
-    for title, prefix in regions:
+    regions = [("whole", "", None)] + ([("mask", "caustic_", mask)] if mask is not None else [])
+    for title, prefix, _ in regions:
         print(f"{title:10s} " + " ".join(f"{values[prefix + m]:12.6g}" for m in names))
     if mask is not None:
         print(f"mask: {int(mask.sum())} of {mask.size} pixels")
+    for title, prefix, m in regions:
+        for name in names:
+            if math.isnan(values[prefix + name]):
+                print(f"note: {METRIC_LABELS[name]} over the {'mask' if m is not None else 'whole image'} is nan: "
+                      f"{undefined_reason(name, test, ref, m)}")
     return 0
 
 
