@@ -540,7 +540,7 @@ def test_failed_exr_write_leaves_previous_file_and_no_temporary(cli, tmp_path, m
     assert after == before
 
 
-# ----------------------------------------------------------------------------- outputs: never over an input, folders, devices
+# ----------------------------------------------------------------------------- outputs: inputs, folders, devices
 
 
 def _no_render(monkeypatch):

@@ -432,7 +432,8 @@ def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
         coded = [line for line in said if "EXR_ERR" in line]
         detail = (coded or said or [str(failure) or type(failure).__name__])[0]
         detail = detail.removeprefix(f"{p}: ").removeprefix(f"{os.fspath(path)}: ")
-        raise CausticaError(f"cannot read EXR image '{p}': {detail} (a damaged, truncated or non-EXR file)") from None
+        raise CausticaError(f"cannot read EXR image '{p}': {detail} "
+                            "(a damaged, truncated or non-EXR file)") from None
     if said:  # a warning on a file that could be read: pass it on
         print("\n".join(said), file=sys.stderr)
     if all(c in channels for c in "RGB"):
