@@ -482,7 +482,7 @@ def test_seed_changes_the_image_and_same_seed_same_bytes(cli, tmp_path, method):
 
 
 def _leftovers(directory: Path) -> list[str]:
-    return [p.name for p in directory.iterdir() if p.name.endswith(".tmp")]
+    return [p.name for p in directory.iterdir() if p.name.endswith((".tmp", ".old"))]  # temporaries, backups
 
 
 def test_render_interrupted_before_saving_writes_nothing(cli, tmp_path, monkeypatch):
@@ -538,3 +538,224 @@ def test_failed_exr_write_leaves_previous_file_and_no_temporary(cli, tmp_path, m
     assert _leftovers(tmp_path) == []
     after = {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")}
     assert after == before
+
+
+# ----------------------------------------------------------------------------- outputs: inputs, folders, devices
+
+
+def _no_render(monkeypatch):
+    """Make rendering fail loudly, to show that a refusal came before it."""
+    def must_not_render(*a, **k):
+        raise AssertionError("rendered although the output was refused")
+    from caustica import driver, photon_view
+    monkeypatch.setattr(driver, "run", must_not_render)  # every method's passes run here
+    monkeypatch.setattr(photon_view, "photon_picture", must_not_render)
+
+
+def test_render_refuses_to_write_over_its_scene_file(cli, tmp_path, monkeypatch):
+    """A scene file named s.exr and -o s.exr: the scene used to be destroyed."""
+    scene = tmp_path / "s.exr"
+    scene.write_text(MINIMAL_XML)
+    _no_render(monkeypatch)
+    for out in (scene, tmp_path / "s.png", tmp_path / "s"):  # every name of the set is the scene's
+        code, _, err = cli("render", scene, *TINY, "-o", out)
+        assert code == 2
+        assert "input" in _one_line_error(err) and "s.exr" in err
+    (tmp_path / "link.exr").symlink_to(scene)
+    code, _, err = cli("render", scene, *TINY, "-o", tmp_path / "link.exr")
+    assert code == 2 and "input" in _one_line_error(err)
+    assert scene.read_text() == MINIMAL_XML
+    assert _files(tmp_path) == ["link.exr", "s.exr"]
+
+
+def test_render_refuses_to_write_over_a_mesh_the_scene_loads(cli, tmp_path, monkeypatch):
+    (tmp_path / "tri.png").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")  # an OBJ, oddly named
+    xml = tmp_path / "m.xml"
+    xml.write_text(MINIMAL_XML.replace('<shape type="rectangle">',
+                                       '<shape type="obj"><string name="filename" value="tri.png"/>'))
+    _no_render(monkeypatch)
+    code, _, err = cli("render", xml, *TINY, "-o", tmp_path / "tri.exr")
+    assert code == 2 and "tri.png" in _one_line_error(err)
+    assert (tmp_path / "tri.png").read_text().startswith("v 0 0 0")
+    code, _, err = cli("photons", xml, *TINY, "--method", "pm", *SMALL["pm"], "-o", tmp_path / "tri.png")
+    assert code == 2 and "input" in _one_line_error(err)
+    assert _files(tmp_path) == ["m.xml", "tri.png"]
+
+
+def test_output_into_a_folder_uses_the_default_name_and_says_so(cli, tmp_path):
+    folder = tmp_path / "existing"
+    folder.mkdir()
+    code, out, err = cli("render", SCENE, "--res", "8", "--spp", "1", "-o", folder)
+    assert code == 0 and "Traceback" not in err
+    assert "is a folder" in err and f"{SCENE}_pt.exr" in err
+    assert _files(folder) == [f"{SCENE}_pt.{ext}" for ext in ("exr", "json", "png")]
+    code, _, err = cli("render", SCENE, *TINY, "-o", f"{tmp_path / 'new'}{os.sep}")
+    assert code == 0, err
+    assert _files(tmp_path / "new") == [f"{SCENE}_pt.{ext}" for ext in ("exr", "json", "png")]
+    assert not (tmp_path / "new.exr").exists() and not (tmp_path / "existing.exr").exists()
+
+
+def test_photons_into_a_folder_uses_the_default_name(cli, tmp_path):
+    code, _, err = cli("photons", SCENE, *TINY, "--method", "pm", *SMALL["pm"], "-o", tmp_path)
+    assert code == 0, err
+    assert _files(tmp_path) == [f"{SCENE}_pm_photons.png"]
+
+
+@pytest.mark.parametrize("command", ["render", "photons"])
+def test_output_onto_a_device_is_refused_before_rendering(cli, tmp_path, monkeypatch, command):
+    _no_render(monkeypatch)
+    code, _, err = cli(command, SCENE, *TINY, "-o", "/dev/null")
+    assert code == 2 and "/dev/null" in _one_line_error(err)
+    assert not Path("/dev/null.exr").exists() and not Path("/dev/null.png").exists()
+
+
+def test_a_json_target_that_is_a_folder_is_refused_before_rendering(cli, tmp_path, monkeypatch):
+    out = tmp_path / "x.exr"
+    _render(cli, out, "--seed", "1")
+    before = {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png")}
+    (tmp_path / "x.json").unlink()
+    (tmp_path / "x.json").mkdir()
+    _no_render(monkeypatch)
+    code, _, err = cli("render", SCENE, *TINY, "--seed", "2", "-o", out)
+    assert code == 2 and "x.json" in _one_line_error(err) and "folder" in err
+    assert {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png")} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.exr", "x.json", "x.png"]
+
+
+def test_a_failed_json_rename_keeps_the_previous_set_whole(cli, tmp_path, monkeypatch):
+    """The last rename of the set fails: the EXR and PNG already renamed are put back."""
+    out = tmp_path / "x.exr"
+    _render(cli, out, "--seed", "1")
+    before = {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")}
+    real_replace = imageio.os.replace
+
+    def replace(src, dst):
+        if Path(dst).name == "x.json":
+            raise PermissionError(13, "Permission denied")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(imageio.os, "replace", replace)
+    code, _, err = cli("render", SCENE, *TINY, "--seed", "2", "-o", out)
+    assert code == 2 and "x.json" in _one_line_error(err) and "Permission denied" in err
+    assert {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.exr", "x.json", "x.png"]
+
+
+def test_photons_write_failure_is_one_line(cli, tmp_path, monkeypatch):
+    def full(tmp):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(imageio, "png_writer", lambda image, exposure_stops=0.0: full)
+    code, _, err = cli("photons", SCENE, *TINY, "--method", "pm", *SMALL["pm"], "-o", tmp_path / "p.png")
+    assert code == 2 and "No space left on device" in _one_line_error(err)
+    assert _files(tmp_path) == []
+
+
+@pytest.mark.parametrize("exc", [RuntimeError('Failed to write pixel data to image file "{tmp}". '
+                                              'No space left on device.'), OSError(28, "No space left on device")],
+                         ids=["openexr-runtime-error", "oserror"])
+def test_full_disk_is_one_line_and_keeps_the_previous_set(cli, tmp_path, monkeypatch, exc):
+    """OpenEXR reports a full disk as RuntimeError (only OSError used to be caught: a traceback)."""
+    import OpenEXR
+
+    out = tmp_path / "x.exr"
+    _render(cli, out, "--seed", "1")
+    before = {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")}
+    real_file = OpenEXR.File
+
+    class FullDisk:
+        def __init__(self, *a, **k):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def write(self, name):
+            Path(name).write_bytes(b"v/1\x01 half")
+            raise type(exc)(*[str(a).replace("{tmp}", name) for a in exc.args]) if isinstance(
+                exc, RuntimeError) else exc
+
+    monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    code, _, err = cli("render", SCENE, *TINY, "--seed", "2", "-o", out)
+    monkeypatch.setattr(OpenEXR, "File", real_file)
+    assert code == 2 and "No space left on device" in _one_line_error(err)
+    assert ".tmp" not in err  # the message names the output, not a temporary
+    assert {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.exr", "x.json", "x.png"]
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "1e6", "-151"])
+def test_bad_exposure_is_refused_before_rendering(cli, tmp_path, monkeypatch, value):
+    """--exposure nan wrote a black PNG and null in the JSON; 1e6 raised OverflowError."""
+    _no_render(monkeypatch)
+    code, _, err = cli("render", SCENE, *TINY, f"--exposure={value}", "-o", tmp_path / "x.exr")
+    assert code == 2
+    line = _one_line_error(err)
+    assert "--exposure" in line and "-150" in line and "150" in line
+    assert _files(tmp_path) == []
+
+
+def test_exposure_at_the_limit_is_accepted(cli, tmp_path):
+    stats = _render(cli, tmp_path / "x.exr", "--exposure", "150")
+    assert stats["preview_exposure_stops"] == 150.0
+    from PIL import Image
+    with Image.open(tmp_path / "x.png") as im:
+        assert np.asarray(im).max() == 255
+
+
+# ----------------------------------------------------------------------------- compare
+
+
+def _exr(path: Path, image) -> Path:
+    imageio.write_exr(path, np.asarray(image, np.float32))
+    return path
+
+
+def test_compare_refuses_images_with_non_finite_pixels(cli, tmp_path):
+    """An all-NaN image used to be scored exactly like an all-black one."""
+    ref = _exr(tmp_path / "ref.exr", np.full((8, 8, 3), 0.5))
+    nan = _exr(tmp_path / "nan.exr", np.full((8, 8, 3), np.nan))
+    one_inf = np.full((8, 8, 3), 0.5)
+    one_inf[2, 5, 1] = np.inf
+    inf = _exr(tmp_path / "inf.exr", one_inf)
+    code, out, err = cli("compare", nan, ref, "--no-flip")
+    assert code == 2 and out == ""
+    assert "nan.exr" in _one_line_error(err) and "64 of 64" in err and "not finite" in err
+    code, _, err = cli("compare", ref, inf, "--no-flip")
+    assert code == 2 and "inf.exr" in _one_line_error(err) and "x=5, y=2" in err
+
+
+def test_compare_explains_a_zero_reference(cli, tmp_path):
+    zero = _exr(tmp_path / "zero.exr", np.zeros((8, 8, 3)))
+    test = _exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5))
+    code, out, err = cli("compare", test, zero, "--no-flip")
+    assert code == 0 and err == ""
+    notes = [line for line in out.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and "block err" in notes[0] and "reference is zero" in notes[0]
+    code, out, _ = cli("compare", zero, zero, "--no-flip")
+    assert code == 0 and "note:" not in out  # equal images: every error is 0, even against zero
+    assert out.splitlines()[1].split()[1:3] == ["0", "0"]
+
+
+def test_compare_flip_against_a_black_reference_is_explained_not_fatal(tmp_path):
+    """FLIP ends the whole process (exit 255) on a black reference; run it in a subprocess to see."""
+    zero = _exr(tmp_path / "zero.exr", np.zeros((8, 8, 3)))
+    test = _exr(tmp_path / "t.exr", np.full((8, 8, 3), 0.5))
+    proc = subprocess.run([sys.executable, "-m", "caustica", "compare", str(test), str(zero)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "note: FLIP over the whole image is nan" in proc.stdout and "exposure" in proc.stdout
+
+
+def test_compare_unreadable_files_are_one_line(cli, tmp_path):
+    good = _exr(tmp_path / "a.exr", np.random.default_rng(6).random((8, 8, 3)))
+    data = good.read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[: len(data) // 2])
+    (tmp_path / "mask.png").write_text("this is not a PNG")
+    for args, word in (((tmp_path / "cut.exr", good), "cut.exr"), ((good, tmp_path / "cut.exr"), "cut.exr"),
+                       ((good, good, "--mask", tmp_path / "mask.png"), "mask.png")):
+        code, out, err = cli("compare", *args, "--no-flip")
+        assert code == 2 and out == ""
+        assert word in _one_line_error(err)

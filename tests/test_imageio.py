@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ def _srgb_formula(c: float) -> int:
 
 
 def _leftovers(directory: Path) -> list[str]:
-    return [p.name for p in directory.iterdir() if p.name.endswith(".tmp")]
+    return [p.name for p in directory.iterdir() if p.name.endswith((".tmp", ".old"))]  # temporaries, backups
 
 
 # ----------------------------------------------------------------------------- EXR
@@ -325,3 +326,274 @@ def test_atomic_write_all_replaces_nothing_when_any_writer_fails(tmp_path):
     imageio.atomic_write_all([(p, ok(b"new " + p.name.encode())) for p in paths])
     assert [p.read_bytes() for p in paths] == [b"new a.bin", b"new b.bin", b"new c.bin"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.bin", "c.bin"]
+
+
+# ----------------------------------------------------------------------------- a set, whole or not at all
+
+
+def _old_set(tmp_path: Path) -> tuple[list[Path], dict[str, bytes]]:
+    paths = [tmp_path / name for name in ("r.exr", "r.png", "r.json")]
+    for p in paths:
+        p.write_bytes(b"old " + p.name.encode())
+    return paths, {p.name: p.read_bytes() for p in paths}
+
+
+def _new(data: bytes):
+    return lambda tmp: tmp.write_bytes(data)
+
+
+@pytest.mark.parametrize("failing", ["r.exr", "r.png", "r.json"])
+def test_a_failed_rename_puts_the_whole_previous_set_back(tmp_path, monkeypatch, failing):
+    """The JSON (or any) rename fails after the others were done: those are undone, nothing is left."""
+    from caustica.errors import OutputError
+
+    paths, before = _old_set(tmp_path)
+    real_replace = imageio.os.replace
+
+    def replace(src, dst):
+        if Path(dst).name == failing:
+            raise PermissionError(13, "Permission denied")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(imageio.os, "replace", replace)
+    with pytest.raises(OutputError, match=f"{failing}.*Permission denied"):
+        imageio.atomic_write_all([(p, _new(b"new")) for p in paths])
+    assert {p.name: p.read_bytes() for p in paths} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr", "r.json", "r.png"]  # no temporary, no backup
+
+
+def test_a_failed_rename_of_a_new_set_leaves_no_file(tmp_path, monkeypatch):
+    from caustica.errors import OutputError
+
+    real_replace = imageio.os.replace
+
+    def replace(src, dst):
+        if Path(dst).suffix == ".json":
+            raise OSError(5, "Input/output error")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(imageio.os, "replace", replace)
+    with pytest.raises(OutputError):
+        imageio.atomic_write_all([(tmp_path / n, _new(b"new")) for n in ("r.exr", "r.png", "r.json")])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_target_that_is_a_folder_is_refused_before_anything_is_written(tmp_path):
+    from caustica.errors import OutputError
+
+    paths, before = _old_set(tmp_path)
+    paths[2].unlink()
+    paths[2].mkdir()  # r.json is a folder
+    written = []
+    with pytest.raises(OutputError, match="r.json.*folder"):
+        imageio.atomic_write_all([(p, lambda tmp: written.append(tmp)) for p in paths])
+    assert written == []
+    assert [p.read_bytes() for p in paths[:2]] == [before["r.exr"], before["r.png"]]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr", "r.json", "r.png"]
+
+
+@pytest.mark.parametrize("how", ["same path", "hard link", "symlink"])
+def test_an_output_that_is_an_input_is_refused(tmp_path, how):
+    from caustica.errors import OutputError
+
+    scene = tmp_path / "scene.exr"
+    scene.write_text("<scene/>")
+    target = {"same path": scene, "hard link": tmp_path / "h.exr", "symlink": tmp_path / "l.exr"}[how]
+    if how == "hard link":
+        os.link(scene, target)
+    elif how == "symlink":
+        target.symlink_to(scene)
+    with pytest.raises(OutputError, match="input"):
+        imageio.atomic_write(target, _new(b"image"), inputs=[scene])
+    assert scene.read_text() == "<scene/>"
+    with pytest.raises(OutputError, match="input"):
+        _result().save(tmp_path / "other" / ".." / "scene.exr", inputs=[scene])
+    assert scene.read_text() == "<scene/>"
+    assert _leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("given", ["{d}", "{d}/", "{d}/new/", "/dev/null", ""])
+def test_output_paths_refuses_folders_and_devices(tmp_path, given):
+    """'dir/' would have written dir.exr beside the folder, /dev/null /dev/null.exr."""
+    path = given.format(d=tmp_path)
+    with pytest.raises(ParameterError, match="folder|no file name|not a regular file"):
+        imageio.output_paths(path)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_into_a_device_is_refused(tmp_path):
+    from caustica.errors import OutputError
+
+    with pytest.raises(OutputError, match="not a regular file"):
+        imageio.atomic_write("/dev/null", _new(b"x"))
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_stale_temporaries_of_dead_processes_are_removed_on_the_next_save(tmp_path):
+    host = imageio._host_tag()
+    dead, alive = _dead_pid(), os.getppid()
+    stale = [f".r.exr.caustica-{host}-{dead}-abc123.tmp", f".r.exr.caustica-{host}-{dead}-abc123.old"]
+    kept = [f".r.exr.caustica-{host}-{alive}-zzz.tmp",        # a save in progress elsewhere
+            f".r.exr.caustica-otherhost-{dead}-q.tmp",         # another machine's (a shared folder)
+            f".r.png.caustica-{host}-{dead}-abc.tmp",          # another output's
+            ".r.exr.x1y2.tmp", "notes.txt"]                    # not ours
+    for name in stale + kept:
+        (tmp_path / name).write_text("junk")
+    imageio.atomic_write(tmp_path / "r.exr", _new(b"new"))
+    assert (tmp_path / "r.exr").read_bytes() == b"new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(kept + ["r.exr"])
+
+
+def test_temporary_of_a_killed_process_is_removed_by_the_next_save(tmp_path):
+    """A process SIGKILLed while writing leaves its temporary; the next save of that output removes it."""
+    import subprocess
+    import sys
+
+    code = ("import os, signal, sys\n"
+            "from caustica import imageio\n"
+            "def writer(tmp):\n"
+            "    tmp.write_bytes(b'half')\n"
+            "    os.kill(os.getpid(), signal.SIGKILL)\n"
+            "imageio.atomic_write(sys.argv[1], writer)\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "r.exr")], env=env, timeout=120)
+    assert proc.returncode == -9
+    left = [p.name for p in tmp_path.iterdir()]
+    assert len(left) == 1 and left[0].startswith(".r.exr.caustica-") and left[0].endswith(".tmp")
+    imageio.write_exr(tmp_path / "r.exr", np.ones((2, 2, 3)))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr"]
+
+
+def test_ctrl_c_during_the_renames_is_held_until_the_set_is_complete(tmp_path, monkeypatch):
+    import signal
+
+    from caustica.errors import InterruptedAfterSaving
+
+    paths, _ = _old_set(tmp_path)
+    real_replace = imageio.os.replace
+
+    def replace(src, dst):
+        if Path(dst).name == "r.exr":
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C right after the first rename begins
+        real_replace(src, dst)
+
+    monkeypatch.setattr(imageio.os, "replace", replace)
+    with pytest.raises(InterruptedAfterSaving):
+        imageio.atomic_write_all([(p, _new(b"new " + p.name.encode())) for p in paths])
+    assert [p.read_bytes() for p in paths] == [b"new r.exr", b"new r.png", b"new r.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr", "r.json", "r.png"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_openexr_runtime_error_becomes_one_output_error_and_keeps_the_old_file(tmp_path, monkeypatch):
+    """OpenEXR reports a full disk as RuntimeError, not OSError."""
+    import OpenEXR
+
+    from caustica.errors import OutputError
+
+    dest = tmp_path / "img.exr"
+    old = np.full((2, 2, 3), 0.5, np.float32)
+    imageio.write_exr(dest, old)
+
+    class FullDisk:
+        def __init__(self, *a, **k):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def write(self, name):
+            Path(name).write_bytes(b"v/1\x01 half")
+            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space left on device.')
+
+    monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    with pytest.raises(OutputError) as info:
+        imageio.write_exr(dest, np.ones((4, 4, 3)))
+    msg = str(info.value)
+    assert "No space left on device" in msg and str(dest) in msg and ".tmp" not in msg
+    assert isinstance(info.value, OSError)
+    monkeypatch.undo()
+    assert np.array_equal(imageio.read_exr(dest), old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["img.exr"]
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KiB tmpfs (root only; skipped elsewhere): a real full disk."""
+    import subprocess
+
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("needs root and tmpfs to make a full disk")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=True)
+
+
+def test_a_real_full_disk_keeps_the_previous_set(tiny_disk):
+    from caustica.errors import OutputError
+
+    small = RenderResult(np.full((4, 4, 3), 0.25, np.float32), {"method": "pt"})
+    exr, png, js = small.save(tiny_disk / "r.exr")
+    before = [p.read_bytes() for p in (exr, png, js)]
+    big = RenderResult(np.random.default_rng(4).random((128, 128, 3)).astype(np.float32), {"method": "pt"})
+    with pytest.raises(OutputError, match="No space left on device"):
+        big.save(tiny_disk / "r.exr")
+    assert [p.read_bytes() for p in (exr, png, js)] == before
+    assert sorted(p.name for p in tiny_disk.iterdir()) == ["r.exr", "r.json", "r.png"]
+
+
+# ----------------------------------------------------------------------------- exposure, unreadable inputs
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), 1e6, 150.5, "abc", None, True])
+def test_exposure_must_be_finite_and_in_range(tmp_path, bad):
+    with pytest.raises(ParameterError, match="--exposure"):
+        imageio.to_srgb8(np.ones((1, 1, 3)), bad)
+    with pytest.raises(ParameterError, match="--exposure"):
+        _result().save(tmp_path / "r.exr", exposure_stops=bad)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_exposure_limits_are_where_nothing_changes_any_more():
+    tiny, huge = np.float32(2.0 ** -149), np.finfo(np.float32).max
+    img = np.array([[[tiny, huge, 1.0]]], np.float32)
+    assert imageio.to_srgb8(img, 150).tolist() == [[[255, 255, 255]]]
+    assert imageio.to_srgb8(img, -150).tolist() == [[[0, 0, 0]]]
+
+
+def test_truncated_exr_is_one_error_and_prints_nothing(tmp_path, capfd):
+    from caustica.errors import CausticaError
+
+    imageio.write_exr(tmp_path / "a.exr", np.random.default_rng(5).random((16, 16, 3)))
+    data = (tmp_path / "a.exr").read_bytes()
+    (tmp_path / "t.exr").write_bytes(data[: len(data) // 2])
+    capfd.readouterr()
+    with pytest.raises(CausticaError, match="t.exr") as info:
+        imageio.read_exr(tmp_path / "t.exr")
+    assert "\n" not in str(info.value)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""  # OpenEXR's own lines are caught, not printed around the error
+
+
+@pytest.mark.parametrize("content", [b"not an image at all", b"\x89PNG\r\n\x1a\n truncated"])
+def test_a_mask_that_is_not_an_image_is_one_error(tmp_path, content):
+    from caustica.errors import CausticaError
+
+    (tmp_path / "m.png").write_bytes(content)
+    with pytest.raises(CausticaError, match="m.png"):
+        imageio.read_png_mask(tmp_path / "m.png")

@@ -180,7 +180,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     out["peak_memory_bytes"] = peak_memory_bytes()
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     aovs = {name: cls.aov(scene, settings, state, name) for name in aov}
-    return RenderResult(image, out, aovs)
+    return RenderResult(image, out, aovs, inputs=tuple(scene.description.files))
 
 
 def _check_aovs(cls, aov):

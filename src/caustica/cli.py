@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
-from .errors import CausticaError, ParameterError
+from .errors import CausticaError, InterruptedAfterSaving, ParameterError
 
 EXIT_USAGE = 2
 
@@ -87,19 +87,25 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(EXIT_USAGE)
 
 
-def _check_output_folder(path: Path) -> None:
-    """Refuse, before rendering, an output whose folder could not be created or written.
+def _output_path(given, default_name: str, quiet: bool) -> str:
+    """The output path for ``-o given``: a folder (one that exists, or any path ending in a slash)
+    means default_name inside that folder, and says so; no -o means out/default_name."""
+    if given is None:
+        return f"out/{default_name}"
+    if not given:
+        raise ParameterError("-o: the output path is empty; give e.g. -o out/render.exr")
+    if given.endswith(os.sep) or (os.altsep and given.endswith(os.altsep)) or Path(given).is_dir():
+        path = str(Path(given) / default_name)
+        if not quiet:
+            print(f"caustica: -o {given} is a folder: writing {path} there", file=sys.stderr)
+        return path
+    return given
 
-    Nothing is created here: the folder is made when the files are saved.
-    """
-    folder = Path(path).parent.resolve()
-    existing = folder
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ParameterError(f"-o {path}: cannot create the folder {folder}: {existing} is a file")
-    if not os.access(existing, os.W_OK):
-        raise ParameterError(f"-o {path}: the folder {existing} is not writable")
+
+def _check_outputs(paths, given, inputs=()) -> None:
+    """Refuse, before rendering, outputs that could not be written (see imageio.check_outputs)."""
+    from .imageio import check_outputs
+    check_outputs(paths, inputs, label=f"-o {given}")
 
 
 def _build_parser():
@@ -115,9 +121,10 @@ def _build_parser():
                        description="Render SCENE (an XML file or a built-in name) and write "
                                    "an OpenEXR image, a PNG preview and a JSON sidecar.")
     _add_render_options(r, sorted(methods.available()), "pt",
-                        "output image path, .exr (default: out/<scene>_<method>.exr); "
-                        "the .png and .json go beside it")
-    r.add_argument("--exposure", type=float, default=0.0, help="PNG preview exposure in stops (default 0)")
+                        "output image path, .exr (default: out/<scene>_<method>.exr); the .png and "
+                        ".json go beside it; a folder (or a path ending in /) means <scene>_<method>.exr in it")
+    r.add_argument("--exposure", type=float, default=0.0,
+                   help="PNG preview exposure in stops, between -150 and 150 (default 0)")
     prog = r.add_argument_group("progressive rendering (pt, sppm, pspm)")
     prog.add_argument("--passes", type=int, help="passes to render (pt: --spp samples per pixel each, default 1; "
                                                  "sppm/pspm: one visible point per pixel and a photon pass each)")
@@ -135,7 +142,8 @@ def _build_parser():
                         description="Trace the photon map(s) of a photon method and write a PNG of the "
                                     "stored records projected into the camera view, coloured by power: "
                                     "pm shows the global | caustic map, spm the leading | associated photons.")
-    _add_render_options(ph, ["pm", "spm"], "spm", "output PNG path (default: out/<scene>_<method>_photons.png)")
+    _add_render_options(ph, ["pm", "spm"], "spm", "output PNG path (default: out/<scene>_<method>_photons.png; "
+                                                  "a folder means that name in it)")
 
     ex = sub.add_parser("experiment", help="run the paper's experiments against a converged reference",
                         description="Run the paper's experiments (table1, table2, table3, fig5, fig6, fig8, "
@@ -187,24 +195,27 @@ def _note_integrator(scene, method: str, params: dict) -> None:
         print(f"caustica: note: {note}", file=sys.stderr)
 
 
+def _default_stem(scene: str) -> str:
+    return Path(scene).stem if scene.endswith(".xml") or Path(scene).is_file() else scene
+
+
 def _cmd_render(args) -> int:
     from .api import load_scene, render
-    from .imageio import output_paths
+    from .imageio import check_exposure, output_paths
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     defines = _parse_defines(args.defines)
-    if args.output is None:
-        stem = Path(args.scene).stem if args.scene.endswith(".xml") else args.scene
-        args.output = f"out/{stem}_{args.method}.exr"
-    _check_output_folder(output_paths(args.output)[0])  # refuse before spending time rendering
+    exposure = check_exposure(args.exposure)
+    given = args.output
+    args.output = _output_path(given, f"{_default_stem(args.scene)}_{args.method}.exr", args.quiet)
+    outputs = output_paths(args.output)
+    _check_outputs(outputs, args.output)  # refuse before spending time loading and rendering
     scene = load_scene(args.scene, **defines)
+    _check_outputs(outputs, args.output, scene.description.files)  # never write over an input
     _note_integrator(scene, args.method, params)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
                     checkpoint=args.checkpoint, aov=args.aov or (), **params)
-    try:
-        exr, png, js = result.save(args.output, exposure_stops=args.exposure)
-    except OSError as exc:
-        raise CausticaError(f"-o {args.output}: cannot write the output: {exc.strerror or exc}") from None
+    exr, png, js = result.save(args.output, exposure_stops=exposure, inputs=scene.description.files)
     if result.stats.get("interrupted"):
         print(f"caustica: interrupted after {result.stats['passes']} passes; wrote the image of those passes",
               file=sys.stderr)
@@ -221,18 +232,17 @@ def _cmd_photons(args) -> int:
     from .imageio import write_png
     from .photon_view import photon_picture
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
-    if args.output is None:
-        stem = Path(args.scene).stem if args.scene.endswith(".xml") else args.scene
-        args.output = f"out/{stem}_{args.method}_photons.png"
+    args.output = _output_path(args.output, f"{_default_stem(args.scene)}_{args.method}_photons.png", args.quiet)
     if Path(args.output).suffix.lower() != ".png":
         raise ParameterError(f"-o {args.output}: the photon picture is a .png file")
-    _check_output_folder(Path(args.output))
+    _check_outputs([Path(args.output)], args.output)
     scene = load_scene(args.scene, **_parse_defines(args.defines))
+    _check_outputs([Path(args.output)], args.output, scene.description.files)
     scene, cls, settings = resolve_settings(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                                             threads=args.threads, **params)
     _note_integrator(scene, args.method, params)
     picture, stats = photon_picture(scene, cls, settings, progress_factory(not args.quiet))
-    write_png(args.output, picture)
+    write_png(args.output, picture, inputs=scene.description.files)
     if not args.quiet:
         print(f"{scene.name}: {stats['photons_stored']:,} photons stored ({' | '.join(stats['panels'])}) "
               f"-> {args.output}")
@@ -256,7 +266,7 @@ def _cmd_experiment(args) -> int:
             own = {p.name for p in cls.params}
             methods.params.resolve(m, cls.params, {k: v for k, v in params.items() if k in own})
     out = Path(args.output)
-    _check_output_folder(out / "report.md")
+    _check_outputs([out / "report.md"], args.output)
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
@@ -269,18 +279,27 @@ def _cmd_experiment(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from .experiments.metrics import METRIC_LABELS, all_metrics
+    import math
+
+    from .experiments.metrics import METRIC_LABELS, all_metrics, require_finite, undefined_reason
     from .imageio import read_exr, read_png_mask
     test, ref = read_exr(args.test), read_exr(args.ref)
+    require_finite(test, args.test)
+    require_finite(ref, args.ref)
     mask = read_png_mask(args.mask) if args.mask else None
     values = all_metrics(test, ref, mask, with_flip=not args.no_flip)
     names = [m for m in METRIC_LABELS if m in values]
     print(f"{'region':10s} " + " ".join(f"{METRIC_LABELS[m]:>12s}" for m in names))
-    regions = [("whole", "")] + ([("mask", "caustic_")] if mask is not None else [])
-    for title, prefix in regions:
+    regions = [("whole", "", None)] + ([("mask", "caustic_", mask)] if mask is not None else [])
+    for title, prefix, _ in regions:
         print(f"{title:10s} " + " ".join(f"{values[prefix + m]:12.6g}" for m in names))
     if mask is not None:
         print(f"mask: {int(mask.sum())} of {mask.size} pixels")
+    for title, prefix, m in regions:
+        for name in names:
+            if math.isnan(values[prefix + name]):
+                print(f"note: {METRIC_LABELS[name]} over the {'mask' if m is not None else 'whole image'} is nan: "
+                      f"{undefined_reason(name, test, ref, m)}")
     return 0
 
 
@@ -321,6 +340,9 @@ def main(argv=None) -> int:
     except CausticaError as exc:
         print(f"caustica: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except InterruptedAfterSaving:
+        print("caustica: interrupted; the outputs had been written in full", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("caustica: interrupted; no output file was replaced", file=sys.stderr)
         return 130

@@ -43,3 +43,14 @@ def quoted(value, limit: int = QUOTE_LIMIT) -> str:
     """:func:`shorten`, quoted like repr(): ``'1.x'``, ``'99999...99999999' (5,000 characters)``."""
     cut, length = _cut(str(value), limit)
     return repr(cut) + length
+
+
+class OutputError(CausticaError, OSError):
+    """An output that cannot be written (a folder in the way, an input, a full disk, no permission).
+
+    It is also an OSError, so code that handles I/O failures keeps working; nothing was replaced.
+    """
+
+
+class InterruptedAfterSaving(KeyboardInterrupt):
+    """Ctrl-C arrived while a set of outputs was being renamed into place: the set was completed first."""

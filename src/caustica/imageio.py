@@ -1,24 +1,36 @@
 """Reading and writing caustica's outputs: OpenEXR images, sRGB PNG previews and JSON sidecars.
 
-Every writer goes through `atomic_write`, so a failed or interrupted render never leaves a
-broken or half-written file where a good one was (SPEC §5).
+Every writer goes through `atomic_write_all`, so a failed or interrupted render never leaves a
+broken or half-written file where a good one was, never replaces part of a set (EXR + PNG +
+JSON) and never writes over one of its inputs (SPEC §5).
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
 import os
+import re
+import shutil
+import signal
+import socket
+import sys
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from caustica.errors import CausticaError, ParameterError
+from caustica.errors import CausticaError, InterruptedAfterSaving, OutputError, ParameterError
 
 __all__ = [
     "atomic_write",
+    "atomic_write_all",
+    "check_outputs",
+    "remove_stale_temporaries",
+    "check_exposure",
     "write_exr",
     "read_exr",
     "to_srgb8",
@@ -63,53 +75,232 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def atomic_write(path: str | os.PathLike[str], writer: Callable[[Path], Any]) -> Path:
-    """Write `path` atomically: `writer(tmp_path)` fills a temporary file, which then replaces `path`.
+def _host_tag() -> str:
+    """This machine's name, letters and digits only, so that temporaries on a shared folder say whose they are."""
+    return "".join(c for c in socket.gethostname() if c.isascii() and c.isalnum())[:32] or "host"
 
-    The temporary sits in the destination's directory (same filesystem, so os.replace is an
-    atomic rename); it is fsynced before the rename. On any exception, KeyboardInterrupt
-    included, the temporary is removed, the destination is left exactly as it was, and the
-    exception propagates. Parent directories are created. The writer receives a path (not a
-    file object) so that C libraries such as OpenEXR can write it themselves; it must write
-    to that path and not rename it. Returns the destination path.
+
+#: A temporary of ours: ``.NAME.caustica-HOST-PID-RANDOM.tmp`` (the new file) or ``...old`` (a backup).
+_TEMP_RE = re.compile(r"([A-Za-z0-9]*)-([0-9]+)-\w+\.(?:tmp|old)")  # after ".NAME.caustica-"
+
+
+def _temp_prefix(dest: Path) -> str:
+    return f".{dest.name}.caustica-{_host_tag()}-{os.getpid()}-"
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process `pid` exists on this machine (True when unsure: then nothing is removed)."""
+    if os.name != "posix":
+        return True  # os.kill(pid, 0) is not a harmless probe on Windows
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # e.g. EPERM: it exists but belongs to someone else
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporaries that a killed caustica process left beside `path`; return them.
+
+    Only files named like ours for this very output (``.NAME.caustica-HOST-PID-*.tmp`` or
+    ``.old``), made on this machine by a process that no longer exists, are removed; a save in
+    progress elsewhere, or in this process, is left alone.
     """
     dest = Path(path)
     parent = dest.parent if str(dest.parent) else Path(".")
-    parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    prefix, host, removed = f".{dest.name}.caustica-", _host_tag(), []
     try:
-        writer(tmp)
-        with open(tmp, "rb+") as fh:
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_current_umask())
-        os.replace(tmp, dest)
-    except BaseException:
+        names = os.listdir(parent)
+    except OSError:
+        return removed
+    for name in names:
+        if not name.startswith(prefix):
+            continue
+        m = _TEMP_RE.fullmatch(name[len(prefix):])
+        if m is None or m.group(1) != host:
+            continue
+        pid = int(m.group(2))
+        if pid == os.getpid() or _pid_alive(pid):
+            continue
         try:
-            tmp.unlink()
-        except FileNotFoundError:
+            os.unlink(parent / name)
+            removed.append(parent / name)
+        except OSError:
             pass
-        raise
-    _fsync_dir(parent)
-    return dest
+    return removed
 
 
-def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], Any]]]) -> list[Path]:
-    """Write several files as one: every ``writer(tmp)`` fills its temporary first, then all replace.
-
-    An exception while any file is being written (KeyboardInterrupt included) removes every
-    temporary and leaves all destinations as they were, so a render's EXR, PNG and JSON never
-    mix two renders; only the final renames, one after another, are not a single step.
-    """
-    temps = []
+def _same_file(a: Path, b: Path) -> bool:
     try:
-        for path, writer in files:
-            dest = Path(path)
+        return os.path.samefile(a, b)
+    except OSError:
+        try:
+            return a.resolve() == b.resolve()
+        except (OSError, RuntimeError):
+            return False
+
+
+def check_outputs(paths, inputs=(), label: str | None = None) -> None:
+    """Refuse, before anything is rendered or written, outputs that could not be written whole.
+
+    Each path must not be a folder or anything but a regular file (a device, a FIFO), must not
+    be (or link to) one of `inputs` (the scene file, its meshes: never write over an input),
+    and its folder (or the nearest folder that exists, since missing ones are created) must be
+    a writable folder. Raises OutputError naming the path, prefixed by `label` (e.g. "-o out.exr").
+    """
+    head = f"{label}: " if label else ""
+    inputs = [Path(p) for p in inputs]
+    for given in (Path(p) for p in paths):
+        # where the entry really is: "new/../x" is "x" once "new" is created, and a symlinked
+        # folder is its target (the last component is kept: a symlink there is replaced, not followed)
+        path = Path(os.path.realpath(given.parent if str(given.parent) else ".")) / given.name
+        if path.is_dir():
+            raise OutputError(f"{head}cannot write '{given}': it is a folder")
+        if path.exists() and not path.is_file():
+            raise OutputError(f"{head}cannot write '{given}': it exists and is not a regular file")
+        if path.exists():
+            for inp in inputs:
+                if _same_file(path, inp):
+                    raise OutputError(f"{head}'{given}' would write over '{inp}', an input of this render "
+                                      "(the scene file or a mesh it loads); choose another output name")
+        folder = Path(os.path.abspath(path.parent if str(path.parent) else "."))
+        existing = folder
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if not existing.is_dir():
+            raise OutputError(f"{head}cannot create the folder {folder}: {existing} is a file")
+        if not os.access(existing, os.W_OK | os.X_OK):
+            raise OutputError(f"{head}the folder {existing} is not writable")
+
+
+@contextlib.contextmanager
+def _interrupts_deferred():
+    """Hold Ctrl-C while outputs are renamed into place (a few microseconds): yields a list that
+    records a deferred SIGINT. Only the main thread can do so; elsewhere SIGINT is not delivered."""
+    pending: list[int] = []
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None:
+        yield pending  # not ours to hold (another thread, or a handler installed outside Python)
+        return
+    signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
+    try:
+        yield pending
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pending and previous is not signal.default_int_handler:
+        signal.raise_signal(signal.SIGINT)  # what the previous handler would have done (ignore, exit, ...)
+        pending.clear()
+
+
+def _backup(dest: Path, tmp: Path) -> Path | None:
+    """A second name for the current `dest` (a hard link, or a copy where links are not allowed),
+    so that it can be put back if a later rename of the set fails. None if `dest` does not exist."""
+    if not os.path.lexists(dest):
+        return None
+    backup = tmp.with_name(tmp.name[: -len(".tmp")] + ".old")
+    try:
+        os.link(dest, backup, follow_symlinks=False)
+    except (OSError, NotImplementedError):
+        if dest.is_symlink():
+            os.symlink(os.readlink(dest), backup)
+        else:
+            shutil.copy2(dest, backup)
+    return backup
+
+
+def _unlink_quietly(path: Path | None) -> None:
+    if path is None:
+        return
+    try:
+        path.unlink()
+    except OSError:
+        pass
+
+
+def _output_error(dest: Path, tmp: Path | None, exc: OSError) -> OutputError:
+    reason = (exc.strerror or str(exc) or type(exc).__name__).rstrip(". ")
+    if tmp is not None:
+        reason = reason.replace(str(tmp), str(dest))
+    return OutputError(f"cannot write '{dest}': {reason}; nothing was replaced")
+
+
+def _commit(temps: list[tuple[Path, Path]]) -> None:
+    """Rename every temporary onto its destination, or, if any step fails, put every destination
+    back as it was (the previous file or none) and remove the temporaries and backups."""
+    backups: list[Path | None] = []
+    replaced: list[tuple[Path, Path | None]] = []
+    current = None
+    try:
+        for current in temps:
+            backups.append(_backup(current[1], current[0]))
+        for current, backup in zip(temps, backups):
+            os.replace(*current)
+            replaced.append((current[1], backup))
+    except BaseException as exc:
+        kept = []
+        for dest, backup in reversed(replaced):
+            try:
+                if backup is None:
+                    dest.unlink()
+                else:
+                    os.replace(backup, dest)
+            except OSError:
+                kept.append((dest, backup))
+        for tmp, _ in temps:
+            _unlink_quietly(tmp)
+        for backup in backups:
+            if all(backup != b for _, b in kept):
+                _unlink_quietly(backup)
+        if kept:
+            raise OutputError("the set of outputs could not be put back as it was: " + "; ".join(
+                f"'{d}' is new, " + (f"the previous one is '{b}'" if b else "it did not exist before")
+                for d, b in kept)) from None
+        if isinstance(exc, OSError) and current is not None:
+            raise _output_error(current[1], current[0], exc) from exc
+        raise
+    for backup in backups:
+        _unlink_quietly(backup)
+
+
+def atomic_write(path: str | os.PathLike[str], writer: Callable[[Path], Any], inputs=()) -> Path:
+    """Write `path` atomically: `writer(tmp_path)` fills a temporary file, which then replaces `path`.
+
+    The same as `atomic_write_all` with one file. The writer receives a path (not a file object)
+    so that C libraries such as OpenEXR can write it themselves; it must write to that path and
+    not rename it. Returns the destination path.
+    """
+    return atomic_write_all([(path, writer)], inputs)[0]
+
+
+def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], Any]]], inputs=()) -> list[Path]:
+    """Write several files as one set: each ``writer(tmp)`` fills a temporary, then all replace their
+    destinations together, or none does.
+
+    First `check_outputs(paths, inputs)` refuses folders, non-regular files, inputs and unwritable
+    folders, and temporaries that killed processes left for these outputs are removed
+    (`remove_stale_temporaries`). The temporaries, ``.NAME.caustica-HOST-PID-*.tmp``, sit beside
+    their destinations (same filesystem, so each rename is atomic) and are fsynced. Then every
+    existing destination gets a second name (a hard link: no copy) and the temporaries are renamed
+    into place; if any rename fails, the ones already done are undone, so the previous set stays
+    whole. On any failure, KeyboardInterrupt included, no temporary is left and the exception
+    propagates; an OSError (a full disk, a permission) becomes an OutputError naming the file.
+    Ctrl-C during the renames is held until the set is complete and then raised as
+    InterruptedAfterSaving. Only a process killed during the renames (SIGKILL, a power cut) can
+    leave a set mixing two saves, each file whole. Parent folders are created.
+    """
+    dests = [Path(path) for path, _ in files]
+    check_outputs(dests, inputs)
+    temps: list[tuple[Path, Path]] = []
+    tmp = None
+    try:
+        for dest, (_, writer) in zip(dests, files):
             parent = dest.parent if str(dest.parent) else Path(".")
+            tmp = None
             parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
+            remove_stale_temporaries(dest)
+            fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(dest), suffix=".tmp", dir=parent)
             os.close(fd)
             tmp = Path(tmp_name)
             temps.append((tmp, dest))
@@ -118,18 +309,23 @@ def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], 
                 fh.flush()
                 os.fsync(fh.fileno())
             os.chmod(tmp, 0o666 & ~_current_umask())
+        with _interrupts_deferred() as interrupted:
+            _commit(temps)
+    except OSError as exc:
+        for t, _ in temps:
+            _unlink_quietly(t)
+        if isinstance(exc, OutputError):
+            raise
+        raise _output_error(dest, tmp, exc) from exc
     except BaseException:
-        for tmp, _ in temps:
-            try:
-                tmp.unlink()
-            except FileNotFoundError:
-                pass
+        for t, _ in temps:
+            _unlink_quietly(t)
         raise
-    for tmp, dest in temps:
-        os.replace(tmp, dest)
-    for parent in {dest.parent for _, dest in temps}:
+    for parent in {dest.parent for dest in dests}:
         _fsync_dir(parent if str(parent) else Path("."))
-    return [dest for _, dest in temps]
+    if interrupted:
+        raise InterruptedAfterSaving()
+    return dests
 
 
 # --------------------------------------------------------------------------- OpenEXR
@@ -154,8 +350,11 @@ def exr_writer(image: Any) -> Callable[[Path], None]:
 
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
         channels = {name: np.ascontiguousarray(rgb[:, :, i]) for i, name in enumerate("RGB")}
-        with OpenEXR.File(header, channels) as f:
-            f.write(str(tmp))
+        try:
+            with OpenEXR.File(header, channels) as f:
+                f.write(str(tmp))
+        except RuntimeError as exc:  # OpenEXR's I/O errors (a full disk) are RuntimeErrors
+            raise OSError(str(exc)) from exc
 
     return writer
 
@@ -163,6 +362,50 @@ def exr_writer(image: Any) -> Callable[[Path], None]:
 def write_exr(path: str | os.PathLike[str], image: Any) -> Path:
     """Write a linear RGB image as an OpenEXR file with float32 "R", "G", "B" channels (ZIP), atomically."""
     return atomic_write(path, exr_writer(image))
+
+
+@contextlib.contextmanager
+def _c_output_captured():
+    """While the block runs, what C libraries print on file descriptors 1 and 2 goes to a temporary
+    file; afterwards the yielded list holds that text (OpenEXR prints its own lines about a corrupt
+    file, which would break the one-line error). Python's own sys.stdout/stderr are flushed first."""
+    printed: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, OSError, ValueError):
+            pass
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:
+        yield printed
+        return
+    said = io.StringIO()  # what the bindings print through Python's sys.stdout / sys.stderr
+    with tempfile.TemporaryFile() as sink:
+        try:
+            os.dup2(sink.fileno(), 1)
+            os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+                yield printed
+        finally:
+            _flush_c_stdio()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            sink.seek(0)
+            printed.append(sink.read().decode("utf-8", "replace"))
+            printed.append(said.getvalue())
+
+
+def _flush_c_stdio() -> None:
+    """fflush(NULL): push C stdio buffers out before a file descriptor is switched back."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):
+        pass
 
 
 def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
@@ -176,11 +419,23 @@ def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise CausticaError(f"cannot read EXR image '{p}': no such file")
-    try:
-        with OpenEXR.File(str(p), separate_channels=True) as f:
-            channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
-    except RuntimeError as exc:
-        raise CausticaError(f"cannot read EXR image '{p}': {exc}") from None
+    failure = None
+    with _c_output_captured() as printed:
+        try:
+            with OpenEXR.File(str(p), separate_channels=True) as f:
+                channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+        except Exception as exc:  # RuntimeError, ValueError (a truncated file), MemoryError, ...
+            failure = exc
+    said = [line.strip() for line in "".join(printed).splitlines() if line.strip()]
+    if failure is not None:
+        # OpenEXR's own "(EXR_ERR_...)" line is the most precise; the exception text is the fallback
+        coded = [line for line in said if "EXR_ERR" in line]
+        detail = (coded or said or [str(failure) or type(failure).__name__])[0]
+        detail = detail.removeprefix(f"{p}: ").removeprefix(f"{os.fspath(path)}: ")
+        raise CausticaError(f"cannot read EXR image '{p}': {detail} "
+                            "(a damaged, truncated or non-EXR file)") from None
+    if said:  # a warning on a file that could be read: pass it on
+        print("\n".join(said), file=sys.stderr)
     if all(c in channels for c in "RGB"):
         planes = [channels[c] for c in "RGB"]
     elif "Y" in channels:
@@ -195,11 +450,34 @@ def read_exr(path: str | os.PathLike[str]) -> np.ndarray:
 # --------------------------------------------------------------------------- sRGB / PNG
 
 
+#: The largest preview exposure, in stops, either way. float32 values lie in [2^-149, 2^128), so
+#: at +150 every nonzero pixel is white and at -150 every pixel is black: beyond, nothing changes.
+EXPOSURE_LIMIT = 150.0
+
+
+def check_exposure(exposure_stops: Any) -> float:
+    """The preview exposure as a float, or ParameterError unless it is a finite number of stops
+    within ±EXPOSURE_LIMIT (NaN would make a black preview, 1e6 overflow 2**stops)."""
+    try:
+        value = float(exposure_stops)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError(f"--exposure: '{exposure_stops}' is not a number of stops") from None
+    if isinstance(exposure_stops, bool) or not math.isfinite(value) or abs(value) > EXPOSURE_LIMIT:
+        shown = str(exposure_stops) if len(str(exposure_stops)) <= 40 else str(exposure_stops)[:40] + "..."
+        raise ParameterError(f"--exposure: the preview exposure must be a finite number of stops between "
+                             f"-{EXPOSURE_LIMIT:g} and {EXPOSURE_LIMIT:g} (got {shown}); beyond, every "
+                             "float32 pixel is already black or white")
+    return value
+
+
 def to_srgb8(image: Any, exposure_stops: float = 0.0) -> np.ndarray:
     """Linear RGB to an 8-bit sRGB preview: scale by 2**exposure_stops, clamp to [0, 1], apply the
-    exact piecewise sRGB transfer function, round to nearest (halves up). NaN shows as black."""
+    exact piecewise sRGB transfer function, round to nearest (halves up). NaN shows as black.
+
+    exposure_stops must be finite and within ±EXPOSURE_LIMIT (`check_exposure`)."""
+    scale = 2.0 ** check_exposure(exposure_stops)
     rgb = _as_rgb(image).astype(np.float64)
-    rgb *= 2.0 ** float(exposure_stops)
+    rgb *= scale
     rgb = np.nan_to_num(rgb, nan=0.0, posinf=1.0, neginf=0.0)
     np.clip(rgb, 0.0, 1.0, out=rgb)
     encoded = np.where(
@@ -225,9 +503,9 @@ def png_writer(image: Any, exposure_stops: float = 0.0) -> Callable[[Path], None
     return lambda tmp: tmp.write_bytes(data)
 
 
-def write_png(path: str | os.PathLike[str], image: Any, exposure_stops: float = 0.0) -> Path:
-    """Write the sRGB preview (see `to_srgb8`) of a linear image as a PNG, atomically."""
-    return atomic_write(path, png_writer(image, exposure_stops))
+def write_png(path: str | os.PathLike[str], image: Any, exposure_stops: float = 0.0, inputs=()) -> Path:
+    """Write the sRGB preview (see `to_srgb8`) of a linear image as a PNG, atomically (never onto `inputs`)."""
+    return atomic_write(path, png_writer(image, exposure_stops), inputs)
 
 
 def read_png_mask(path: str | os.PathLike[str]) -> np.ndarray:
@@ -237,12 +515,18 @@ def read_png_mask(path: str | os.PathLike[str]) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise CausticaError(f"cannot read mask image '{p}': no such file")
-    with Image.open(p) as im:
-        if im.mode == "P":
-            im = im.convert("RGBA")
-        if im.mode in ("LA", "PA", "RGBA", "La", "RGBa"):
-            im = im.convert("RGB" if im.mode[0] in "RPr" else "L")
-        arr = np.asarray(im)
+    try:
+        with Image.open(p) as im:
+            if im.mode == "P":
+                im = im.convert("RGBA")
+            if im.mode in ("LA", "PA", "RGBA", "La", "RGBa"):
+                im = im.convert("RGB" if im.mode[0] in "RPr" else "L")
+            arr = np.asarray(im)
+    except Exception as exc:  # not an image, truncated, too large (PIL's errors differ by format)
+        raise CausticaError(f"cannot read mask image '{p}': {exc} (give a PNG; nonzero pixels are "
+                            "inside the mask)") from None
+    if arr.ndim not in (2, 3) or arr.size == 0:
+        raise CausticaError(f"cannot read mask image '{p}': it has no pixels a mask can use (shape {arr.shape})")
     if arr.ndim == 3:
         return np.any(arr != 0, axis=2)
     return arr != 0
@@ -295,11 +579,21 @@ def output_paths(path: str | os.PathLike[str]) -> tuple[Path, Path, Path]:
     """The (name.exr, name.png, name.json) siblings for an output path given as name.exr, name.png or name.
 
     Any other suffix raises ParameterError naming the allowed ones (so "out.jpg" is not
-    silently turned into "out.jpg.exr").
+    silently turned into "out.jpg.exr"), and so does a path that names no file: a folder (an
+    existing one, or one written with a trailing slash, which would give "folder.exr" beside
+    it) or an existing device such as /dev/null. The CLI turns a folder into
+    folder/<scene>_<method>.exr before calling this.
     """
-    p = Path(path)
-    if not p.name or p.name in (".", ".."):
+    text = os.fspath(path)
+    p = Path(text)
+    if not text or not p.name or p.name in (".", "..") or text.endswith(os.sep) or (
+            os.altsep and text.endswith(os.altsep)):
         raise ParameterError(f"output path '{path}' has no file name; give e.g. out/render.exr")
+    if p.is_dir():
+        raise ParameterError(f"output path '{path}' is a folder; give a file name in it, e.g. {p / 'render.exr'}")
+    if p.exists() and not p.is_file():
+        raise ParameterError(f"output path '{path}' exists and is not a regular file (a device, FIFO or "
+                             "socket); give a file name, e.g. out/render.exr")
     suffix = p.suffix
     if suffix.lower() not in OUTPUT_SUFFIXES:
         raise ParameterError(

@@ -36,6 +36,8 @@ class RenderResult:
     stats: dict[str, Any] = field(default_factory=dict)
     #: extra per-pixel images (``--aov``), name -> float32 H×W (e.g. the final gather radius)
     aovs: dict[str, np.ndarray] = field(default_factory=dict)
+    #: The files the render read (the scene file, its meshes): `save` never writes over one.
+    inputs: tuple[Path, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         from caustica import __version__
@@ -45,6 +47,7 @@ class RenderResult:
             raise ValueError(f"RenderResult.image must be H×W×3, got shape {img.shape}")
         self.image = np.ascontiguousarray(img, dtype=np.float32)
         self.stats = dict(self.stats)  # never mutate the caller's dict
+        self.inputs = tuple(Path(p) for p in self.inputs)
         self.stats.setdefault("version", __version__)
         self.stats.setdefault("width", int(self.image.shape[1]))
         self.stats.setdefault("height", int(self.image.shape[0]))
@@ -61,25 +64,30 @@ class RenderResult:
         """The sRGB 8-bit preview (uint8 H×W×3) at the given exposure."""
         return imageio.to_srgb8(self.image, exposure_stops)
 
-    def save(self, path: str | os.PathLike[str], exposure_stops: float = 0.0) -> tuple[Path, Path, Path]:
+    def save(self, path: str | os.PathLike[str], exposure_stops: float = 0.0, *,
+             inputs=None) -> tuple[Path, Path, Path]:
         """Write name.exr, name.png (preview at `exposure_stops`) and name.json as one set.
 
-        `path` may end in .exr, .png or nothing (see `imageio.output_paths`). All three are
-        written to temporaries first and only then renamed into place (`imageio.atomic_write_all`),
-        so a failure or an interrupt while writing leaves the previous set untouched. The JSON is
-        `stats` plus the output file names and the preview exposure. Returns (exr, png, json).
+        `path` may end in .exr, .png or nothing (see `imageio.output_paths`). All of them (and the AOVs) are
+        written to temporaries first and only then renamed into place together
+        (`imageio.atomic_write_all`): a failure or an interrupt leaves the previous set whole,
+        and no output may be one of `inputs` (default: the files the render read). The exposure
+        must be finite, within ±150 stops. The JSON is `stats` plus the output file names and
+        the preview exposure. Raises ParameterError or OutputError (nothing replaced then).
+        Returns (exr, png, json).
         """
+        exposure = imageio.check_exposure(exposure_stops)
         exr, png, js = imageio.output_paths(path)
         sidecar = dict(self.stats)
         sidecar["outputs"] = {"exr": exr.name, "png": png.name, "json": js.name}
-        files = [(exr, imageio.exr_writer(self.image)), (png, imageio.png_writer(self.image, exposure_stops))]
+        files = [(exr, imageio.exr_writer(self.image)), (png, imageio.png_writer(self.image, exposure))]
         for name, aov in self.aovs.items():
             aov_path = self.aov_path(exr, name)
             sidecar["outputs"][f"aov_{name}"] = aov_path.name
             files.append((aov_path, imageio.exr_writer(np.repeat(np.asarray(aov, np.float32)[:, :, None], 3, 2))))
-        sidecar["preview_exposure_stops"] = float(exposure_stops)
+        sidecar["preview_exposure_stops"] = exposure
         files.append((js, imageio.json_writer(sidecar)))
-        imageio.atomic_write_all(files)
+        imageio.atomic_write_all(files, self.inputs if inputs is None else inputs)
         return exr, png, js
 
     @staticmethod

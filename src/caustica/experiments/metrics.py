@@ -16,7 +16,12 @@ mask (True = pixel counts).  The definitions (also in docs/experiments.md):
   data_range=1; with a mask, the mean of the SSIM map over the mask.  1 = identical.
 * ``flip``: NVIDIA's FLIP (flip_evaluator) in HDR mode on the linear images (its
   exposure range computed from the reference); with a mask, the mean of the FLIP
-  map over the mask.  0 = identical.
+  map over the mask.  0 = identical.  NaN for a black reference (brightest luminance
+  below 2^-22), where FLIP has no exposure range (and would end the process).
+
+Every metric refuses (CausticaError) images with NaN or infinite pixels.  A metric that is
+undefined for the images (an empty mask, a reference that is zero for ``block_err``) is
+NaN; `undefined_reason` says why.
 """
 from __future__ import annotations
 
@@ -44,9 +49,49 @@ def _check(test, ref, mask):
         if mask.shape != t.shape[:2]:
             raise CausticaError(f"the mask is {mask.shape[1]}x{mask.shape[0]}, the images "
                                 f"{t.shape[1]}x{t.shape[0]}")
-    t = np.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0)
-    r = np.nan_to_num(r, nan=0.0, posinf=0.0, neginf=0.0)
+    require_finite(t, "the test image")
+    require_finite(r, "the reference")
     return t, r, mask
+
+
+def require_finite(image, name: str) -> None:
+    """CausticaError unless every pixel of `image` is finite: a NaN or infinite pixel has no error
+    to measure, and scoring it as black (or dropping it) would hide a broken render."""
+    img = np.asarray(image)
+    bad = ~np.isfinite(img)
+    if img.ndim == 3:
+        bad = bad.any(axis=2)
+    if bad.any():
+        y, x = (int(v) for v in np.argwhere(bad)[0])
+        raise CausticaError(f"{name}: {int(bad.sum())} of {bad.size} pixels are not finite (NaN or infinite), "
+                            f"the first at x={x}, y={y}; the metrics need finite images")
+
+
+#: FLIP's HDR mode takes its exposure range from the reference's luminance and, when the brightest
+#: pixel is below float32's epsilon (2^-23), finds the range reversed and ends the process. Below
+#: twice that, FLIP is reported as undefined (NaN) instead.
+FLIP_MIN_REFERENCE = 2.0 ** -22
+
+
+def _flip_defined(r: np.ndarray) -> bool:
+    lum = 0.2126 * r[:, :, 0] + 0.7152 * r[:, :, 1] + 0.0722 * r[:, :, 2]
+    return bool(lum.max() >= FLIP_MIN_REFERENCE)
+
+
+def undefined_reason(name: str, test, ref, mask=None) -> str:
+    """In words, why metric `name` (over `mask`, if given) came out NaN for these images."""
+    t, r, mask = _check(test, ref, mask)
+    if mask is not None and not mask.any():
+        return "the mask has no pixels"
+    region = "over the mask" if mask is not None else "everywhere"
+    if name == "block_err":
+        return f"the reference is zero {region}, and the error is relative to the reference"
+    if name == "ssim":
+        return "SSIM needs an image of at least 3x3 pixels"
+    if name == "flip" and not _flip_defined(np.maximum(r, 0.0)):
+        return ("FLIP takes its exposure range from the reference, whose brightest pixel is black "
+                f"(luminance below {FLIP_MIN_REFERENCE:.2g})")
+    return "undefined for these images"
 
 
 def rel_mse(test, ref, mask=None, eps: float = REL_EPS) -> float:
@@ -92,7 +137,9 @@ def block_err(test, ref, mask=None, block: int | None = None) -> float:
         return float("nan")
     num = ((bt[keep] - br[keep]) ** 2).sum()
     den = (br[keep] ** 2).sum()
-    return float(np.sqrt(num / den)) if den > 0 else float("nan")
+    if den > 0:
+        return float(np.sqrt(num / den))
+    return 0.0 if num == 0 else float("nan")  # a zero reference: only an equal image has a defined error
 
 
 def tonemap(image) -> np.ndarray:
@@ -128,6 +175,8 @@ def flip(test, ref, mask=None) -> float:
     r = np.ascontiguousarray(np.maximum(r, 0.0), dtype=np.float32)
     if not r.any() and not t.any():
         return 0.0
+    if not _flip_defined(r):
+        return float("nan")
     fmap, mean, _ = flip_evaluator.evaluate(r, t, "HDR", applyMagma=False)
     fmap = np.asarray(fmap).reshape(t.shape[0], t.shape[1], -1).mean(axis=2)
     if mask is None:
@@ -158,11 +207,13 @@ def all_metrics(test, ref, mask=None, *, with_flip: bool = True) -> dict:
     if with_flip:
         tf = np.ascontiguousarray(np.maximum(t, 0.0), dtype=np.float32)
         rf = np.ascontiguousarray(np.maximum(r, 0.0), dtype=np.float32)
-        if rf.any() or tf.any():
+        if not (rf.any() or tf.any()):
+            fmap = np.zeros((h, w))
+        elif not _flip_defined(rf):
+            fmap = np.full((h, w), np.nan)
+        else:
             fmap = np.asarray(flip_evaluator.evaluate(rf, tf, "HDR", applyMagma=False)[0]).reshape(h, w, -1)
             fmap = fmap.mean(axis=2)
-        else:
-            fmap = np.zeros((h, w))
     for prefix, m in regions:
         empty = m is not None and not m.any()
         out[prefix + "rel_mse"] = rel_mse(t, r, m)

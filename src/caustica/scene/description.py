@@ -123,6 +123,7 @@ class SceneDescription:
     integrator_props: dict = field(default_factory=dict)
     source: str = ""  # the file it came from, or the built-in name
     integrator_source: str = ""
+    files: list = field(default_factory=list)  # the scene file and every mesh file it read (Paths)
 
     def integrator_note(self, method: str, parameters: dict) -> str | None:
         """What a render with ``method`` and its ``parameters`` does with the scene's

@@ -243,6 +243,7 @@ class _Loader:
         self.in_progress: set[int] = set()
         self.default_material: int | None = None
         self.used_params: set[str] = set()
+        self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None):
@@ -482,6 +483,7 @@ class _Loader:
                     self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
                 try:
                     path = find_data_file(props.get("filename"), self.base_dir)
+                    self.files.append(Path(path))
                     local = load_mesh_file(path, kind)
                 except SceneError as exc:
                     self.fail(props.node_of("filename"), str(exc))
@@ -683,7 +685,9 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
     loader.params = params
     loader.substitute(root)
     _check_defines(source_name, given, declared, loader.used_params)
-    return loader.scene(root)
+    desc = loader.scene(root)
+    desc.files = loader.files
+    return desc
 
 
 _PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -725,4 +729,6 @@ def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) ->
         data = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
-    return parse_scene_string(data, path.parent, defaults, str(path))
+    desc = parse_scene_string(data, path.parent, defaults, str(path))
+    desc.files.insert(0, path)
+    return desc
