@@ -69,7 +69,8 @@ def _add_method_flags(group, method_names, default_word):
         for q, m in owned:
             groups.setdefault((q.help, "auto" if q.default is None else str(q.default)), []).append(m)
         if len({h for h, _ in groups}) == 1:
-            text = p.help + " (" + "; ".join(f"{default_word} {d}: {', '.join(ms)}" for (_, d), ms in groups.items()) + ")"
+            defaults = "; ".join(f"{default_word} {d}: {', '.join(ms)}" for (_, d), ms in groups.items())
+            text = f"{p.help} ({defaults})"
         else:
             text = " | ".join(f"{', '.join(ms)}: {h} ({default_word} {d})" for (h, d), ms in groups.items())
         kw = {"type": p.type} if p.type is not bool else {"type": str}

@@ -6,7 +6,7 @@ Stochastic progressive photon mapping (Hachisuka & Jensen 2009, as pbrt-v4's
 1. camera pass (:mod:`caustica.photons.visible_points`): one visible point per pixel
    and the light it sees directly (emitters, and direct light by shadow rays);
 2. photon pass (the method's own): this pass's photon events — photons for sppm,
-   stream records or photons for pspm — in a kd-tree;
+   stream records or photons for pspm — in a uniform grid (:mod:`caustica.photons.grid`);
 3. gather: each visible point sums the flux Φ and counts the events M within its
    current radius R_i (same side of the surface only, as in PM) — a pixel-parallel
    query, so no atomics and the same bits for any thread count;
@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
-from ..photons.kdtree import KdTree, range_sum
+from ..photons.grid import build_grid, grid_range_sum
 from ..photons.visible_points import visible_points
 from ..sampling.rng import STREAM_CAMERA, pass_stream
 from .params import Param, non_negative, positive
@@ -72,17 +72,20 @@ class PixelStatistics(NamedTuple):
         return {k: np.asarray(v) for k, v in self._asdict().items()}
 
 
+#: Grid cells are this many times the median gather radius of the pass (see :mod:`caustica.photons.grid`).
+CELL_PER_RADIUS = 2.0
+
+
 @kernel
-def gather_flux(pmap, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
+def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
     """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1)."""
-    pmap = borrowed(pmap)
-    tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
+    grid = borrowed(grid)
     for i in range(i0, i1):
         if not vp_found[i]:
             continue
         p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
         n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-        m, s = range_sum(tree, pmap.normal, pmap.tree_normal_bounds, pmap.power, p, n, radius[i])
+        m, s = grid_range_sum(grid, p, n, radius[i])
         count[i] = m
         flux[i, 0] = s[0]
         flux[i, 1] = s[1]
@@ -99,7 +102,8 @@ def initial_radius(scene, settings) -> float:
 class ProgressivePhotonMethod:
     """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, progress)``.
 
-    ``photon_events`` returns (PhotonMap of this pass's events, paths emitted, stats).
+    ``photon_events`` returns ((position, power, normal, valid) of this pass's events,
+    paths emitted, stats); events with valid == 0 are empty slots.
     """
     progressive = True
     default_spp = 1
@@ -152,15 +156,21 @@ class ProgressivePhotonMethod:
                           threads=threads, progress=bar)
         bar.close()
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
-        # 2. photon pass
-        pmap, emitted, stats = cls.photon_events(scene, settings, state.passes, progress)
+        # 2. photon pass, and the grid over its events
+        events, emitted, stats = cls.photon_events(scene, settings, state.passes, progress)
         timings.update(stats.pop("timings"))
         c1 = timings.pop("compile_s", 0.0)
+        t1 = time.perf_counter()
+        seen = state.radius[vp_found]
+        cell = CELL_PER_RADIUS * float(np.median(seen if seen.size else state.radius))
+        grid = build_grid(*events, scene.geometry.scene_box, cell)
+        timings["grid_build_s"] = time.perf_counter() - t1
+        stats["events_stored"] = grid.count
         # 3. gather
         flux = np.zeros((n, 3))
         count = np.zeros(n, np.int64)
         t1 = time.perf_counter()
-        c2 = parallel_for(gather_flux, n, (pmap, vp_pos, vp_nrm, vp_found, state.radius, flux, count),
+        c2 = parallel_for(gather_flux, n, (grid, vp_pos, vp_nrm, vp_found, state.radius, flux, count),
                           threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         timings["compile_s"] = c0 + c1 + c2

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from ..jit import parallel_for
 from ..memory import check_budget
-from ..photons.records import build_photon_map
 from ..photons.streams import StreamBuffers, trace_streams
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
@@ -73,8 +74,9 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                  threads=settings["threads"], progress=bar)
         bar.close()
         t1 = time.perf_counter()
-        pmap = build_photon_map(*buf.events(settings["estimator"]))
-        t2 = time.perf_counter()
-        return pmap, n, {"timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
-                                     "map_build_s": t2 - t1},
-                         "streams_emitted": n, "photons_emitted": n * (n_fa + 1), "events_stored": pmap.count}
+        pos, _, power, normal = buf.events(settings["estimator"])
+        valid = np.ones(pos.shape[0], np.int8)
+        return (pos, power, normal, valid), n, {
+            "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
+                        "map_build_s": time.perf_counter() - t1},
+            "streams_emitted": n, "photons_emitted": n * (n_fa + 1)}

@@ -48,7 +48,8 @@ class StreamedPhotonMapping(OneShot):
         buf = StreamBuffers(n, n_fa, mr)
         bar = progress(total=n, desc="stream tracing", unit="stream")
         compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
-                                                    settings["seed"], STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
+                                                    settings["seed"], STREAM_SPM, n, n_fa,
+                                                    settings["stream_radius"], mr,
                                                     TERMINATIONS[settings["termination"]], False, *buf.kernel_args),
                                  threads=settings["threads"], progress=bar)
         bar.close()

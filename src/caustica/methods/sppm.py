@@ -4,7 +4,7 @@ A pass is (:mod:`caustica.methods.progressive`): a camera pass finding one visib
 point per pixel (through mirrors and glass) with its direct light; ``photons``
 photons traced as in PM (:mod:`caustica.photons.trace`: every diffuse hit after the
 first scattering event is an event, caustic and indirect alike), keyed by
-(seed, photon phase, pass, index); a kd-tree over them; each visible point gathers
+(seed, photon phase, pass, index); a grid over them; each visible point gathers
 the events within its own radius; the per-pixel α update.  Its error goes to zero as
 passes grow: the radius shrinks while the photon count it holds grows.
 """
@@ -14,7 +14,7 @@ import time
 
 from ..jit import parallel_for
 from ..memory import check_budget
-from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers, map_from_buffers
+from ..photons.records import SLOT_BYTES, allocate_buffers
 from ..photons.trace import trace_photons
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
@@ -51,8 +51,6 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                  threads=settings["threads"], progress=bar)
         bar.close()
         t1 = time.perf_counter()
-        pmap = map_from_buffers(buf, (INDIRECT, CAUSTIC))
-        t2 = time.perf_counter()
-        return pmap, n, {"timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
-                                     "map_build_s": t2 - t1},
-                         "photons_emitted": n, "photons_stored": pmap.count}
+        # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
+        return (buf.position, buf.power, buf.normal, buf.kind), n, {
+            "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s}, "photons_emitted": n}

@@ -1,0 +1,248 @@
+"""Progressive rendering: the pass driver, the film, checkpoints, sppm and pspm (SPEC §7).
+
+1. Pieces: the grid's fixed-radius query against brute force; the film's pass order.
+2. Migration: a one-pass render is the one-shot render, bit for bit; passes of pt average.
+3. Analytic answers: a point light over a plane (direct light only: no photon is stored)
+   and a white furnace inside a sphere, where the fixed-radius density estimate of a
+   uniform photon density is exact for any radius (a sphere's cap within chord distance
+   R has area π R²), so SPPM's only error there is noise.
+4. Agreement with the converged Mitsuba reference on the diacaustic scene after many passes.
+5. Determinism: the same bits for any thread count; N passes == a passes, checkpoint,
+   resume for N - a.
+6. Bad input and interrupts.
+
+Tolerances come from the spread of independent renders (seeds), as in tests/test_pt.py.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica import driver
+from caustica.errors import ParameterError
+from caustica.film import Film
+from caustica.photons.grid import build_grid, grid_range_sum
+from caustica.photons.kdtree import FACING_COS
+from caustica.scene import builtin_scene_path, parse_scene_string
+from caustica.scene.compiled import compile_scene
+from imagestats import N_SIGMA, assert_images_agree, downsample, load_reference
+from test_pt import FURNACE_LE, FURNACE_RHO, PLANE_RHO, AH, AW, CAM_H, FOV_X, LIGHT_H, furnace_scene, \
+    pixel_footprints, plane_scene
+
+PROGRESSIVE = ("sppm", "pspm")
+
+
+@pytest.fixture(scope="module")
+def diacaustic():
+    return caustica.load_scene(builtin_scene_path("cornell-diacaustic"))
+
+
+# --------------------------------------------------------------------------- 1. pieces
+
+def test_grid_range_sum_matches_brute_force():
+    rng = np.random.default_rng(1)
+    n = 5000
+    pos = rng.uniform(-2, 3, (n, 3)).astype(np.float32)
+    nrm = rng.normal(size=(n, 3))
+    nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
+    power = rng.uniform(0, 1, (n, 3)).astype(np.float32)
+    valid = (rng.uniform(size=n) < 0.8).astype(np.int8)
+    box = np.array([-2.0, -2.0, -2.0, 3.0, 3.0, 3.0])
+    for cell in (0.05, 0.3, 2.0):
+        grid = build_grid(pos, power, nrm, valid, box, cell)
+        assert grid.count == valid.sum()
+        for _ in range(40):
+            q = rng.uniform(-2.5, 3.5, 3)
+            qn = rng.normal(size=3)
+            qn /= np.linalg.norm(qn)
+            r = float(rng.uniform(0.01, 1.5))
+            d2 = ((pos.astype(np.float64) - q) ** 2).sum(axis=1)
+            take = (valid == 1) & (d2 <= r * r) & (nrm.astype(np.float64) @ qn > FACING_COS)
+            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), (qn[0], qn[1], qn[2]), r)
+            assert count == take.sum()
+            np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
+
+
+def test_film_adds_passes_in_order():
+    rng = np.random.default_rng(0)
+    a, b, c = (rng.uniform(size=(2, 3, 3)).astype(np.float32) for _ in range(3))
+    film = Film.empty(3, 2).add(0, a)
+    assert film.image() is a                       # one pass: that pass's own bits
+    with pytest.raises(ValueError, match="out of order"):
+        film.add(2, b)
+    film = film.add(1, b).add(2, c)
+    np.testing.assert_array_equal(film.image(), ((a.astype(np.float64) + b + c) / 3).astype(np.float32))
+    again = Film.from_arrays(film.to_arrays())
+    assert again.passes == 3 and again.image().tobytes() == film.image().tobytes()
+
+
+# --------------------------------------------------------------------------- 2. migration
+
+def test_one_pass_of_pt_is_the_one_shot_render(diacaustic):
+    one_shot = caustica.render(diacaustic, "pt", spp=4, res=16, seed=3).image
+    one_pass = caustica.render(diacaustic, "pt", spp=4, res=16, seed=3, passes=1).image
+    assert one_shot.tobytes() == one_pass.tobytes()
+
+
+def test_pt_passes_are_new_samples_and_average(diacaustic):
+    r = caustica.render(diacaustic, "pt", res=16, seed=3, passes=3, spp=2)
+    assert r.stats["passes"] == 3 and r.stats["samples_per_pixel"] == 6
+    first = caustica.render(diacaustic, "pt", spp=2, res=16, seed=3).image
+    assert first.tobytes() != r.image.tobytes()
+    # pass 0 of the multi-pass render is the one-shot render; the mean of three passes is smoother
+    assert np.mean(np.abs(r.image - first)) > 0
+    assert r.stats["camera_rays"] == 3 * 2 * 16 * 16
+
+
+# --------------------------------------------------------------------------- 3. analytic answers
+
+@pytest.mark.parametrize("method", PROGRESSIVE)
+def test_point_light_over_plane(method):
+    """Direct light only: photons never scatter, so nothing is stored and every pass's
+    visible point adds ρ/π I cos θ / d²; the only randomness is the sub-pixel jitter."""
+    intensity = np.array([10.0, 20.0, 30.0])
+    passes = 64
+    scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
+        <rgb name="intensity" value="{', '.join(map(str, intensity))}"/></emitter>""")
+    r = caustica.render(scene, method, seed=3, passes=passes)
+    assert r.stats["events_stored"] == 0
+    x, y = pixel_footprints(AW, AH, FOV_X, CAM_H)
+    f = LIGHT_H / (x * x + y * y + LIGHT_H ** 2) ** 1.5
+    scale = intensity * np.asarray(PLANE_RHO) / math.pi
+    expected = f.mean(axis=2)[..., None] * scale
+    tol = (N_SIGMA * f.std(axis=2) / math.sqrt(passes))[..., None] * scale + 1e-4 * expected
+    img = r.image.astype(np.float64)
+    assert np.all(np.abs(img - expected) <= tol), np.max(np.abs(img - expected) / tol)
+
+
+FURNACE_CASES = [("sppm", {}), ("pspm", {}), ("pspm", {"estimator": "photons"}), ("pspm", {"specular": "split"})]
+
+
+@pytest.mark.parametrize("termination", ["cap", "roulette"])
+@pytest.mark.parametrize("method, params", FURNACE_CASES)
+def test_white_furnace_in_a_sphere(method, params, termination):
+    """Every pixel sees Le, direct light ρ Le and photons stored after 1 .. mr bounces:
+    L = Le Σ_{k=0}^{mr+1} ρ^k with the paper's cap (mr = 4), and Le / (1 - ρ) with roulette
+    and mr = 64 (ρ^65 < 1e-6).  The estimate of a uniform density within R on the sphere is
+    exact, so the error is noise, measured over 6 seeds (pixels share photons, so the seeds,
+    not the pixels, are the independent samples)."""
+    scene = furnace_scene("sphere")
+    mr = 4 if termination == "cap" else 64
+    count = dict(photons=2000) if method == "sppm" else dict(streams=400, assoc=4, stream_radius=0.5)
+    means = np.array([caustica.render(scene, method, res=8, seed=s, passes=6, termination=termination,
+                                      max_bounces=mr, radius=0.3, **count, **params).image.reshape(-1, 3).mean(0)
+                      for s in range(6)], dtype=np.float64)
+    expected = FURNACE_LE * (1 - FURNACE_RHO ** (mr + 2)) / (1 - FURNACE_RHO)
+    se = means.std(axis=0, ddof=1) / math.sqrt(len(means))
+    got = means.mean(axis=0)
+    assert np.all(se > 0)
+    assert np.all(np.abs(got - expected) <= N_SIGMA * se + 1e-4 * expected), (got, expected, se)
+
+
+# --------------------------------------------------------------------------- 4. the Mitsuba reference
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {"specular": "split", "stream_radius": 1.0})])
+def test_many_passes_match_the_reference(diacaustic, refs_dir, method, params):
+    """After 48 passes at 32x32 (roulette and mr = 64: no depth truncation) the image agrees with Mitsuba's
+    converged reference: image mean within 2 %, 4x4 block means within 5 sigmas of the
+    seeds' spread plus the reference's noise — what is left of SPPM's blur is below that."""
+    ref, meta = load_reference(refs_dir, "cornell-diacaustic")
+    factor = ref.shape[0] // 32
+    ref_small = downsample(ref, factor)
+    rel = meta["noise"]["est_rel_rmse_of_full"]
+    from imagestats import BLOCK, block_means
+    ref_se = rel * block_means(ref_small) / (BLOCK * factor)
+    count = {"photons": 20_000} if method == "sppm" else {"streams": 2000}
+    images = [caustica.render(diacaustic, method, res=32, seed=s, passes=48, termination="roulette", max_bounces=64,
+                              **count, **params).image for s in range(4)]
+    assert_images_agree(images, [ref_small], extra_se=ref_se, label=f"{method} vs reference")
+
+
+# --------------------------------------------------------------------------- 5. determinism, checkpoints
+
+@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"})])
+def test_same_bits_for_any_thread_count(diacaustic, method, params):
+    kw = dict(res=16, seed=5, passes=3, **params)
+    one = caustica.render(diacaustic, method, threads=1, **kw).image
+    two = caustica.render(diacaustic, method, threads=2, **kw).image
+    other = caustica.render(diacaustic, method, res=16, seed=6, passes=3, threads=2, **params).image
+    assert one.tobytes() == two.tobytes()
+    assert one.tobytes() != other.tobytes()
+
+
+@pytest.mark.parametrize("method", ("pt", "sppm", "pspm"))
+def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, tmp_path):
+    kw = dict(res=12, seed=2)
+    whole = caustica.render(diacaustic, method, passes=5, **kw)
+    ck = tmp_path / "state.npz"
+    part = caustica.render(diacaustic, method, passes=2, checkpoint=ck, threads=1, **kw)
+    assert part.stats["passes"] == 2 and ck.is_file()
+    rest = caustica.render(diacaustic, method, passes=5, checkpoint=ck, threads=2, **kw)
+    assert rest.stats["resumed_from_pass"] == 2 and rest.stats["passes_this_run"] == 3
+    assert rest.image.tobytes() == whole.image.tobytes()
+    # a checkpoint is never continued with other settings
+    with pytest.raises(ParameterError, match="seed"):
+        caustica.render(diacaustic, method, passes=6, checkpoint=ck, res=12, seed=3)
+
+
+def test_time_budget_stops_between_passes(diacaustic):
+    caustica.render(diacaustic, "sppm", res=16, passes=1)   # compiled: the budget then measures passes
+    r = caustica.render(diacaustic, "sppm", res=16, time_s=1.0)
+    assert r.stats["passes"] >= 2
+    assert sum(r.stats["pass_seconds"]) <= 1.0 + max(r.stats["pass_seconds"])
+    assert r.stats["time_budget_s"] == 1.0 and not r.stats["interrupted"]
+
+
+def test_radius_shrinks_and_aovs(diacaustic):
+    r = caustica.render(diacaustic, "sppm", res=16, seed=1, passes=8, aov=("radius", "count"))
+    r0 = r.stats["initial_radius"]
+    rad, cnt = r.aovs["radius"], r.aovs["count"]
+    assert rad.shape == cnt.shape == (16, 16)
+    assert np.all(rad <= r0 * (1 + 1e-12)) and rad.min() < r0
+    # pixels that gathered photons shrank, the others kept R_0
+    assert np.all((cnt > 0) == (rad < r0 * (1 - 1e-12)))
+    assert r.stats["radius_final"]["max"] <= r0 * (1 + 1e-12)
+
+
+def test_interrupt_returns_the_finished_passes(diacaustic, monkeypatch):
+    cls = caustica.methods.get("sppm")
+    real = cls.run_pass.__func__
+    calls = []
+
+    def run_pass(klass, scene, settings, state, progress):
+        calls.append(state.passes)
+        if state.passes == 2:
+            raise KeyboardInterrupt
+        return real(klass, scene, settings, state, progress)
+
+    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    r = caustica.render(diacaustic, "sppm", res=8, seed=1, passes=10)
+    assert r.stats["interrupted"] and r.stats["passes"] == 2
+    monkeypatch.undo()
+    two = caustica.render(diacaustic, "sppm", res=8, seed=1, passes=2)
+    assert two.image.tobytes() == r.image.tobytes()
+
+
+# --------------------------------------------------------------------------- 6. bad input
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(passes=0), "--passes"), (dict(passes=-3), "--passes"), (dict(time_s=-1.0), "--time"),
+    (dict(time_s=float("nan")), "--time"), (dict(time_s=float("inf")), "--time"),
+    (dict(alpha=1.0, passes=2), "--alpha"), (dict(alpha=0.0, passes=2), "--alpha"),
+    (dict(radius=0.0, passes=2), "--radius"), (dict(radius=-1.0, passes=2), "--radius"),
+    (dict(spp=4, passes=2), "--spp"), (dict(aov="depth", passes=2), "--aov"),
+])
+def test_bad_progressive_parameters(diacaustic, kw, match):
+    with pytest.raises(ParameterError, match=match):
+        caustica.render(diacaustic, "sppm", res=8, **kw)
+
+
+def test_one_shot_methods_refuse_passes(diacaustic):
+    with pytest.raises(ParameterError, match="one shot"):
+        caustica.render(diacaustic, "pm", res=8, passes=3)
+    with pytest.raises(ParameterError, match="needs --passes or --time"):
+        driver.check_plan(caustica.methods.get("sppm"), checkpoint="x.npz")
