@@ -246,3 +246,72 @@ def test_one_shot_methods_refuse_passes(diacaustic):
         caustica.render(diacaustic, "pm", res=8, passes=3)
     with pytest.raises(ParameterError, match="needs --passes or --time"):
         driver.check_plan(caustica.methods.get("sppm"), checkpoint="x.npz")
+
+
+# --------------------------------------------------------------------------- 7. the command line
+
+@pytest.fixture
+def cli(capsys):
+    from caustica.cli import main
+
+    def run(*args):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:
+            code = exc.code
+        out, err = capsys.readouterr()
+        return code, out, err
+    return run
+
+
+def test_cli_progressive_render_writes_aovs_and_pass_stats(cli, tmp_path):
+    import json
+    out = tmp_path / "r.exr"
+    code, _, err = cli("render", "cornell-diacaustic", "--method", "sppm", "--res", "12", "--passes", "3",
+                       "--aov", "radius,count", "-o", out, "-q")
+    assert code == 0, err
+    for name in ("r.exr", "r.png", "r.json", "r.radius.exr", "r.count.exr"):
+        assert (tmp_path / name).is_file(), name
+    meta = json.loads((tmp_path / "r.json").read_text())
+    assert meta["passes"] == 3 and len(meta["pass_seconds"]) == 3 and not meta["interrupted"]
+    assert meta["outputs"]["aov_radius"] == "r.radius.exr"
+    assert set(meta["radius_final"]) == {"min", "median", "max"}
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--passes", "0"), "--passes"), (("--time", "-1"), "--time"), (("--time", "nan"), "--time"),
+    (("--alpha", "1.5", "--passes", "2"), "--alpha"), (("--radius", "0", "--passes", "2"), "--radius"),
+    (("--aov", "depth", "--passes", "2"), "--aov"),
+])
+def test_cli_bad_progressive_input_is_one_line_exit_2_nothing_written(cli, tmp_path, args, words):
+    code, out, err = cli("render", "cornell-diacaustic", "--method", "sppm", "--res", "8", "-o",
+                         tmp_path / "x.exr", *args)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("caustica: error:") and words in lines[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_checkpoint_may_not_be_an_output(cli, tmp_path):
+    code, _, err = cli("render", "cornell-diacaustic", "--method", "sppm", "--res", "8", "--passes", "2",
+                       "-o", tmp_path / "x.exr", "--checkpoint", tmp_path / "x.json")
+    assert code == 2 and "--checkpoint" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_interrupted_progressive_render_writes_the_finished_passes(cli, tmp_path, monkeypatch):
+    import json
+    cls = caustica.methods.get("sppm")
+    real = cls.run_pass.__func__
+
+    def run_pass(klass, scene, settings, state, progress):
+        if state.passes == 2:
+            raise KeyboardInterrupt
+        return real(klass, scene, settings, state, progress)
+
+    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    code, _, err = cli("render", "cornell-diacaustic", "--method", "sppm", "--res", "8", "--passes", "9",
+                       "-o", tmp_path / "x.exr", "-q")
+    assert code == 130 and "2 passes" in err
+    meta = json.loads((tmp_path / "x.json").read_text())
+    assert meta["interrupted"] and meta["passes"] == 2

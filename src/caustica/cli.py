@@ -14,6 +14,7 @@ from . import __version__
 from .errors import CausticaError, InterruptedAfterSaving, ParameterError
 
 EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
 
 
 def _method_param_specs():
@@ -203,29 +204,45 @@ def _default_stem(scene: str) -> str:
 def _cmd_render(args) -> int:
     from .api import load_scene, render
     from .imageio import check_exposure, output_paths
+    from .result import RenderResult
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     defines = _parse_defines(args.defines)
     exposure = check_exposure(args.exposure)
     given = args.output
     args.output = _output_path(given, f"{_default_stem(args.scene)}_{args.method}.exr", args.quiet)
-    outputs = output_paths(args.output)
+    outputs = list(output_paths(args.output))
+    outputs += [RenderResult.aov_path(outputs[0], a.strip()) for a in (args.aov or "").split(",") if a.strip()]
     _check_outputs(outputs, args.output)  # refuse before spending time loading and rendering
     scene = load_scene(args.scene, **defines)
     _check_outputs(outputs, args.output, scene.description.files)  # never write over an input
+    if args.checkpoint is not None:
+        _check_checkpoint(args.checkpoint, outputs, scene.description.files)
     _note_integrator(scene, args.method, params)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
                     checkpoint=args.checkpoint, aov=args.aov or (), **params)
     exr, png, js = result.save(args.output, exposure_stops=exposure, inputs=scene.description.files)
-    if result.stats.get("interrupted"):
-        print(f"caustica: interrupted after {result.stats['passes']} passes; wrote the image of those passes",
-              file=sys.stderr)
     if not args.quiet:
         t = result.stats["timings"]
         passes = f", {result.stats['passes']} passes" if "passes" in result.stats else ""
         print(f"{scene.name}: {result.width}x{result.height} {args.method} in {t['total_s']:.2f} s{passes} "
               f"-> {exr}, {png}, {js}")
+    if result.stats.get("interrupted"):
+        print(f"caustica: interrupted: wrote the image of the {result.stats['passes']} passes finished",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
+
+
+def _check_checkpoint(path, outputs, inputs) -> None:
+    """The checkpoint file must be neither an output nor an input, nor anything but a file."""
+    from .imageio import check_outputs
+    p = Path(path)
+    for other in list(outputs) + list(inputs):
+        if p.resolve() == Path(other).resolve():
+            raise ParameterError(f"--checkpoint {path}: is also {'an output' if other in outputs else 'an input'} "
+                                 f"of this render; give it a file of its own (e.g. {Path(outputs[0]).stem}.npz)")
+    check_outputs([p], inputs, label=f"--checkpoint {path}")
 
 
 def _cmd_photons(args) -> int:
@@ -343,10 +360,10 @@ def main(argv=None) -> int:
         return EXIT_USAGE
     except InterruptedAfterSaving:
         print("caustica: interrupted; the outputs had been written in full", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except KeyboardInterrupt:
         print("caustica: interrupted; no output file was replaced", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -121,3 +121,30 @@ def side_by_side(panels, path: Path, *, title: str, mask=None, scene: str = ""):
     fig.tight_layout()
     fig.subplots_adjust(hspace=0.3)
     _save(fig, path)
+
+
+def convergence_plot(rows, path: Path, scene: str):
+    """Caustic-mask and whole-image relative RMSE against wall time (log-log), a line per method."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    labels = [r["label"] for r in rows if r.get("time_s") is not None]
+    for label in dict.fromkeys(labels):
+        mine = sorted((r for r in rows if r["label"] == label and r.get("time_s")), key=lambda r: r["time_s"])
+        style = "--" if label.startswith("Mitsuba") else ("o" if label.startswith("PM+C") else "-")
+        for ax, key in zip(axes, ("caustic_rel_rmse", "rel_rmse")):
+            pts = [(r["time_s"], r[key]) for r in mine if r.get(key) is not None]
+            if pts:
+                x, y = zip(*pts)
+                ax.plot(x, y, style, marker="o", ms=3, label=label)
+    floor = [r for r in rows if r["label"] == "reference's own noise"]
+    for ax, key, title in zip(axes, ("caustic_rel_rmse", "rel_rmse"), ("caustic mask", "whole image")):
+        if floor and floor[0].get(key):
+            ax.axhline(floor[0][key], color="grey", lw=0.8, ls=":", label="reference's own noise")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time (s)")
+        ax.set_ylabel("relative RMSE")
+        ax.set_title(f"{scene}: {title}")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    _save(fig, path)

@@ -14,11 +14,13 @@ import time
 
 from ..jit import parallel_for
 from ..memory import check_budget
-from ..photons.records import SLOT_BYTES, allocate_buffers
-from ..photons.trace import trace_photons
-from ..sampling.rng import STREAM_PHOTON, pass_stream
+import numpy as np
+
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers
+from ..photons.trace import trace_caustic_photons, trace_photons
+from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON, pass_stream
 from . import register
-from .params import Param, positive
+from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
 from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod
 
@@ -34,6 +36,9 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4)",
               positive, ">= 1"),
+        Param("caustic_photons", int, 0, "photons per pass aimed at the specular objects for light -> "
+                                         "specular -> diffuse paths, which the other photons then leave out "
+                                         "(as PM's caustic map; 0: none, plain SPPM)", non_negative, ">= 0"),
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
@@ -50,7 +55,24 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                                     TERMINATIONS[settings["termination"]], *buf),
                                  threads=settings["threads"], progress=bar)
         bar.close()
-        t1 = time.perf_counter()
-        # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
-        return (buf.position, buf.power, buf.normal, buf.kind), n, {
-            "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s}, "photons_emitted": n}
+        n_c = settings["caustic_photons"]
+        spheres = scene.specular_bounding_spheres() if n_c > 0 else None
+        if n_c == 0 or spheres.shape[0] == 0:
+            # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
+            return (buf.position, buf.power, buf.normal, buf.kind), n, {
+                "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
+                "photons_emitted": n}
+        # caustic photons carry the light -> specular+ -> diffuse paths; the others leave them out
+        check_budget(n_c * SLOT_BYTES, f"{n_c:,} caustic photons per pass", "lower --caustic-photons")
+        cbuf = allocate_buffers(n_c, 1)
+        c_s = parallel_for(trace_caustic_photons, n_c, (scene.geometry, scene.materials, scene.lights, spheres,
+                                                        settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON,
+                                                                                      pass_index), n_c, *cbuf),
+                           threads=settings["threads"])
+        compile_s += c_s
+        events = tuple(np.concatenate([a, b]) for a, b in zip((buf.position, buf.power, buf.normal),
+                                                               (cbuf.position, cbuf.power, cbuf.normal)))
+        valid = np.concatenate([(buf.kind == INDIRECT), (cbuf.kind == CAUSTIC)]).astype(np.int8)
+        return (*events, valid), n, {
+            "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
+            "photons_emitted": n + n_c}

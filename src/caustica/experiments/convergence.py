@@ -1,0 +1,212 @@
+"""``caustica experiment convergence``: error against wall time, every method given the same budgets.
+
+For each caustic scene (cornell-diacaustic, cornell-catacaustic) at 256 x 256 and each
+budget (5, 10, 30, 90 s): ``pt``, ``sppm`` and the ``pspm`` variants render with
+``--time BUDGET``; PM with a caustic map renders at several photon counts (one shot:
+its time is what it takes); and, when the ``mitsuba`` package is installed, Mitsuba 3's
+own path tracer (``scalar_rgb``) renders passes of a few samples per pixel until the
+next pass would cross the same budget — the peer anyone can install, timed in the same
+process on the same machine, so the ratios travel between machines.
+
+Every image is measured against the reference (Mitsuba's converged renders in
+``shared/refs`` when present, else caustica's cached ``pt`` reference) over the whole
+image and over the caustic mask: relative RMSE (sqrt(Σ (t - r)² / Σ r²), the goal's
+measure), the block-mean error and FLIP (:mod:`caustica.experiments.metrics`).
+Each method renders once untimed before its first timed render, so start-up costs
+(compiling, caches) are not counted.  Every timed render runs on this machine's
+threads alone, one at a time.
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..api import render
+from ..imageio import atomic_write
+from ..scene import builtin_scene_path
+from . import metrics as M
+
+SCENES = ("cornell-diacaustic", "cornell-catacaustic")
+BUDGETS_S = (5.0, 10.0, 30.0, 90.0)
+QUICK_BUDGETS_S = (0.5, 1.5)
+RES = 256
+#: Progressive configurations: (label, method, parameters).
+PROGRESSIVE = (
+    ("pt", "pt", {}),
+    ("SPPM", "sppm", {}),
+    ("PSPM merge", "pspm", {}),
+    ("PSPM split", "pspm", {"specular": "split"}),
+    ("PSPM split, photons", "pspm", {"specular": "split", "estimator": "photons"}),
+)
+#: PM + caustic map at these photon counts (global = caustic), one shot each.
+PMC_PHOTONS = (25_000, 100_000, 400_000)
+QUICK_PMC_PHOTONS = (5_000,)
+MITSUBA_SPP_PER_PASS = 4
+MITSUBA_LABEL = "Mitsuba 3 path (scalar_rgb)"
+
+
+def rel_rmse(test, ref, mask=None) -> float:
+    """sqrt(Σ (t - r)² / Σ r²) over the pixels (and channels) in ``mask``: the norm-relative RMSE."""
+    t = np.asarray(test, np.float64)
+    r = np.asarray(ref, np.float64)
+    if mask is not None:
+        t, r = t[mask], r[mask]
+    den = float(np.sum(r * r))
+    return float(np.sqrt(np.sum((t - r) ** 2) / den)) if den > 0 else float("nan")
+
+
+def measure(image, ref, mask) -> dict:
+    out = {"rel_rmse": rel_rmse(image, ref), "caustic_rel_rmse": rel_rmse(image, ref, mask)}
+    for key, value in M.all_metrics(image, ref, mask).items():
+        if key.endswith(("block_err", "flip")):
+            out[key] = value
+    return out
+
+
+def shared_refs_dir() -> Path | None:
+    """``$CAUSTICA_SHARED/refs``, else ``shared/refs`` beside this checkout (None when neither exists)."""
+    env = os.environ.get("CAUSTICA_SHARED")
+    cand = Path(env) / "refs" if env else Path(__file__).resolve().parents[4] / "shared" / "refs"
+    return cand if cand.is_dir() else None
+
+
+def mitsuba_module():
+    """Mitsuba 3 with the scalar_rgb variant, or None when it is not installed."""
+    try:
+        import mitsuba as mi
+        mi.set_variant("scalar_rgb")
+    except Exception:  # not installed, or the variant is not compiled in: the peer column is left out
+        return None
+    return mi
+
+
+def mitsuba_equal_time(mi, scene_name, res, budget_s, seed):
+    """Mitsuba's path tracer, passes of a few spp (new seed each) until the next would cross the budget."""
+    scene = mi.load_file(str(builtin_scene_path(scene_name)), res=res)
+    acc = None
+    passes = 0
+    t0 = time.perf_counter()
+    last = 0.0
+    while passes == 0 or time.perf_counter() - t0 + last <= budget_s:
+        t1 = time.perf_counter()
+        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS, seed=seed * 100_003 + passes),
+                       dtype=np.float64)[..., :3]
+        acc = img if acc is None else acc + img
+        passes += 1
+        last = time.perf_counter() - t1
+    return (acc / passes).astype(np.float32), time.perf_counter() - t0, passes * MITSUBA_SPP_PER_PASS
+
+
+class Convergence:
+    """The experiment over a runner (which supplies scenes, references and masks)."""
+
+    def __init__(self, runner):
+        self.runner = runner
+        self.cfg = runner.cfg
+        self.budgets = QUICK_BUDGETS_S if self.cfg.quick else BUDGETS_S
+        self.pmc = QUICK_PMC_PHOTONS if self.cfg.quick else PMC_PHOTONS
+        self.warm = set()
+
+    def count(self) -> int:
+        mi = 1 if mitsuba_module() is not None else 0
+        return len(SCENES) * (len(self.budgets) * (len(PROGRESSIVE) + mi) + len(self.pmc))
+
+    def _tick(self):
+        if self.runner.bar is not None:
+            self.runner.bar.update(1)
+
+    def _render(self, scene, method, res, **kw):
+        if method not in self.warm:
+            render(scene, method, res=(16, 16), seed=self.cfg.seed, threads=self.cfg.threads,
+                   **{k: v for k, v in kw.items() if k not in ("time_s",)})
+            self.warm.add(method)
+        t0 = time.perf_counter()
+        result = render(scene, method, res=(res, res), seed=self.cfg.seed, threads=self.cfg.threads, **kw)
+        return result, time.perf_counter() - t0
+
+    def run(self, folder: Path) -> dict:
+        from .figures import convergence_plot
+        res = self.cfg.res
+        rows = []
+        mi = mitsuba_module()
+        for name in SCENES:
+            scene = self.runner.scene(name)
+            ref = self.runner.reference(name)
+            mask = self.runner.mask(name)
+            for label, method, params in PROGRESSIVE:
+                for budget in self.budgets:
+                    result, wall = self._render(scene, method, res, time_s=budget, **params)
+                    st = result.stats
+                    rows.append({"scene": name, "label": label, "method": method, "budget_s": budget,
+                                 "time_s": wall, "passes": st.get("passes"), **measure(result.image, ref.image,
+                                                                                       mask)})
+                    self._save(folder, name, label, budget, result)
+                    self._tick()
+            for n in self.pmc:
+                result, wall = self._render(scene, "pm", res, photons=n, caustic_photons=n)
+                rows.append({"scene": name, "label": f"PM+C {n:,} + {n:,}", "method": "pm", "budget_s": None,
+                             "time_s": wall, "passes": 1, **measure(result.image, ref.image, mask)})
+                self._save(folder, name, f"PMC_{n}", None, result)
+                self._tick()
+            if mi is not None:
+                for budget in self.budgets:
+                    image, wall, spp = mitsuba_equal_time(mi, name, res, budget, self.cfg.seed)
+                    rows.append({"scene": name, "label": MITSUBA_LABEL, "method": "mitsuba", "budget_s": budget,
+                                 "time_s": wall, "passes": spp, **measure(image, ref.image, mask)})
+                    self._tick()
+            floor = ref.noise.get("caustic_est_rel_rmse_of_full") if ref.noise else None
+            rows.append({"scene": name, "label": "reference's own noise", "method": "reference", "budget_s": None,
+                         "time_s": None, "passes": None,
+                         "caustic_rel_rmse": floor,
+                         "rel_rmse": ref.noise.get("est_rel_rmse_of_full") if ref.noise else None})
+        tables, figures = {}, []
+        from .runner import markdown_table, write_csv
+        cols = ("label", "budget_s", "time_s", "passes", "caustic_rel_rmse", "rel_rmse", "caustic_block_err",
+                "block_err", "caustic_flip", "flip")
+        headers = {"label": "method", "budget_s": "budget s", "time_s": "time s", "passes": "passes / spp",
+                   "caustic_rel_rmse": "caustic relRMSE", "rel_rmse": "relRMSE",
+                   "caustic_block_err": "caustic block err", "block_err": "block err",
+                   "caustic_flip": "caustic FLIP", "flip": "FLIP"}
+        for name in SCENES:
+            mine = [r for r in rows if r["scene"] == name]
+            tables[name] = markdown_table(mine, cols, headers)
+            fig = f"convergence_{name}.png"
+            convergence_plot(mine, folder / fig, name)
+            figures.append(fig)
+        write_csv(folder / "convergence.csv", rows, ("scene",) + cols)
+        md = "\n".join(f"### {n}\n\n{t}" for n, t in tables.items())
+        atomic_write(folder / "convergence.md", lambda tmp: tmp.write_text(md, encoding="utf-8"))
+        return {"title": f"Convergence: error against wall time at {res}x{res}", "scene": ", ".join(SCENES),
+                "summary": summary(rows, self.budgets), "tables": tables, "csv": ["convergence.csv"],
+                "figures": figures, "rows": rows}
+
+    def _save(self, folder, scene, label, budget, result):
+        tag = label.replace(" ", "_").replace(",", "").replace("+", "C")
+        name = f"{scene}_{tag}" + (f"_{budget:g}s" if budget is not None else "") + ".exr"
+        result.save(folder / "renders" / name)
+
+
+def summary(rows, budgets) -> str:
+    """Which method has the lowest caustic relRMSE at each budget, and its ratio to Mitsuba's."""
+    lines = []
+    for scene in SCENES:
+        for b in budgets:
+            at = [r for r in rows if r["scene"] == scene and r.get("budget_s") == b
+                  and r.get("caustic_rel_rmse") is not None]
+            ours = [r for r in at if r["method"] not in ("mitsuba",)]
+            if not ours:
+                continue
+            best = min(ours, key=lambda r: r["caustic_rel_rmse"])
+            text = (f"{scene} at {b:g} s: best caustic relRMSE {best['caustic_rel_rmse']:.4f} ({best['label']}, "
+                    f"whole image {best['rel_rmse']:.4f})")
+            peer = [r for r in at if r["method"] == "mitsuba"]
+            if peer:
+                p = peer[0]
+                text += (f"; Mitsuba 3: {p['caustic_rel_rmse']:.4f} / {p['rel_rmse']:.4f} — "
+                         f"{p['caustic_rel_rmse'] / best['caustic_rel_rmse']:.1f}x lower on the caustic, "
+                         f"{p['rel_rmse'] / best['rel_rmse']:.2f}x on the whole image")
+            lines.append(text)
+    return "\n".join(lines)
