@@ -142,6 +142,17 @@ def test_white_furnace_in_a_sphere(method, params, termination):
     assert np.all(np.abs(got - expected) <= N_SIGMA * se + 1e-4 * expected), (got, expected, se)
 
 
+def test_sppm_caustic_photons_keep_the_image_unbiased(diacaustic):
+    """Aimed caustic photons replace the global photons' light -> specular -> diffuse paths, with
+    the aiming pdf in their power: the image mean stays PM's (5 sigma of the seeds' spread)."""
+    kw = dict(res=16, passes=4, photons=4000, radius=1.0)
+    plain = np.array([caustica.render(diacaustic, "sppm", seed=s, **kw).image.mean() for s in range(6)])
+    aimed = np.array([caustica.render(diacaustic, "sppm", seed=s, caustic_photons=4000, **kw).image.mean()
+                      for s in range(6)])
+    se = math.sqrt(plain.var(ddof=1) / 6 + aimed.var(ddof=1) / 6)
+    assert abs(plain.mean() - aimed.mean()) <= N_SIGMA * se, (plain.mean(), aimed.mean(), se)
+
+
 # --------------------------------------------------------------------------- 4. the Mitsuba reference
 
 @pytest.mark.slow

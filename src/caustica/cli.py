@@ -134,8 +134,8 @@ def _build_parser():
                       help="time budget: passes run until the next would end past it (with --passes: "
                            "whichever comes first)")
     prog.add_argument("--checkpoint", metavar="FILE",
-                      help="save the state after every pass to FILE (.npz); if FILE exists, resume from it "
-                           "(same scene and settings) up to --passes")
+                      help="save the state to FILE (.npz) every 5 s, after the last pass and on Ctrl-C; "
+                           "if FILE exists, resume from it (same scene and settings) up to --passes")
     prog.add_argument("--aov", metavar="NAMES",
                       help="also write per-pixel images NAME.<aov>.exr: radius (final gather radius) and/or "
                            "count (photon events gathered), comma-separated (sppm, pspm)")

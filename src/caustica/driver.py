@@ -7,8 +7,13 @@ finished so far.  ``run_pass`` returns a *new* state rather than changing the ol
 one, so an interrupt in the middle of a pass leaves the last finished state whole.
 
 Time budget: passes run while the next one, predicted to take as long as the
-slowest of the last three, would still end within the budget (the first pass always
-runs).  The budget counts from the start of the first pass and includes compile time.
+slowest of the last three (compile time left out), would still end within the budget
+(the first pass always runs).  The budget counts from the start of the first pass and
+includes compile time.
+
+Checkpoints are written after a pass when CHECKPOINT_INTERVAL_S have passed since the
+last one, after the last pass and when interrupted (a save costs an fsync: for passes
+of milliseconds, saving each would cost more than rendering).
 """
 from __future__ import annotations
 
@@ -23,6 +28,8 @@ from . import checkpoint as ckpt
 MAX_PASSES = 1 << 30
 #: Upper bound of --time in seconds (a year).
 MAX_TIME_S = 365 * 24 * 3600.0
+#: Least time between two checkpoint saves, in seconds.
+CHECKPOINT_INTERVAL_S = 5.0
 
 
 @dataclass
@@ -64,6 +71,7 @@ def check_plan(method_cls, passes=None, time_s=None, checkpoint=None) -> PassPla
 class PassLog:
     """What the loop measured: seconds per pass, summed per-phase timings and counters."""
     pass_seconds: list = field(default_factory=list)
+    work_seconds: list = field(default_factory=list)   # pass_seconds without compile time
     timings: dict = field(default_factory=dict)
     counters: dict = field(default_factory=dict)
     interrupted: bool = False
@@ -71,6 +79,7 @@ class PassLog:
 
     def add(self, seconds: float, stats: dict) -> None:
         self.pass_seconds.append(seconds)
+        self.work_seconds.append(max(0.0, seconds - stats.get("timings", {}).get("compile_s", 0.0)))
         for k, v in stats.get("timings", {}).items():
             self.timings[k] = self.timings.get(k, 0.0) + v
         for k, v in stats.items():
@@ -102,18 +111,21 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
             bar.update(log.resumed_from)
     inner = progress if not multi else _quiet_factory
     t_start = time.perf_counter()
+    saved = state.passes
+    last_save = t_start
     try:
         while target is None or state.passes < target:
             elapsed = time.perf_counter() - t_start
             if plan.time_s is not None and log.pass_seconds:
-                predicted = max(log.pass_seconds[-3:])
+                predicted = max(log.work_seconds[-3:])
                 if elapsed + predicted > plan.time_s:
                     break
             t0 = time.perf_counter()
             state, stats = method_cls.run_pass(scene, settings, state, inner)
             log.add(time.perf_counter() - t0, stats)
-            if plan.checkpoint is not None:
+            if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
                 ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+                saved, last_save = state.passes, time.perf_counter()
             if bar is not None:
                 bar.update(1)
                 if plan.time_s is not None:
@@ -125,6 +137,8 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
     finally:
         if bar is not None:
             bar.close()
+    if plan.checkpoint is not None and state.passes > saved:
+        ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
     return state, log
 
 
