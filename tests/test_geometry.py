@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from caustica.errors import SceneError
 from caustica.geometry import primitives as pr
+from caustica.geometry.bounds import enclosing_sphere, shape_bounding_sphere
 from caustica.geometry.bvh import MAX_LEAF, STACK_SIZE, bvh_depth
 from caustica.geometry.scene_geometry import (
     build_geometry, emitter_prims, intersect, intersect_brute_force, intersect_rays, occluded,
@@ -639,3 +640,58 @@ def test_stretched_emitter_on_a_curved_shape_is_an_error():
     bad = sd.Shape(sd.MESH, 0, mesh=sd.Mesh(np.zeros((3, 3)), np.array([[0, 1, 5]])), source="m.xml:9")
     with pytest.raises(SceneError, match="m.xml:9"):
         build_geometry(desc_of([bad]))
+
+
+# ---------------------------------------------------------------------------
+# Bounding spheres (what the caustic map aims at)
+# ---------------------------------------------------------------------------
+
+def canonical_points(kind, rng, n):
+    """Points on Mitsuba's canonical sphere / disk / cylinder, including its extremes."""
+    u = rng.normal(size=(n, 3))
+    if kind == sd.SPHERE:
+        return u / np.linalg.norm(u, axis=1)[:, None]
+    phi = rng.uniform(0, 2 * np.pi, n)
+    if kind == sd.DISK:
+        r = np.sqrt(rng.uniform(0, 1, n))
+        r[: n // 2] = 1.0                       # the rim is where the extremes are
+        return np.stack([r * np.cos(phi), r * np.sin(phi), np.zeros(n)], axis=1)
+    z = rng.uniform(0, 1, n)
+    z[: n // 2] = np.round(z[: n // 2])         # the end circles
+    return np.stack([np.cos(phi), np.sin(phi), z], axis=1)
+
+
+@pytest.mark.parametrize("kind", [sd.SPHERE, sd.DISK, sd.CYLINDER])
+def test_analytic_bounding_spheres_contain_the_shape_and_are_exact_for_similarities(kind):
+    rng = np.random.default_rng(12)
+    exact = {sd.SPHERE: 1.0, sd.DISK: 1.0, sd.CYLINDER: math.sqrt(1.25)}[kind]
+    for m, scale in [(similarity(rng, 2.5), 2.5), (affine(rng), None), (affine(rng), None)]:
+        geom = build_geometry(desc_of([sd.Shape(kind, 0, to_world=m)]))
+        c, r = shape_bounding_sphere(geom, 0)
+        p = canonical_points(kind, rng, 20_000) @ m[:3, :3].T + m[:3, 3]
+        d = np.linalg.norm(p - c, axis=1)
+        assert d.max() <= r, (kind, d.max(), r)
+        box = geom.shape_box[0]
+        assert r <= 0.5 * np.linalg.norm(box[3:] - box[:3]) * (1 + 1e-6)   # never worse than the box's sphere
+        if scale is not None:
+            assert r == pytest.approx(exact * scale, rel=1e-8)
+        else:
+            assert r <= 1.5 * d.max()       # a bound, but not a loose one
+
+
+def test_mesh_bounding_sphere_holds_every_vertex_and_is_near_minimal():
+    rng = np.random.default_rng(13)
+    shape = soup(rng, 300)
+    geom = build_geometry(desc_of([shape]))
+    c, r = shape_bounding_sphere(geom, 0)
+    assert np.linalg.norm(shape.mesh.positions - c, axis=1).max() <= r
+    # points on a sphere of radius 3 (a tessellated ball): the minimal sphere is that sphere
+    u = rng.normal(size=(5000, 3))
+    u = 3.0 * u / np.linalg.norm(u, axis=1)[:, None] + [1.0, -2.0, 0.5]
+    c, r = enclosing_sphere(u)
+    assert 3.0 <= r <= 3.0 * 1.01
+    np.testing.assert_allclose(c, [1.0, -2.0, 0.5], atol=0.05)
+    # a cube's corners and inside: the minimal radius is the half-diagonal
+    cube = np.concatenate([np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T,
+                           rng.uniform(-1, 1, (1000, 3))])
+    assert math.sqrt(3) <= enclosing_sphere(cube)[1] <= 1.01 * math.sqrt(3)

@@ -143,6 +143,11 @@ def diacaustic():
 
 
 @pytest.fixture(scope="module")
+def catacaustic():
+    return caustica.load_scene("cornell-catacaustic")
+
+
+@pytest.fixture(scope="module")
 def pyramid():
     return caustica.load_scene("cornell-pyramid")
 
@@ -151,7 +156,7 @@ def test_caustic_map_holds_only_lsd_records_on_diffuse_surfaces(diacaustic):
     s = diacaustic
     spheres = s.specular_bounding_spheres()
     assert spheres.shape == (1, 4)
-    np.testing.assert_allclose(spheres[0], [4, 4, 2, 4 * math.sqrt(3)], rtol=1e-6)  # box about the sphere
+    np.testing.assert_allclose(spheres[0], [4, 4, 2, 4], rtol=1e-8)   # the glass sphere itself
     n_c = 40_000
     buf = allocate_buffers(n_c, 1)
     parallel_for(trace_caustic_photons, n_c, (s.geometry, s.materials, s.lights, spheres, 3, STREAM_CAUSTIC_PHOTON,
@@ -172,10 +177,56 @@ def test_caustic_map_holds_only_lsd_records_on_diffuse_surfaces(diacaustic):
     assert pw[spot].sum() > 0.7 * pw.sum()
 
 
-def test_caustic_photons_carry_the_same_power_as_lsd_paths_of_the_global_pass(diacaustic):
+def box_spheres(s):
+    """What the caustic map aimed at before: the sphere about each specular shape's bounding box."""
+    out = []
+    for sh in s.specular_shapes():
+        lo, hi = s.geometry.shape_box[sh, :3], s.geometry.shape_box[sh, 3:]
+        out.append([*(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))])
+    return np.array(out)
+
+
+def stored_fraction(s, spheres, n, seed=3):
+    buf = allocate_buffers(n, 1)
+    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, spheres, seed, STREAM_CAUSTIC_PHOTON,
+                                            n, *buf))
+    return float((buf.kind != EMPTY).mean())
+
+
+def test_caustic_spheres_are_tight_and_hold_their_shape(catacaustic):
+    s = catacaustic
+    (sphere,) = s.specular_bounding_spheres()
+    g = s.geometry
+    tri = np.nonzero(g.prim_shape == s.specular_shapes()[0])[0]
+    v = np.concatenate([g.tri_p0[tri], g.tri_p0[tri] + g.tri_e1[tri], g.tri_p0[tri] + g.tri_e2[tri]])
+    assert np.all(np.linalg.norm(v - sphere[:3], axis=1) <= sphere[3])
+    # the half ring (radius 3.5, height 5): its ends are a diameter apart, so its minimal enclosing
+    # sphere has the ring's axis point at mid-height as centre and radius sqrt(3.5^2 + 2.5^2)
+    assert sphere[3] <= 1.01 * math.hypot(3.5, 2.5)
+    assert sphere[3] < box_spheres(s)[0, 3]
+
+
+def test_aimed_caustic_photons_hit_the_specular_object(diacaustic, catacaustic):
+    """The fraction of aimed photons that reach the mirror / glass (and so store a record) rises with
+    the tight sphere: about 31 % -> 97 % for the glass sphere (the box's sphere has radius 6.93, the
+    glass 4); the half ring fills little of any sphere about it, 29 % -> 32 %."""
+    n = 40_000
+    tight = stored_fraction(diacaustic, diacaustic.specular_bounding_spheres(), n)
+    box = stored_fraction(diacaustic, box_spheres(diacaustic), n)
+    assert tight > 0.9 and box < 0.4, (tight, box)
+    tight = stored_fraction(catacaustic, catacaustic.specular_bounding_spheres(), n)
+    box = stored_fraction(catacaustic, box_spheres(catacaustic), n)
+    se = math.sqrt(0.25 / n)                     # the standard error of a fraction is at most sqrt(1/4n)
+    assert tight - box > 5 * math.sqrt(2) * se, (tight, box)
+
+
+@pytest.mark.parametrize("scene_name", ["cornell-diacaustic", "cornell-catacaustic"])
+def test_caustic_photons_carry_the_same_power_as_lsd_paths_of_the_global_pass(scene_name):
     """Aimed caustic photons are weighted by the aiming pdf: the L S+ D power they store equals,
-    in expectation, the power of the CAUSTIC records of ordinary photons (SPEC §3: unbiased)."""
-    s = diacaustic
+    in expectation, the power of the CAUSTIC records of ordinary photons (SPEC §3: unbiased).
+    This also shows the tight spheres hold the whole mirror / glass: a part outside them would
+    lose its caustic power here."""
+    s = caustica.load_scene(scene_name)
     n = 200_000
     g = trace(s, n, 1, seed=9)
     gpow = per_photon_slot_power(g, n, 1)

@@ -15,6 +15,7 @@ from ..bsdf import MaterialTable, build_material_table
 from ..camera import CameraParams, camera_params
 from ..emitters import LightTable, build_light_table
 from ..errors import SceneError
+from ..geometry.bounds import shape_bounding_sphere
 from ..geometry.scene_geometry import Geometry, build_geometry
 from .description import SceneDescription
 from .transforms import MAX_ABS_FLOAT
@@ -27,6 +28,7 @@ class Scene:
     materials: MaterialTable
     lights: LightTable
     timings: dict = field(default_factory=dict)
+    _specular_spheres: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:
@@ -53,13 +55,19 @@ class Scene:
         return [i for i, s in enumerate(self.description.shapes) if mats[s.material].is_specular]
 
     def specular_bounding_spheres(self) -> np.ndarray:
-        """(n, 4) centre + radius of a sphere around each specular shape's primitives."""
-        out = []
-        for s in self.specular_shapes():
-            lo, hi = self.geometry.shape_box[s, :3], self.geometry.shape_box[s, 3:]
-            centre = 0.5 * (lo + hi)
-            out.append([*centre, 0.5 * float(np.linalg.norm(hi - lo))])
-        return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+        """(n, 4) centre + radius of a tight sphere containing each specular shape (the caustic map's targets).
+
+        Analytic shapes get their own sphere (radius 4 for the diacaustic scene's glass
+        sphere), meshes a near-minimal sphere about their vertices
+        (:mod:`caustica.geometry.bounds`); computed once per scene.
+        """
+        if self._specular_spheres is None:
+            out = []
+            for s in self.specular_shapes():
+                centre, radius = shape_bounding_sphere(self.geometry, s)
+                out.append([*centre, radius])
+            self._specular_spheres = np.asarray(out, dtype=np.float64).reshape(-1, 4)
+        return self._specular_spheres.copy()
 
     def __repr__(self) -> str:
         d = self.description
