@@ -142,6 +142,49 @@ def test_experiment_bad_name_is_exit_2(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
+# --------------------------------------------------------------------------- the caustic mask
+
+def test_the_mask_is_not_traced_with_pm_c_s_own_caustic_photons():
+    """The mask of an experiment with seed s must not be PM+C's caustic map at seed s (issue 8):
+    its photons come from their own stream, so the two splats differ photon for photon while
+    showing the same caustic."""
+    import caustica
+    from caustica.api import progress_factory, resolve_settings
+    from caustica.experiments.masks import caustic_density
+    from caustica.methods.pm import PhotonMapping
+    from caustica.photon_view import splat_records
+    scene = caustica.load_scene("cornell-diacaustic")
+    n, w, seed = 20_000, 32, 4
+    mask_img = caustic_density(scene, w, w, photons=n, seed=seed, threads=1)
+    scene, _, settings = resolve_settings(scene, "pm", res=(w, w), seed=seed, threads=1, photons=1, caustic_photons=n)
+    _, cmap, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
+    pmc = np.zeros((w, w, 3))
+    splat_records(scene.geometry, scene.camera(w, w), np.ascontiguousarray(cmap.position),
+                  np.ascontiguousarray(cmap.power), pmc)
+    pmc = pmc.sum(axis=2)
+    assert mask_img.sum() > 0 and pmc.sum() > 0
+    assert not np.array_equal(mask_img, pmc)
+    assert np.abs(mask_img - pmc).sum() > 0.05 * pmc.sum()          # not a rounding difference
+    assert np.corrcoef(mask_img.ravel(), pmc.ravel())[0, 1] > 0.9   # but the same caustic
+
+
+def test_stream_tags_never_share_keys_for_nearby_seeds():
+    """path_key(seed, tag, i) mixes seed * G + tag: two tags give the same key only for seeds that
+    differ by (tag_a - tag_b) / G mod 2^64.  Every pair of tags must need a difference above 2^40,
+    so no two renders or masks of any experiment (seeds s .. s + 1001) ever share random numbers."""
+    from caustica.sampling import rng
+    tags = {k: v for k, v in vars(rng).items() if k.startswith("STREAM_")}
+    assert "STREAM_CAUSTIC_MASK" in tags
+    assert len(set(tags.values())) == len(tags), tags
+    mod = 1 << 64
+    g_inv = pow(int(rng._GOLDEN), -1, mod)
+    for a in tags.values():
+        for b in tags.values():
+            if a != b:
+                delta = ((a - b) * g_inv) % mod
+                assert min(delta, mod - delta) > 1 << 40, (a, b)
+
+
 # --------------------------------------------------------------------------- the whole pipeline
 
 

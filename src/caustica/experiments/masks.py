@@ -2,7 +2,10 @@
 
 How (docs/experiments.md): ``pm``'s caustic pass shoots ``photons`` photons at the
 specular objects' bounding spheres and keeps the light -> specular+ -> diffuse
-records (its caustic map).  Every record the camera sees is splatted into the pixel
+records (its caustic map), with random numbers of their own
+(``STREAM_CAUSTIC_MASK``): for the same seed they are independent of the caustic
+photons of every render, so PM+C is never judged on a region drawn from its own
+photons (and their noise).  Every record the camera sees is splatted into the pixel
 it projects to (``photon_view.splat_records``: occlusion-tested), the splat image is
 blurred by a small box (3 x 3 at 512 px, scaled with the image) to average out
 photon noise, and the pixels whose caustic power is at least ``threshold`` (default
@@ -14,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..api import progress_factory, resolve_settings
+from ..api import resolve_settings
+from ..sampling.rng import STREAM_CAUSTIC_MASK
 
 
 def _box_blur(img: np.ndarray, r: int) -> np.ndarray:
@@ -41,17 +45,29 @@ def _dilate(mask: np.ndarray, r: int) -> np.ndarray:
 
 def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, seed: int = 0,
                     threads: int | None = None) -> np.ndarray:
-    """Caustic-map power splatted into the camera's pixels (H x W, summed over RGB)."""
-    from ..methods.pm import PhotonMapping
+    """Caustic-map power splatted into the camera's pixels (H x W, summed over RGB).
+
+    The photons are ``pm``'s caustic photons (``trace_caustic_photons``) keyed by
+    (seed, ``STREAM_CAUSTIC_MASK``, index), never by PM+C's ``STREAM_CAUSTIC_PHOTON``.
+    """
+    from ..jit import parallel_for
     from ..photon_view import splat_records
+    from ..photons.records import CAUSTIC, allocate_buffers
+    from ..photons.trace import trace_caustic_photons
     scene, _cls, settings = resolve_settings(scene, "pm", res=(width, height), seed=seed, threads=threads,
                                             photons=1, caustic_photons=photons)
-    _, cmap, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
-    cam = scene.camera(width, height)
     img = np.zeros((height, width, 3), np.float64)
-    if cmap.count:
-        splat_records(scene.geometry, cam, np.ascontiguousarray(cmap.position),
-                      np.ascontiguousarray(cmap.power), img)
+    spheres = scene.specular_bounding_spheres()
+    if photons <= 0 or spheres.shape[0] == 0:
+        return img.sum(axis=2)
+    buf = allocate_buffers(photons, 1)
+    parallel_for(trace_caustic_photons, photons,
+                 (scene.geometry, scene.materials, scene.lights, spheres, seed, STREAM_CAUSTIC_MASK, photons, *buf),
+                 threads=settings["threads"])
+    keep = buf.kind == CAUSTIC
+    if keep.any():
+        splat_records(scene.geometry, scene.camera(width, height), np.ascontiguousarray(buf.position[keep]),
+                      np.ascontiguousarray(buf.power[keep]), img)
     return img.sum(axis=2)
 
 

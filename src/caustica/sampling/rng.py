@@ -21,6 +21,10 @@ STREAM_PHOTON = 2
 STREAM_CAUSTIC_PHOTON = 3
 STREAM_SPM = 4
 STREAM_DIRECT = 5
+# Tags from 100 up belong to measurement tools, not to any method's image: the caustic
+# mask of the experiments (experiments/masks.py) traces its own photons, so the region an
+# experiment measures is never drawn from the very photons of the PM+C render it judges.
+STREAM_CAUSTIC_MASK = 101
 
 #: Bits of a stream tag that name the phase; the pass index sits above them.
 PHASE_BITS = 8
