@@ -13,7 +13,8 @@ from caustica import imageio
 from caustica.cli import main
 from caustica.experiments import metrics as M
 from caustica.experiments.reference import noise_stats
-from caustica.experiments.runner import CONFIGS, EQUAL_METRIC, equal_comparison
+from caustica.experiments.runner import ABLATION, ABLATION_SCENES, CONFIGS, EQUAL_METRIC, FLOOR_LABEL, \
+    equal_comparison
 
 
 def _image(seed=0, shape=(32, 40)):
@@ -27,7 +28,8 @@ def _image(seed=0, shape=(32, 40)):
 def test_identical_images_have_no_error():
     r = _image()
     m = M.all_metrics(r, r, r[:, :, 0] > 0.5)
-    for key in ("rel_mse", "block_err", "flip", "caustic_rel_mse", "caustic_block_err", "caustic_flip"):
+    for key in ("rel_mse", "block_err", "mean_err", "flip", "caustic_rel_mse", "caustic_block_err",
+                "caustic_mean_err", "caustic_flip"):
         assert m[key] == pytest.approx(0.0, abs=1e-12), key
     assert m["ssim"] == pytest.approx(1.0)
     assert m["caustic_ssim"] == pytest.approx(1.0)
@@ -51,6 +53,49 @@ def test_block_err_of_a_scaled_image_is_the_scale():
     flat = np.full((64, 64, 3), 0.5)
     noisy = flat + rng.normal(0, 0.05, flat.shape)
     assert M.block_err(noisy, flat, block=8) < 0.3 * np.sqrt(M.rel_mse(noisy, flat) * (0.25 + M.REL_EPS) / 0.25)
+
+
+def test_mean_err_is_the_signed_energy_difference():
+    r = _image(5)
+    assert M.mean_err(r * 0.99, r) == pytest.approx(-0.01)
+    assert M.mean_err(r * 1.25, r) == pytest.approx(0.25)
+    # zero-mean noise leaves the mean (nearly) alone while the block error sees it
+    rng = np.random.default_rng(6)
+    flat = np.full((64, 64, 3), 0.5)
+    noisy = flat + rng.normal(0, 0.05, flat.shape)
+    assert abs(M.mean_err(noisy, flat)) < 4 * 0.05 / 0.5 / np.sqrt(flat.size)
+    mask = np.zeros((64, 64), bool)
+    mask[:8] = True
+    t = flat.copy()
+    t[:8] *= 2.0
+    assert M.mean_err(t, flat, mask) == pytest.approx(1.0)
+    assert M.mean_err(t, flat, ~mask) == pytest.approx(0.0)
+
+
+def test_seed_statistics_are_mean_and_sample_sd():
+    from caustica.experiments.runner import _cell, seed_statistics
+    st = seed_statistics([{"caustic_block_err": 0.1, "ssim": 0.5}, {"caustic_block_err": 0.3, "ssim": 0.7}])
+    assert st["caustic_block_err"] == pytest.approx(0.2)
+    assert st["caustic_block_err_sd"] == pytest.approx(np.std([0.1, 0.3], ddof=1))
+    assert st["ssim_sd"] == pytest.approx(np.std([0.5, 0.7], ddof=1))
+    assert _cell(st, "caustic_block_err") == "0.2 ± 0.14"       # block errors are shown with their spread
+    assert _cell(st, "ssim") == "0.6"
+    one = seed_statistics([{"caustic_block_err": 0.1}])
+    assert one["caustic_block_err"] == 0.1 and np.isnan(one["caustic_block_err_sd"])
+    assert _cell(one, "caustic_block_err") == "0.1"
+
+
+def test_paired_differences_cancel_noise_shared_by_both_rows():
+    from caustica.experiments.runner import paired, seed_statistics
+    rng = np.random.default_rng(7)
+    common = rng.normal(0.0, 0.1, 5)                  # e.g. the camera pass's noise, the same for both rows
+    a = seed_statistics([{"e": 0.30 + c} for c in common])
+    b = seed_statistics([{"e": 0.25 + c + 1e-3 * x} for c, x in zip(common, rng.normal(size=5))])
+    mean, se, z = paired(a, b, "e")
+    assert mean == pytest.approx(0.05, abs=5e-3)
+    assert se < 1e-3 < a["e_sd"]                       # the common noise is gone from the difference
+    assert z > 20
+    assert paired(a, seed_statistics([{"e": 0.1}]), "e") is None     # different seed counts: no pairing
 
 
 def test_mask_restricts_every_metric():
@@ -110,11 +155,12 @@ def test_compare_prints_metrics(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "test.exr"), str(tmp_path / "ref.exr"),
                  "--mask", str(tmp_path / "mask.png")]) == 0
     out = capsys.readouterr().out
-    for word in ("relMSE", "block err", "SSIM", "FLIP", "whole", "mask"):
+    for word in ("relMSE", "block err", "mean err", "SSIM", "FLIP", "whole", "mask"):
         assert word in out
     whole = out.splitlines()[1].split()
     assert float(whole[1]) == pytest.approx(M.rel_mse(r * 1.1, r), rel=1e-4)
     assert float(whole[2]) == pytest.approx(0.1, rel=1e-4)
+    assert float(whole[3]) == pytest.approx(0.1, rel=1e-4)      # mean err: 10 % too bright
 
 
 @pytest.mark.parametrize("bad", ["missing", "size", "mask"])
@@ -212,7 +258,10 @@ def test_experiment_all_quick_end_to_end(tmp_path):
     for name in ("table2", "table3"):
         rows = _csv(out / name / f"{name}.csv")
         assert [r["label"] for r in rows[:3]] == list(CONFIGS)
-        assert rows[3]["label"].startswith("reference noise")
+        assert rows[3]["label"] == FLOOR_LABEL                    # the truncation floor: PM with mr = 64
+        assert rows[4]["label"].startswith("reference noise")
+        assert rows[3]["photons_emitted"] == rows[1]["photons_emitted"]
+        assert all(r["mean_err"] != "" and r["seeds"] == "1" for r in rows[:4])
         for col in ("photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "equal_error_time_s",
                     "equal_time_error", "time_to_pmc_error_s"):
             assert col in rows[0]
@@ -220,21 +269,52 @@ def test_experiment_all_quick_end_to_end(tmp_path):
         assert len(_csv(out / name / f"{name}_budget_sweep.csv")) == 3 * 3
         md = (out / name / f"{name}.md").read_text()
         assert "PM+C" in md and "caustic relMSE" in md and "caustic block err in SPM's time" in md
+        assert FLOOR_LABEL in md and "mean err" in md
         assert (out / name / f"{name}_error_vs_time.png").is_file()
 
     for name, scene in (("fig5", "cornell-pyramid"), ("fig8", "cornell-diacaustic"),
                         ("fig9", "cornell-catacaustic")):
         assert (out / name / f"{name}_{scene}.png").stat().st_size > 1000
+    for scene in ABLATION_SCENES:
+        rows = _csv(out / "merge-ablation" / f"merge_ablation_{scene}.csv")
+        assert [r["label"] for r in rows[:-1]] == [a[0] for a in ABLATION]
+        assert rows[-1]["label"].startswith("reference noise")
+        assert all(r["caustic_block_err"] != "" for r in rows[:-1])
+        assert (out / "merge-ablation" / f"{scene}_caustic_mask.png").is_file()
     fig6 = json.loads((out / "fig6" / "results.json").read_text())
     assert fig6.get("skipped") or (out / "fig6" / "fig6_cornell-bunny.png").is_file()
 
     report = (out / "report.md").read_text()
     for text in ("Table 1", "Table 2", "Table 3", "Figure 5", "Figure 8", "Figure 9", "reference noise",
-                 "table1/fig4_error_vs_streams.png", "Equal error", "relMSE"):
+                 "table1/fig4_error_vs_streams.png", "Equal error", "relMSE", "Truncation floor",
+                 "Merge ablation", "PM with 10,000 photons"):
         assert text in report, text
     # the reference is cached: a second run of one experiment renders no new reference
     cached = list((tmp_path / "cache").iterdir())
     assert len(cached) == 2
+
+
+def test_seeds_give_every_error_a_spread(tmp_path):
+    """--seeds 2: each measured configuration is rendered with seeds s and s + 1; the row holds the mean
+    and the s.d. of the two, and the Markdown shows block errors as mean ± s.d."""
+    out = tmp_path / "exp"
+    assert main(["experiment", "table3", "--quick", "--res", "16", "--seeds", "2", "--seed", "5", "-o", str(out),
+                 "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "-q"]) == 0
+    rows = _csv(out / "table3" / "table3.csv")
+    for r in rows[:4]:
+        assert r["seeds"] == "2"
+        assert float(r["caustic_block_err_sd"]) > 0 and float(r["block_err_sd"]) > 0   # two seeds, two images
+    assert "±" in (out / "table3" / "table3.md").read_text()
+    res = json.loads((out / "table3" / "results.json").read_text())
+    assert res["settings"]["seeds"] == [5, 6]
+    assert "seeds 5..6" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("seeds", ["0", "101"])
+def test_bad_seed_count_is_refused_before_anything_is_written(tmp_path, capsys, seeds):
+    assert main(["experiment", "table2", "--quick", "--seeds", seeds, "-o", str(tmp_path / "x"), "-q"]) == 2
+    assert "--seeds" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
 
 
 def test_user_reference_checks_size_and_reads_noise(tmp_path):

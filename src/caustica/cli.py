@@ -149,16 +149,19 @@ def _build_parser():
 
     ex = sub.add_parser("experiment", help="run the paper's experiments against a converged reference",
                         description="Run the paper's experiments (table1, table2, table3, fig5, fig6, fig8, "
-                                    "fig9, or all): render what the paper rendered, measure each image against "
+                                    "fig9, merge-ablation, or all): render what the paper rendered, measure each image against "
                                     "a converged reference (cached), write CSV and Markdown tables, PNG figures "
                                     "and DIR/report.md. See docs/experiments.md.")
     ex.add_argument("names", nargs="+", metavar="NAME",
-                    help="table1 | table2 | table3 | fig5 | fig6 | fig8 | fig9 | all (several may be given)")
+                    help="table1 | table2 | table3 | fig5 | fig6 | fig8 | fig9 | merge-ablation | all "
+                         "(several may be given)")
     ex.add_argument("-o", "--output", default="out/experiments", help="output folder (default: out/experiments)")
     ex.add_argument("--quick", action="store_true",
-                    help="the same pipeline at 48x48 with a 64-spp reference and a 3-point budget sweep")
+                    help="the same pipeline at 48x48 with a 64-spp reference, a 3-point budget sweep and one seed")
     ex.add_argument("--res", type=int, help="image size (square; default 512, the paper's; 48 with --quick)")
     ex.add_argument("--seed", type=int, default=0, help="random seed of the renders (default 0)")
+    ex.add_argument("--seeds", type=int, help="seeds per measured configuration (seed, seed+1, ...): errors are "
+                                              "their mean ± s.d. (default 3; 1 with --quick)")
     ex.add_argument("--threads", type=int, help="worker threads (default: all cores)")
     ex.add_argument("--reference", action="append", metavar="[SCENE=]PATH",
                     help="use this EXR as the reference instead of caustica's pt (repeatable; SCENE=PATH for "
@@ -288,7 +291,7 @@ def _cmd_experiment(args) -> int:
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
-                           threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat,
+                           threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,
                            progress=not args.quiet, log=log)
     runner.run(names, config)
     if not args.quiet:

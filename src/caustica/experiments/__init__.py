@@ -3,7 +3,8 @@
 ``caustica experiment NAME -o DIR`` runs :func:`runner.run`; ``caustica compare`` uses
 :mod:`metrics`.  See docs/experiments.md.
 """
-from .metrics import METRICS, all_metrics, block_err, flip, rel_mse, ssim
+from .metrics import METRICS, all_metrics, block_err, flip, mean_err, rel_mse, ssim
 from .runner import EXPERIMENTS, Config, run
 
-__all__ = ["EXPERIMENTS", "METRICS", "Config", "all_metrics", "block_err", "flip", "rel_mse", "run", "ssim"]
+__all__ = ["EXPERIMENTS", "METRICS", "Config", "all_metrics", "block_err", "flip", "mean_err", "rel_mse", "run",
+           "ssim"]

@@ -14,6 +14,9 @@ mask (True = pixel counts).  The definitions (also in docs/experiments.md):
 * ``ssim``: skimage.metrics.structural_similarity on the sRGB previews (exposure 0,
   clamped to [0, 1], the same encoding as caustica's PNGs), channel_axis=2,
   data_range=1; with a mask, the mean of the SSIM map over the mask.  1 = identical.
+* ``mean_err``: the signed relative error of the mean, (sum t - sum r) / sum r over the
+  pixels (in the mask) and channels: missing or extra energy (e.g. paths cut off by a
+  bounce limit), which no amount of blur hides.
 * ``flip``: NVIDIA's FLIP (flip_evaluator) in HDR mode on the linear images (its
   exposure range computed from the reference); with a mask, the mean of the FLIP
   map over the mask.  0 = identical.  NaN for a black reference (brightest luminance
@@ -30,8 +33,9 @@ import numpy as np
 from ..errors import CausticaError
 
 REL_EPS = 1e-2
-METRICS = ("rel_mse", "block_err", "ssim", "flip")
-METRIC_LABELS = {"rel_mse": "relMSE", "block_err": "block err", "ssim": "SSIM", "flip": "FLIP"}
+METRICS = ("rel_mse", "block_err", "mean_err", "ssim", "flip")
+METRIC_LABELS = {"rel_mse": "relMSE", "block_err": "block err", "mean_err": "mean err", "ssim": "SSIM",
+                 "flip": "FLIP"}
 
 
 def _check(test, ref, mask):
@@ -142,6 +146,17 @@ def block_err(test, ref, mask=None, block: int | None = None) -> float:
     return 0.0 if num == 0 else float("nan")  # a zero reference: only an equal image has a defined error
 
 
+def mean_err(test, ref, mask=None) -> float:
+    """Signed relative error of the mean: (sum t - sum r) / sum r over the pixels (in the mask) and channels."""
+    t, r, mask = _check(test, ref, mask)
+    if mask is not None:
+        if not mask.any():
+            return float("nan")
+        t, r = t[mask], r[mask]
+    den = float(r.sum())
+    return float((t.sum() - den) / den) if den > 0 else float("nan")
+
+
 def tonemap(image) -> np.ndarray:
     """The sRGB preview of a linear image as floats in [0, 1] (caustica's PNG encoding, exposure 0)."""
     from ..imageio import to_srgb8
@@ -218,6 +233,7 @@ def all_metrics(test, ref, mask=None, *, with_flip: bool = True) -> dict:
         empty = m is not None and not m.any()
         out[prefix + "rel_mse"] = rel_mse(t, r, m)
         out[prefix + "block_err"] = block_err(t, r, m)
+        out[prefix + "mean_err"] = mean_err(t, r, m)
         out[prefix + "ssim"] = float("nan") if smap is None or empty else float(
             smap.mean() if m is None else smap[m].mean())
         if with_flip:

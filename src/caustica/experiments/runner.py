@@ -1,16 +1,21 @@
 """The paper's experiments: every render through ``caustica.render``, measured against a reference.
 
-``run(names, config)`` runs ``table1 table2 table3 fig5 fig6 fig8 fig9`` (or ``all``)
-into ``config.out``: per experiment a folder with the renders (EXR + PNG + JSON),
+``run(names, config)`` runs ``table1 table2 table3 fig5 fig6 fig8 fig9 merge-ablation``
+(or ``all``) into ``config.out``: per experiment a folder with the renders (EXR + PNG + JSON),
 ``*.csv`` and ``*.md`` tables, PNG figures and a ``results.json``; ``report.md`` at
 the top ties them together (rebuilt after each experiment from every results.json
 present, so experiments run one at a time still make one report).
+
+Every measured configuration is rendered with ``config.seeds`` seeds (seed, seed + 1,
+...); its errors are the mean over them, with the standard deviation beside each
+(``*_sd``), so a difference can be told from seed-to-seed noise.
 """
 from __future__ import annotations
 
 import csv
 import io
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -25,12 +30,16 @@ from . import metrics as M
 from .masks import caustic_mask
 from .reference import Reference, pt_reference, user_reference
 
-EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9")
+EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation")
 
 PAPER_RES = 512
 QUICK_RES = 48
 DEFAULT_REFERENCE_SPP = 1024
 QUICK_REFERENCE_SPP = 64
+DEFAULT_SEEDS = 3
+QUICK_SEEDS = 1
+#: Seeds stay below the pt reference's (seed + 1000, seed + 1001), so no render shares its numbers.
+MAX_SEEDS = 100
 TABLE1_SCENE = "cornell-diacaustic"
 TABLE_SCENES = {"table2": "cornell-diacaustic", "table3": "cornell-catacaustic"}
 FIG_SCENES = {"fig5": "cornell-pyramid", "fig6": "cornell-bunny", "fig8": "cornell-diacaustic",
@@ -48,6 +57,26 @@ CONFIGS = {
     "PM+C": {"method": "pm", "params": {"photons": 100_000, "caustic_photons": 100_000}, "fixed": ()},
 }
 BUDGET_KEYS = {"SPM": ("streams",), "PM": ("photons",), "PM+C": ("photons", "caustic_photons")}
+#: The truncation floor of Tables 2 and 3: PM as in the paper but with mr = 64 diffuse bounces
+#: (the references have unlimited depth; after 64 bounces at most 0.75^64 ~ 1e-8 of a photon's power is left).
+FLOOR_LABEL = "PM, mr = 64"
+FLOOR_MAX_BOUNCES = 64
+#: The merge ablation (docs/experiments.md): SPM's caustic against PM with as many photons as SPM
+#: has streams, under both estimators.  Each: (label, method, parameters no override touches).
+#: "estimator" is left out for the default (stream) so the renders are shared with Tables 2 and 3.
+ABLATION_SCENES = ("cornell-diacaustic", "cornell-catacaustic")
+ABLATION = (
+    ("SPM 10,000 x 10, eq. 2 (stream estimator)", "spm", {"streams": 10_000, "assoc": 10, "stream_radius": 5.0}),
+    ("SPM 10,000 x 10, photons estimator", "spm",
+     {"streams": 10_000, "assoc": 10, "stream_radius": 5.0, "estimator": "photons"}),
+    ("SPM 10,000 x 0 (no associated photons)", "spm", {"streams": 10_000, "assoc": 0, "stream_radius": 5.0}),
+    ("PM 10,000 (as many photons as SPM has streams)", "pm", {"photons": 10_000, "caustic_photons": 0}),
+    ("SPM 100,000 x 10, eq. 2", "spm", {"streams": 100_000, "assoc": 10, "stream_radius": 5.0}),
+    ("PM 100,000", "pm", {"photons": 100_000, "caustic_photons": 0}),
+)
+ABLATION_FIXED = ("streams", "assoc", "stream_radius", "estimator", "photons", "caustic_photons")
+#: Metrics whose seed spread the Markdown tables show as "mean ± s.d." (the CSVs hold every *_sd).
+SPREAD_SHOWN = ("block_err", "caustic_block_err", "mean_err", "caustic_mean_err")
 #: The error that equal-time / equal-error compare.
 #: relMSE over the ~1000 caustic pixels is dominated by a few outlier pixels and is not monotone
 #: in the photon budget (it cannot be inverted); the block-mean error falls steadily.
@@ -58,8 +87,11 @@ MAX_EXTRAPOLATION = 2.0
 
 ROW_COLUMNS = ("experiment", "scene", "label", "method", "streams", "assoc", "stream_radius", "photons",
                "caustic_photons", "photons_emitted", "photons_stored", "map_mb", "time_s",
-               "rel_mse", "block_err", "ssim", "flip",
-               "caustic_rel_mse", "caustic_block_err", "caustic_ssim", "caustic_flip", "image")
+               "seeds", "rel_mse", "block_err", "mean_err", "ssim", "flip",
+               "caustic_rel_mse", "caustic_block_err", "caustic_mean_err", "caustic_ssim", "caustic_flip",
+               "rel_mse_sd", "block_err_sd", "mean_err_sd", "ssim_sd", "flip_sd",
+               "caustic_rel_mse_sd", "caustic_block_err_sd", "caustic_mean_err_sd", "caustic_ssim_sd",
+               "caustic_flip_sd", "image")
 
 
 @dataclass
@@ -74,6 +106,7 @@ class Config:
     threads: int | None = None
     cache_dir: Path | None = None
     repeat: int | None = None                        # renders per configuration, time = the fastest
+    seeds: int | None = None                         # seeds per measured configuration (errors: mean, s.d.)
     progress: bool = True
     log: object = None
 
@@ -85,8 +118,12 @@ class Config:
             self.reference_spp = QUICK_REFERENCE_SPP if self.quick else DEFAULT_REFERENCE_SPP
         if self.repeat is None:
             self.repeat = 1 if self.quick else 2
+        if self.seeds is None:
+            self.seeds = QUICK_SEEDS if self.quick else DEFAULT_SEEDS
         if self.repeat < 1:
             raise ParameterError(f"--repeat: at least 1 (got {self.repeat})")
+        if not 1 <= self.seeds <= MAX_SEEDS:
+            raise ParameterError(f"--seeds: between 1 and {MAX_SEEDS} (got {self.seeds})")
         if self.res < 8:
             raise ParameterError(f"--res: experiments need at least 8 pixels (got {self.res})")
         if self.reference_spp < 2:
@@ -121,18 +158,78 @@ def write_csv(path: Path, rows: list[dict], columns) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
+def _cell(row: dict, col: str) -> str:
+    """A table cell: the value, and "± s.d." over seeds for the metrics in SPREAD_SHOWN."""
+    v, sd = row.get(col), row.get(col + "_sd")
+    if col in SPREAD_SHOWN and isinstance(v, float) and isinstance(sd, float) and math.isfinite(sd):
+        return f"{_fmt(v, 3)} ± {_fmt(sd, 2)}"
+    return _fmt(v)
+
+
 def markdown_table(rows: list[dict], columns, headers=None) -> str:
     headers = headers or {}
     head = "| " + " | ".join(headers.get(c, c) for c in columns) + " |"
     sep = "| " + " | ".join("---" for _ in columns) + " |"
-    body = ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    body = ["| " + " | ".join(_cell(r, c) for c in columns) + " |" for r in rows]
     return "\n".join([head, sep, *body]) + "\n"
 
 
 HEADERS = {"label": "configuration", "photons_emitted": "photons", "map_mb": "map MB", "time_s": "time s",
-           "rel_mse": "relMSE", "block_err": "block err", "ssim": "SSIM", "flip": "FLIP",
+           "rel_mse": "relMSE", "block_err": "block err", "mean_err": "mean err", "ssim": "SSIM", "flip": "FLIP",
            "caustic_rel_mse": "caustic relMSE", "caustic_block_err": "caustic block err",
+           "caustic_mean_err": "caustic mean err",
            "caustic_ssim": "caustic SSIM", "caustic_flip": "caustic FLIP", "stream_radius": "r_s"}
+
+
+def seed_statistics(per_seed: list[dict]) -> dict:
+    """Mean of every metric over the seeds' renders, its sample standard deviation as ``<metric>_sd``
+    and the values themselves as ``<metric>_per_seed`` (results.json; for paired comparisons)."""
+    out = {}
+    for k in per_seed[0]:
+        v = np.array([m[k] for m in per_seed], dtype=np.float64)
+        out[k] = float(v.mean())
+        out[k + "_sd"] = float(v.std(ddof=1)) if len(v) > 1 else float("nan")
+        out[k + "_per_seed"] = [float(x) for x in v]
+    return out
+
+
+def paired(a: dict, b: dict, key: str):
+    """(mean of a - b, its standard error, z) over the seeds both rows share, or None below two seeds.
+
+    Rows rendered with the same seeds share the camera pass's random numbers (pixel jitter,
+    direct light), so the per-seed difference cancels that common noise: a paired comparison
+    sees differences that the two rows' own spreads would hide.
+    """
+    va, vb = a.get(key + "_per_seed"), b.get(key + "_per_seed")
+    if not va or not vb or len(va) != len(vb) or len(va) < 2:
+        return None
+    d = np.asarray(va) - np.asarray(vb)
+    if not np.all(np.isfinite(d)):
+        return None
+    se = float(d.std(ddof=1) / math.sqrt(len(d)))
+    mean = float(d.mean())
+    z = mean / se if se > 0 else (0.0 if mean == 0 else math.copysign(math.inf, mean))
+    return mean, se, z
+
+
+def _paired_text(a: dict, b: dict, key: str) -> str:
+    p = paired(a, b, key)
+    if p is None:
+        return "n/a"
+    mean, se, z = p
+    return f"{mean:+.3g} ± {se:.2g} (z = {z:+.1f})"
+
+
+def _file_stem(label: str) -> str:
+    """A render's file name from its label: "PM+C x0.5" -> "PMC_x0.5", "SPM 10,000 x 10" -> "SPM_10000_x_10"."""
+    s = label.replace("+", "C").replace(",", "").replace("=", "").replace("×", "x")
+    s = re.sub(r"[^A-Za-z0-9._-]+", "_", s)
+    return s.strip("_.") or "render"
+
+
+def _work_time(stats: dict) -> float:
+    t = stats["timings"]
+    return t["total_s"] - t.get("compile_s", 0.0) - t.get("scene_load_s", 0.0)
 
 
 class Runner:
@@ -204,7 +301,19 @@ class Runner:
                 out[k] = v
         return out
 
-    def run_render(self, experiment, scene_name, label, method, params, folder: Path, measure=True) -> dict:
+    def seed_list(self) -> list[int]:
+        """The seeds of every measured configuration: seed, seed + 1, ..., seed + seeds - 1."""
+        return [self.cfg.seed + j for j in range(self.cfg.seeds)]
+
+    def run_render(self, experiment, scene_name, label, method, params, folder: Path, measure=True,
+                   stem=None) -> dict:
+        """Render one configuration: (row, the first seed's image).
+
+        Measured: one render per seed of :meth:`seed_list`, the row's metrics their mean and
+        ``*_sd`` their standard deviation.  Time: the fastest render of the configuration
+        (the seeds' renders, plus renders of the first seed again up to ``--repeat``).
+        Only the first seed's render is saved under ``renders/``.
+        """
         key = (scene_name, method, tuple(sorted(params.items())))
         if key in self.memo:
             image, row = self.memo[key]
@@ -215,29 +324,33 @@ class Runner:
             if method not in self.warm:   # the first render of a method in a process pays start-up costs
                 render(scene, method, res=(16, 16), seed=self.cfg.seed, threads=self.cfg.threads, **params)
                 self.warm.add(method)
-            result = render(scene, method, res=(r, r), seed=self.cfg.seed, threads=self.cfg.threads,
-                            progress=self.cfg.progress, **params)
-            t = result.stats["timings"]
+            seeds = self.seed_list() if measure else [self.cfg.seed]
+            times, per_seed, result = [], [], None
+            for seed in seeds:
+                res_s = render(scene, method, res=(r, r), seed=seed, threads=self.cfg.threads,
+                               progress=self.cfg.progress, **params)
+                times.append(_work_time(res_s.stats))
+                if measure:
+                    ref = self.reference(scene_name)
+                    per_seed.append(M.all_metrics(res_s.image, ref.image, self.mask(scene_name)))
+                if result is None:
+                    result = res_s
+            while len(times) < self.cfg.repeat:   # the first seed again: the same image, only the time differs
+                times.append(_work_time(render(scene, method, res=(r, r), seed=seeds[0], threads=self.cfg.threads,
+                                               **params).stats))
             stats = result.stats
-            time_s = t["total_s"] - t.get("compile_s", 0.0) - t.get("scene_load_s", 0.0)
-            for _ in range(self.cfg.repeat - 1):   # the same image again (same seed): only the time differs
-                again = render(scene, method, res=(r, r), seed=self.cfg.seed, threads=self.cfg.threads,
-                               **params).stats["timings"]
-                time_s = min(time_s, again["total_s"] - again.get("compile_s", 0.0) - again.get("scene_load_s", 0.0))
             image = result.image
             row = {"experiment": experiment, "scene": scene_name, "label": label, "method": method,
                    **{k: params.get(k) for k in ("streams", "assoc", "stream_radius", "photons",
                                                   "caustic_photons")},
                    "photons_emitted": stats.get("photons_emitted"), "photons_stored": stats.get("photons_stored"),
                    "map_mb": stats.get("map_mb"),
-                   "time_s": time_s}
-            fname = folder / "renders" / (label.replace("+", "C").replace(" ", "_").replace("/", "_")
-                                          .replace("=", "").replace(",", "").replace("×", "x") + ".exr")
+                   "time_s": min(times), "seeds": len(seeds) if measure else None}
+            fname = folder / "renders" / (_file_stem(stem or label) + ".exr")
             result.save(fname)
             row["image"] = str(fname.relative_to(self.cfg.out))
             if measure:
-                ref = self.reference(scene_name)
-                row.update(M.all_metrics(image, ref.image, self.mask(scene_name)))
+                row.update(seed_statistics(per_seed))
             self.memo[key] = (image, row)
         if self.bar is not None:
             self.bar.update(1)
@@ -258,7 +371,9 @@ class Runner:
         if name == "table1":
             return len(self._table1_grid())
         if name in TABLE_SCENES:
-            return len(self._budget_factors()) * 3
+            return len(self._budget_factors()) * 3 + 1
+        if name == "merge-ablation":
+            return len(ABLATION) * len(ABLATION_SCENES)
         return {"fig5": 2, "fig6": 1, "fig8": 3, "fig9": 3}[name]
 
     def _table1_grid(self):
@@ -308,6 +423,11 @@ class Runner:
                     rows_main.append(row)
         order = {k: i for i, k in enumerate(CONFIGS)}
         rows_main.sort(key=lambda r: order[r["config"]])
+        # the truncation floor: the paper's PM with mr = 64 instead of 4 (the references have no limit)
+        floor_params = self.params_for("pm", CONFIGS["PM"]["params"], ("caustic_photons", "max_bounces"))
+        floor_params["max_bounces"] = FLOOR_MAX_BOUNCES
+        floor, _ = self.run_render(name, scene, FLOOR_LABEL, "pm", floor_params, folder)
+        floor = dict(floor, config=FLOOR_LABEL, budget_factor=1.0)
         noise = self.noise_row(name, scene)
         eq = equal_comparison(sweep, "SPM")
         eq_pmc = equal_comparison(sweep, "PM+C")
@@ -317,9 +437,10 @@ class Runner:
             r["time_to_pmc_error_s"] = other.get("equal_error_time_s")
             r["time_to_pmc_error_s_text"] = other.get("equal_error_time_s_text")
             r["time_to_pmc_error_extrapolated"] = other.get("equal_error_extrapolated")
-        cols = ("label", "photons_emitted", "map_mb", "time_s", "caustic_rel_mse", "caustic_block_err",
-                "caustic_ssim", "caustic_flip", "rel_mse", "ssim", "flip")
-        md = markdown_table(rows_main + [noise], cols, HEADERS)
+        cols = ("label", "photons_emitted", "map_mb", "time_s", "caustic_block_err", "caustic_mean_err",
+                "caustic_rel_mse", "caustic_ssim", "caustic_flip", "block_err", "mean_err", "rel_mse", "ssim",
+                "flip")
+        md = markdown_table(rows_main + [floor, noise], cols, HEADERS)
         eq_cols = ("label", "time_s", EQUAL_METRIC, "equal_error_time_s", "equal_time_error",
                    "time_to_pmc_error_s")
         eq_headers = {**HEADERS, "equal_error_time_s": f"time to SPM's {EQUAL_NAME} (s)",
@@ -330,7 +451,7 @@ class Runner:
                     "time_to_pmc_error_s": r.get("time_to_pmc_error_s_text")} for r in rows_main]
         md_eq = markdown_table(eq_rows, eq_cols, eq_headers)
         all_rows = [r for k in CONFIGS for r in sweep[k]]
-        write_csv(folder / f"{name}.csv", rows_main + [noise],
+        write_csv(folder / f"{name}.csv", rows_main + [floor, noise],
                   ROW_COLUMNS + ("equal_error_time_s", "equal_error_extrapolated", "equal_time_error",
                                  "equal_time_extrapolated", "time_to_pmc_error_s", "time_to_pmc_error_extrapolated"))
         write_csv(folder / f"{name}_budget_sweep.csv", all_rows, ROW_COLUMNS + ("config", "budget_factor"))
@@ -340,8 +461,35 @@ class Runner:
         return {"title": f"{'Table 2' if name == 'table2' else 'Table 3'}: SPM vs PM vs PM+C ({scene})",
                 "scene": scene, "tables": {name: md, f"{name} equal-error / equal-time": md_eq},
                 "csv": [f"{name}.csv", f"{name}_budget_sweep.csv"], "figures": [f"{name}_error_vs_time.png"],
-                "rows": rows_main + [noise], "equal": eq, "equal_to_pmc": eq_pmc,
-                "summary": equal_summary(eq, rows_main, eq_pmc)}
+                "rows": rows_main + [floor, noise], "equal": eq, "equal_to_pmc": eq_pmc,
+                "summary": " ".join(x for x in (equal_summary(eq, rows_main, eq_pmc), seed_pair_summary(rows_main),
+                                                 floor_summary(next(r for r in rows_main if r["config"] == "PM"), floor)) if x)}
+
+    def merge_ablation(self, folder):
+        """SPM's caustic against PM with n_fs photons, both estimators, on both caustic scenes (docs/experiments.md)."""
+        tables, rows_all, summaries, csvs = {}, [], [], []
+        cols = ("label", "photons_emitted", "seeds", "caustic_block_err", "caustic_mean_err", "caustic_rel_mse",
+                "block_err", "mean_err", "rel_mse")
+        for scene in ABLATION_SCENES:
+            rows = []
+            for label, method, base in ABLATION:
+                params = self.params_for(method, base, ABLATION_FIXED)
+                params.update(base)
+                row, _ = self.run_render("merge-ablation", scene, label, method, params, folder,
+                                         stem=f"{scene}_{label}")
+                rows.append(row)
+            noise = self.noise_row("merge-ablation", scene)
+            md = markdown_table(rows + [noise], cols, HEADERS)
+            tables[f"merge ablation: {scene}"] = md
+            csv_name = f"merge_ablation_{scene}.csv"
+            write_csv(folder / csv_name, rows + [noise], ROW_COLUMNS)
+            csvs.append(csv_name)
+            summaries.append(f"{scene}: {ablation_summary(rows)}")
+            rows_all.extend(rows + [noise])
+        text = "\n\n".join(f"## {t}\n\n{m}" for t, m in tables.items())
+        atomic_write(folder / "merge_ablation.md", lambda tmp: tmp.write_text(text, encoding="utf-8"))
+        return {"title": "Merge ablation: what SPM's caustic is", "scenes": list(ABLATION_SCENES),
+                "tables": tables, "csv": csvs, "rows": rows_all, "summary": " ".join(summaries)}
 
     def figure(self, name, folder):
         from .figures import side_by_side
@@ -387,21 +535,29 @@ class Runner:
             res = self.table1(folder)
         elif name in TABLE_SCENES:
             res = self.budget_table(name, folder)
+        elif name == "merge-ablation":
+            res = self.merge_ablation(folder)
         else:
             res = self.figure(name, folder)
         res["name"] = name
         res["wall_s"] = time.perf_counter() - t0
-        scene = res.get("scene")
-        if scene in self.refs:
-            res["reference"] = self.refs[scene].noise_line()
-            res["reference_noise"] = self.refs[scene].noise
-        if scene in self.masks:
-            m = self.masks[scene]
-            res["mask_pixels"] = int(m.sum())
-            write_png(folder / f"{scene}_caustic_mask.png", np.repeat(m[:, :, None], 3, axis=2).astype(np.float32))
-            res["mask_image"] = f"{scene}_caustic_mask.png"
-        res["settings"] = {"res": self.cfg.res, "seed": self.cfg.seed, "quick": self.cfg.quick,
-                           "repeat": self.cfg.repeat,
+        scenes = res.get("scenes") or [res.get("scene")]
+        refs = [s for s in scenes if s in self.refs]
+        if refs:
+            res["reference"] = "; ".join((f"{s}: " if len(scenes) > 1 else "") + self.refs[s].noise_line()
+                                         for s in refs)
+            res["reference_noise"] = (self.refs[refs[0]].noise if len(scenes) == 1
+                                      else {s: self.refs[s].noise for s in refs})
+        for scene in scenes:
+            if scene in self.masks:
+                m = self.masks[scene]
+                fname = f"{scene}_caustic_mask.png"
+                write_png(folder / fname, np.repeat(m[:, :, None], 3, axis=2).astype(np.float32))
+                res.setdefault("mask_images", {})[fname] = int(m.sum())
+                res["mask_pixels"] = int(m.sum())
+                res["mask_image"] = fname
+        res["settings"] = {"res": self.cfg.res, "seed": self.cfg.seed, "seeds": self.seed_list(),
+                           "quick": self.cfg.quick, "repeat": self.cfg.repeat,
                            "reference_spp": self.cfg.reference_spp, "overrides": self.cfg.params}
         write_json(folder / "results.json", res)
         return res
@@ -509,6 +665,52 @@ def equal_comparison(sweep: dict, anchor: str) -> dict:
     return out
 
 
+def _pm(row: dict, key: str, digits: int = 3) -> str:
+    """ "0.123 ± 0.004" (mean ± s.d. over seeds) or "0.123" with one seed."""
+    v, sd = row.get(key), row.get(key + "_sd")
+    if isinstance(sd, float) and math.isfinite(sd):
+        return f"{_fmt(v, digits)} ± {_fmt(sd, 2)}"
+    return _fmt(v, digits)
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:+.1f} %" if isinstance(v, float) and math.isfinite(v) else "n/a"
+
+
+def seed_pair_summary(rows_main: list[dict]) -> str:
+    """The caustic block err differences between the paper's configurations, paired over the seeds."""
+    by = {r["config"]: r for r in rows_main}
+    k = EQUAL_METRIC
+    parts = [f"{a} - {b} {_paired_text(by[a], by[b], k)}" for a, b in (("SPM", "PM+C"), ("SPM", "PM"), ("PM", "PM+C"))
+             if a in by and b in by and paired(by[a], by[b], k) is not None]
+    return f"Paired over the seeds, {EQUAL_NAME}: " + "; ".join(parts) + "." if parts else ""
+
+
+def floor_summary(pm: dict, floor: dict) -> str:
+    """One sentence: what PM's cut at mr diffuse bounces costs against the unlimited-depth reference."""
+    if pm.get("mean_err") is None or floor.get("mean_err") is None:
+        return ""
+    d = paired(floor, pm, "mean_err")
+    gain = f" (paired difference {_pct(d[0])} ± {100 * d[1]:.2f} %)" if d else ""
+    return (f"Truncation floor: with the paper's mr = 4 PM's image mean is {_pct(pm['mean_err'])} off the "
+            f"reference's, with mr = {FLOOR_MAX_BOUNCES} {_pct(floor['mean_err'])}{gain}; block err "
+            f"{_pm(pm, 'block_err')} -> {_pm(floor, 'block_err')} (whole image), "
+            f"{_pm(pm, 'caustic_block_err')} -> {_pm(floor, 'caustic_block_err')} (caustic region).")
+
+
+def ablation_summary(rows: list[dict]) -> str:
+    """Plain sentences on the merge ablation of one scene (rows in ABLATION's order)."""
+    by = {label: r for (label, _m, _p), r in zip(ABLATION, rows)}
+    spm, spm_ph, spm0, pm_n, spm_big, pm_big = (by[a[0]] for a in ABLATION)
+    k = "caustic_block_err"
+    return (f"caustic block err (mean ± s.d. over {spm.get('seeds')} seeds): SPM 10,000 x 10 "
+            f"{_pm(spm, k)} with eq. 2, {_pm(spm_ph, k)} with the photons estimator "
+            f"(paired difference photons - eq. 2: {_paired_text(spm_ph, spm, k)}), {_pm(spm0, k)} with no "
+            f"associated photons; PM with 10,000 photons {_pm(pm_n, k)} (SPM eq. 2 - PM 10,000: "
+            f"{_paired_text(spm, pm_n, k)}); SPM 100,000 x 10 {_pm(spm_big, k)}, PM 100,000 {_pm(pm_big, k)} "
+            f"(difference {_paired_text(spm_big, pm_big, k)}).")
+
+
 def table1_summary(rows: list[dict]) -> str:
     """What each swept parameter changes in the caustic block err, in one or two sentences."""
     def spread(key_fixed):
@@ -525,7 +727,13 @@ def table1_summary(rows: list[dict]) -> str:
         sp = spread(fixed)
         if math.isfinite(sp):
             parts.append(f"{name} changes the caustic block err by up to {100 * sp:.0f} %")
-    return ("At fixed other parameters, " + "; ".join(parts) + ".") if parts else ""
+    rel_sd = [r["caustic_block_err_sd"] / r["caustic_block_err"] for r in rows
+              if isinstance(r.get("caustic_block_err_sd"), float) and math.isfinite(r["caustic_block_err_sd"])
+              and r.get("caustic_block_err")]
+    noise = (f" Seed to seed, a configuration's caustic block err varies by {100 * float(np.median(rel_sd)):.0f} % "
+             f"(median s.d. / mean over {rows[0].get('seeds')} seeds): differences below that are noise."
+             if rel_sd else "")
+    return ("At fixed other parameters, " + "; ".join(parts) + "." + noise) if parts else ""
 
 
 def equal_summary(eq: dict, rows_main: list[dict], eq_pmc: dict | None = None) -> str:
@@ -586,12 +794,20 @@ def expand(names) -> list[str]:
     return [n for n in out if not (n in seen or seen.add(n))]
 
 
+def scenes_of(name: str) -> tuple[str, ...]:
+    """The scenes an experiment renders."""
+    if name == "table1":
+        return (TABLE1_SCENE,)
+    if name == "merge-ablation":
+        return ABLATION_SCENES
+    return (TABLE_SCENES.get(name) or FIG_SCENES[name],)
+
+
 def run(names, config: Config) -> dict:
     """Run the experiments ``names`` (see EXPERIMENTS, or 'all'); returns {name: results} and writes report.md."""
     from .report import write_report
     names = expand(names)
-    measured = {TABLE1_SCENE if n == "table1" else TABLE_SCENES.get(n) or FIG_SCENES[n]
-                for n in names if n not in ("fig5", "fig6")}
+    measured = {scene for n in names if n not in ("fig5", "fig6") for scene in scenes_of(n)}
     plain_files = [r for r in config.references if "=" not in r and not Path(r).is_dir()]
     if plain_files and len(measured) > 1:
         raise ParameterError(f"--reference {plain_files[0]}: these experiments measure {len(measured)} scenes "
