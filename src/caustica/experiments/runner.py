@@ -65,6 +65,7 @@ FLOOR_MAX_BOUNCES = 64
 #: has streams, under both estimators.  Each: (label, method, parameters no override touches).
 #: "estimator" is left out for the default (stream) so the renders are shared with Tables 2 and 3.
 ABLATION_SCENES = ("cornell-diacaustic", "cornell-catacaustic")
+ABLATION_PASSES = 16
 ABLATION = (
     ("SPM 10,000 x 10, eq. 2 (stream estimator)", "spm", {"streams": 10_000, "assoc": 10, "stream_radius": 5.0}),
     ("SPM 10,000 x 10, photons estimator", "spm",
@@ -73,8 +74,13 @@ ABLATION = (
     ("PM 10,000 (as many photons as SPM has streams)", "pm", {"photons": 10_000, "caustic_photons": 0}),
     ("SPM 100,000 x 10, eq. 2", "spm", {"streams": 100_000, "assoc": 10, "stream_radius": 5.0}),
     ("PM 100,000", "pm", {"photons": 100_000, "caustic_photons": 0}),
+    # the merge itself, removed: only progressive SPM has --specular split (a different estimator)
+    (f"pspm, {ABLATION_PASSES} passes, --specular merge (the paper's rule)", "pspm",
+     {"passes": ABLATION_PASSES, "specular": "merge"}),
+    (f"pspm, {ABLATION_PASSES} passes, --specular split (no merge)", "pspm",
+     {"passes": ABLATION_PASSES, "specular": "split"}),
 )
-ABLATION_FIXED = ("streams", "assoc", "stream_radius", "estimator", "photons", "caustic_photons")
+ABLATION_FIXED = ("streams", "assoc", "stream_radius", "estimator", "photons", "caustic_photons", "specular")
 #: Metrics whose seed spread the Markdown tables show as "mean ± s.d." (the CSVs hold every *_sd).
 SPREAD_SHOWN = ("block_err", "caustic_block_err", "mean_err", "caustic_mean_err")
 #: The error that equal-time / equal-error compare.
@@ -701,14 +707,17 @@ def floor_summary(pm: dict, floor: dict) -> str:
 def ablation_summary(rows: list[dict]) -> str:
     """Plain sentences on the merge ablation of one scene (rows in ABLATION's order)."""
     by = {label: r for (label, _m, _p), r in zip(ABLATION, rows)}
-    spm, spm_ph, spm0, pm_n, spm_big, pm_big = (by[a[0]] for a in ABLATION)
+    spm, spm_ph, spm0, pm_n, spm_big, pm_big, merge, split = (by[a[0]] for a in ABLATION)
     k = "caustic_block_err"
     return (f"caustic block err (mean ± s.d. over {spm.get('seeds')} seeds): SPM 10,000 x 10 "
             f"{_pm(spm, k)} with eq. 2, {_pm(spm_ph, k)} with the photons estimator "
             f"(paired difference photons - eq. 2: {_paired_text(spm_ph, spm, k)}), {_pm(spm0, k)} with no "
             f"associated photons; PM with 10,000 photons {_pm(pm_n, k)} (SPM eq. 2 - PM 10,000: "
             f"{_paired_text(spm, pm_n, k)}); SPM 100,000 x 10 {_pm(spm_big, k)}, PM 100,000 {_pm(pm_big, k)} "
-            f"(difference {_paired_text(spm_big, pm_big, k)}).")
+            f"(difference {_paired_text(spm_big, pm_big, k)}). Without the merge (pspm, {ABLATION_PASSES} passes): "
+            f"merge {_pm(merge, k)}, split {_pm(split, k)} (split - merge {_paired_text(split, merge, k)}); "
+            f"caustic mean err merge {_pm(merge, 'caustic_mean_err')}, split {_pm(split, 'caustic_mean_err')}; "
+            f"whole-image mean err merge {_pm(merge, 'mean_err')}, split {_pm(split, 'mean_err')}.")
 
 
 def table1_summary(rows: list[dict]) -> str:
