@@ -697,7 +697,7 @@ def floor_summary(pm: dict, floor: dict) -> str:
     if pm.get("mean_err") is None or floor.get("mean_err") is None:
         return ""
     d = paired(floor, pm, "mean_err")
-    gain = f" (paired difference {_pct(d[0])} ± {100 * d[1]:.2f} %)" if d else ""
+    gain = f" (paired difference {_pct(d[0])} ± {100 * d[1]:.2g} %)" if d else ""
     return (f"Truncation floor: with the paper's mr = 4 PM's image mean is {_pct(pm['mean_err'])} off the "
             f"reference's, with mr = {FLOOR_MAX_BOUNCES} {_pct(floor['mean_err'])}{gain}; block err "
             f"{_pm(pm, 'block_err')} -> {_pm(floor, 'block_err')} (whole image), "
