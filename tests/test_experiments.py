@@ -229,6 +229,14 @@ def test_stream_tags_never_share_keys_for_nearby_seeds():
             if a != b:
                 delta = ((a - b) * g_inv) % mod
                 assert min(delta, mod - delta) > 1 << 40, (a, b)
+    # the mask's tag against every phase of the first 4096 passes of a progressive render
+    mask = rng.STREAM_CAUSTIC_MASK
+    for phase in (v for k, v in tags.items() if k != "STREAM_CAUSTIC_MASK"):
+        for k in range(4096):
+            b = rng.pass_stream(phase, k)
+            assert b != mask
+            delta = ((mask - b) * g_inv) % mod
+            assert min(delta, mod - delta) > 1 << 40, (phase, k)
 
 
 # --------------------------------------------------------------------------- the whole pipeline
