@@ -733,7 +733,8 @@ def test_compare_explains_a_zero_reference(cli, tmp_path):
     code, out, err = cli("compare", test, zero, "--no-flip")
     assert code == 0 and err == ""
     notes = [line for line in out.splitlines() if line.startswith("note:")]
-    assert len(notes) == 1 and "block err" in notes[0] and "reference is zero" in notes[0]
+    assert len(notes) == 2 and "block err" in notes[0] and "mean err" in notes[1]   # the two relative errors
+    assert all("reference is zero" in note for note in notes)
     code, out, _ = cli("compare", zero, zero, "--no-flip")
     assert code == 0 and "note:" not in out  # equal images: every error is 0, even against zero
     assert out.splitlines()[1].split()[1:3] == ["0", "0"]

@@ -23,7 +23,8 @@ mask (True = pixel counts).  The definitions (also in docs/experiments.md):
   below 2^-22), where FLIP has no exposure range (and would end the process).
 
 Every metric refuses (CausticaError) images with NaN or infinite pixels.  A metric that is
-undefined for the images (an empty mask, a reference that is zero for ``block_err``) is
+undefined for the images (an empty mask, a reference that is zero for ``block_err`` and
+``mean_err``) is
 NaN; `undefined_reason` says why.
 """
 from __future__ import annotations
@@ -88,7 +89,7 @@ def undefined_reason(name: str, test, ref, mask=None) -> str:
     if mask is not None and not mask.any():
         return "the mask has no pixels"
     region = "over the mask" if mask is not None else "everywhere"
-    if name == "block_err":
+    if name in ("block_err", "mean_err"):
         return f"the reference is zero {region}, and the error is relative to the reference"
     if name == "ssim":
         return "SSIM needs an image of at least 3x3 pixels"
@@ -153,8 +154,10 @@ def mean_err(test, ref, mask=None) -> float:
         if not mask.any():
             return float("nan")
         t, r = t[mask], r[mask]
-    den = float(r.sum())
-    return float((t.sum() - den) / den) if den > 0 else float("nan")
+    den, num = float(r.sum()), float(t.sum())
+    if den > 0:
+        return (num - den) / den
+    return 0.0 if num == den else float("nan")  # a zero reference: only an equal image has a defined error
 
 
 def tonemap(image) -> np.ndarray:
