@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import json
 import subprocess
 import sys
@@ -345,3 +346,44 @@ def test_one_reference_file_for_several_scenes_is_refused(tmp_path, capsys):
     assert main(["experiment", "table2", "table3", "--quick", "-q", "-o", str(tmp_path / "o"),
                  "--reference", str(tmp_path / "ref.exr")]) == 2
     assert "SCENE=PATH" in capsys.readouterr().err
+
+
+def test_rel_rmse_is_the_norm_relative_rmse():
+    from caustica.experiments.convergence import rel_rmse
+    ref = np.ones((4, 4, 3))
+    test = ref.copy()
+    test[0, 0] = 3.0                      # one pixel off by 2 in all channels: sqrt(3*4 / 48)
+    assert rel_rmse(test, ref) == pytest.approx(math.sqrt(12 / 48))
+    mask = np.zeros((4, 4), bool)
+    mask[0, :2] = True
+    assert rel_rmse(test, ref, mask) == pytest.approx(math.sqrt(12 / 6))
+    assert math.isnan(rel_rmse(test, np.zeros_like(ref)))
+
+
+def test_convergence_experiment_end_to_end(tmp_path, monkeypatch):
+    """A cut-down study (one scene, two methods, one budget): every method's timed render keeps to
+    its budget, is measured on the whole image and the mask, and the summary names the winner."""
+    import json
+    from caustica.experiments import convergence, runner
+    monkeypatch.setattr(convergence, "SCENES", ("cornell-diacaustic",))
+    monkeypatch.setattr(runner, "CONVERGENCE_SCENES", ("cornell-diacaustic",))
+    monkeypatch.setattr(convergence, "PROGRESSIVE", (("pt", "pt", {}), ("SPPM", "sppm", {})))
+    monkeypatch.setattr(convergence, "QUICK_BUDGETS_S", (0.4,))
+    monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))
+    cfg = runner.Config(out=tmp_path / "exp", quick=True, res=24, progress=False)
+    res = runner.run(["convergence"], cfg)["convergence"]
+    rows = res["rows"]
+    timed = [r for r in rows if r["budget_s"] is not None]
+    assert {r["label"] for r in timed} >= {"pt", "SPPM"}
+    for r in timed:
+        assert r["time_s"] <= 0.4 + 2.0, r          # the last pass may end past the budget by its own length
+        for key in ("rel_rmse", "caustic_rel_rmse", "caustic_block_err", "flip"):
+            assert math.isfinite(r[key]) and r[key] >= 0, (r["label"], key)
+    assert any(r["label"].startswith("PM+C") for r in rows)
+    if convergence.mitsuba_module() is not None:
+        assert any(r["method"] == "mitsuba" for r in rows)
+        assert "Mitsuba 3" in res["summary"]
+    assert "cornell-diacaustic at 0.4 s: best caustic relRMSE" in res["summary"]
+    folder = tmp_path / "exp" / "convergence"
+    assert (folder / "convergence_cornell-diacaustic.png").is_file()
+    assert json.loads((folder / "results.json").read_text())["name"] == "convergence"

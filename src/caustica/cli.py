@@ -149,12 +149,14 @@ def _build_parser():
 
     ex = sub.add_parser("experiment", help="run the paper's experiments against a converged reference",
                         description="Run the paper's experiments (table1, table2, table3, fig5, fig6, fig8, "
-                                    "fig9, merge-ablation, or all): render what the paper rendered, measure each image against "
+                                    "fig9, merge-ablation, or all; and convergence): render what the paper rendered, measure "
+                                    "each image against "
                                     "a converged reference (cached), write CSV and Markdown tables, PNG figures "
                                     "and DIR/report.md. See docs/experiments.md.")
     ex.add_argument("names", nargs="+", metavar="NAME",
-                    help="table1 | table2 | table3 | fig5 | fig6 | fig8 | fig9 | merge-ablation | all "
-                         "(several may be given)")
+                    help="table1 | table2 | table3 | fig5 | fig6 | fig8 | fig9 | merge-ablation | all (the "
+                         "paper's and the ablation) | convergence (error against wall time, every method and "
+                         "Mitsuba 3 at 5, 10, 30, 90 s; about 35 min; 256x256 unless --res) (several may be given)")
     ex.add_argument("-o", "--output", default="out/experiments", help="output folder (default: out/experiments)")
     ex.add_argument("--quick", action="store_true",
                     help="the same pipeline at 48x48 with a 64-spp reference, a 3-point budget sweep and one seed")

@@ -37,9 +37,10 @@ RES = 256
 PROGRESSIVE = (
     ("pt", "pt", {}),
     ("SPPM", "sppm", {}),
+    ("SPPM 20k + 20k caustic", "sppm", {"photons": 20_000, "caustic_photons": 20_000}),
     ("PSPM merge", "pspm", {}),
-    ("PSPM split", "pspm", {"specular": "split"}),
-    ("PSPM split, photons", "pspm", {"specular": "split", "estimator": "photons"}),
+    ("PSPM split r_s=1", "pspm", {"specular": "split", "stream_radius": 1.0}),
+    ("PSPM split r_s=1, photons", "pspm", {"specular": "split", "stream_radius": 1.0, "estimator": "photons"}),
 )
 #: PM + caustic map at these photon counts (global = caustic), one shot each.
 PMC_PHOTONS = (25_000, 100_000, 400_000)
@@ -184,7 +185,7 @@ class Convergence:
                 "figures": figures, "rows": rows}
 
     def _save(self, folder, scene, label, budget, result):
-        tag = label.replace(" ", "_").replace(",", "").replace("+", "C")
+        tag = label.replace(" ", "_").replace(",", "").replace("+", "C").replace("=", "")
         name = f"{scene}_{tag}" + (f"_{budget:g}s" if budget is not None else "") + ".exr"
         result.save(folder / "renders" / name)
 

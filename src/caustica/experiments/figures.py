@@ -130,7 +130,7 @@ def convergence_plot(rows, path: Path, scene: str):
     labels = [r["label"] for r in rows if r.get("time_s") is not None]
     for label in dict.fromkeys(labels):
         mine = sorted((r for r in rows if r["label"] == label and r.get("time_s")), key=lambda r: r["time_s"])
-        style = "--" if label.startswith("Mitsuba") else ("o" if label.startswith("PM+C") else "-")
+        style = "--" if label.startswith("Mitsuba") else (":" if label.startswith("PM+C") else "-")
         for ax, key in zip(axes, ("caustic_rel_rmse", "rel_rmse")):
             pts = [(r["time_s"], r[key]) for r in mine if r.get(key) is not None]
             if pts:

@@ -27,10 +27,13 @@ from ..api import load_scene, render
 from ..errors import ParameterError, SceneError
 from ..imageio import atomic_write, write_json, write_png
 from . import metrics as M
+from .convergence import RES as CONVERGENCE_RES, SCENES as CONVERGENCE_SCENES, Convergence, shared_refs_dir
 from .masks import caustic_mask
 from .reference import Reference, pt_reference, user_reference
 
-EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation")
+EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation", "convergence")
+#: What ``all`` runs: the paper's experiments and the ablation (``convergence`` takes half an hour: ask for it).
+ALL = EXPERIMENTS[:-1]
 
 PAPER_RES = 512
 QUICK_RES = 48
@@ -118,6 +121,7 @@ class Config:
 
     def __post_init__(self):
         self.out = Path(self.out)
+        self.res_given = self.res is not None
         if self.res is None:
             self.res = QUICK_RES if self.quick else PAPER_RES
         if self.reference_spp is None:
@@ -380,6 +384,8 @@ class Runner:
             return len(self._budget_factors()) * 3 + 1
         if name == "merge-ablation":
             return len(ABLATION) * len(ABLATION_SCENES)
+        if name == "convergence":
+            return Convergence(self).count()
         return {"fig5": 2, "fig6": 1, "fig8": 3, "fig9": 3}[name]
 
     def _table1_grid(self):
@@ -543,6 +549,9 @@ class Runner:
             res = self.budget_table(name, folder)
         elif name == "merge-ablation":
             res = self.merge_ablation(folder)
+        elif name == "convergence":
+            res = Convergence(self).run(folder)
+            res["scenes"] = list(CONVERGENCE_SCENES)
         else:
             res = self.figure(name, folder)
         res["name"] = name
@@ -794,7 +803,7 @@ def expand(names) -> list[str]:
     out = []
     for n in names:
         if n == "all":
-            out.extend(EXPERIMENTS)
+            out.extend(ALL)
         elif n in EXPERIMENTS:
             out.append(n)
         else:
@@ -809,6 +818,8 @@ def scenes_of(name: str) -> tuple[str, ...]:
         return (TABLE1_SCENE,)
     if name == "merge-ablation":
         return ABLATION_SCENES
+    if name == "convergence":
+        return CONVERGENCE_SCENES
     return (TABLE_SCENES.get(name) or FIG_SCENES[name],)
 
 
@@ -816,6 +827,13 @@ def run(names, config: Config) -> dict:
     """Run the experiments ``names`` (see EXPERIMENTS, or 'all'); returns {name: results} and writes report.md."""
     from .report import write_report
     names = expand(names)
+    if "convergence" in names:
+        # the convergence study's size is the Mitsuba references' (256) unless --res says otherwise
+        if not config.res_given and not config.quick:
+            config.res = CONVERGENCE_RES
+        refs = shared_refs_dir()
+        if not config.references and refs is not None and any(refs.glob(f"*_{config.res}.exr")):
+            config.references.append(str(refs))
     measured = {scene for n in names if n not in ("fig5", "fig6") for scene in scenes_of(n)}
     plain_files = [r for r in config.references if "=" not in r and not Path(r).is_dir()]
     if plain_files and len(measured) > 1:
