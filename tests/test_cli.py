@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from caustica import __version__, imageio, methods
+from caustica import __version__, imageio, memory, methods
 from caustica.cli import main
 
 BUILTINS = ("cornell-diacaustic", "cornell-catacaustic", "cornell-pyramid", "cornell-bunny")
@@ -250,6 +250,11 @@ def test_bad_bool_value_is_an_error(cli, tmp_path):
 # ----------------------------------------------------------------------------- bad input
 
 
+def _write_scene(tmp_path: Path, xml: str) -> Path:
+    (tmp_path / "s.xml").write_text(xml)
+    return tmp_path / "s.xml"
+
+
 def _write_mesh_scene(tmp_path: Path, mesh_name: str, kind: str = "obj") -> Path:
     xml = tmp_path / "meshy.xml"
     xml.write_text(f'<scene version="3.0.0">\n'
@@ -299,6 +304,20 @@ def _bad_input_cases():
         ("missing-mesh", missing_mesh, ["nowhere.obj"]),
         ("threads-zero", scene_args(SCENE, "--threads", "0"), ["--threads"]),
         ("seed-negative", scene_args(SCENE, "--seed", "-1"), ["--seed"]),
+        # integers beyond what the kernels can honour (issue 8): refused with the allowed range
+        ("spp-2^63", scene_args(SCENE, "--spp", str(2**63)), ["--spp", "<= 1,048,576"]),
+        ("seed-huge", scene_args(SCENE, "--seed", "9" * 23), ["--seed", "<= 4,294,967,295"]),
+        ("threads-huge", scene_args(SCENE, "--threads", "5000"), ["--threads", "<= 1,024"]),
+        ("res-beyond-int32-pixels", scene_args(SCENE, "--res", "50000x50000"), ["50000x50000", "int32"]),
+        ("light-samples-2^32", scene_args(SCENE, "-m", "pm", "--light-samples", str(2**32)),
+         ["--light-samples", "<= 64"]),
+        ("max-specular-depth-huge", scene_args(SCENE, "-m", "pm", "--max-specular-depth", "9" * 23),
+         ["--max-specular-depth", "<= 1,024"]),
+        ("k-1e11", scene_args(SCENE, "-m", "spm", "--k", "100000000000"), ["--k", "<= 2,147,483,647"]),
+        ("max-depth-huge", scene_args(SCENE, "--max-depth", "99999"), ["--max-depth", "<= 1,024"]),
+        ("sampler-beyond-spp-bound", lambda tmp: (_write_scene(tmp, MINIMAL_XML.replace(
+            "</sensor>", f'<sampler type="independent"><integer name="sample_count" value="{2**20 + 1}"/>'
+                         f'</sampler></sensor>')),), ["s.xml:6", "sample_count", "1,048,576"]),
     ]
 
 
@@ -332,12 +351,16 @@ def test_mesh_without_read_permission_is_an_error(cli, tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [
-    (("--res", "200000"), ("200000x200000", "GB", "--res")),
-    (("-m", "pm", "--photons", "4000000000"), ("photons", "GB", "--photons")),
+    (("--res", "40000"), ("40000x40000", "GB", "--res")),
+    (("-m", "pm", "--photons", "2000000000"), ("photons", "GB", "--photons")),
     (("-m", "spm", "--streams", "100000000", "--assoc", "100"), ("streams", "GB", "--assoc")),
+    # the k-nearest search's scratch: 16 bytes per neighbour on each thread (a MemoryError before)
+    (("-m", "spm", "--k", "2000000000", "--threads", "64"), ("--k 2,000,000,000 on 64 threads", "GB")),
+    (("-m", "pm", "--caustic-k", "2000000000", "--threads", "64"), ("--caustic-k", "GB")),
 ])
-def test_parameters_that_would_exhaust_memory_are_refused(cli, tmp_path, args, words):
-    """Refused before allocating, with the estimate in the message; nothing written."""
+def test_parameters_that_would_exhaust_memory_are_refused(cli, tmp_path, monkeypatch, args, words):
+    """Refused before allocating, with the estimate in the message; nothing written (on a 16 GiB machine)."""
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 16 * 2**30)
     code, _, err = cli("render", SCENE, "--spp", "1", "-q", *args, "-o", tmp_path / "o" / "x.exr")
     assert code == 2
     line = _one_line_error(err)

@@ -11,15 +11,24 @@ import sys
 import time
 
 from . import __version__, driver, methods
-from .errors import ParameterError
+from .errors import ParameterError, quoted
 from .jit import default_threads
+from .limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
 from .memory import check_budget
+from .methods.params import Param, non_negative, positive
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
 from .scene.compiled import Scene, compile_scene
 
-#: Settings every method takes, next to its own parameters.
-COMMON = ("spp", "width", "height", "seed", "threads")
+#: Settings every method takes, next to its own parameters, with the bounds of caustica.limits.
+COMMON_PARAMS = (
+    Param("spp", int, None, "samples per pixel", positive, ">= 1", max=MAX_SPP),
+    Param("width", int, None, "image width", positive, ">= 1", option="--res width"),
+    Param("height", int, None, "image height", positive, ">= 1", option="--res height"),
+    Param("seed", int, 0, "random seed", non_negative, ">= 0", max=MAX_SEED),
+    Param("threads", int, None, "worker threads", positive, ">= 1", max=MAX_THREADS),
+)
+COMMON = tuple(p.name for p in COMMON_PARAMS)
 
 
 def load_scene(path_or_name, **defaults) -> Scene:
@@ -76,7 +85,34 @@ def _parse_res(res):
             return int(w), int(h)
         return int(text), int(text)
     except ValueError:
-        raise ParameterError(f"--res: '{res}' is not W or WxH (e.g. 512 or 640x480)") from None
+        raise ParameterError(f"--res: {quoted(res)} is not W or WxH (e.g. 512 or 640x480)") from None
+
+
+#: Bytes per pixel of a render: the image (float32 RGB) plus the camera pass's bookkeeping.
+IMAGE_BYTES_PER_PIXEL = 20
+
+
+def check_common(*, spp, width, height, seed, threads, film_source: str | None = None) -> dict:
+    """spp, width, height, seed and threads converted and checked (caustica.limits), the image's memory too.
+
+    ``film_source`` ("file:line") when the size is the scene's film rather than --res.
+    """
+    common = methods.params.resolve("common", COMMON_PARAMS, dict(spp=spp, width=width, height=height,
+                                                                  seed=seed, threads=threads))
+    if common["width"] is None or common["height"] is None or common["spp"] is None:
+        raise ParameterError("--res and --spp need a value")   # only reachable from Python
+    if common["threads"] is None:
+        common["threads"] = default_threads()
+    w, h = common["width"], common["height"]
+    what, hint = f"a {w}x{h} image", "lower --res"
+    if film_source:  # the scene's film: name its file and line
+        what = f"{film_source}: <film>: {what}"
+        hint = "lower the film's width and height, or pass --res"
+    if w * h > MAX_PIXELS:
+        raise ParameterError(f"{what} has {w * h:,} pixels, more than the {MAX_PIXELS:,} (int32) the kernels "
+                             f"can index; {hint}")
+    check_budget(w * h * IMAGE_BYTES_PER_PIXEL, what, hint)
+    return common
 
 
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,
@@ -97,26 +133,16 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         # camera ray per pixel (their direct light already takes n x n shadow rays);
         # a pass of a multi-pass render takes one sample per pixel.
         spp = 1 if multi_pass else (getattr(cls, "default_spp", None) or scene.spp)
-    spp = int(spp)
-    if width <= 0 or height <= 0:
-        raise ParameterError(f"--res: the image must be at least 1x1 (got {width}x{height})")
-    if spp <= 0:
-        raise ParameterError(f"--spp: samples per pixel must be >= 1 (got {spp})")
-    # the image (float32 RGB) plus per-pixel bookkeeping of the camera pass
-    what, hint = f"a {width}x{height} image", "lower --res"
-    if res is None:  # the scene's film: name its file and line
-        what = f"{scene.description.camera.film_source}: <film>: {what}"
-        hint = "lower the film's width and height, or pass --res"
-    check_budget(width * height * 20, what, hint)
-    if not isinstance(seed, int) or seed < 0:
-        raise ParameterError(f"--seed: must be a non-negative integer (got {seed})")
+    common = check_common(spp=spp, width=width, height=height, seed=seed, threads=threads,
+                          film_source=scene.description.camera.film_source if res is None else None)
     settings = methods.params.resolve(method, cls.params, params)
-    settings.update(spp=spp, width=width, height=height, seed=seed)
-    if threads is None:
-        threads = default_threads()
-    if not isinstance(threads, int) or not 1 <= threads <= 1024:
-        raise ParameterError(f"--threads: between 1 and 1024 (got {threads})")
-    settings["threads"] = threads
+    # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
+    for p in cls.params:
+        if p.scratch and settings[p.name]:
+            check_budget(common["threads"] * settings[p.name] * p.scratch,
+                         f"{p.flag} {settings[p.name]:,} on {common['threads']} threads "
+                         f"({p.scratch} bytes per unit per thread)", f"lower {p.flag} or --threads")
+    settings.update(common)
     return scene, cls, settings
 
 

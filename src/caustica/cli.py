@@ -338,7 +338,11 @@ def _cmd_methods() -> int:
     for name, cls in sorted(methods.available().items()):
         print(f"{name}: {cls.summary}")
         for p in cls.params:
-            print(f"  {p.flag:22s} {p.help} (default {p.default})")
+            if p.choices:
+                allowed = "|".join(map(str, p.choices))
+            else:
+                allowed = "true|false" if p.type is bool else p.describe_range()
+            print(f"  {p.flag:22s} {p.help} (default {p.default}{'; ' + allowed if allowed else ''})")
     return 0
 
 

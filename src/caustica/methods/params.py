@@ -4,14 +4,21 @@ Each method declares a tuple of :class:`Param`.  :func:`resolve` fills defaults,
 converts types and refuses unknown names (with the nearest spelling) and values
 out of range — a misspelt parameter stops the run instead of being ignored, as
 pbrt's ``ReportUnused`` and Mitsuba's unused-property check do.
+
+Every integer has an upper bound the kernels can honour (``max``, by default
+:data:`caustica.limits.INT_MAX`); every float must be finite.  The common render
+settings (spp, image size, seed, threads) are Params too and pass through the
+same :func:`resolve`.
 """
 from __future__ import annotations
 
 import difflib
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from ..errors import ParameterError
+from ..errors import ParameterError, quoted, shorten
+from ..limits import INT_MAX
 
 
 @dataclass(frozen=True)
@@ -23,10 +30,29 @@ class Param:
     check: Callable[[Any], bool] | None = None
     allowed: str = ""    # what check accepts, for messages
     choices: tuple = ()
+    max: int | None = None   # largest int allowed (None: INT_MAX); see caustica.limits
+    scratch: int = 0     # bytes each worker thread allocates per unit of the value (memory check)
+    option: str = ""     # how messages name it, when not --name (e.g. "--res width")
 
     @property
     def flag(self) -> str:
-        return "--" + self.name.replace("_", "-")
+        return self.option or "--" + self.name.replace("_", "-")
+
+    @property
+    def upper(self) -> int | None:
+        """The largest value allowed, for ints; None for other types."""
+        if self.type is not int:
+            return None
+        return INT_MAX if self.max is None else self.max
+
+    def describe_range(self) -> str:
+        """What values are allowed, e.g. '>= 1 and <= 64' (empty when anything goes)."""
+        parts = [self.allowed] if self.allowed else []
+        if self.upper is not None:
+            parts.append(f"<= {self.upper:,}")
+        elif self.type is float:
+            parts.append("finite")
+        return " and ".join(parts)
 
 
 def positive(x) -> bool:
@@ -62,11 +88,13 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
                 raise ValueError
             else:
                 value = spec.type(value)
-        except (TypeError, ValueError):
-            raise ParameterError(f"{spec.flag}: '{value}' is not a valid {spec.type.__name__}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise ParameterError(f"{spec.flag}: {quoted(value)} is not a valid {spec.type.__name__}") from None
         if spec.choices and value not in spec.choices:
-            raise ParameterError(f"{spec.flag}: '{value}' is not one of {', '.join(map(str, spec.choices))}")
-        if spec.check is not None and not spec.check(value):
-            raise ParameterError(f"{spec.flag}: {value} is out of range; allowed: {spec.allowed}")
+            raise ParameterError(f"{spec.flag}: {quoted(value)} is not one of {', '.join(map(str, spec.choices))}")
+        if ((spec.check is not None and not spec.check(value))
+                or (spec.upper is not None and value > spec.upper)
+                or (spec.type is float and not math.isfinite(value))):
+            raise ParameterError(f"{spec.flag}: {shorten(value)} is out of range; allowed: {spec.describe_range()}")
         out[name] = value
     return out

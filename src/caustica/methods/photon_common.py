@@ -16,18 +16,20 @@ TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
 #: Parameters of the radiance estimate and the camera pass (SPEC §2-3), the paper's defaults.
 ESTIMATE_PARAMS = (
     Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr)",
-          positive, ">= 1"),
-    Param("k", int, 100, "photons (stream records) per radiance estimate", positive, ">= 1"),
+          positive, ">= 1", max=1024),
+    Param("k", int, 100, "photons (stream records) per radiance estimate", positive, ">= 1",
+          scratch=16),  # the k-nearest search's index + distance arrays, per thread
     Param("radius", float, 3.0, "maximum search radius R (scene units)", positive, "> 0"),
     Param("filter", str, "none", "radiance-estimate filter kernel", choices=tuple(FILTERS)),
     Param("termination", str, "cap",
           "cap: scale power by the albedo and stop after max_bounces (the paper); "
           "roulette: Russian roulette with the mean albedo", choices=tuple(TERMINATIONS)),
     Param("light_samples", int, 5, "n for n x n stratified shadow rays per area light",
-          positive, ">= 1"),
+          positive, ">= 1", max=64),
     Param("fixed_light_grid", bool, False,
           "use the n x n grid's cell centres (the paper's 25 point lights) instead of jittered samples"),
-    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0"),
+    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0",
+          max=1024),
 )
 
 

@@ -39,7 +39,7 @@ class PhotonMapping(OneShot):
         Param("caustic_photons", int, 0, "photons aimed at specular objects for a caustic map "
                                          "(0: no caustic map; the paper's PM+C uses 100,000)",
               non_negative, ">= 0"),
-        Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1"),
+        Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1", scratch=16),
         Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", positive, "> 0"),
     ) + ESTIMATE_PARAMS
 

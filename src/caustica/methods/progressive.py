@@ -46,15 +46,16 @@ PROGRESSIVE_PARAMS = (
     Param("alpha", float, 2.0 / 3.0, "fraction of new photons kept per pass (SPPM's α)",
           lambda a: 0.0 < a < 1.0, "between 0 and 1, exclusive"),
     Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr)",
-          positive, ">= 1"),
+          positive, ">= 1", max=1024),
     Param("termination", str, "cap",
           "cap: scale power by the albedo and stop after max_bounces (the paper); "
           "roulette: Russian roulette with the mean albedo", choices=tuple(TERMINATIONS)),
     Param("light_samples", int, 1, "n for n x n stratified shadow rays per area light, per pass",
-          positive, ">= 1"),
+          positive, ">= 1", max=64),
     Param("fixed_light_grid", bool, False,
           "use the n x n grid's cell centres instead of jittered samples (biased: never converges)"),
-    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0"),
+    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0",
+          max=1024),
 )
 
 

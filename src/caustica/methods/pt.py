@@ -150,8 +150,9 @@ class PathTracer:
     progressive = True
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
-              lambda v: v == -1 or v >= 1, "-1 or >= 1"),
-        Param("rr_depth", int, 5, "vertices before Russian roulette starts", lambda v: v >= 1, ">= 1"),
+              lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),
+        Param("rr_depth", int, 5, "vertices before Russian roulette starts", lambda v: v >= 1, ">= 1",
+              max=DEPTH_CAP),
     )
 
     @staticmethod

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SceneError, quoted, shorten
+from ..limits import MAX_PIXELS, MAX_SPP
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, MESH, SPHERE, Camera,
@@ -73,11 +74,10 @@ FOV_AXES = ("x", "y", "smaller", "larger")
 
 #: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
 #: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
-#: MAX_FILM_PIXELS keep far from overflow).  The command line's ``--spp`` bound, checked
-#: where render parameters are read, is meant to be the same number.
-MAX_SAMPLE_COUNT = 2**20
+#: MAX_FILM_PIXELS keep far from overflow).  The same bound as ``--spp`` (caustica.limits).
+MAX_SAMPLE_COUNT = MAX_SPP
 #: The most pixels a film may have: int32, which the kernels' pixel indices fit.
-MAX_FILM_PIXELS = tf.INT32_MAX
+MAX_FILM_PIXELS = MAX_PIXELS
 
 #: Indices of refraction of the materials Mitsuba knows by name (Mitsuba's ior.h).
 IOR_TABLE = {

@@ -1,0 +1,169 @@
+"""Parameters (issue 8): every integer has an upper bound the kernels can honour, checked where it is read.
+
+``methods.params.resolve`` checks method parameters and, through ``api.resolve_settings``,
+the common settings (spp, image size, seed, threads) with the bounds of ``caustica.limits``.
+No render runs here: resolving settings compiles nothing.
+"""
+from __future__ import annotations
+
+import pytest
+
+import caustica
+from caustica import limits, memory, methods
+from caustica.api import COMMON_PARAMS, resolve_settings
+from caustica.errors import ParameterError, SceneError
+from caustica.methods.params import Param, positive, resolve
+
+SCENE = "cornell-diacaustic"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return caustica.load_scene(SCENE)
+
+
+def _int_params():
+    """(method, Param) of every integer parameter of every method."""
+    return [(name, p) for name, cls in sorted(methods.available().items()) for p in cls.params if p.type is int]
+
+
+def test_an_int_param_without_max_gets_the_32_bit_bound():
+    spec = (Param("n", int, 1, "a count", positive, ">= 1"),)
+    assert resolve("m", spec, {"n": limits.INT_MAX})["n"] == limits.INT_MAX
+    with pytest.raises(ParameterError, match=r"--n: 2147483648 is out of range; allowed: >= 1 and <= 2,147,483,647"):
+        resolve("m", spec, {"n": limits.INT_MAX + 1})
+
+
+def test_max_of_a_param_is_inclusive_and_named_in_the_message():
+    spec = (Param("light_samples", int, 5, "n", positive, ">= 1", max=64),)
+    assert resolve("m", spec, {"light_samples": 64})["light_samples"] == 64
+    with pytest.raises(ParameterError, match=r"--light-samples: 65 .*<= 64"):
+        resolve("m", spec, {"light_samples": 65})
+
+
+@pytest.mark.parametrize("method, spec", _int_params(), ids=lambda x: x if isinstance(x, str) else x.name)
+def test_every_int_parameter_of_every_method_stops_at_its_bound(method, spec):
+    """At the bound it is accepted (also by the other checks), one above it is refused naming the bound."""
+    cls = methods.get(method)
+    assert spec.upper is not None and spec.upper < 2**63
+    assert resolve(method, cls.params, {spec.name: spec.upper})[spec.name] == spec.upper
+    with pytest.raises(ParameterError) as info:
+        resolve(method, cls.params, {spec.name: spec.upper + 1})
+    assert spec.flag in str(info.value) and f"{spec.upper:,}" in str(info.value)
+
+
+@pytest.mark.parametrize("method, name, bound", [
+    ("pm", "light_samples", 64),          # n x n shadow rays and 2 n^2 random dimensions per shading point
+    ("spm", "max_specular_depth", 1024),
+    ("pm", "max_bounces", 1024),
+    ("pt", "max_depth", 1024),            # pt's own cap for "unlimited"
+    ("pt", "rr_depth", 1024),
+])
+def test_bounds_of_the_loop_counts(method, name, bound):
+    spec = {p.name: p for p in methods.get(method).params}[name]
+    assert spec.upper == bound
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_float_parameters_must_be_finite(value):
+    with pytest.raises(ParameterError, match="--radius"):
+        resolve("pm", methods.get("pm").params, {"radius": value})
+
+
+def test_a_huge_value_is_not_echoed_whole():
+    with pytest.raises(ParameterError) as info:
+        resolve("pm", methods.get("pm").params, {"k": int("9" * 4000)})
+    assert len(str(info.value)) < 200 and "4,000 characters" in str(info.value)
+
+
+# ----------------------------------------------------------------------------- common settings
+
+
+@pytest.mark.parametrize("kw, flag", [
+    (dict(spp=2**63), "--spp"),                      # rendered black before: the sample index overflowed
+    (dict(spp=1e20), "--spp"),                       # reached Numba as a TypingError
+    (dict(spp=limits.MAX_SPP + 1), "--spp"),
+    (dict(seed=2**64), "--seed"),
+    (dict(seed=limits.MAX_SEED + 1), "--seed"),
+    (dict(seed=-1), "--seed"),
+    (dict(threads=limits.MAX_THREADS + 1), "--threads"),
+    (dict(threads=0), "--threads"),
+    (dict(res=(limits.INT_MAX + 1, 1)), "--res width"),
+    (dict(res=(1, limits.INT_MAX + 1)), "--res height"),
+    (dict(res="0x4"), "--res width"),
+])
+def test_common_settings_out_of_range_are_refused(scene, kw, flag):
+    with pytest.raises(ParameterError) as info:
+        resolve_settings(scene, "pt", **{"res": 4, **kw})
+    assert str(info.value).startswith(flag + ":"), str(info.value)
+    assert "allowed" in str(info.value)
+
+
+def test_a_non_integer_spp_is_refused_not_rounded(scene):
+    with pytest.raises(ParameterError, match=r"--spp: '2.5' is not a valid int"):
+        resolve_settings(scene, "pt", res=4, spp=2.5)
+
+
+def test_common_settings_at_their_bounds_are_accepted(scene):
+    _, _, s = resolve_settings(scene, "pt", spp=limits.MAX_SPP, res=4, seed=limits.MAX_SEED,
+                               threads=limits.MAX_THREADS)
+    assert (s["spp"], s["seed"], s["threads"]) == (limits.MAX_SPP, limits.MAX_SEED, limits.MAX_THREADS)
+    _, _, s = resolve_settings(scene, "pt", spp=1, res=(100_000, 1))
+    assert (s["width"], s["height"]) == (100_000, 1)
+
+
+def test_an_image_beyond_int32_pixels_is_refused(scene):
+    with pytest.raises(ParameterError, match=r"a 50000x50000 image has 2,500,000,000 pixels, more than the "
+                                             r"2,147,483,647 \(int32\)"):
+        resolve_settings(scene, "pt", spp=1, res=50_000)
+
+
+def test_the_bounds_keep_a_camera_sample_index_exact():
+    """(y * width + x) * spp + s, the key of a camera sample, stays exact in int64 and float64."""
+    assert limits.MAX_PIXELS * limits.MAX_SPP <= 2**53
+    # a pixel's k-nearest searches (at most 2 per gather, 9 gathers per sample) fit the int32 that counts them
+    assert 18 * limits.MAX_SPP < 2**31
+    assert {p.name for p in COMMON_PARAMS} == {"spp", "width", "height", "seed", "threads"}
+
+
+def test_the_scene_loader_and_the_render_settings_share_the_bounds(tmp_path):
+    """A sampler at the loader's bound passes the render's checks; one above fails in the loader, with its line."""
+    from caustica.scene import xml_loader
+    assert xml_loader.MAX_SAMPLE_COUNT == limits.MAX_SPP and xml_loader.MAX_FILM_PIXELS == limits.MAX_PIXELS
+
+    def scene_with(sample_count):
+        xml = tmp_path / "sampler.xml"
+        xml.write_text('<scene version="3.0.0">\n'
+                       '  <sensor type="perspective">\n'
+                       '    <float name="fov" value="40"/>\n'
+                       '    <sampler type="independent">\n'
+                       f'      <integer name="sample_count" value="{sample_count}"/>\n'
+                       '    </sampler>\n'
+                       '    <film type="hdrfilm"><integer name="width" value="4"/>'
+                       '<integer name="height" value="4"/></film>\n'
+                       '  </sensor>\n'
+                       '  <shape type="rectangle"/>\n'
+                       '  <emitter type="point"><point name="position" value="0, 0, 3"/></emitter>\n'
+                       '</scene>\n')
+        return caustica.load_scene(xml)
+
+    _, _, s = resolve_settings(scene_with(limits.MAX_SPP), "pt")
+    assert s["spp"] == limits.MAX_SPP
+    with pytest.raises(SceneError, match=r"sampler.xml:5"):
+        scene_with(limits.MAX_SPP + 1)
+
+
+# ----------------------------------------------------------------------------- per-thread scratch memory
+
+
+def test_k_nearest_scratch_is_checked_against_memory_before_rendering(scene, monkeypatch):
+    """--k sizes two arrays per worker thread (index + distance, 16 bytes per neighbour)."""
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 10 * 2**30)   # a 10 GiB machine: 6 GiB budget
+    _, _, s = resolve_settings(scene, "spm", res=4, threads=4, k=10_000_000)   # 0.64 GB: fine
+    assert s["k"] == 10_000_000
+    with pytest.raises(ParameterError) as info:
+        resolve_settings(scene, "spm", res=4, threads=4, k=200_000_000)        # 12.8 GB
+    msg = str(info.value)
+    assert "--k 200,000,000 on 4 threads" in msg and "12.8 GB" in msg and "lower --k or --threads" in msg
+    with pytest.raises(ParameterError, match="--caustic-k"):
+        resolve_settings(scene, "pm", res=4, threads=4, caustic_k=200_000_000)
