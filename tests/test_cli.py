@@ -1,15 +1,19 @@
 """The command line (SPEC §5): outputs and their JSON sidecar, methods and their flags, errors.
 
 The CLI runs in-process through ``caustica.cli.main`` (fast: kernels compile once per
-session); one test runs ``python -m caustica`` in a subprocess for the real exit code.
-Renders are tiny: 16x16 (or 8x8) pixels, 1 spp, a few thousand photons.
+session); a few tests run ``python -m caustica`` in a subprocess for the real exit code
+and real signals.  Renders are tiny: 16x16 (or 8x8) pixels, 1 spp, a few thousand photons.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
+import select
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -783,3 +787,68 @@ def test_compare_unreadable_files_are_one_line(cli, tmp_path):
         code, out, err = cli("compare", *args, "--no-flip")
         assert code == 2 and out == ""
         assert word in _one_line_error(err)
+
+
+def _read_available(fd: int, seconds: float) -> bytes:
+    """What a pseudo-terminal's master has to read within ``seconds`` (b"" once the other end is closed)."""
+    r, _, _ = select.select([fd], [], [], seconds)
+    if not r:
+        return b""
+    try:
+        return os.read(fd, 65536)
+    except OSError:   # EIO: every process holding the terminal has exited
+        return b""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="needs a pseudo-terminal and POSIX signals")
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_ctrl_c_stops_a_render_within_seconds_and_keeps_the_outputs(tmp_path, threads):
+    """SIGINT to a real ``caustica render`` while its camera pass runs: exit 130 at once, old outputs intact.
+
+    The render (32x32, 8192 spp) would take far longer than the allowance.  The test waits
+    for the progress bar, drawn on a pseudo-terminal, to count at least two pixels done:
+    then the kernels are compiled and the worker threads are busy.
+    """
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    out = tmp_path / "x.exr"
+    before = {name: f"the previous {name}".encode() for name in ("x.exr", "x.png", "x.json")}
+    for name, data in before.items():
+        (tmp_path / name).write_bytes(data)
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))   # tqdm needs a width
+    proc = subprocess.Popen([sys.executable, "-m", "caustica", "render", SCENE, "--res", "32", "--spp", "8192",
+                             "--threads", threads, "-o", str(out)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave)
+    os.close(slave)
+    try:
+        seen = b""
+        deadline = time.monotonic() + 600   # a cold kernel cache compiles first
+        while time.monotonic() < deadline and proc.poll() is None:
+            seen += _read_available(master, 0.5)
+            done = re.findall(rb"camera pass.*?\| *(\d+)/1024 \[", seen)
+            if done and int(done[-1]) >= 2:
+                break
+        assert proc.poll() is None, seen.decode(errors="replace")
+        assert done and int(done[-1]) >= 2, seen.decode(errors="replace")
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=120)
+        stopped_s = time.monotonic() - t0
+        while chunk := _read_available(master, 0.2):
+            seen += chunk
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    err = seen.decode(errors="replace")
+    assert code == 130, err
+    assert stopped_s < 5.0, f"took {stopped_s:.1f} s to stop"
+    assert "interrupted" in err and "Traceback" not in err
+    assert proc.stdout.read() == b""
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before)   # no temporary left either
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before

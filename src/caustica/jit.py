@@ -6,7 +6,15 @@ with ``nogil=True`` and cached on disk.  Work is spread over cores by
 arguments are the first and one-past-last work item) on chunks of the work from a
 pool of Python threads; the kernels release the GIL, so the threads run truly in
 parallel.  Each work item (pixel, photon, stream) draws its random numbers from
-its own index, so the result is the same for any thread count.
+its own index, so the result is the same for any thread count and any chunking.
+
+Interrupts: the calling thread only waits, so Ctrl-C (KeyboardInterrupt) reaches it
+at once, at any thread count.  It then hands out no more chunks and returns
+without waiting for the ones running: a running chunk (a compiled kernel cannot
+be stopped) finishes on its daemon thread, which a process that exits does not
+wait for.  Chunks are sized to take about :data:`CHUNK_SECONDS` each, so an
+interrupted render in a longer-lived process (a notebook) stops using the cores
+soon after.
 
 Why threads over chunks rather than ``parallel=True`` / ``prange``: measured on
 this project's 2-core machine, a ``prange`` kernel costs 2.7 s of compilation in
@@ -40,8 +48,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import queue
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba
@@ -104,38 +113,98 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: The duration one chunk of work aims at: long enough that calling a kernel costs
+#: nothing in comparison, short enough that progress moves and an interrupted
+#: render frees its threads soon after.
+CHUNK_SECONDS = 0.05
+
+
+class _Chunks:
+    """Hands out ranges [i0, i1) of the work items [start, stop) to worker threads, until cancelled."""
+
+    def __init__(self, start: int, stop: int, threads: int, fixed: int | None):
+        self.next = start
+        self.stop = stop
+        self.threads = threads
+        self.fixed = fixed
+        self.cancelled = False
+        self.lock = threading.Lock()
+
+    def take(self, size: int):
+        with self.lock:
+            if self.cancelled or self.next >= self.stop:
+                return None
+            if self.fixed:
+                size = self.fixed
+            else:   # leave work for the other threads near the end, so they finish together
+                size = max(1, min(size, -(-(self.stop - self.next) // (2 * self.threads))))
+            i0 = self.next
+            self.next = min(self.stop, i0 + size)
+            return i0, self.next
+
+    def cancel(self):
+        with self.lock:
+            self.cancelled = True
+
+
+def _run_chunks(range_kernel, args, start: int, stop: int, threads: int, chunk, progress) -> None:
+    """Run [start, stop) on ``threads`` daemon threads; this thread waits and reports progress."""
+    chunks = _Chunks(start, stop, threads, chunk)
+    done: queue.Queue = queue.Queue()
+
+    def worker():
+        size = 1   # grows (or shrinks) towards CHUNK_SECONDS of work per chunk
+        try:
+            while (r := chunks.take(size)) is not None:
+                t0 = time.perf_counter()
+                range_kernel(*args, r[0], r[1])
+                dt = time.perf_counter() - t0
+                n = r[1] - r[0]
+                done.put((n, None))
+                size = min(4 * n, max(1, int(n * CHUNK_SECONDS / dt))) if dt > 0 else 4 * n
+        except BaseException as exc:   # handed to the waiting thread, which raises it
+            chunks.cancel()
+            done.put((0, exc))
+        finally:
+            done.put(None)
+
+    for _ in range(threads):
+        threading.Thread(target=worker, name="caustica-worker", daemon=True).start()
+    running = threads
+    try:
+        while running:
+            msg = done.get()
+            if msg is None:
+                running -= 1
+            elif msg[1] is not None:
+                raise msg[1]
+            elif progress is not None:
+                progress.update(msg[0])
+    except BaseException:
+        chunks.cancel()   # KeyboardInterrupt included: no more chunks, and no waiting for running ones
+        raise
+
+
 def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None = None,
                  chunk: int | None = None, progress=None) -> float:
     """Run ``range_kernel(*args, i0, i1)`` over [0, n_items) in chunks on ``threads`` threads.
 
     The first single item runs alone, so Numba compiles (or loads from the cache)
     before the threads start; its duration is returned as the compile time in
-    seconds (it includes one work item, which is negligible).  ``progress`` is a
-    tqdm-like bar advanced by the number of items as chunks finish.
+    seconds (it includes one work item, which is negligible).  ``chunk`` fixes the
+    number of items per chunk (default: sized to take about CHUNK_SECONDS each).
+    ``progress`` is a tqdm-like bar advanced by the number of items as chunks
+    finish.  The kernels run on worker threads even when ``threads`` is 1, so the
+    calling thread receives Ctrl-C at once (see the module's docstring).
     """
     threads = threads or default_threads()
     if n_items <= 0:
         return 0.0
     t0 = time.perf_counter()
-    range_kernel(*args, 0, 1)
+    _run_chunks(range_kernel, args, 0, 1, 1, 1, progress)
     compile_s = time.perf_counter() - t0
-    if progress is not None:
-        progress.update(1)
-    if chunk is None:
-        chunk = max(1, -(-(n_items - 1) // (threads * 16)))
-    bounds = [(i, min(n_items, i + chunk)) for i in range(1, n_items, chunk)]
-    if threads == 1:
-        for i0, i1 in bounds:
-            range_kernel(*args, i0, i1)
-            if progress is not None:
-                progress.update(i1 - i0)
-        return compile_s
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        futures = [(pool.submit(range_kernel, *args, i0, i1), i1 - i0) for i0, i1 in bounds]
-        for fut, size in futures:
-            fut.result()
-            if progress is not None:
-                progress.update(size)
+    if n_items > 1:
+        _run_chunks(range_kernel, args, 1, n_items, min(threads, n_items - 1), chunk, progress)
     return compile_s
 
 
