@@ -852,3 +852,55 @@ def test_ctrl_c_stops_a_render_within_seconds_and_keeps_the_outputs(tmp_path, th
     assert proc.stdout.read() == b""
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before)   # no temporary left either
     assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+
+# ----------------------------------------------------------------------------- experiment: nothing before checks
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--res", "100000"), ("--res", "<= 46,340")),
+    (("--res", "40000"), ("40000x40000", "GB")),
+    (("--threads", "0"), ("--threads", ">= 1")),
+    (("--seed", str(2**40)), ("--seed",)),
+    (("--repeat", "1000"), ("--repeat", "<= 100")),
+    (("--seeds", "1000"), ("--seeds", "<= 100")),
+    (("--reference-spp", str(2**30)), ("--reference-spp",)),
+    (("--light-samples", "65"), ("--light-samples", "<= 64")),
+    # fits at the paper's budget, but the budget sweep doubles it (x2 with --quick)
+    (("--photons", "2000000000"), ("table2 would render PM x2", "--photons")),
+    (("--k", "2000000000", "--threads", "64"), ("--k", "GB")),
+    (("--max-bounces", "1025"), ("--max-bounces", "<= 1,024")),
+])
+def test_experiment_refuses_bad_settings_before_creating_anything(cli, tmp_path, monkeypatch, args, words):
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 16 * 2**30)   # the same verdicts anywhere
+    out = tmp_path / "exp"
+    code, _, err = cli("experiment", "table2", "--quick", "-q", "-o", out, "--cache-dir", tmp_path / "cache", *args)
+    assert code == 2
+    line = _one_line_error(err)
+    for word in words:
+        assert word in line, (word, line)
+    assert _files(tmp_path) == [] and not out.exists() and not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("name", ["table2", "merge-ablation", "convergence"])
+def test_experiment_with_an_unwritable_cache_dir_renders_nothing(cli, tmp_path, name):
+    (tmp_path / "afile").write_text("not a folder")
+    out = tmp_path / "exp"
+    code, _, err = cli("experiment", name, "--quick", "-q", "-o", out, "--threads", "1", "--res", "40",
+                       "--cache-dir", tmp_path / "afile" / "cache")
+    assert code == 2
+    line = _one_line_error(err)
+    assert "reference cache" in line and "afile" in line
+    assert not out.exists()
+    assert _files(tmp_path) == ["afile"]
+
+
+def test_experiment_with_a_reference_of_the_wrong_size_renders_nothing(cli, tmp_path):
+    imageio.write_exr(tmp_path / "ref.exr", np.ones((16, 16, 3), np.float32))
+    out = tmp_path / "exp"
+    code, _, err = cli("experiment", "table2", "--quick", "-q", "-o", out,
+                       "--reference", f"cornell-diacaustic={tmp_path / 'ref.exr'}")
+    assert code == 2
+    assert "--res 16" in _one_line_error(err)
+    assert not out.exists()

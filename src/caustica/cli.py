@@ -276,21 +276,15 @@ def _cmd_experiment(args) -> int:
     from .experiments import runner
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     names = runner.expand(args.names)          # unknown names fail before anything is written
-    if args.seed < 0:
-        raise ParameterError(f"--seed: must be a non-negative integer (got {args.seed})")
     for ref in args.reference or []:
         path = Path(ref.split("=", 1)[1] if "=" in ref and not Path(ref).exists() else ref)
         if not path.exists():
             raise ParameterError(f"--reference {ref}: no such file or folder")
-    if params:
-        from . import methods
-        for m in ("pm", "spm"):
-            cls = methods.get(m)
-            own = {p.name for p in cls.params}
-            methods.params.resolve(m, cls.params, {k: v for k, v in params.items() if k in own})
     out = Path(args.output)
     _check_outputs([out / "report.md"], args.output)
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    # Config checks every setting and method parameter, run() every planned render and the
+    # reference cache, all before anything is created.
     config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
                            threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,

@@ -128,6 +128,13 @@ class Convergence:
         result = render(scene, method, res=(res, res), seed=self.cfg.seed, threads=self.cfg.threads, **kw)
         return result, time.perf_counter() - t0
 
+    def plan(self) -> list:
+        """(label, scene, method, params) of every caustica render :meth:`run` makes (params with ``time_s``)."""
+        return [(label, name, method, dict(params, time_s=budget))
+                for name in SCENES for label, method, params in PROGRESSIVE for budget in self.budgets] + [
+            (f"PM+C {n:,} + {n:,}", name, "pm", {"photons": n, "caustic_photons": n})
+            for name in SCENES for n in self.pmc]
+
     def run(self, folder: Path) -> dict:
         from .figures import convergence_plot
         res = self.cfg.res

@@ -38,6 +38,17 @@ def default_cache_dir() -> Path:
     return Path(base) / "caustica" / "references"
 
 
+def check_cache_writable(folder: Path) -> None:
+    """Refuse, before anything is rendered, a cache folder that could not be created or written."""
+    existing = Path(folder).absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise CausticaError(f"cannot write the reference cache {folder}: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise CausticaError(f"cannot write the reference cache {folder}: {existing} is not writable")
+
+
 @dataclass
 class Reference:
     image: np.ndarray

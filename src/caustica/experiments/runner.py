@@ -23,13 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..api import load_scene, render
-from ..errors import ParameterError, SceneError
-from ..imageio import atomic_write, write_json, write_png
+from .. import driver, methods
+from ..api import check_common, load_scene, render, resolve_settings
+from ..errors import CausticaError, ParameterError, SceneError
+from ..imageio import atomic_write, read_exr, write_json, write_png
+from ..limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
+from ..methods.params import Param, non_negative, positive, resolve
 from . import metrics as M
 from .convergence import RES as CONVERGENCE_RES, SCENES as CONVERGENCE_SCENES, Convergence, shared_refs_dir
 from .masks import caustic_mask
-from .reference import Reference, pt_reference, user_reference
+from .reference import Reference, _spp_halves, cache_key, check_cache_writable, default_cache_dir, \
+    pt_reference, user_reference
 
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation", "convergence")
 #: What ``all`` runs: the paper's experiments and the ablation (``convergence`` takes half an hour: ask for it).
@@ -93,6 +97,19 @@ EQUAL_METRIC = "caustic_block_err"
 EQUAL_NAME = "caustic block err"
 #: How far beyond the budget sweep (as a factor) equal-error may extrapolate.
 MAX_EXTRAPOLATION = 2.0
+#: The pt reference's two halves use seeds seed + REFERENCE_SEED_OFFSET and that + 1.
+REFERENCE_SEED_OFFSET = 1000
+
+#: The experiment's own settings, checked (with the bounds of caustica.limits) before anything is written.
+SETTINGS = (
+    Param("res", int, None, "image size", lambda v: v >= 8, ">= 8", max=math.isqrt(MAX_PIXELS)),
+    Param("seed", int, 0, "random seed", non_negative, ">= 0", max=MAX_SEED - REFERENCE_SEED_OFFSET - 1),
+    Param("threads", int, None, "worker threads", positive, ">= 1", max=MAX_THREADS),
+    Param("reference_spp", int, None, "samples per pixel of the pt reference", lambda v: v >= 2,
+          ">= 2 (two halves)", max=2 * MAX_SPP),
+    Param("repeat", int, None, "renders per configuration", positive, ">= 1", max=100),
+    Param("seeds", int, None, "seeds per measured configuration", positive, ">= 1", max=MAX_SEEDS),
+)
 
 ROW_COLUMNS = ("experiment", "scene", "label", "method", "streams", "assoc", "stream_radius", "photons",
                "caustic_photons", "photons_emitted", "photons_stored", "map_mb", "time_s",
@@ -130,14 +147,13 @@ class Config:
             self.repeat = 1 if self.quick else 2
         if self.seeds is None:
             self.seeds = QUICK_SEEDS if self.quick else DEFAULT_SEEDS
-        if self.repeat < 1:
-            raise ParameterError(f"--repeat: at least 1 (got {self.repeat})")
-        if not 1 <= self.seeds <= MAX_SEEDS:
-            raise ParameterError(f"--seeds: between 1 and {MAX_SEEDS} (got {self.seeds})")
-        if self.res < 8:
-            raise ParameterError(f"--res: experiments need at least 8 pixels (got {self.res})")
-        if self.reference_spp < 2:
-            raise ParameterError(f"--reference-spp: at least 2 (two halves; got {self.reference_spp})")
+        checked = resolve("experiment", SETTINGS, {p.name: getattr(self, p.name) for p in SETTINGS})
+        for name, value in checked.items():
+            setattr(self, name, value)
+        check_common(spp=1, width=self.res, height=self.res, seed=self.seed, threads=self.threads)
+        # every method parameter given, against the photon methods' tables (the experiments render pm and spm)
+        specs = {p.name: p for m in ("pm", "spm") for p in methods.get(m).params}
+        resolve("pm/spm", tuple(specs.values()), self.params)
 
 
 def _fmt(v, digits=4):
@@ -296,7 +312,8 @@ class Runner:
                 self.refs[name] = user_reference(path, r, r, self.mask(name))
             else:
                 self.refs[name] = pt_reference(self.scene(name), r, r, spp=self.cfg.reference_spp,
-                                               seed=self.cfg.seed + 1000, cache_dir=self.cfg.cache_dir,
+                                               seed=self.cfg.seed + REFERENCE_SEED_OFFSET,
+                                               cache_dir=self.cfg.cache_dir,
                                                threads=self.cfg.threads, progress=self.cfg.progress,
                                                mask=self.mask(name), log=self.log)
         return self.refs[name]
@@ -398,13 +415,105 @@ class Runner:
     def _budget_factors(self):
         return QUICK_BUDGET_FACTORS if self.cfg.quick else BUDGET_FACTORS
 
+    def _table1_params(self, s, a, r):
+        params = self.params_for("spm", {"streams": s, "assoc": a, "stream_radius": r})
+        params.update(streams=s, assoc=a, stream_radius=r)
+        return params
+
+    def _budget_params(self, label, factor):
+        c = CONFIGS[label]
+        params = self.params_for(c["method"], c["params"], c["fixed"])
+        for k in BUDGET_KEYS[label]:
+            params[k] = max(1, round(params[k] * factor))
+        return params
+
+    def _figure_items(self, name):
+        """(label, method, params) of each panel of a figure."""
+        if name == "fig5":
+            base = self.params_for("spm", CONFIGS["SPM"]["params"])
+            return [(f"SPM r_s={rs:g}", "spm", dict(base, stream_radius=rs)) for rs in (5.0, 0.1)]
+        if name == "fig6":
+            return [("SPM", "spm", self.params_for("spm", CONFIGS["SPM"]["params"]))]
+        return [(lab, c["method"], self.params_for(c["method"], c["params"], c["fixed"]))
+                for lab, c in CONFIGS.items()]
+
+    def _floor_params(self):
+        """The truncation floor: the paper's PM with mr = 64 instead of 4 (the references have no limit)."""
+        params = self.params_for("pm", CONFIGS["PM"]["params"], ("caustic_photons", "max_bounces"))
+        params["max_bounces"] = FLOOR_MAX_BOUNCES
+        return params
+
+    def _ablation_params(self, method, base):
+        params = self.params_for(method, base, ABLATION_FIXED)
+        params.update(base)
+        return params
+
+    def plan(self, name):
+        """(label, scene, method, params) of every render experiment ``name`` makes.
+
+        params may hold the render's ``passes`` and ``time_s`` besides the method's parameters.
+        """
+        if name == "table1":
+            return [(f"SPM {s}x{a} r_s={r:g}", TABLE1_SCENE, "spm", self._table1_params(s, a, r))
+                    for s, a, r in self._table1_grid()]
+        if name in TABLE_SCENES:
+            scene = TABLE_SCENES[name]
+            return [(f"{label} x{f:g}", scene, CONFIGS[label]["method"], self._budget_params(label, f))
+                    for f in self._budget_factors() for label in CONFIGS] + [
+                (FLOOR_LABEL, scene, "pm", self._floor_params())]
+        if name == "merge-ablation":
+            return [(label, scene, method, self._ablation_params(method, base))
+                    for scene in ABLATION_SCENES for label, method, base in ABLATION]
+        if name == "convergence":
+            return Convergence(self).plan()
+        return [(lab, FIG_SCENES[name], m, p) for lab, m, p in self._figure_items(name)]
+
+    def preflight(self, names):
+        """Check every render and reference the experiments need before anything is written.
+
+        Each planned render's settings pass the same checks as a render (ranges, memory of
+        the image and the search scratch); each measured scene's reference is readable at the
+        right size, or the reference cache can be written.  Scenes that cannot be loaded are
+        left to their experiment, which reports them as skipped.
+        """
+        cfg, r = self.cfg, self.cfg.res
+        for name in names:
+            for label, scene_name, method, params in self.plan(name):
+                try:
+                    scene = self.scene(scene_name)
+                except SceneError:
+                    continue
+                params = dict(params)
+                passes, time_s = params.pop("passes", None), params.pop("time_s", None)
+                try:
+                    pass_plan = driver.check_plan(methods.get(method), passes, time_s)
+                    resolve_settings(scene, method, res=(r, r), seed=cfg.seed, threads=cfg.threads,
+                                     multi_pass=pass_plan.multi, **params)
+                except ParameterError as exc:
+                    raise ParameterError(f"{name} would render {label} ({method}, {scene_name}): {exc}") from None
+        for scene_name in sorted(measured_scenes(names)):
+            path = self._user_reference_path(scene_name)
+            if path is not None:
+                img = read_exr(path)
+                if img.shape[:2] != (r, r):
+                    raise CausticaError(f"--reference {path}: it is {img.shape[1]}x{img.shape[0]} but the "
+                                        f"experiment renders {r}x{r}; give --res {img.shape[1]}")
+                continue
+            scene = self.scene(scene_name)
+            seed = cfg.seed + REFERENCE_SEED_OFFSET
+            for half_spp, half_seed in zip(_spp_halves(cfg.reference_spp), (seed, seed + 1)):
+                resolve_settings(scene, "pt", spp=half_spp, res=(r, r), seed=half_seed, threads=cfg.threads)
+            cache = Path(cfg.cache_dir) if cfg.cache_dir else default_cache_dir()
+            folder = cache / cache_key(scene.name, r, r, cfg.reference_spp, seed)
+            if not all((folder / f"{k}.exr").is_file() for k in ("half_a", "half_b", "reference")):
+                check_cache_writable(folder)
+
     def table1(self, folder):
         from .figures import fig4_plot
         scene = TABLE1_SCENE
         rows = [self.noise_row("table1", scene)]
         for s, a, r in self._table1_grid():
-            params = self.params_for("spm", {"streams": s, "assoc": a, "stream_radius": r})
-            params.update(streams=s, assoc=a, stream_radius=r)
+            params = self._table1_params(s, a, r)
             row, _ = self.run_render("table1", scene, f"SPM {s}x{a} r_s={r:g}", "spm", params, folder)
             rows.append(row)
         cols = ("label", "streams", "assoc", "stream_radius", "photons_emitted", "time_s", "map_mb",
@@ -424,9 +533,7 @@ class Runner:
         rows_main, sweep = [], {k: [] for k in CONFIGS}
         for factor in self._budget_factors():
             for label, c in CONFIGS.items():
-                params = self.params_for(c["method"], c["params"], c["fixed"])
-                for k in BUDGET_KEYS[label]:
-                    params[k] = max(1, round(params[k] * factor))
+                params = self._budget_params(label, factor)
                 tag = label if factor == 1.0 else f"{label} x{factor:g}"
                 row, _ = self.run_render(name, scene, tag, c["method"], params, folder)
                 row = dict(row, config=label, budget_factor=factor)
@@ -435,10 +542,7 @@ class Runner:
                     rows_main.append(row)
         order = {k: i for i, k in enumerate(CONFIGS)}
         rows_main.sort(key=lambda r: order[r["config"]])
-        # the truncation floor: the paper's PM with mr = 64 instead of 4 (the references have no limit)
-        floor_params = self.params_for("pm", CONFIGS["PM"]["params"], ("caustic_photons", "max_bounces"))
-        floor_params["max_bounces"] = FLOOR_MAX_BOUNCES
-        floor, _ = self.run_render(name, scene, FLOOR_LABEL, "pm", floor_params, folder)
+        floor, _ = self.run_render(name, scene, FLOOR_LABEL, "pm", self._floor_params(), folder)
         floor = dict(floor, config=FLOOR_LABEL, budget_factor=1.0)
         noise = self.noise_row(name, scene)
         eq = equal_comparison(sweep, "SPM")
@@ -485,8 +589,7 @@ class Runner:
         for scene in ABLATION_SCENES:
             rows = []
             for label, method, base in ABLATION:
-                params = self.params_for(method, base, ABLATION_FIXED)
-                params.update(base)
+                params = self._ablation_params(method, base)
                 row, _ = self.run_render("merge-ablation", scene, label, method, params, folder,
                                          stem=f"{scene}_{label}")
                 rows.append(row)
@@ -506,14 +609,7 @@ class Runner:
     def figure(self, name, folder):
         from .figures import side_by_side
         scene = FIG_SCENES[name]
-        if name == "fig5":
-            base = self.params_for("spm", CONFIGS["SPM"]["params"])
-            items = [(f"SPM r_s={rs:g}", "spm", dict(base, stream_radius=rs)) for rs in (5.0, 0.1)]
-        elif name == "fig6":
-            items = [("SPM", "spm", self.params_for("spm", CONFIGS["SPM"]["params"]))]
-        else:
-            items = [(lab, c["method"], self.params_for(c["method"], c["params"], c["fixed"]))
-                     for lab, c in CONFIGS.items()]
+        items = self._figure_items(name)
         try:
             self.scene(scene)
         except SceneError as exc:
@@ -823,6 +919,11 @@ def scenes_of(name: str) -> tuple[str, ...]:
     return (TABLE_SCENES.get(name) or FIG_SCENES[name],)
 
 
+def measured_scenes(names) -> set[str]:
+    """The scenes whose renders these experiments measure against a reference."""
+    return {scene for n in names if n not in ("fig5", "fig6") for scene in scenes_of(n)}
+
+
 def run(names, config: Config) -> dict:
     """Run the experiments ``names`` (see EXPERIMENTS, or 'all'); returns {name: results} and writes report.md."""
     from .report import write_report
@@ -834,13 +935,14 @@ def run(names, config: Config) -> dict:
         refs = shared_refs_dir()
         if not config.references and refs is not None and any(refs.glob(f"*_{config.res}.exr")):
             config.references.append(str(refs))
-    measured = {scene for n in names if n not in ("fig5", "fig6") for scene in scenes_of(n)}
+    measured = measured_scenes(names)
     plain_files = [r for r in config.references if "=" not in r and not Path(r).is_dir()]
     if plain_files and len(measured) > 1:
         raise ParameterError(f"--reference {plain_files[0]}: these experiments measure {len(measured)} scenes "
                              f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
-    config.out.mkdir(parents=True, exist_ok=True)
     runner = Runner(config)
+    runner.preflight(names)   # nothing is created before every check has passed
+    config.out.mkdir(parents=True, exist_ok=True)
     total = sum(runner.count(n) for n in names)
     bar = None
     if config.progress:
