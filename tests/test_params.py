@@ -167,3 +167,12 @@ def test_k_nearest_scratch_is_checked_against_memory_before_rendering(scene, mon
     assert "--k 200,000,000 on 4 threads" in msg and "12.8 GB" in msg and "lower --k or --threads" in msg
     with pytest.raises(ParameterError, match="--caustic-k"):
         resolve_settings(scene, "pm", res=4, threads=4, caustic_k=200_000_000)
+
+
+def test_the_image_memory_check_counts_each_method_s_own_arrays(scene, monkeypatch):
+    """A progressive method keeps float64 pixel statistics: about twice the bytes per pixel of pt."""
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 2**30)   # 1 GiB: a 0.64 GB budget
+    _, _, s = resolve_settings(scene, "pt", res=2000, spp=1)               # 2000^2 x 112 bytes = 0.45 GB
+    assert s["width"] == 2000
+    with pytest.raises(ParameterError, match=r"a 2000x2000 image would need about 1\.0 GB"):
+        resolve_settings(scene, "sppm", res=2000)                          # 2000^2 x 240 bytes = 0.96 GB

@@ -109,6 +109,9 @@ class ProgressivePhotonMethod:
     progressive = True
     default_spp = 1
     aovs = ("radius", "count")
+    #: Memory per pixel (api.resolve_settings checks it): the pixel statistics, old and new,
+    #: and a pass's visible points, flux and counts (float64); measured about 231 bytes.
+    bytes_per_pixel = 240
 
     @classmethod
     def check(cls, scene, settings):
