@@ -1,0 +1,104 @@
+"""The JIT policy (caustica.jit): what kernels are compiled for, and what the compile leaves out."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+from numba import njit, typeof
+
+from caustica.geometry.bvh import _stable_sort
+from caustica.jit import BorrowedTuple, borrowed, kernel
+from caustica.scene.compiled import compile_scene
+from caustica.scene import load_scene_description
+
+
+@kernel
+def _take_dim(x, dim):
+    return x + dim
+
+
+@kernel
+def _loop_over_dims(x, n):
+    dim = 2  # a constant before a loop that increments it: typed Literal[int](2) at first
+    acc = 0.0
+    for _ in range(n):
+        acc += _take_dim(x, dim)
+        dim += 3
+    return acc
+
+
+def test_a_constant_argument_compiles_no_literal_specialisation():
+    assert _loop_over_dims(1.0, 3) == (1 + 2) + (1 + 5) + (1 + 8)
+    sigs = [tuple(str(t) for t in s) for s in _take_dim.signatures]
+    assert sigs == [("float64", "int64")]
+
+
+@kernel
+def _prim_count(geom):
+    return geom.prim_kind.shape[0]
+
+
+@kernel
+def _prim_count_borrowed(geom):
+    return _prim_count(borrowed(geom))
+
+
+def test_kernel_called_from_kernels_has_no_python_wrapper_and_python_calls_work():
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    n = scene.geometry.n_prims
+    assert _prim_count_borrowed(scene.geometry) == n      # Python -> kernel -> kernel
+    assert _prim_count(scene.geometry) == n               # a kernel called from Python directly
+    (sig,) = _prim_count.signatures
+    assert isinstance(sig[0], BorrowedTuple)
+    cres = _prim_count.overloads[sig]
+    assert cres.library.get_pointer_to_function(cres.fndesc.llvm_cpython_wrapper_name) == 0
+    twin = _prim_count.from_python
+    (tsig,) = twin.signatures
+    tres = twin.overloads[tsig]
+    assert tres.library.get_pointer_to_function(tres.fndesc.llvm_cpython_wrapper_name) != 0
+
+
+def _rebind(geom):
+    g = geom
+    h = g
+    return h.prim_kind.shape[0]
+
+
+def test_binding_a_borrowed_tuple_generates_no_reference_counting(monkeypatch):
+    from numba.core import codegen
+
+    generated = []  # Numba's LLVM IR before optimisation (which would hide what was generated)
+    add_ir_module = codegen.CPUCodeLibrary.add_ir_module
+    monkeypatch.setattr(codegen.CPUCodeLibrary, "add_ir_module",
+                        lambda lib, mod: (generated.append(str(mod)), add_ir_module(lib, mod))[1])
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    plain = typeof(scene.geometry)
+    assert BorrowedTuple(plain) != plain
+    refops = {}
+    for ty in (plain, BorrowedTuple(plain)):
+        generated.clear()
+        njit(no_cpython_wrapper=True, no_cfunc_wrapper=True)(_rebind).compile((ty,))
+        ir = "".join(generated)
+        refops[ty] = len(re.findall(r'call void @"?NRT_(?:incref|decref)', ir))
+    assert refops[plain] >= 2 * len(scene.geometry)           # every array, at every binding
+    assert refops[BorrowedTuple(plain)] <= 4                  # only the one array taken out of it
+
+
+def test_stable_sort_matches_numpy_mergesort_argsort():
+    rng = np.random.default_rng(1)
+    for trial in range(200):
+        n = int(rng.integers(1, 120))
+        keys = rng.integers(0, 6, n).astype(np.float64)  # many ties: stability matters
+        if trial % 4 == 0:
+            keys[rng.integers(0, n, 3)] = np.nan
+        order = rng.permutation(n).astype(np.int32)
+        lo = int(rng.integers(0, n))
+        hi = int(rng.integers(lo, n + 1))
+        perm = np.argsort(keys[lo:hi], kind="mergesort")
+        want = order.copy()
+        want[lo:hi] = order[lo:hi][perm]
+        k, o = keys.copy(), order.copy()
+        _stable_sort(k, o, lo, hi, np.empty(n), np.empty(n, np.int32))
+        assert np.array_equal(o, want)
+        assert np.array_equal(k[lo:hi], keys[lo:hi][perm], equal_nan=True)
+        assert np.array_equal(o[:lo], order[:lo]) and np.array_equal(o[hi:], order[hi:])
