@@ -70,7 +70,7 @@ def point_light_geometry(geom, lights, li, p, ng, ns):
     return cos_s, dist2
 
 
-@kernel
+@kernel(hot=True)
 def direct_one_sample(geom, lights, p, ng, ns, key, dim):
     """Incident irradiance-like term Σ L cos θ / pdf from one light sample, MIS-ready.
 

@@ -439,7 +439,7 @@ def _near_first(axis, d):
     return d[2] < 0.0
 
 
-@kernel
+@kernel(hot=True)
 def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
     best_prim = -1
     best_t = tmax
@@ -485,7 +485,7 @@ def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2
     return best_prim, best_t, best_b1, best_b2
 
 
-@kernel
+@kernel(hot=True)
 def _any_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
     if node.shape[0] == 0:
         return False

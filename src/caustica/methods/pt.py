@@ -31,7 +31,7 @@ INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
 
 
-@kernel
+@kernel(hot=True)
 def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
     """Radiance arriving at o from direction -d, estimated along one random path."""
     L = (0.0, 0.0, 0.0)
