@@ -8,8 +8,8 @@ from numba import njit, typeof
 
 from caustica.geometry.bvh import _stable_sort
 from caustica.jit import BorrowedTuple, borrowed, kernel
-from caustica.scene.compiled import compile_scene
 from caustica.scene import load_scene_description
+from caustica.scene.compiled import compile_scene
 
 
 @kernel
