@@ -229,7 +229,7 @@ class BorrowedTuple(types.NamedTuple):
     """
 
     def __init__(self, tup):
-        super().__init__(tup.types, tup.instance_class)
+        super().__init__(tuple(tup), tup.instance_class)
         self.name = f"borrowed {tup.name}"
         self.plain = tup
 
@@ -266,14 +266,15 @@ def borrowed(typingctx, tup):
     """
     if isinstance(tup, BorrowedTuple):
         return tup(tup), lambda context, builder, signature, args: args[0]
-    if not isinstance(tup, types.NamedTuple) or not all(isinstance(t, types.Array) for t in tup.types):
+    if not isinstance(tup, types.BaseTuple) or not all(isinstance(t, types.Array) for t in tup):
         return None
-    out = BorrowedTuple(tup)
+    # A named tuple becomes a BorrowedTuple; a plain tuple keeps its type (views only).
+    out = BorrowedTuple(tup) if isinstance(tup, types.BaseNamedTuple) else tup
 
     def codegen(context, builder, signature, args):
         value = args[0]
         result = cgutils.get_null_value(context.get_value_type(out))
-        for i, arr_ty in enumerate(tup.types):
+        for i, arr_ty in enumerate(tup):
             arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
             arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
             arr.parent = cgutils.get_null_value(arr.parent.type)
