@@ -40,7 +40,7 @@ Caching policy
 Compile time
 ------------
 A fresh install compiles every kernel of its first render (``make render``: about
-70, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
+65, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
 that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
 calls are typed with plain, never literal, argument types (one specialisation per
 kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
@@ -231,7 +231,6 @@ class BorrowedTuple(types.NamedTuple):
     def __init__(self, tup):
         super().__init__(tuple(tup), tup.instance_class)
         self.name = f"borrowed {tup.name}"
-        self.plain = tup
 
     @property
     def key(self):
