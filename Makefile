@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: render test bench clean
+.PHONY: render test bench bench-compile clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,9 +21,13 @@ render: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -p no:cacheprovider tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 0; fi; exit $$rc
 
-## Print the performance numbers quoted in the README.
+## Print the performance numbers quoted in the README (the path tracer against Mitsuba 3 included).
 bench: $(STAMP)
 	$(PY) benchmarks/bench_render.py
+
+## Where the first render's compile time goes: a table per kernel, and the cold-start total.
+bench-compile: $(STAMP)
+	$(PY) benchmarks/bench_compile.py
 
 clean:
 	rm -rf $(VENV) out

@@ -1,18 +1,25 @@
-"""Whole-render benchmarks: path-tracer ray throughput, cold/warm start, and the paper's Tables 2-3.
+"""Whole-render benchmarks: path-tracer speed against Mitsuba 3, cold/warm start, the paper's Tables 2-3.
 
     python benchmarks/bench_render.py [--quick] [--threads N]
 
-(a) Rays per second of the path tracer on cornell-diacaustic (512x512, 8 spp; warm).
-    Rays are counted, not estimated: a replica of ``pt``'s path loop (below) follows
-    the same paths with the same random numbers and counts extension rays (camera
-    rays and bounce rays, i.e. every ``intersect`` call) and shadow rays (every
-    ``visible`` test ``direct_one_sample`` makes).  The replica also computes the
-    image, and the benchmark checks it is bit-identical to ``pt``'s; if not, it says
-    the counts are approximate.  Time is ``pt``'s camera_pass_s (compile excluded).
+(a) The path tracer on cornell-diacaustic, warm.
+    1. Rays per second (512x512, 8 spp): ``pt`` counts its rays in the kernel that
+       renders (stats ``camera_rays``, ``extension_rays`` = every ``intersect`` call,
+       camera rays included, and ``shadow_rays`` = every visibility test of next-event
+       estimation); time is the render's camera_pass_s (compile excluded).
+    2. Against Mitsuba 3 (``scalar_rgb``, its ``path`` integrator, the same XML file
+       and the same thread count), 256x256 at 16 spp: caustica's ``pt`` and Mitsuba are
+       timed in turn in this one process, best of three each, so the machine's load
+       weighs on both alike.  Printed: samples per second of each, and caustica's
+       relative to Mitsuba's by wall time and by CPU time (user + sys of the process:
+       both use every thread they are given).  A ratio travels between machines where
+       absolute times do not.  Skipped when Mitsuba is not installed (it is a test
+       dependency: ``pip install -e '.[test]'``).
 (b) Cold start: ``python -c`` in a subprocess with CAUSTICA_NO_CACHE=1 (every
     kernel compiled) rendering a 32x32 image, wall time; then with the disk cache
     warm (after one warm-up subprocess): wall time, import time, time until tracing
-    starts (timings scene_load_s + compile_s) and total_s.
+    starts (timings scene_load_s + compile_s) and total_s.  Per-kernel compile times:
+    ``benchmarks/bench_compile.py``.
 (c) The paper's Tables 2 and 3: cornell-diacaustic and cornell-catacaustic at
     512x512, 1 spp, the paper's settings (mr = 4, R = 3, k = 100): PM 100,000
     photons, PM+C 100,000 + 100,000, SPM 10,000 streams x 10, each rendered once
@@ -24,9 +31,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
+import resource
 import subprocess
 import sys
 import time
@@ -34,154 +41,10 @@ import time
 import numpy as np
 
 import caustica
-from caustica.bsdf import reflect, sample_dielectric
-from caustica.camera import generate_ray
-from caustica.emitters import AREA, choose_light, sample_area_emitter
-from caustica.geometry import vec
-from caustica.geometry.scene_geometry import intersect, surface_at
-from caustica.jit import default_threads, kernel, parallel_for
-from caustica.lighting import direct_one_sample
-from caustica.methods.pt import DEPTH_CAP, INV_PI
-from caustica.sampling.rng import STREAM_CAMERA, path_key, uniform
-from caustica.sampling.warps import square_to_cosine_hemisphere
-from caustica.scene.description import CONDUCTOR, DIFFUSE
+from caustica.jit import default_threads
+from caustica.scene import builtin_scene_path
 
-# ----------------------------------------------------------------------------- (a) ray counting
-
-
-@kernel
-def _shadow_ray_traced(geom, lights, p, ng, ns, key, dim):
-    """True when direct_one_sample (same arguments) reaches its ``visible`` test: its early-outs, replayed."""
-    if lights.kind.shape[0] == 0:
-        return False
-    li, _sel, _ = choose_light(lights, uniform(key, dim))
-    if lights.kind[li] == AREA:
-        q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
-        to_l = vec.sub(q, p)
-        dist2 = vec.dot(to_l, to_l)
-        if dist2 <= 0.0:
-            return False
-        wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-        return -vec.dot(nq, wi) > 0.0 and vec.dot(ns, wi) > 0.0 and vec.dot(ng, wi) > 0.0
-    to_l = vec.sub(vec.row(lights.position, li), p)
-    wi = vec.mul(to_l, 1.0 / math.sqrt(vec.dot(to_l, to_l)))
-    return vec.dot(ns, wi) > 0.0 and vec.dot(ng, wi) > 0.0
-
-
-@kernel
-def _counting_radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
-    """caustica.methods.pt.radiance, step for step, also returning (extension rays, shadow rays)."""
-    L = (0.0, 0.0, 0.0)
-    beta = (1.0, 1.0, 1.0)
-    eta_scale = 1.0
-    specular = True
-    pdf_bsdf = 0.0
-    dim = 2
-    depth = 0
-    n_ext = 0
-    n_shadow = 0
-    while True:
-        n_ext += 1
-        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
-        if prim < 0:
-            break
-        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        front = vec.dot(d, ng) < 0.0
-        e = geom.prim_emitter[prim]
-        if e >= 0 and front:
-            w = 1.0
-            if not specular:
-                cos_l = -vec.dot(d, ng)
-                pdf_light = lights.select_pdf[e] * t * t / (lights.area[e] * cos_l)
-                w = pdf_bsdf * pdf_bsdf / (pdf_bsdf * pdf_bsdf + pdf_light * pdf_light)
-            L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)), w)
-        depth += 1
-        if depth >= max_depth:
-            break
-        m = geom.prim_material[prim]
-        kind = mats.kind[m]
-        rgb = vec.row(mats.rgb, m)
-        if kind == DIFFUSE or kind == CONDUCTOR:
-            if not front:
-                if mats.twosided[m] == 0:
-                    break
-                ng = vec.neg(ng)
-                ns = vec.neg(ns)
-        if kind == DIFFUSE:
-            if _shadow_ray_traced(geom, lights, p, ng, ns, key, dim):
-                n_shadow += 1
-            contrib, pdf_light, cos_s, is_area = direct_one_sample(geom, lights, p, ng, ns, key, dim)
-            dim += 3
-            if cos_s > 0.0:
-                w = 1.0
-                if is_area:
-                    pdf_b = cos_s * INV_PI
-                    w = pdf_light * pdf_light / (pdf_light * pdf_light + pdf_b * pdf_b)
-                L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * INV_PI)
-            local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-            s, tt = vec.orthonormal_basis(ns)
-            wi = vec.from_local(s, tt, ns, local)
-            if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
-                break
-            beta = vec.hadamard(beta, rgb)
-            pdf_bsdf = local[2] * INV_PI
-            specular = False
-        elif kind == CONDUCTOR:
-            wi = reflect(d, ns)
-            if vec.dot(wi, ng) <= 0.0:
-                wi = reflect(d, ng)
-            beta = vec.hadamard(beta, rgb)
-            specular = True
-        else:
-            wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], uniform(key, dim))
-            dim += 1
-            beta = vec.hadamard(beta, rgb)
-            if not is_reflection:
-                beta = vec.mul(beta, 1.0 / (eta * eta))
-                eta_scale *= eta * eta
-            specular = True
-        o = vec.offset_origin(p, ng, wi)
-        d = wi
-        if depth >= rr_depth:
-            q = min(vec.max_component(beta) * eta_scale, 0.95)
-            if uniform(key, dim) >= q:
-                break
-            dim += 1
-            beta = vec.mul(beta, 1.0 / q)
-    return L, n_ext, n_shadow
-
-
-@kernel
-def _counting_pixels(geom, mats, lights, cam, seed, spp, max_depth, rr_depth, image, counts, i0, i1):
-    """caustica.methods.pt.render_pixels with per-pixel ray counts (extension, shadow)."""
-    width = cam.width
-    for i in range(i0, i1):
-        y = i // width
-        x = i % width
-        acc = (0.0, 0.0, 0.0)
-        for s in range(spp):
-            key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
-            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L, n_ext, n_shadow = _counting_radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
-            counts[i, 0] += n_ext
-            counts[i, 1] += n_shadow
-            if math.isfinite(L[0] + L[1] + L[2]):
-                acc = vec.add(acc, L)
-        inv = 1.0 / spp
-        image[y, x, 0] = acc[0] * inv
-        image[y, x, 1] = acc[1] * inv
-        image[y, x, 2] = acc[2] * inv
-
-
-def count_pt_rays(scene, res, spp, seed, threads, max_depth=-1, rr_depth=5):
-    cam = scene.camera(res, res)
-    image = np.zeros((res, res, 3), np.float32)
-    counts = np.zeros((res * res, 2), np.int64)
-    depth = DEPTH_CAP if max_depth < 0 else max_depth
-    parallel_for(_counting_pixels, res * res, (scene.geometry, scene.materials, scene.lights, cam, seed, spp,
-                                               depth, rr_depth, image, counts), threads=threads)
-    return image, int(counts[:, 0].sum()), int(counts[:, 1].sum())
+# ----------------------------------------------------------------------------- (a) the path tracer
 
 
 def bench_rays(res, spp, threads):
@@ -189,12 +52,9 @@ def bench_rays(res, spp, threads):
           f"{threads} threads, warm\n")
     scene = caustica.load_scene("cornell-diacaustic")
     caustica.render(scene, "pt", res=16, spp=1, threads=threads)  # compile / load the cache
-    count_pt_rays(scene, 4, 1, 0, threads)
     result = caustica.render(scene, "pt", res=res, spp=spp, seed=0, threads=threads)
-    t = result.stats["timings"]
-    image, n_ext, n_shadow = count_pt_rays(scene, res, spp, 0, threads)
-    exact = np.array_equal(image.view(np.uint32), result.image.view(np.uint32))
-    primary = res * res * spp
+    s, t = result.stats, result.stats["timings"]
+    primary, n_ext, n_shadow = s["camera_rays"], s["extension_rays"], s["shadow_rays"]
     seconds = t["camera_pass_s"]
     total = n_ext + n_shadow
     print(f"camera pass {seconds:.2f} s (compile {t['compile_s']:.3f} s excluded)")
@@ -202,14 +62,62 @@ def bench_rays(res, spp, threads):
     print(f"bounce rays           : {n_ext - primary:>12,}  (extension rays after the camera ray, "
           f"escapes included)")
     print(f"shadow rays           : {n_shadow:>12,}  (visibility tests of next-event estimation)")
-    print(f"all rays              : {total:>12,}  = {total / primary:.2f} per camera ray")
-    if exact:
-        print("counted exactly: the counting replica of pt's path loop gave a bit-identical image")
-    else:
-        print("WARNING: the counting replica's image differs from pt's (pt.py changed?): counts approximate")
+    print(f"all rays              : {total:>12,}  = {total / primary:.2f} per camera ray "
+          f"(counted by the rendering kernel)")
     print(f"\n**{total / seconds / 1e6:.2f} M rays/s** all rays "
           f"({total / seconds / threads / 1e6:.2f} M per thread; {primary / seconds / 1e6:.2f} M camera rays "
           f"= paths/s)\n")
+
+
+def _cpu_seconds():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _timed(fn):
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    out = fn()
+    return time.perf_counter() - t0, _cpu_seconds() - c0, out
+
+
+def bench_mitsuba(res, spp, threads, repeats=3):
+    name = "cornell-diacaustic"
+    print(f"## (a2) caustica `pt` against Mitsuba 3 `scalar_rgb` `path`: {name}, {res}x{res}, {spp} spp, "
+          f"{threads} threads, best of {repeats}\n")
+    try:
+        import drjit as dr
+        import mitsuba as mi
+    except ImportError:
+        print("Mitsuba 3 is not installed (pip install -e '.[test]'): skipped.\n")
+        return None
+    mi.set_variant("scalar_rgb")
+    dr.set_thread_count(threads)
+    path = str(builtin_scene_path(name))
+    mi_scene = mi.load_file(path, res=res, spp=spp)
+    scene = caustica.load_scene(path, res=res)
+    mi.render(mi_scene, spp=1)                                        # warm-up (Mitsuba)
+    caustica.render(scene, "pt", spp=1, threads=threads)              # compile / load the cache
+    best = {"caustica": [float("inf")] * 2, "mitsuba": [float("inf")] * 2}
+    means = {}
+    for _ in range(repeats):  # interleaved, so a change of load hits both
+        wall, cpu, r = _timed(lambda: caustica.render(scene, "pt", spp=spp, seed=0, threads=threads))
+        best["caustica"] = [min(best["caustica"][0], wall), min(best["caustica"][1], cpu)]
+        means["caustica"] = float(r.image.mean())
+        wall, cpu, img = _timed(lambda: mi.render(mi_scene, spp=spp))
+        best["mitsuba"] = [min(best["mitsuba"][0], wall), min(best["mitsuba"][1], cpu)]
+        means["mitsuba"] = float(np.asarray(img).mean())
+    samples = res * res * spp
+    print("| renderer | wall (s) | CPU (s) | samples/s (wall) | samples/s per CPU-second | image mean |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for who in ("caustica", "mitsuba"):
+        wall, cpu = best[who]
+        print(f"| {'caustica pt' if who == 'caustica' else 'Mitsuba 3 path'} | {wall:.2f} | {cpu:.2f} | "
+              f"{samples / wall / 1e6:.3f} M | {samples / cpu / 1e6:.3f} M | {means[who]:.4f} |")
+    by_wall = best["mitsuba"][0] / best["caustica"][0]
+    by_cpu = best["mitsuba"][1] / best["caustica"][1]
+    print(f"\n**caustica / Mitsuba samples per second: {by_wall:.2f}x by wall time, {by_cpu:.2f}x by CPU time** "
+          f"(goal >= 1x)\n")
+    return by_wall, by_cpu
 
 
 # ----------------------------------------------------------------------------- (b) cold / warm start
@@ -319,6 +227,7 @@ def main() -> None:
           f"{args.threads} threads{', --quick' if args.quick else ''}\n")
     t0 = time.perf_counter()
     bench_rays(res, args.spp, args.threads)
+    bench_mitsuba(128 if args.quick else 256, 16, args.threads)
     bench_start(("pt",) if args.quick else ("pt", "pm", "spm"), args.threads)
     bench_paper(res, args.threads)
     print(f"(benchmark ran {time.perf_counter() - t0:.0f} s)")

@@ -1,97 +1,104 @@
-"""``caustica.jit.parallel_for`` (issue 8): every item once, any thread count; Ctrl-C stops it at once.
-
-The kernel here is a toy range kernel that marks the items it ran and spins a little
-per item, so chunks take measurable time.
-"""
+"""The JIT policy (caustica.jit): what kernels are compiled for, and what the compile leaves out."""
 from __future__ import annotations
 
-import threading
-import time
+import re
 
 import numpy as np
-import pytest
+from numba import njit, typeof
 
-from caustica.jit import kernel, parallel_for
-
-
-@kernel
-def _mark(out, spin, i0, i1):
-    for i in range(i0, i1):
-        x = 0.0
-        for j in range(spin):
-            x += np.sqrt(float(i + j))
-        out[i] += 1.0 + 0.0 * x   # 0.0 * x is not folded away (x could be inf), so the spin stays
+from caustica.geometry.bvh import _stable_sort
+from caustica.jit import BorrowedTuple, borrowed, kernel
+from caustica.scene import load_scene_description
+from caustica.scene.compiled import compile_scene
 
 
 @kernel
-def _fail_at(out, bad, i0, i1):
-    for i in range(i0, i1):
-        if i == bad:
-            raise ValueError("item failed")
-        out[i] = 1.0
+def _take_dim(x, dim):
+    return x + dim
 
 
-class _Bar:
-    """A progress bar that raises KeyboardInterrupt (as Ctrl-C would) after ``after`` updates."""
-
-    def __init__(self, after):
-        self.after = after
-        self.updates = 0
-        self.items = 0
-
-    def update(self, n):
-        self.updates += 1
-        self.items += n
-        if self.updates == self.after:
-            raise KeyboardInterrupt
+@kernel
+def _loop_over_dims(x, n):
+    dim = 2  # a constant before a loop that increments it: typed Literal[int](2) at first
+    acc = 0.0
+    for _ in range(n):
+        acc += _take_dim(x, dim)
+        dim += 3
+    return acc
 
 
-def _workers_alive():
-    return [t for t in threading.enumerate() if t.name == "caustica-worker"]
+def test_a_constant_argument_compiles_no_literal_specialisation():
+    assert _loop_over_dims(1.0, 3) == (1 + 2) + (1 + 5) + (1 + 8)
+    sigs = [tuple(str(t) for t in s) for s in _take_dim.signatures]
+    assert sigs == [("float64", "int64")]
 
 
-@pytest.mark.parametrize("threads", [1, 2, 3])
-def test_every_item_runs_exactly_once(threads):
-    out = np.zeros(10_001)
-    bar = _Bar(after=-1)
-    parallel_for(_mark, out.size, (out, 10), threads=threads, progress=bar)
-    assert np.all(out == 1.0)
-    assert bar.items == out.size
+@kernel
+def _prim_count(geom):
+    return geom.prim_kind.shape[0]
 
 
-@pytest.mark.parametrize("chunk", [1, 7, 100_000])
-def test_a_fixed_chunk_runs_every_item_once(chunk):
-    out = np.zeros(1000)
-    parallel_for(_mark, out.size, (out, 1), threads=2, chunk=chunk)
-    assert np.all(out == 1.0)
+@kernel
+def _prim_count_borrowed(geom):
+    return _prim_count(borrowed(geom))
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_interrupt_returns_at_once_and_cancels_the_pending_chunks(threads):
-    """Ctrl-C in the waiting thread: KeyboardInterrupt at once, the running chunks end, no others start."""
-    out = np.zeros(20_000)
-    parallel_for(_mark, 2, (np.zeros(2), 1), threads=1)            # compiled before timing anything
-    bar = _Bar(after=3)   # the first item, then two chunks of the rest
-    t0 = time.perf_counter()
-    with pytest.raises(KeyboardInterrupt):
-        parallel_for(_mark, out.size, (out, 20_000), threads=threads, progress=bar)
-    returned_s = time.perf_counter() - t0
-    deadline = time.monotonic() + 30
-    while _workers_alive() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert not _workers_alive()
-    done = int(out.sum())
-    assert np.all((out == 0.0) | (out == 1.0))
-    # without cancelling, every item would have run (the whole job takes many seconds)
-    assert done < out.size / 2, (done, returned_s)
-    assert done >= bar.items
+def test_kernel_called_from_kernels_has_no_python_wrapper_and_python_calls_work():
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    n = scene.geometry.n_prims
+    assert _prim_count_borrowed(scene.geometry) == n      # Python -> kernel -> kernel
+    assert _prim_count(scene.geometry) == n               # a kernel called from Python directly
+    (sig,) = _prim_count.signatures
+    assert isinstance(sig[0], BorrowedTuple)
+    cres = _prim_count.overloads[sig]
+    assert cres.library.get_pointer_to_function(cres.fndesc.llvm_cpython_wrapper_name) == 0
+    twin = _prim_count.from_python
+    (tsig,) = twin.signatures
+    tres = twin.overloads[tsig]
+    assert tres.library.get_pointer_to_function(tres.fndesc.llvm_cpython_wrapper_name) != 0
 
 
-def test_an_error_in_a_chunk_is_raised_in_the_caller():
-    out = np.zeros(5000)
-    with pytest.raises(ValueError, match="item failed"):
-        parallel_for(_fail_at, out.size, (out, 3000), threads=2)
-    deadline = time.monotonic() + 30
-    while _workers_alive() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert not _workers_alive()
+def _rebind(geom):
+    g = geom
+    h = g
+    return h.prim_kind.shape[0]
+
+
+def test_binding_a_borrowed_tuple_generates_no_reference_counting(monkeypatch):
+    from numba.core import codegen
+
+    generated = []  # Numba's LLVM IR before optimisation (which would hide what was generated)
+    add_ir_module = codegen.CPUCodeLibrary.add_ir_module
+    monkeypatch.setattr(codegen.CPUCodeLibrary, "add_ir_module",
+                        lambda lib, mod: (generated.append(str(mod)), add_ir_module(lib, mod))[1])
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    plain = typeof(scene.geometry)
+    assert BorrowedTuple(plain) != plain
+    refops = {}
+    for ty in (plain, BorrowedTuple(plain)):
+        generated.clear()
+        njit(no_cpython_wrapper=True, no_cfunc_wrapper=True)(_rebind).compile((ty,))
+        ir = "".join(generated)
+        refops[ty] = len(re.findall(r'call void @"?NRT_(?:incref|decref)', ir))
+    assert refops[plain] >= 2 * len(scene.geometry)           # every array, at every binding
+    assert refops[BorrowedTuple(plain)] <= 4                  # only the one array taken out of it
+
+
+def test_stable_sort_matches_numpy_mergesort_argsort():
+    rng = np.random.default_rng(1)
+    for trial in range(200):
+        n = int(rng.integers(1, 120))
+        keys = rng.integers(0, 6, n).astype(np.float64)  # many ties: stability matters
+        if trial % 4 == 0:
+            keys[rng.integers(0, n, 3)] = np.nan
+        order = rng.permutation(n).astype(np.int32)
+        lo = int(rng.integers(0, n))
+        hi = int(rng.integers(lo, n + 1))
+        perm = np.argsort(keys[lo:hi], kind="mergesort")
+        want = order.copy()
+        want[lo:hi] = order[lo:hi][perm]
+        k, o = keys.copy(), order.copy()
+        _stable_sort(k, o, lo, hi, np.empty(n), np.empty(n, np.int32))
+        assert np.array_equal(o, want)
+        assert np.array_equal(k[lo:hi], keys[lo:hi][perm], equal_nan=True)
+        assert np.array_equal(o[:lo], order[:lo]) and np.array_equal(o[hi:], order[hi:])

@@ -146,6 +146,20 @@ def test_point_light_over_plane_is_exact():
                                rtol=0.02)
 
 
+def test_ray_counts_are_exact_over_a_plane():
+    # Every camera ray hits the plane; the point light above it is in front of every hit, so
+    # each path traces one shadow ray, then one bounce ray that escapes: 2 extension rays.
+    # max_depth=1 stops at the first hit (emitters only): no shadow ray, no bounce.
+    scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
+        <rgb name="intensity" value="1, 1, 1"/></emitter>""")
+    for max_depth, ext_per_path, shadow_per_path in ((-1, 2, 1), (2, 2, 1), (1, 1, 0)):
+        r = caustica.render(scene, "pt", spp=3, seed=1, max_depth=max_depth)
+        paths = AW * AH * 3
+        assert r.stats["camera_rays"] == paths
+        assert r.stats["extension_rays"] == ext_per_path * paths
+        assert r.stats["shadow_rays"] == shadow_per_path * paths
+
+
 def test_square_area_light_over_plane():
     radiance = np.array([4.0, 6.0, 8.0])
     half = 0.5                                                # a 1 x 1 light

@@ -1,7 +1,8 @@
 """The one place that decides how caustica's kernels are compiled and run in parallel.
 
 Every Numba kernel in the package is decorated with :func:`kernel`: compiled
-with ``nogil=True`` and cached on disk.  Work is spread over cores by
+with ``nogil=True`` and cached on disk, without Python wrappers when kernels call
+it, with one when Python does (:class:`Kernel`).  Work is spread over cores by
 :func:`parallel_for`, which runs a *range kernel* (a kernel whose last two
 arguments are the first and one-past-last work item) on chunks of the work from a
 pool of Python threads; the kernels release the GIL, so the threads run truly in
@@ -43,6 +44,16 @@ Caching policy
   reassociation, and NaN checks must keep working.
 
 ``CAUSTICA_NO_CACHE=1`` turns caching off (useful when measuring cold compile time).
+
+Compile time
+------------
+A fresh install compiles every kernel of its first render (``make render``: about
+65, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
+that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
+calls are typed with plain, never literal, argument types (one specialisation per
+kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
+carries no reference counts, so binding one generates no code; ``inline`` (Numba
+IR inlining, typed again at each call site) only for small helpers.
 """
 from __future__ import annotations
 
@@ -51,12 +62,16 @@ import os
 import queue
 import threading
 import time
+import types as pytypes
 from pathlib import Path
 
 import numba
 from numba import njit, types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.core.boxing import unbox_unsupported
+from numba.core.datamodel.models import StructModel
+from numba.core.registry import CPUDispatcher
+from numba.extending import intrinsic, register_model, unbox
 
 CACHE_SERIAL = os.environ.get("CAUSTICA_NO_CACHE", "0") != "1"
 
@@ -90,11 +105,75 @@ def _configure_cache_dir() -> None:
 _configure_cache_dir()
 
 
-def kernel(fn=None, *, inline: bool = False):
-    """Compile a serial kernel or device function (nogil; cached per CACHE_SERIAL)."""
+_OPTIONS = dict(nogil=True, fastmath=False, error_model="numpy")
+_TWIN_LOCK = threading.Lock()
+
+
+class Kernel(CPUDispatcher):
+    """A kernel as other kernels call it: compiled without the code that calls it from Python.
+
+    Numba compiles every function it is asked for with two wrappers, one that
+    unboxes Python arguments (for ~27 arrays of the Geometry that is thousands of
+    lines of LLVM IR) and one with a C calling convention, and optimises and
+    compiles them to machine code with the function.  Called from other kernels,
+    as almost every kernel only is, neither wrapper is ever used; building them
+    was about half the compile time of a small kernel.  So a kernel is compiled
+    without them, and a call from Python goes to :attr:`from_python`, a twin
+    compiled (and cached) separately with its wrapper: only the kernels Python
+    actually calls (range kernels, builders, tests) pay for one.
+
+    Calls from kernels are typed with plain argument types, never literal ones:
+    while Numba infers a caller's types it may resolve a call with a constant's
+    literal type (``Literal[int](2)`` for a ``dim = 2`` that a loop later
+    increments) and compile that specialisation before the ``int64`` one it keeps,
+    which doubled the compile time of the kernels called that way.
+    """
+
+    def __init__(self, py_func, inline, hot):
+        options = dict(_OPTIONS, inline="always" if inline else "never", forceinline=hot,
+                       no_cpython_wrapper=True, no_cfunc_wrapper=True)
+        super().__init__(py_func=py_func, locals={}, targetoptions=options)
+        if CACHE_SERIAL:
+            self.enable_caching()
+        self._from_python = None
+
+    @property
+    def from_python(self):
+        """The same kernel with its Python wrapper (compiled on the first call from Python)."""
+        with _TWIN_LOCK:
+            if self._from_python is None:
+                f = self.py_func
+                twin = pytypes.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__,
+                                            f.__closure__)
+                twin.__qualname__ = f.__qualname__ + "_from_python"  # its own cache entry
+                twin.__doc__ = f.__doc__
+                twin.__module__ = f.__module__
+                self._from_python = njit(cache=CACHE_SERIAL, **_OPTIONS)(twin)
+        return self._from_python
+
+    def __call__(self, *args, **kwargs):
+        return self.from_python(*args, **kwargs)
+
+    def get_call_template(self, args, kws):
+        return super().get_call_template(tuple(types.unliteral(a) for a in args),
+                                         {k: types.unliteral(v) for k, v in kws.items()})
+
+
+def kernel(fn=None, *, inline: bool = False, hot: bool = False):
+    """Compile a serial kernel or device function (nogil; cached per CACHE_SERIAL; see :class:`Kernel`).
+
+    ``inline``: Numba inlines the function's code into each caller before typing
+    (each call site is typed and compiled again: use it for small helpers only).
+    ``hot``: compiled once, and LLVM always inlines the machine-level code into its
+    callers.  For per-ray helpers that take the scene tables: Numba passes a tuple
+    argument as all of its fields, so a call that is not inlined copies some 300
+    values (a Geometry and a LightTable) -- on the path tracer's next-event estimate
+    and BVH traversal that was a third of the render time.
+    """
     def wrap(f):
-        return njit(cache=CACHE_SERIAL, nogil=True, fastmath=False, error_model="numpy",
-                    inline="always" if inline else "never")(f)
+        if numba.config.DISABLE_JIT:
+            return f
+        return Kernel(f, inline, hot)
     return wrap(fn) if fn is not None else wrap
 
 
@@ -208,29 +287,65 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
     return compile_s
 
 
+class BorrowedTuple(types.NamedTuple):
+    """The Numba type of a named tuple of arrays whose reference counts are detached.
+
+    Same layout as the named tuple it comes from, but its data model lists no
+    members to reference-count and it cannot be unboxed from Python, so a kernel
+    that binds or passes one generates no reference-count code and no unboxing
+    code for its ~27 arrays (see :func:`borrowed`).
+    """
+
+    def __init__(self, tup):
+        super().__init__(tuple(tup), tup.instance_class)
+        self.name = f"borrowed {tup.name}"
+
+    @property
+    def key(self):
+        return "borrowed", self.instance_class, self.types
+
+
+@register_model(BorrowedTuple)
+class _BorrowedTupleModel(StructModel):
+    def __init__(self, dmm, fe_type):
+        super().__init__(dmm, fe_type, [("f" + str(i), t) for i, t in enumerate(fe_type)])
+
+    def traverse(self, builder):
+        return []  # nothing inside is reference-counted
+
+
+unbox(BorrowedTuple)(unbox_unsupported)
+
+
 @intrinsic
 def borrowed(typingctx, tup):
-    """The same named tuple of arrays with every array's reference count detached.
+    """The same named tuple with every array's reference count detached.
 
     Numba increments and decrements the reference count of every array in a tuple
-    each time the tuple is bound to a function's argument, and cannot remove those
-    pairs around loops: with the Geometry's ~27 arrays that cost ~400 ns per call and
-    made threads contend on shared counters.  Range kernels call this once on the
-    scene tuples they receive, so every call below them passes views whose
-    reference-count operations are null checks.  Only for tuples that do not outlive
-    the kernel call in which their owners are alive: never return or store one.
+    each time the tuple is bound to a variable or a function's argument: with the
+    Geometry's ~27 arrays that is ~80 calls per binding in the generated code (most
+    of the compile time of the kernels that take it) and ~400 ns per call at run time,
+    with threads contending on shared counters.  Range kernels call this once on the
+    scene tuples they receive; everything below them gets a :class:`BorrowedTuple`,
+    whose bindings cost nothing.  Only for tuples that do not outlive the kernel call
+    in which their owners are alive: never return or store one.
     (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
     """
-    if not isinstance(tup, types.BaseTuple) or not all(isinstance(t, types.Array) for t in tup.types):
+    if isinstance(tup, BorrowedTuple):
+        return tup(tup), lambda context, builder, signature, args: args[0]
+    if not isinstance(tup, types.BaseTuple) or not all(isinstance(t, types.Array) for t in tup):
         return None
+    # A named tuple becomes a BorrowedTuple; a plain tuple keeps its type (views only).
+    out = BorrowedTuple(tup) if isinstance(tup, types.BaseNamedTuple) else tup
 
     def codegen(context, builder, signature, args):
         value = args[0]
-        for i, arr_ty in enumerate(tup.types):
+        result = cgutils.get_null_value(context.get_value_type(out))
+        for i, arr_ty in enumerate(tup):
             arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
             arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
             arr.parent = cgutils.get_null_value(arr.parent.type)
-            value = builder.insert_value(value, arr._getvalue(), i)
-        return value
+            result = builder.insert_value(result, arr._getvalue(), i)
+        return result
 
-    return tup(tup), codegen
+    return out(tup), codegen

@@ -43,57 +43,64 @@ def visible(geom, p, ng, q, nq):
 
 @kernel(inline=True)
 def area_light_geometry(geom, p, ng, ns, q, nq):
-    """(cos θ_surface, cos θ_light, distance²) between p and light point q, all 0 if q
-    does not light p (behind either surface, or blocked)."""
+    """(cos θ_surface, cos θ_light, distance², shadow rays traced) between p and light point q;
+    the cosines and distance are all 0 if q does not light p (behind either surface, or blocked).
+    A shadow ray is traced (1) only when q is in front of both surfaces."""
     to_l = vec.sub(q, p)
     dist2 = vec.dot(to_l, to_l)
     if dist2 <= 0.0:
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0
     wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
     cos_l = -vec.dot(nq, wi)
     cos_s = vec.dot(ns, wi)
-    if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0 or not visible(geom, p, ng, q, nq):
-        return 0.0, 0.0, 0.0
-    return cos_s, cos_l, dist2
+    if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return 0.0, 0.0, 0.0, 0
+    if not visible(geom, p, ng, q, nq):
+        return 0.0, 0.0, 0.0, 1
+    return cos_s, cos_l, dist2, 1
 
 
 @kernel(inline=True)
 def point_light_geometry(geom, lights, li, p, ng, ns):
-    """(cos θ_surface, distance²) from point light li to p, cos 0 if it does not light p."""
+    """(cos θ_surface, distance², shadow rays traced) from point light li to p, cos 0 if it
+    does not light p.  A shadow ray is traced (1) only when the light is in front of p."""
     q = vec.row(lights.position, li)
     to_l = vec.sub(q, p)
     dist2 = vec.dot(to_l, to_l)
     wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
     cos_s = vec.dot(ns, wi)
-    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0 or not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
-        return 0.0, dist2
-    return cos_s, dist2
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return 0.0, dist2, 0
+    if not visible(geom, p, ng, q, (0.0, 0.0, 0.0)):
+        return 0.0, dist2, 1
+    return cos_s, dist2, 1
 
 
-@kernel
+@kernel(hot=True)
 def direct_one_sample(geom, lights, p, ng, ns, key, dim):
     """Incident irradiance-like term Σ L cos θ / pdf from one light sample, MIS-ready.
 
-    Returns (contrib_rgb, pdf_light_solid_angle, cos_surface, is_area) where contrib is
-    L_e · cos θ_s / pdf (without f_r) and MIS weighting is left to the caller (it
-    knows the BSDF pdf).  pdf is 0 for a point light (a delta: no MIS).
+    Returns (contrib_rgb, pdf_light_solid_angle, cos_surface, is_area, shadow_rays) where
+    contrib is L_e · cos θ_s / pdf (without f_r) and MIS weighting is left to the caller (it
+    knows the BSDF pdf).  pdf is 0 for a point light (a delta: no MIS).  shadow_rays is the
+    number of visibility rays traced (0 or 1), for ray counts.
     """
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
-        return zero, 0.0, 0.0, False
+        return zero, 0.0, 0.0, False, 0
     li, sel_pdf, _ = choose_light(lights, uniform(key, dim))
     if lights.kind[li] == AREA:
         q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
-        cos_s, cos_l, dist2 = area_light_geometry(geom, p, ng, ns, q, nq)
+        cos_s, cos_l, dist2, traced = area_light_geometry(geom, p, ng, ns, q, nq)
         if cos_s <= 0.0:
-            return zero, 0.0, 0.0, True
+            return zero, 0.0, 0.0, True, traced
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
-        return vec.mul(vec.row(lights.radiance, li), cos_s / pdf), pdf, cos_s, True
+        return vec.mul(vec.row(lights.radiance, li), cos_s / pdf), pdf, cos_s, True, traced
     # a point light: irradiance I cos / r², chosen with probability sel_pdf
-    cos_s, dist2 = point_light_geometry(geom, lights, li, p, ng, ns)
+    cos_s, dist2, traced = point_light_geometry(geom, lights, li, p, ng, ns)
     if cos_s <= 0.0:
-        return zero, 0.0, 0.0, False
-    return vec.mul(vec.row(lights.radiance, li), cos_s / (dist2 * sel_pdf)), 0.0, cos_s, False
+        return zero, 0.0, 0.0, False, traced
+    return vec.mul(vec.row(lights.radiance, li), cos_s / (dist2 * sel_pdf)), 0.0, cos_s, False, traced
 
 
 @kernel
@@ -118,11 +125,11 @@ def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
                     u1 = (i + uniform(key, dim + 2 * s)) / n_strata
                     u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
                 q, nq = sample_area_emitter(lights, geom, li, u1, u2)
-                cos_s, cos_l, dist2 = area_light_geometry(geom, p, ng, ns, q, nq)
+                cos_s, cos_l, dist2, _ = area_light_geometry(geom, p, ng, ns, q, nq)
                 if cos_s > 0.0:
                     acc += cos_s * cos_l / dist2
             E = vec.madd(E, vec.row(lights.radiance, li), acc * lights.area[li] / n_total)
         else:
-            cos_s, dist2 = point_light_geometry(geom, lights, li, p, ng, ns)
+            cos_s, dist2, _ = point_light_geometry(geom, lights, li, p, ng, ns)
             E = vec.madd(E, vec.row(lights.radiance, li), cos_s / dist2)
     return E

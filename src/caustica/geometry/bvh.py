@@ -85,6 +85,51 @@ def _area(lx, ly, lz, hx, hy, hz):
 
 
 @kernel
+def _less(a, b):
+    """a < b in numpy's sort order (NaN after every number)."""
+    return a < b or (b != b and a == a)
+
+
+@kernel
+def _stable_sort(keys, order, lo, hi, tmp_keys, tmp_order):
+    """Sort ``order[lo:hi]`` by ``keys[lo:hi]`` (both permuted), keeping equal keys in order.
+
+    A bottom-up merge sort: the same permutation as ``np.argsort(kind="mergesort")``
+    (a stable sort's result is unique), for a fraction of its compile time.
+    """
+    n = hi - lo
+    width = 1
+    in_tmp = False  # where the current runs are: keys/order, or tmp_keys/tmp_order
+    while width < n:
+        for left in range(lo, hi, 2 * width):
+            mid = min(left + width, hi)
+            right = min(left + 2 * width, hi)
+            i = left
+            j = mid
+            for k in range(left, right):
+                if in_tmp:
+                    take_right = j < right and (i >= mid or _less(tmp_keys[j], tmp_keys[i]))
+                    src = j if take_right else i
+                    keys[k] = tmp_keys[src]
+                    order[k] = tmp_order[src]
+                else:
+                    take_right = j < right and (i >= mid or _less(keys[j], keys[i]))
+                    src = j if take_right else i
+                    tmp_keys[k] = keys[src]
+                    tmp_order[k] = order[src]
+                if take_right:
+                    j += 1
+                else:
+                    i += 1
+        in_tmp = not in_tmp
+        width *= 2
+    if in_tmp:
+        for k in range(lo, hi):
+            keys[k] = tmp_keys[k]
+            order[k] = tmp_order[k]
+
+
+@kernel
 def build_bvh(prim_box):
     """Build the BVH over primitives with bounds ``prim_box`` (N, 6).
 
@@ -92,7 +137,9 @@ def build_bvh(prim_box):
     O(N log N); all allocations happen here, once per scene.
     """
     n = prim_box.shape[0]
-    order = np.arange(n).astype(np.int32)
+    order = np.empty(n, dtype=np.int32)
+    for i in range(n):
+        order[i] = i
     max_nodes = max(1, 2 * n - 1)
     box = np.empty((max_nodes, 6), dtype=np.float64)
     node = np.zeros((max_nodes, 3), dtype=np.int32)
@@ -119,6 +166,8 @@ def build_bvh(prim_box):
     right_area = np.empty(N_BINS, dtype=np.float64)
     right_cnt = np.empty(N_BINS, dtype=np.int64)
     keys = np.empty(n, dtype=np.float64)
+    tmp_keys = np.empty(n, dtype=np.float64)
+    tmp_order = np.empty(n, dtype=np.int32)
 
     while sp > 0:
         sp -= 1
@@ -270,10 +319,7 @@ def build_bvh(prim_box):
             split_axis = big_axis
             for k in range(start, end):
                 keys[k] = cen[order[k], split_axis]
-            perm = np.argsort(keys[start:end], kind="mergesort")
-            tmp = order[start:end].copy()
-            for k in range(cnt):
-                order[start + k] = tmp[perm[k]]
+            _stable_sort(keys, order, start, end, tmp_keys, tmp_order)
             mid = start + cnt // 2
 
         node[idx, 1] = 0
@@ -393,7 +439,7 @@ def _near_first(axis, d):
     return d[2] < 0.0
 
 
-@kernel
+@kernel(hot=True)
 def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
     best_prim = -1
     best_t = tmax
@@ -439,7 +485,7 @@ def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2
     return best_prim, best_t, best_b1, best_b2
 
 
-@kernel
+@kernel(hot=True)
 def _any_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
     if node.shape[0] == 0:
         return False

@@ -11,13 +11,15 @@ and builds its BVH.  The kernels
 * :func:`sample_on_emitter`   a point uniform by area on one area emitter,
 
 are Numba device functions: call them from other ``@kernel`` / ``@parallel_kernel``
-code; they allocate nothing.  They are ``inline=True`` and hand *borrowed* views
-(:func:`caustica.geometry.primitives.borrow`) of the arrays to the compiled
-traversal, so a call costs no reference counting.  Performance note for callers:
-every *non-inlined* Numba call that takes ``geom`` increfs and decrefs all of its
-~27 arrays (atomic operations, a few hundred ns, contended across threads); pass
-``geom`` into per-ray helpers only if they are ``@kernel(inline=True)`` or are the
-``prange`` body itself.
+code; they allocate nothing.  Pass them ``geom`` *borrowed*
+(:func:`caustica.jit.borrowed`, which every range kernel applies to the scene tables
+it receives): a borrowed Geometry carries no reference counts, so binding it to an
+argument costs nothing, inlined or not.  (A plain Geometry costs an increment and a
+decrement of each of its ~27 arrays per call: atomic operations, a few hundred ns,
+contended across threads.)  :func:`intersect` and :func:`occluded` are
+``inline=True`` and hand borrowed views (:func:`caustica.geometry.primitives.borrow`)
+of the arrays the traversal needs to the compiled traversal; :func:`surface_at` is
+an ordinary kernel, compiled once rather than once per call site (LLVM inlines it).
 
 Primitives
 ----------
@@ -64,7 +66,7 @@ import numpy as np
 from numba import prange
 
 from ..errors import SceneError
-from ..jit import kernel, parallel_kernel
+from ..jit import borrowed, kernel, parallel_kernel
 from ..scene.description import CYLINDER as SHAPE_CYLINDER
 from ..scene.description import DISK as SHAPE_DISK
 from ..scene.description import MESH as SHAPE_MESH
@@ -405,7 +407,7 @@ def occluded(geom, o, d, tmax):
     return bvh_any_hit(geom, o, d, tmax)
 
 
-@kernel(inline=True)
+@kernel
 def surface_at(geom, prim, o, d, t, b1, b2):
     """``(p, ng, ns)`` at a hit from :func:`intersect`.
 
@@ -497,6 +499,7 @@ def intersect_brute_force(geom, o, d, tmax):
 @kernel
 def intersect_rays(geom, origins, dirs, tmax):
     """:func:`intersect` for each row of ``origins``/``dirs`` (n, 3): arrays prim (int64), t, b1, b2."""
+    geom = borrowed(geom)
     n = origins.shape[0]
     prim = np.empty(n, dtype=np.int64)
     tt = np.empty(n)

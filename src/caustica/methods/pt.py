@@ -31,9 +31,14 @@ INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
 
 
-@kernel
+@kernel(hot=True)
 def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
-    """Radiance arriving at o from direction -d, estimated along one random path."""
+    """Radiance arriving at o from direction -d, estimated along one random path.
+
+    Returns (L, extension rays, shadow rays): the rays traced, counted where they are traced.
+    """
+    n_ext = 0
+    n_shadow = 0
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     eta_scale = 1.0
@@ -42,6 +47,7 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
     dim = 2
     depth = 0
     while True:
+        n_ext += 1
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if prim < 0:
             break
@@ -65,7 +71,8 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
         if not scatters:
             break
         if kind == DIFFUSE:
-            contrib, pdf_light, cos_s, is_area = direct_one_sample(geom, lights, p, ng, ns, key, dim)
+            contrib, pdf_light, cos_s, is_area, shadow = direct_one_sample(geom, lights, p, ng, ns, key, dim)
+            n_shadow += shadow
             dim += 3
             if cos_s > 0.0:
                 w = 1.0
@@ -102,14 +109,15 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
                 break
             dim += 1
             beta = vec.mul(beta, 1.0 / q)
-    return L
+    return L, n_ext, n_shadow
 
 
 @kernel
-def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_depth, image, i0, i1):
+def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_depth, image, rays, i0, i1):
     """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order.
 
     Sample s of pixel i is random path (i * spp + s) of ``stream`` (the pass's camera stream).
+    rays[i] receives pixel i's (extension, shadow) ray counts.
     """
     geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     width = cam.width
@@ -120,7 +128,9 @@ def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_dept
         for s in range(spp):
             key = path_key(seed, stream, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L = radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
+            L, n_ext, n_shadow = radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
+            rays[i, 0] += n_ext
+            rays[i, 1] += n_shadow
             if math.isfinite(L[0] + L[1] + L[2]):
                 acc = vec.add(acc, L)
         inv = 1.0 / spp
@@ -172,16 +182,18 @@ class PathTracer:
         stream = pass_stream(STREAM_CAMERA, state.passes)
 
         n = cam.width * cam.height
+        rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
         compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, cam,
                                                     settings["seed"], stream, settings["spp"], max_depth,
-                                                    settings["rr_depth"], image),
+                                                    settings["rr_depth"], image, rays),
                                  threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return PathState(state.film.add(state.passes, image)), {
-            "timings": timings, "camera_rays": n * settings["spp"]}
+            "timings": timings, "camera_rays": n * settings["spp"],
+            "extension_rays": int(rays[:, 0].sum()), "shadow_rays": int(rays[:, 1].sum())}
 
     @staticmethod
     def image(scene, settings, state):

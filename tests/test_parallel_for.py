@@ -1,0 +1,97 @@
+"""``caustica.jit.parallel_for`` (issue 8): every item once, any thread count; Ctrl-C stops it at once.
+
+The kernel here is a toy range kernel that marks the items it ran and spins a little
+per item, so chunks take measurable time.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from caustica.jit import kernel, parallel_for
+
+
+@kernel
+def _mark(out, spin, i0, i1):
+    for i in range(i0, i1):
+        x = 0.0
+        for j in range(spin):
+            x += np.sqrt(float(i + j))
+        out[i] += 1.0 + 0.0 * x   # 0.0 * x is not folded away (x could be inf), so the spin stays
+
+
+@kernel
+def _fail_at(out, bad, i0, i1):
+    for i in range(i0, i1):
+        if i == bad:
+            raise ValueError("item failed")
+        out[i] = 1.0
+
+
+class _Bar:
+    """A progress bar that raises KeyboardInterrupt (as Ctrl-C would) after ``after`` updates."""
+
+    def __init__(self, after):
+        self.after = after
+        self.updates = 0
+        self.items = 0
+
+    def update(self, n):
+        self.updates += 1
+        self.items += n
+        if self.updates == self.after:
+            raise KeyboardInterrupt
+
+
+def _workers_alive():
+    return [t for t in threading.enumerate() if t.name == "caustica-worker"]
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_every_item_runs_exactly_once(threads):
+    out = np.zeros(10_001)
+    bar = _Bar(after=-1)
+    parallel_for(_mark, out.size, (out, 10), threads=threads, progress=bar)
+    assert np.all(out == 1.0)
+    assert bar.items == out.size
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 100_000])
+def test_a_fixed_chunk_runs_every_item_once(chunk):
+    out = np.zeros(1000)
+    parallel_for(_mark, out.size, (out, 1), threads=2, chunk=chunk)
+    assert np.all(out == 1.0)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_interrupt_returns_at_once_and_cancels_the_pending_chunks(threads):
+    """Ctrl-C in the waiting thread: KeyboardInterrupt at once, the running chunks end, no others start."""
+    out = np.zeros(20_000)
+    parallel_for(_mark, 2, (np.zeros(2), 1), threads=1)            # compiled before timing anything
+    bar = _Bar(after=3)   # the first item, then two chunks of the rest
+    t0 = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        parallel_for(_mark, out.size, (out, 20_000), threads=threads, progress=bar)
+    returned_s = time.perf_counter() - t0
+    deadline = time.monotonic() + 30
+    while _workers_alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not _workers_alive()
+    done = int(out.sum())
+    assert np.all((out == 0.0) | (out == 1.0))
+    # without cancelling, every item would have run (the whole job takes many seconds)
+    assert done < out.size / 2, (done, returned_s)
+    assert done >= bar.items
+
+
+def test_an_error_in_a_chunk_is_raised_in_the_caller():
+    out = np.zeros(5000)
+    with pytest.raises(ValueError, match="item failed"):
+        parallel_for(_fail_at, out.size, (out, 3000), threads=2)
+    deadline = time.monotonic() + 30
+    while _workers_alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not _workers_alive()
