@@ -24,6 +24,7 @@ test: $(STAMP)
 ## Print the performance numbers quoted in the README (the path tracer against Mitsuba 3 included).
 bench: $(STAMP)
 	$(PY) benchmarks/bench_render.py
+	$(PY) benchmarks/bench_progressive.py
 
 ## Where the first render's compile time goes: a table per kernel, and the cold-start total.
 bench-compile: $(STAMP)

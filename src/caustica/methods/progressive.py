@@ -213,6 +213,6 @@ class ProgressivePhotonMethod:
     @classmethod
     def final_stats(cls, scene, settings, state):
         r = state.radius
-        return {"initial_radius": initial_radius(scene, settings),
+        return {"samples_per_pixel": state.passes, "initial_radius": initial_radius(scene, settings),
                 "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())},
                 "photons_kept_mean": float(state.n_photons.mean())}
