@@ -200,6 +200,27 @@ def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, tmp_path):
         caustica.render(diacaustic, method, passes=6, checkpoint=ck, res=12, seed=3)
 
 
+def test_checkpoint_of_another_build_or_beyond_passes_is_refused(diacaustic, tmp_path, monkeypatch):
+    ck = tmp_path / "state.npz"
+    caustica.render(diacaustic, "sppm", res=8, seed=2, passes=3, checkpoint=ck)
+    with pytest.raises(ParameterError, match="holds 3 passes, more than --passes 2"):
+        caustica.render(diacaustic, "sppm", res=8, seed=2, passes=2, checkpoint=ck)
+    from caustica import checkpoint
+    monkeypatch.setattr(checkpoint, "source_hash", lambda: "0123456789abcdef")
+    with pytest.raises(ParameterError, match="another build"):
+        caustica.render(diacaustic, "sppm", res=8, seed=2, passes=4, checkpoint=ck)
+    ck.write_bytes(b"not a checkpoint")
+    with pytest.raises(ParameterError, match="not a caustica checkpoint"):
+        caustica.render(diacaustic, "sppm", res=8, seed=2, passes=4, checkpoint=ck)
+
+
+def test_pspm_stream_radius_shrinks_with_the_gather_radii(diacaustic):
+    r = caustica.render(diacaustic, "pspm", res=16, seed=1, passes=6, streams=2000, stream_radius=2.0)
+    r0, med = r.stats["initial_radius"], r.stats["radius_final"]["median"]
+    assert med < r0
+    assert r.stats["stream_radius_next_pass"] == pytest.approx(2.0 * med / r0)
+
+
 def test_time_budget_stops_between_passes(diacaustic):
     caustica.render(diacaustic, "sppm", res=16, passes=1)   # compiled: the budget then measures passes
     r = caustica.render(diacaustic, "sppm", res=16, time_s=1.0)

@@ -163,7 +163,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     (default: all cores); progress: show progress bars on a terminal.
     Progressive methods (pt, sppm, pspm) also take passes: passes to render;
     time_s: a time budget in seconds (passes run until the next would cross it);
-    checkpoint: a file the state is saved to after every pass and resumed from when it
+    checkpoint: a file the state is saved to (every 5 s and at the end) and resumed from when it
     exists; aov: names of extra per-pixel images ("radius", "count") put in
     ``result.aovs``.  params: the method's own parameters (``caustica methods``
     lists them).  Ctrl-C during a multi-pass render returns the passes finished so far

@@ -1,6 +1,6 @@
 """Checkpoints of progressive renders: the state after a number of passes, resumable bit for bit.
 
-A checkpoint is one ``.npz`` file (written atomically after every pass) holding the
+A checkpoint is one ``.npz`` file (written atomically; see :mod:`caustica.driver` for when) holding the
 method's state arrays and a JSON header: the method, the scene's fingerprint, every
 setting that changes the image (seed, size, spp, the method's parameters) and the
 passes done.  Resuming with different settings is refused with the first
@@ -18,6 +18,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ParameterError
+from .jit import source_hash
 
 #: Settings that may differ between the run that wrote a checkpoint and the one resuming it.
 FREE_SETTINGS = ("threads",)
@@ -39,7 +40,7 @@ def scene_fingerprint(scene) -> str:
 
 def _header(method_cls, scene, settings, passes):
     fixed = {k: v for k, v in sorted(settings.items()) if k not in FREE_SETTINGS}
-    return {"format": FORMAT, "caustica_version": __version__, "method": method_cls.name,
+    return {"format": FORMAT, "caustica_version": __version__, "source": source_hash(), "method": method_cls.name,
             "scene": scene.name, "scene_fingerprint": scene_fingerprint(scene),
             "settings": fixed, "passes": int(passes)}
 
@@ -73,9 +74,15 @@ def load(path, method_cls, scene, settings):
             arrays = {k: data[k] for k in data.files if k != "_header"}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ParameterError(f"--checkpoint {path}: not a caustica checkpoint ({exc})") from None
-    want = _header(method_cls, scene, settings, header.get("passes", 0))
+    if not isinstance(header, dict) or not isinstance(header.get("passes"), int):
+        raise ParameterError(f"--checkpoint {path}: not a caustica checkpoint (its header is damaged)")
+    want = _header(method_cls, scene, settings, header["passes"])
     if header.get("format") != FORMAT:
         raise ParameterError(f"--checkpoint {path}: format {header.get('format')} (this caustica writes {FORMAT})")
+    if header.get("source") != want["source"]:
+        raise ParameterError(f"--checkpoint {path}: written by another build of caustica (source "
+                             f"{header.get('source')}, this one {want['source']}): its passes would not "
+                             f"continue bit for bit; use a new checkpoint file")
     for key in ("method", "scene_fingerprint"):
         if header.get(key) != want[key]:
             raise ParameterError(f"--checkpoint {path}: written for {key} {header.get(key)!r}, "

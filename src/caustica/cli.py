@@ -68,7 +68,9 @@ def _add_method_flags(group, method_names, default_word):
         p = owned[0][0]
         groups = {}
         for q, m in owned:
-            groups.setdefault((q.help, "auto" if q.default is None else str(q.default)), []).append(m)
+            shown = "auto" if q.default is None else (f"{q.default:g}" if isinstance(q.default, float)
+                                                      else str(q.default))
+            groups.setdefault((q.help, shown), []).append(m)
         if len({h for h, _ in groups}) == 1:
             defaults = "; ".join(f"{default_word} {d}: {', '.join(ms)}" for (_, d), ms in groups.items())
             text = f"{p.help} ({defaults})"
@@ -336,7 +338,9 @@ def _cmd_methods() -> int:
                 allowed = "|".join(map(str, p.choices))
             else:
                 allowed = "true|false" if p.type is bool else p.describe_range()
-            print(f"  {p.flag:22s} {p.help} (default {p.default}{'; ' + allowed if allowed else ''})")
+            default = "auto" if p.default is None else (f"{p.default:g}" if isinstance(p.default, float)
+                                                         else p.default)
+            print(f"  {p.flag:22s} {p.help} (default {default}{'; ' + allowed if allowed else ''})")
     return 0
 
 

@@ -99,6 +99,9 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
         state = ckpt.load(plan.checkpoint, method_cls, scene, settings)
         if state is not None:
             log.resumed_from = state.passes
+            if plan.passes is not None and state.passes > plan.passes:
+                raise ParameterError(f"--checkpoint {plan.checkpoint}: holds {state.passes} passes, more than "
+                                     f"--passes {plan.passes}; ask for at least {state.passes}")
     if state is None:
         state = method_cls.new_state(scene, settings)
     multi = plan.multi

@@ -154,6 +154,10 @@ class Kernel(CPUDispatcher):
     def __call__(self, *args, **kwargs):
         return self.from_python(*args, **kwargs)
 
+    def compiled_for_python(self) -> bool:
+        """Whether a call from Python has compiled (or loaded) this kernel in this process."""
+        return self._from_python is not None and len(self._from_python.signatures) > 0
+
     def get_call_template(self, args, kws):
         return super().get_call_template(tuple(types.unliteral(a) for a in args),
                                          {k: types.unliteral(v) for k, v in kws.items()})

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
-from ..photons.grid import build_grid, grid_range_sum
+from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..photons.visible_points import visible_points
 from ..sampling.rng import STREAM_CAMERA, pass_stream
 from .params import Param, non_negative, positive
@@ -101,7 +101,7 @@ def initial_radius(scene, settings) -> float:
 
 
 class ProgressivePhotonMethod:
-    """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, progress)``.
+    """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, state, progress)``.
 
     ``photon_events`` returns ((position, power, normal, valid) of this pass's events,
     paths emitted, stats); events with valid == 0 are empty slots.
@@ -135,8 +135,11 @@ class ProgressivePhotonMethod:
         except (KeyError, TypeError) as exc:
             raise ParameterError(f"checkpoint: missing pixel statistics ({exc})") from None
         st = st._replace(passes=int(st.passes), emitted=int(st.emitted))
-        if st.radius.shape != (n,) or st.tau.shape != (n, 3):
-            raise ParameterError(f"checkpoint: holds {st.radius.shape[0]} pixels, this render has {n}")
+        shapes = {"n_photons": (n,), "radius": (n,), "tau": (n, 3), "direct": (n, 3), "gathered": (n,)}
+        for name, shape in shapes.items():
+            if np.shape(getattr(st, name)) != shape:
+                raise ParameterError(f"checkpoint: its {name} has shape {np.shape(getattr(st, name))}, "
+                                     f"this {settings['width']}x{settings['height']} render needs {shape}")
         return st
 
     @classmethod
@@ -161,14 +164,18 @@ class ProgressivePhotonMethod:
         bar.close()
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
-        events, emitted, stats = cls.photon_events(scene, settings, state.passes, progress)
+        events, emitted, stats = cls.photon_events(scene, settings, state, progress)
         timings.update(stats.pop("timings"))
         c1 = timings.pop("compile_s", 0.0)
         t1 = time.perf_counter()
         seen = state.radius[vp_found]
         cell = CELL_PER_RADIUS * float(np.median(seen if seen.size else state.radius))
+        first_build = not grid_compiled()
         grid = build_grid(*events, scene.geometry.scene_box, cell)
-        timings["grid_build_s"] = time.perf_counter() - t1
+        if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
+            c1 += time.perf_counter() - t1
+        else:
+            timings["grid_build_s"] = time.perf_counter() - t1
         stats["events_stored"] = grid.count
         # 3. gather
         flux = np.zeros((n, 3))
@@ -213,6 +220,7 @@ class ProgressivePhotonMethod:
     @classmethod
     def final_stats(cls, scene, settings, state):
         r = state.radius
-        return {"samples_per_pixel": state.passes, "initial_radius": initial_radius(scene, settings),
+        return {"samples_per_pixel": state.passes, "emitted_all_passes": state.emitted,
+                "initial_radius": initial_radius(scene, settings),
                 "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())},
                 "photons_kept_mean": float(state.n_photons.mean())}

@@ -29,7 +29,7 @@ from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod
+from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod, initial_radius
 
 ESTIMATORS = ("stream", "photons")
 SPECULAR = ("merge", "split")
@@ -40,6 +40,19 @@ def streams_per_pass(settings) -> int:
     return settings["streams"] or max(1, settings["width"] * settings["height"] // (settings["assoc"] + 1))
 
 
+def stream_radius(scene, settings, state) -> float:
+    """This pass's stream radius: r_s scaled like the gather radii, r_s · median(R_i) / R_0.
+
+    Associated photons land within about r_s of where their stream's leading photon
+    would have put them (and split photons leave through a disc of radius r_s), which
+    blurs the light they carry at the scale r_s whatever the number of passes; shrinking
+    r_s with the radii makes that blur vanish as the passes grow, as SPPM's own does.
+    The factor depends only on the state, so it is the same for any thread count.
+    """
+    r0 = initial_radius(scene, settings)
+    return settings["stream_radius"] * float(np.median(state.radius)) / r0
+
+
 @register
 class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     name = "pspm"
@@ -48,7 +61,8 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
-        Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
+        Param("stream_radius", float, 5.0, "stream radius r_s of the first pass (scene units); later passes "
+                                           "scale it as the gather radii shrink", non_negative, ">= 0"),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         Param("specular", str, "merge", "merge: associated photons merge into the leading one at mirrors "
@@ -57,8 +71,10 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
-    def photon_events(cls, scene, settings, pass_index, progress):
+    def photon_events(cls, scene, settings, state, progress):
+        pass_index = state.passes
         n = streams_per_pass(settings)
+        r_s = stream_radius(scene, settings, state)
         n_fa, mr = settings["assoc"], settings["max_bounces"]
         split = settings["specular"] == "split"
         check_budget(StreamBuffers.bytes_needed(n, n_fa, mr, split),
@@ -69,7 +85,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         bar = progress(total=n, desc="stream tracing", unit="stream")
         compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
                                                     pass_stream(STREAM_SPM, pass_index), n, n_fa,
-                                                    settings["stream_radius"], mr,
+                                                    r_s, mr,
                                                     TERMINATIONS[settings["termination"]], split, *buf.kernel_args),
                                  threads=settings["threads"], progress=bar)
         bar.close()
@@ -80,3 +96,9 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
             "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
                         "map_build_s": time.perf_counter() - t1},
             "streams_emitted": n, "photons_emitted": n * (n_fa + 1)}
+
+    @classmethod
+    def final_stats(cls, scene, settings, state):
+        out = super().final_stats(scene, settings, state)
+        out["stream_radius_next_pass"] = stream_radius(scene, settings, state)
+        return out

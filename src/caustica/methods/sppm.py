@@ -42,7 +42,8 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
-    def photon_events(cls, scene, settings, pass_index, progress):
+    def photon_events(cls, scene, settings, state, progress):
+        pass_index = state.passes
         n = photons_per_pass(settings)
         mr = settings["max_bounces"]
         check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
@@ -73,6 +74,6 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         events = tuple(np.concatenate([a, b]) for a, b in zip((buf.position, buf.power, buf.normal),
                                                                (cbuf.position, cbuf.power, cbuf.normal)))
         valid = np.concatenate([(buf.kind == INDIRECT), (cbuf.kind == CAUSTIC)]).astype(np.int8)
-        return (*events, valid), n, {
+        return (*events, valid), n + n_c, {
             "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
             "photons_emitted": n + n_c}

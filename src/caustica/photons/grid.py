@@ -93,6 +93,11 @@ def _counting_sort(position, power, normal, valid, lo, cell, dims, start, out_po
             out_nrm[j, k] = normal[i, k]
 
 
+def grid_compiled() -> bool:
+    """Whether the grid's sort has been compiled (or loaded from the cache) in this process."""
+    return _counting_sort.compiled_for_python()
+
+
 def build_grid(position, power, normal, valid, box, cell) -> PhotonGrid:
     """The grid of the events with ``valid`` != 0, cells of about ``cell`` over ``box`` (lo, hi)."""
     lo, cell, dims = grid_shape(box, cell)

@@ -171,7 +171,9 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
     as a photon of its own (:func:`split_off`; the stream's split slot rows
     [i * SPLIT_ROWS(mr), ...)), decays there, and the survivors rejoin the stream after
     the leading photon's next diffuse bounce, their powers pooled (the stream's
-    associated photons share one power), so the stream keeps its energy.
+    associated photons share one power).  What the split photons deposit where they land
+    is kept in expectation; their later bounces start from the leading photon's path
+    and end with it (when the leading photon escapes or is absorbed first, they are lost).
     """
     geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     slots = max_bounces + 1
@@ -287,7 +289,10 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
                 p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
             n_alive = survivors
             if pending > 0:
-                # split photons that survived their own landing rejoin the stream, powers pooled
+                # split photons that survived their own landing rejoin the stream, powers pooled;
+                # with roulette they rejoin only if the leading photon survived (probability q)
+                if termination == TERMINATION_ROULETTE and q > 0.0:
+                    pending_power = vec.mul(pending_power, 1.0 / q)
                 total = vec.add(vec.mul(p_assoc, float(n_alive)), pending_power)
                 n_alive += pending
                 p_assoc = vec.mul(total, 1.0 / n_alive)
