@@ -26,8 +26,7 @@ from caustica.errors import ParameterError
 from caustica.film import Film
 from caustica.photons.grid import build_grid, grid_range_sum
 from caustica.photons.kdtree import FACING_COS
-from caustica.scene import builtin_scene_path, parse_scene_string
-from caustica.scene.compiled import compile_scene
+from caustica.scene import builtin_scene_path
 from imagestats import N_SIGMA, assert_images_agree, downsample, load_reference
 from test_pt import FURNACE_LE, FURNACE_RHO, PLANE_RHO, AH, AW, CAM_H, FOV_X, LIGHT_H, furnace_scene, \
     pixel_footprints, plane_scene
