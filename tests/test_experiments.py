@@ -380,6 +380,9 @@ def test_convergence_experiment_end_to_end(tmp_path, monkeypatch):
         for key in ("rel_rmse", "caustic_rel_rmse", "caustic_block_err", "flip"):
             assert math.isfinite(r[key]) and r[key] >= 0, (r["label"], key)
     assert any(r["label"].startswith("PM+C") for r in rows)
+    # the pt reference is two halves: its own noise in the same measure is known
+    (floor,) = [r for r in rows if r["method"] == "reference"]
+    assert 0 < floor["caustic_rel_rmse"] < math.inf and 0 < floor["rel_rmse"] < math.inf
     if convergence.mitsuba_module() is not None:
         assert any(r["method"] == "mitsuba" for r in rows)
         assert "Mitsuba 3" in res["summary"]

@@ -69,6 +69,19 @@ def measure(image, ref, mask) -> dict:
     return out
 
 
+def reference_floor(ref, mask) -> dict:
+    """The reference's own relative RMSE in this module's measure, when it is made of two halves.
+
+    The mean of two independent halves has half their difference's error:
+    rel_rmse(a, b) / 2.  A reference without halves (Mitsuba's in shared/refs: their JSON's
+    noise figure is a per-pixel relative error, another measure) gets None: no floor is drawn.
+    """
+    if ref.half_a is None or ref.half_b is None:
+        return {"rel_rmse": None, "caustic_rel_rmse": None}
+    return {"rel_rmse": rel_rmse(ref.half_a, ref.half_b) / 2,
+            "caustic_rel_rmse": rel_rmse(ref.half_a, ref.half_b, mask) / 2}
+
+
 def shared_refs_dir() -> Path | None:
     """``$CAUSTICA_SHARED/refs``, else ``shared/refs`` beside this checkout (None when neither exists)."""
     env = os.environ.get("CAUSTICA_SHARED")
@@ -169,11 +182,8 @@ class Convergence:
                     rows.append({"scene": name, "label": MITSUBA_LABEL, "method": "mitsuba", "budget_s": budget,
                                  "time_s": wall, "passes": spp, **measure(image, ref.image, mask)})
                     self._tick()
-            floor = ref.noise.get("caustic_est_rel_rmse_of_full") if ref.noise else None
             rows.append({"scene": name, "label": "reference's own noise", "method": "reference", "budget_s": None,
-                         "time_s": None, "passes": None,
-                         "caustic_rel_rmse": floor,
-                         "rel_rmse": ref.noise.get("est_rel_rmse_of_full") if ref.noise else None})
+                         "time_s": None, "passes": None, **reference_floor(ref, mask)})
         tables, figures = {}, []
         from .runner import markdown_table, write_csv
         cols = ("label", "budget_s", "time_s", "passes", "caustic_rel_rmse", "rel_rmse", "caustic_block_err",
