@@ -51,3 +51,45 @@ def refs_dir() -> Path:
 def data_dir() -> Path:
     """Shared data files such as bunny.ply (skip when missing)."""
     return _existing_dir_or_skip(_shared_dir() / "data", "shared data folder")
+
+
+@pytest.fixture
+def cli(capsys):
+    """Run the CLI in-process: returns (exit code, stdout, stderr)."""
+    from caustica.cli import main
+
+    def run(*args):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse: --help, --version, usage errors
+            code = exc.code
+        out, err = capsys.readouterr()
+        return code, out, err
+    return run
+
+
+@pytest.fixture
+def full_disk_exr(monkeypatch):
+    """``full_disk_exr(error)``: OpenEXR's writer starts a file, then raises ``error(path)``, as on a full disk.
+
+    Returns a function that installs the fake; ``monkeypatch.undo()`` (or the test's end) removes it.
+    """
+    import OpenEXR
+
+    def install(error):
+        class FullDisk:
+            def __init__(self, *a, **k):
+                pass
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *a):
+                return False
+
+            def write(self, name):
+                Path(name).write_bytes(b"v/1\x01 half")
+                raise error(name)
+
+        monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    return install

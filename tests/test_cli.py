@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from caustica import __version__, imageio, memory, methods
-from caustica.cli import main
 
 BUILTINS = ("cornell-diacaustic", "cornell-catacaustic", "cornell-pyramid", "cornell-bunny")
 SCENE = "cornell-diacaustic"
@@ -44,19 +43,6 @@ MINIMAL_XML = """<scene version="3.0.0">
     <emitter type="point"><point name="position" value="0, 0, 3"/><rgb name="intensity" value="10"/></emitter>
 </scene>
 """
-
-
-@pytest.fixture
-def cli(capsys):
-    """Run the CLI in-process: returns (exit code, stdout, stderr)."""
-    def run(*args):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:  # argparse: --help, --version, usage errors
-            code = exc.code
-        out, err = capsys.readouterr()
-        return code, out, err
-    return run
 
 
 def _files(directory: Path) -> list[str]:
@@ -680,33 +666,15 @@ def test_photons_write_failure_is_one_line(cli, tmp_path, monkeypatch):
 @pytest.mark.parametrize("exc", [RuntimeError('Failed to write pixel data to image file "{tmp}". '
                                               'No space left on device.'), OSError(28, "No space left on device")],
                          ids=["openexr-runtime-error", "oserror"])
-def test_full_disk_is_one_line_and_keeps_the_previous_set(cli, tmp_path, monkeypatch, exc):
+def test_full_disk_is_one_line_and_keeps_the_previous_set(cli, tmp_path, monkeypatch, full_disk_exr, exc):
     """OpenEXR reports a full disk as RuntimeError (only OSError used to be caught: a traceback)."""
-    import OpenEXR
-
     out = tmp_path / "x.exr"
     _render(cli, out, "--seed", "1")
     before = {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")}
-    real_file = OpenEXR.File
-
-    class FullDisk:
-        def __init__(self, *a, **k):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def write(self, name):
-            Path(name).write_bytes(b"v/1\x01 half")
-            raise type(exc)(*[str(a).replace("{tmp}", name) for a in exc.args]) if isinstance(
-                exc, RuntimeError) else exc
-
-    monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    full_disk_exr(lambda name: type(exc)(*[str(a).replace("{tmp}", name) for a in exc.args])
+                  if isinstance(exc, RuntimeError) else exc)
     code, _, err = cli("render", SCENE, *TINY, "--seed", "2", "-o", out)
-    monkeypatch.setattr(OpenEXR, "File", real_file)
+    monkeypatch.undo()
     assert code == 2 and "No space left on device" in _one_line_error(err)
     assert ".tmp" not in err  # the message names the output, not a temporary
     assert {name: (tmp_path / name).read_bytes() for name in ("x.exr", "x.png", "x.json")} == before

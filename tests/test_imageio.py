@@ -493,31 +493,16 @@ def test_ctrl_c_during_the_renames_is_held_until_the_set_is_complete(tmp_path, m
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
-def test_openexr_runtime_error_becomes_one_output_error_and_keeps_the_old_file(tmp_path, monkeypatch):
+def test_openexr_runtime_error_becomes_one_output_error_and_keeps_the_old_file(tmp_path, monkeypatch,
+                                                                                full_disk_exr):
     """OpenEXR reports a full disk as RuntimeError, not OSError."""
-    import OpenEXR
-
     from caustica.errors import OutputError
 
     dest = tmp_path / "img.exr"
     old = np.full((2, 2, 3), 0.5, np.float32)
     imageio.write_exr(dest, old)
-
-    class FullDisk:
-        def __init__(self, *a, **k):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def write(self, name):
-            Path(name).write_bytes(b"v/1\x01 half")
-            raise RuntimeError(f'Failed to write pixel data to image file "{name}". No space left on device.')
-
-    monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    full_disk_exr(lambda name: RuntimeError(f'Failed to write pixel data to image file "{name}". '
+                                            'No space left on device.'))
     with pytest.raises(OutputError) as info:
         imageio.write_exr(dest, np.ones((4, 4, 3)))
     msg = str(info.value)

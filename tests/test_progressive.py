@@ -281,20 +281,6 @@ def test_one_shot_methods_refuse_passes(diacaustic):
 
 # --------------------------------------------------------------------------- 7. the command line
 
-@pytest.fixture
-def cli(capsys):
-    from caustica.cli import main
-
-    def run(*args):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:
-            code = exc.code
-        out, err = capsys.readouterr()
-        return code, out, err
-    return run
-
-
 def test_cli_progressive_render_writes_aovs_and_pass_stats(cli, tmp_path):
     import json
     out = tmp_path / "r.exr"

@@ -45,24 +45,10 @@ def load_scene(path_or_name, **defaults) -> Scene:
     return scene
 
 
-class _QuietBar:
-    def __init__(self, *a, **k):
-        pass
-
-    def update(self, n=1):
-        pass
-
-    def close(self):
-        pass
-
-    def set_postfix_str(self, s):
-        pass
-
-
 def progress_factory(show: bool):
     """A tqdm-like constructor: real bars on a terminal when ``show``, silence otherwise."""
     if not show:
-        return _QuietBar
+        return driver.QuietBar
     from tqdm import tqdm
 
     def bar(total, desc, unit="it"):

@@ -112,7 +112,7 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
         bar = progress(total=total, desc=f"{method_cls.name} passes", unit="pass")
         if log.resumed_from:
             bar.update(log.resumed_from)
-    inner = progress if not multi else _quiet_factory
+    inner = progress if not multi else QuietBar
     t_start = time.perf_counter()
     saved = state.passes
     last_save = t_start
@@ -145,7 +145,9 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
     return state, log
 
 
-class _QuietBar:
+class QuietBar:
+    """A progress bar that shows nothing (tqdm's interface); the class itself is a bar factory."""
+
     def __init__(self, *a, **k):
         pass
 
@@ -157,7 +159,3 @@ class _QuietBar:
 
     def set_postfix_str(self, s):
         pass
-
-
-def _quiet_factory(*a, **k):
-    return _QuietBar()

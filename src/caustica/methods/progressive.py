@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -32,11 +33,13 @@ from ..jit import borrowed, kernel, parallel_for
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..photons.visible_points import visible_points
 from ..sampling.rng import STREAM_CAMERA, pass_stream
-from .params import Param, non_negative, positive
-from .photon_common import TERMINATIONS
+from .params import Param, positive
+from .photon_common import ESTIMATE_PARAMS
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
+
+_ESTIMATE = {p.name: p for p in ESTIMATE_PARAMS}
 
 #: Parameters of the progressive gather and its camera pass.
 PROGRESSIVE_PARAMS = (
@@ -45,17 +48,14 @@ PROGRESSIVE_PARAMS = (
           positive, "> 0"),
     Param("alpha", float, 2.0 / 3.0, "fraction of new photons kept per pass (SPPM's α)",
           lambda a: 0.0 < a < 1.0, "between 0 and 1, exclusive"),
-    Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr)",
-          positive, ">= 1", max=1024),
-    Param("termination", str, "cap",
-          "cap: scale power by the albedo and stop after max_bounces (the paper); "
-          "roulette: Russian roulette with the mean albedo", choices=tuple(TERMINATIONS)),
-    Param("light_samples", int, 1, "n for n x n stratified shadow rays per area light, per pass",
-          positive, ">= 1", max=64),
-    Param("fixed_light_grid", bool, False,
-          "use the n x n grid's cell centres instead of jittered samples (biased: never converges)"),
-    Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0",
-          max=1024),
+    # the rest are the photon methods' own, with the progressive camera pass's defaults
+    _ESTIMATE["max_bounces"],
+    _ESTIMATE["termination"],
+    replace(_ESTIMATE["light_samples"], default=1,
+            help="n for n x n stratified shadow rays per area light, per pass"),
+    replace(_ESTIMATE["fixed_light_grid"],
+            help="use the n x n grid's cell centres instead of jittered samples (biased: never converges)"),
+    _ESTIMATE["max_specular_depth"],
 )
 
 
