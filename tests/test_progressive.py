@@ -65,17 +65,53 @@ def test_grid_range_sum_matches_brute_force():
             np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
 
 
-def test_film_adds_passes_in_order():
+def test_film_adds_passes_in_its_tree():
     rng = np.random.default_rng(0)
     a, b, c = (rng.uniform(size=(2, 3, 3)).astype(np.float32) for _ in range(3))
     film = Film.empty(3, 2).add(0, a)
-    assert film.image() is a                       # one pass: that pass's own bits
+    assert film.image().tobytes() == a.tobytes()     # one pass: that pass's own bits
     with pytest.raises(ValueError, match="out of order"):
         film.add(2, b)
     film = film.add(1, b).add(2, c)
-    np.testing.assert_array_equal(film.image(), ((a.astype(np.float64) + b + c) / 3).astype(np.float32))
+    # pairwise: (a + b) is the block of passes [0, 2), then pass 2 is added to it
+    np.testing.assert_array_equal(film.image(), (((a.astype(np.float64) + b) + c) / 3).astype(np.float32))
     again = Film.from_arrays(film.to_arrays())
     assert again.passes == 3 and again.image().tobytes() == film.image().tobytes()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_film_parts_merge_to_the_bits_of_passes_added_one_by_one(seed):
+    """Any split of [0, P) into consecutive parts, as a cluster's tasks make, gives the same bits."""
+    from caustica.film import TRUNK_PASSES
+    rng = np.random.default_rng(seed)
+    P = 2 * TRUNK_PASSES + 37                        # through the trunk and past it
+    images = [(rng.uniform(size=(2, 3, 3)) * 10.0 ** rng.uniform(-6, 6)).astype(np.float32) for _ in range(P)]
+    whole = Film.empty(3, 2)
+    for p, im in enumerate(images):
+        whole = whole.add(p, im)
+    assert whole.trunk is not None and len(whole.blocks) == bin(37).count("1")
+    merged, at = Film.empty(3, 2), 0
+    while at < P:
+        part = Film.part(3, 2, at)
+        for p in range(at, min(P, at + int(rng.integers(1, 90)))):
+            part = part.add(p, images[p])
+        merged, at = merged.merge(part), part.end
+    assert merged.image().tobytes() == whole.image().tobytes()
+    assert Film.from_arrays(merged.to_arrays()).image().tobytes() == whole.image().tobytes()
+    with pytest.raises(ValueError, match="out of order"):
+        merged.merge(Film.part(3, 2, P + 1))
+
+
+def test_film_refuses_a_damaged_structure():
+    film = Film.empty(1, 1)
+    for p in range(5):
+        film = film.add(p, np.ones((1, 1, 3), np.float32))
+    arrays = film.to_arrays()
+    arrays["film_blocks"] = np.asarray([[0, 2], [2, 2], [4, 1]])    # [0, 4) must be one block
+    arrays["film_block_2"] = arrays["film_block_1"]
+    arrays["film_block_1"] = arrays["film_block_0"]
+    with pytest.raises(ValueError, match="tree"):
+        Film.from_arrays(arrays)
 
 
 # --------------------------------------------------------------------------- 2. migration

@@ -12,6 +12,7 @@ import time
 
 from . import __version__, driver, methods
 from .errors import ParameterError, quoted
+from .film import FILM_BYTES_PER_PIXEL
 from .jit import default_threads
 from .limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
 from .memory import check_budget
@@ -123,9 +124,12 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         # camera ray per pixel (their direct light already takes n x n shadow rays);
         # a pass of a multi-pass render takes one sample per pixel.
         spp = 1 if multi_pass else (getattr(cls, "default_spp", None) or scene.spp)
+    per_pixel = getattr(cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
+    if multi_pass:  # the film of several passes holds up to MAX_FILM_IMAGES float64 images, not one
+        per_pixel += FILM_BYTES_PER_PIXEL - 24
     common = check_common(spp=spp, width=width, height=height, seed=seed, threads=threads,
                           film_source=scene.description.camera.film_source if res is None else None,
-                          bytes_per_pixel=getattr(cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL))
+                          bytes_per_pixel=per_pixel)
     settings = methods.params.resolve(method, cls.params, params)
     # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
     for p in cls.params:

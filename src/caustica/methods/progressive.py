@@ -34,10 +34,13 @@ from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..photons.visible_points import visible_points
 from ..sampling.rng import STREAM_CAMERA, pass_stream
 from .params import Param, positive
+from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
+#: Radius schedules: per pixel (SPPM's α update, sequential) or one per pass (independent passes).
+SCHEDULES = ("pixel", "global")
 
 _ESTIMATE = {p.name: p for p in ESTIMATE_PARAMS}
 
@@ -48,6 +51,11 @@ PROGRESSIVE_PARAMS = (
           positive, "> 0"),
     Param("alpha", float, 2.0 / 3.0, "fraction of new photons kept per pass (SPPM's α)",
           lambda a: 0.0 < a < 1.0, "between 0 and 1, exclusive"),
+    Param("schedule", str, "pixel", "pixel: each pixel's radius shrinks with the photons it gathered "
+                                    "(Hachisuka & Jensen 2009; passes run in order); global: pass p gathers "
+                                    "within R_0 sqrt(prod_{i<=p} (i + alpha) / (i + 1)) everywhere, so passes "
+                                    "are independent and can run on a cluster (Knaus & Zwicker 2011)",
+          choices=SCHEDULES),
     # the rest are the photon methods' own, with the progressive camera pass's defaults
     _ESTIMATE["max_bounces"],
     _ESTIMATE["termination"],
@@ -100,11 +108,39 @@ def initial_radius(scene, settings) -> float:
     return RADIUS_FRACTION * float(np.linalg.norm(box[3:] - box[:3]))
 
 
-class ProgressivePhotonMethod:
-    """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, state, progress)``.
+def global_radius(r0: float, alpha: float, pass_index: int) -> float:
+    """The ``global`` schedule's radius of pass p: R_0 sqrt(prod_{i=1..p} (i + α) / (i + 1)).
+
+    Knaus & Zwicker (2011): with the variance of pass p's estimate growing as 1/R_p² and its
+    bias falling as R_p², this product makes the mean of the passes consistent; it is
+    R_0 sqrt(Γ(p + 1 + α) Γ(2) / (Γ(1 + α) Γ(p + 2))), written with lgamma so pass 10⁹ costs
+    what pass 1 does.  It falls as p^((α - 1) / 2).
+    """
+    if pass_index == 0:
+        return r0
+    log_ratio = (math.lgamma(pass_index + 1 + alpha) - math.lgamma(1 + alpha)
+                 - math.lgamma(pass_index + 2))
+    return r0 * math.exp(0.5 * log_ratio)
+
+
+class PassMeasurements(NamedTuple):
+    """What one pass measured at each pixel: its visible point's weight, the flux and events within the radius."""
+    vp_found: np.ndarray    # bool[n]
+    vp_weight: np.ndarray   # float64[n, 3]: the path throughput W to the visible point
+    flux: np.ndarray        # float64[n, 3]: Σ Φ of the events within the radius
+    count: np.ndarray       # int64[n]: the events within the radius
+    direct: np.ndarray      # float64[n, 3]: the radiance seen directly
+    emitted: int            # photons (or streams) emitted
+
+
+class ProgressivePhotonMethod(IndependentPasses):
+    """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, radius, progress)``.
 
     ``photon_events`` returns ((position, power, normal, valid) of this pass's events,
-    paths emitted, stats); events with valid == 0 are empty slots.
+    paths emitted, stats); events with valid == 0 are empty slots; ``radius`` holds the
+    pass's gather radii (float64[n]).  With ``--schedule pixel``
+    the state is a :class:`PixelStatistics` and passes run in order; with ``global`` it
+    is the film of independent passes (:class:`~caustica.methods.independent.IndependentPasses`).
     """
     progressive = True
     default_spp = 1
@@ -112,6 +148,10 @@ class ProgressivePhotonMethod:
     #: Memory per pixel (api.resolve_settings checks it): the pixel statistics, old and new,
     #: and a pass's visible points, flux and counts (float64); measured about 231 bytes.
     bytes_per_pixel = 240
+
+    @classmethod
+    def independent(cls, settings) -> bool:
+        return settings["schedule"] == "global"
 
     @classmethod
     def check(cls, scene, settings):
@@ -122,6 +162,8 @@ class ProgressivePhotonMethod:
     @classmethod
     def new_state(cls, scene, settings):
         cls.check(scene, settings)
+        if cls.independent(settings):
+            return super().new_state(scene, settings)
         n = settings["width"] * settings["height"]
         r0 = initial_radius(scene, settings)
         return PixelStatistics(0, np.zeros(n), np.full(n, r0), np.zeros((n, 3)), np.zeros((n, 3)),
@@ -129,6 +171,8 @@ class ProgressivePhotonMethod:
 
     @classmethod
     def state_from_arrays(cls, scene, settings, arrays):
+        if cls.independent(settings):
+            return super().state_from_arrays(scene, settings, arrays)
         n = settings["width"] * settings["height"]
         try:
             st = PixelStatistics(**{k: arrays[k] for k in PixelStatistics._fields})
@@ -143,7 +187,8 @@ class ProgressivePhotonMethod:
         return st
 
     @classmethod
-    def run_pass(cls, scene, settings, state, progress):
+    def measure_pass(cls, scene, settings, pass_index, radius, progress):
+        """Camera pass, photon pass and gather within ``radius`` (float64[n]): (PassMeasurements, stats)."""
         timings = {}
         n = settings["width"] * settings["height"]
         cam = scene.camera(settings["width"], settings["height"])
@@ -157,21 +202,21 @@ class ProgressivePhotonMethod:
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
-                                              pass_stream(STREAM_CAMERA, state.passes), settings["light_samples"],
+                                              pass_stream(STREAM_CAMERA, pass_index), settings["light_samples"],
                                               settings["fixed_light_grid"], settings["max_specular_depth"],
                                               vp_pos, vp_nrm, vp_weight, vp_found, direct),
                           threads=threads, progress=bar)
         bar.close()
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
-        events, emitted, stats = cls.photon_events(scene, settings, state, progress)
+        seen = radius[vp_found]
+        typical = float(np.median(seen if seen.size else radius))
+        events, emitted, stats = cls.photon_events(scene, settings, pass_index, radius, progress)
         timings.update(stats.pop("timings"))
         c1 = timings.pop("compile_s", 0.0)
         t1 = time.perf_counter()
-        seen = state.radius[vp_found]
-        cell = CELL_PER_RADIUS * float(np.median(seen if seen.size else state.radius))
         first_build = not grid_compiled()
-        grid = build_grid(*events, scene.geometry.scene_box, cell)
+        grid = build_grid(*events, scene.geometry.scene_box, CELL_PER_RADIUS * typical)
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:
@@ -181,46 +226,78 @@ class ProgressivePhotonMethod:
         flux = np.zeros((n, 3))
         count = np.zeros(n, np.int64)
         t1 = time.perf_counter()
-        c2 = parallel_for(gather_flux, n, (grid, vp_pos, vp_nrm, vp_found, state.radius, flux, count),
+        c2 = parallel_for(gather_flux, n, (grid, vp_pos, vp_nrm, vp_found, radius, flux, count),
                           threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         timings["compile_s"] = c0 + c1 + c2
+        stats["events_gathered"] = int(count.sum())
+        stats["timings"] = timings
+        return PassMeasurements(vp_found, vp_weight, flux, count, direct, emitted), stats
+
+    @classmethod
+    def run_pass(cls, scene, settings, state, progress):
+        if cls.independent(settings):
+            return super().run_pass(scene, settings, state, progress)
+        got, stats = cls.measure_pass(scene, settings, state.passes, state.radius, progress)
         # 4. the update, into new arrays: the old state stays whole until the pass is done
         alpha = settings["alpha"]
-        m = count.astype(np.float64)
-        has = vp_found & (count > 0)
+        m = got.count.astype(np.float64)
+        has = got.vp_found & (got.count > 0)
         n_new = np.where(has, state.n_photons + alpha * m, state.n_photons)
         ratio = np.where(has, n_new / np.maximum(state.n_photons + m, 1e-300), 1.0)
         r_new = state.radius * np.sqrt(ratio)
-        tau_new = np.where(has[:, None], (state.tau + vp_weight * flux) * ratio[:, None], state.tau)
-        new = PixelStatistics(state.passes + 1, n_new, r_new, tau_new, state.direct + direct,
-                              state.gathered + m, state.emitted + emitted)
-        stats["events_gathered"] = int(count.sum())
-        stats["timings"] = timings
+        tau_new = np.where(has[:, None], (state.tau + got.vp_weight * got.flux) * ratio[:, None], state.tau)
+        new = PixelStatistics(state.passes + 1, n_new, r_new, tau_new, state.direct + got.direct,
+                              state.gathered + m, state.emitted + got.emitted)
         return new, stats
+
+    @classmethod
+    def pass_output(cls, scene, settings, pass_index, progress):
+        """The ``global`` schedule's pass p: L = direct + W Σ Φ / (π R_p²) within the pass's own R_p."""
+        n = settings["width"] * settings["height"]
+        r = global_radius(initial_radius(scene, settings), settings["alpha"], pass_index)
+        got, stats = cls.measure_pass(scene, settings, pass_index, np.full(n, r), progress)
+        radiance = got.direct + got.vp_weight * got.flux / (math.pi * r * r)
+        image = radiance.reshape(settings["height"], settings["width"], 3).astype(np.float32)
+        return image, got.count, stats
 
     @staticmethod
     def radiance(state) -> np.ndarray:
-        """L_i = direct_i / P + τ_i / (π R_i² P), float64 (n, 3)."""
+        """The ``pixel`` schedule's L_i = direct_i / P + τ_i / (π R_i² P), float64 (n, 3)."""
         p = max(state.passes, 1)
         return state.direct / p + state.tau / (math.pi * state.radius[:, None] ** 2 * p)
 
     @classmethod
     def image(cls, scene, settings, state):
+        if cls.independent(settings):
+            return super().image(scene, settings, state)
         img = cls.radiance(state).reshape(settings["height"], settings["width"], 3)
         return img.astype(np.float32)
+
+    @classmethod
+    def final_radius(cls, scene, settings, state) -> np.ndarray:
+        """The radius each pixel gathers within next (float64[n])."""
+        if not cls.independent(settings):
+            return state.radius
+        r = global_radius(initial_radius(scene, settings), settings["alpha"], state.passes)
+        return np.full(settings["width"] * settings["height"], r)
 
     @classmethod
     def aov(cls, scene, settings, state, name):
         shape = (settings["height"], settings["width"])
         if name == "radius":
-            return state.radius.reshape(shape).astype(np.float32)
-        return state.gathered.reshape(shape).astype(np.float32)
+            return cls.final_radius(scene, settings, state).reshape(shape).astype(np.float32)
+        gathered = state.counts if cls.independent(settings) else state.gathered
+        if gathered is None:
+            return np.zeros(shape, np.float32)
+        return gathered.reshape(shape).astype(np.float32)
 
     @classmethod
     def final_stats(cls, scene, settings, state):
-        r = state.radius
-        return {"samples_per_pixel": state.passes, "emitted_all_passes": state.emitted,
-                "initial_radius": initial_radius(scene, settings),
-                "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())},
-                "photons_kept_mean": float(state.n_photons.mean())}
+        r = cls.final_radius(scene, settings, state)
+        out = {"samples_per_pixel": state.passes, "emitted_all_passes": state.passes * cls.emitted_per_pass(scene, settings),
+               "initial_radius": initial_radius(scene, settings), "schedule": settings["schedule"],
+               "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())}}
+        if not cls.independent(settings):
+            out["photons_kept_mean"] = float(state.n_photons.mean())
+        return out

@@ -40,8 +40,8 @@ def streams_per_pass(settings) -> int:
     return settings["streams"] or max(1, settings["width"] * settings["height"] // (settings["assoc"] + 1))
 
 
-def stream_radius(scene, settings, state) -> float:
-    """This pass's stream radius: r_s scaled like the gather radii, r_s · median(R_i) / R_0.
+def stream_radius(scene, settings, radius) -> float:
+    """This pass's stream radius: r_s scaled like the gather radii ``radius``, r_s · median(R_i) / R_0.
 
     Associated photons land within about r_s of where their stream's leading photon
     would have put them (and split photons leave through a disc of radius r_s), which
@@ -49,8 +49,7 @@ def stream_radius(scene, settings, state) -> float:
     r_s with the radii makes that blur vanish as the passes grow, as SPPM's own does.
     The factor depends only on the state, so it is the same for any thread count.
     """
-    r0 = initial_radius(scene, settings)
-    return settings["stream_radius"] * float(np.median(state.radius)) / r0
+    return settings["stream_radius"] * float(np.median(radius)) / initial_radius(scene, settings)
 
 
 @register
@@ -71,10 +70,13 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
-    def photon_events(cls, scene, settings, state, progress):
-        pass_index = state.passes
+    def emitted_per_pass(cls, scene, settings) -> int:
+        return streams_per_pass(settings)
+
+    @classmethod
+    def photon_events(cls, scene, settings, pass_index, radius, progress):
         n = streams_per_pass(settings)
-        r_s = stream_radius(scene, settings, state)
+        r_s = stream_radius(scene, settings, radius)
         n_fa, mr = settings["assoc"], settings["max_bounces"]
         split = settings["specular"] == "split"
         check_budget(StreamBuffers.bytes_needed(n, n_fa, mr, split),
@@ -100,5 +102,5 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     @classmethod
     def final_stats(cls, scene, settings, state):
         out = super().final_stats(scene, settings, state)
-        out["stream_radius_next_pass"] = stream_radius(scene, settings, state)
+        out["stream_radius_next_pass"] = stream_radius(scene, settings, cls.final_radius(scene, settings, state))
         return out

@@ -18,13 +18,13 @@ from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..film import Film
 from ..jit import borrowed, kernel, parallel_for
 from ..lighting import direct_one_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
 from . import register
+from .independent import IndependentPasses
 from .params import Param
 
 INV_PI = 1.0 / math.pi
@@ -139,22 +139,8 @@ def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_dept
         image[y, x, 2] = acc[2] * inv
 
 
-class PathState:
-    """The film after ``passes`` passes of ``spp`` samples per pixel each."""
-
-    def __init__(self, film: Film):
-        self.film = film
-
-    @property
-    def passes(self) -> int:
-        return self.film.passes
-
-    def to_arrays(self):
-        return self.film.to_arrays()
-
-
 @register
-class PathTracer:
+class PathTracer(IndependentPasses):
     name = "pt"
     summary = "path tracing with next-event estimation and MIS (the unbiased reference)"
     progressive = True
@@ -166,20 +152,12 @@ class PathTracer:
     )
 
     @staticmethod
-    def new_state(scene, settings):
-        return PathState(Film.empty(settings["width"], settings["height"]))
-
-    @staticmethod
-    def state_from_arrays(scene, settings, arrays):
-        return PathState(Film.from_arrays(arrays))
-
-    @staticmethod
-    def run_pass(scene, settings, state, progress):
+    def pass_output(scene, settings, pass_index, progress):
         """One pass: ``spp`` new samples per pixel, keyed by (seed, camera, pass, sample)."""
         cam = scene.camera(settings["width"], settings["height"])
         image = np.zeros((cam.height, cam.width, 3), np.float32)
         max_depth = DEPTH_CAP if settings["max_depth"] < 0 else settings["max_depth"]
-        stream = pass_stream(STREAM_CAMERA, state.passes)
+        stream = pass_stream(STREAM_CAMERA, pass_index)
 
         n = cam.width * cam.height
         rays = np.zeros((n, 2), np.int64)
@@ -191,13 +169,9 @@ class PathTracer:
                                  threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
-        return PathState(state.film.add(state.passes, image)), {
+        return image, None, {
             "timings": timings, "camera_rays": n * settings["spp"],
             "extension_rays": int(rays[:, 0].sum()), "shadow_rays": int(rays[:, 1].sum())}
-
-    @staticmethod
-    def image(scene, settings, state):
-        return state.film.image()
 
     @staticmethod
     def final_stats(scene, settings, state):

@@ -42,8 +42,12 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
-    def photon_events(cls, scene, settings, state, progress):
-        pass_index = state.passes
+    def emitted_per_pass(cls, scene, settings) -> int:
+        aimed = settings["caustic_photons"] > 0 and scene.specular_bounding_spheres().shape[0] > 0
+        return photons_per_pass(settings) + (settings["caustic_photons"] if aimed else 0)
+
+    @classmethod
+    def photon_events(cls, scene, settings, pass_index, radius, progress):
         n = photons_per_pass(settings)
         mr = settings["max_bounces"]
         check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
