@@ -143,7 +143,8 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
 
 def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
            threads: int | None = None, progress: bool = False, passes: int | None = None,
-           time_s: float | None = None, checkpoint=None, aov=(), **params) -> RenderResult:
+           time_s: float | None = None, checkpoint=None, aov=(), dask=None, workers: int | None = None,
+           **params) -> RenderResult:
     """Render ``scene`` (a Scene, a path or a built-in name) with ``method``.
 
     spp: samples per pixel (default: the scene's sampler for pt, 1 for the photon
@@ -158,6 +159,9 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     ``result.aovs``.  params: the method's own parameters (``caustica methods``
     lists them).  Ctrl-C during a multi-pass render returns the passes finished so far
     (``stats["interrupted"]``).
+    dask: a Dask scheduler's address (or a ``distributed.Client``) to render the passes on;
+    workers: start a local cluster of that many worker processes instead.  Either gives
+    the bits of a local render of the same passes (:mod:`caustica.cluster`).
     """
     t_start = time.perf_counter()
     preloaded = isinstance(scene, Scene)
@@ -166,7 +170,16 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     aov = _check_aovs(cls, aov)
     scene, cls, settings = resolve_settings(scene, method, spp=spp, res=res, seed=seed, threads=threads,
                                             multi_pass=plan.multi, **params)
-    state, log = driver.run(cls, scene, settings, plan, progress_factory(progress))
+    cluster_log = None
+    if dask is None and workers is None:
+        state, log = driver.run(cls, scene, settings, plan, progress_factory(progress))
+    else:
+        from . import cluster
+        cluster.check_args(dask, workers)
+        check_distributable(cls, settings, plan)
+        with cluster.connect(dask, workers) as cl:
+            state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))
+            cluster_log = cluster_log.to_json(cl.address)
     image = cls.image(scene, settings, state)
     stats = dict(log.counters)
     stats.update(cls.final_stats(scene, settings, state))
@@ -198,10 +211,26 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         if plan.checkpoint is not None:
             out["checkpoint"] = plan.checkpoint
             out["resumed_from_pass"] = log.resumed_from
+    if cluster_log is not None:
+        out["cluster"] = cluster_log
     out["peak_memory_bytes"] = peak_memory_bytes()
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     aovs = {name: cls.aov(scene, settings, state, name) for name in aov}
     return RenderResult(image, out, aovs, inputs=tuple(scene.description.files))
+
+
+def check_distributable(cls, settings, plan) -> None:
+    """One-line errors for a render a cluster cannot take apart (before connecting)."""
+    if not getattr(cls, "progressive", False):
+        raise ParameterError(f"--dask/--workers: '{cls.name}' renders in one shot; a cluster renders the passes of "
+                             f"pt, sppm and pspm")
+    if not cls.independent(settings):
+        raise ParameterError(f"--dask/--workers: {cls.name} --schedule pixel updates every pixel's radius after "
+                             f"each pass, so its passes cannot run apart; --schedule global (one radius per pass, "
+                             f"Knaus & Zwicker 2011) can")
+    if plan.passes is None and plan.time_s is None:
+        raise ParameterError("--dask/--workers: say how long to render with --passes N or --time SECONDS "
+                             "(a cluster renders passes)")
 
 
 def _check_aovs(cls, aov):

@@ -55,6 +55,14 @@ def _add_render_options(r, method_names, default_method, output_help):
                       method_names, "default")
 
 
+def _add_cluster_options(group):
+    group.add_argument("--dask", metavar="ADDRESS",
+                       help="send the work to the Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786; "
+                            "start one with 'dask scheduler' and workers with 'dask worker ADDRESS')")
+    group.add_argument("--workers", type=int, metavar="N",
+                       help="start a local cluster of N single-threaded worker processes for this run")
+
+
 def _add_method_flags(group, method_names, default_word):
     """One flag per parameter of the named methods (``--k``, ``--streams``, ...), stored as param_<name>.
 
@@ -141,6 +149,8 @@ def _build_parser():
     prog.add_argument("--aov", metavar="NAMES",
                       help="also write per-pixel images NAME.<aov>.exr: radius (final gather radius) and/or "
                            "count (photon events gathered), comma-separated (sppm, pspm)")
+    _add_cluster_options(r.add_argument_group("rendering on a Dask cluster (pt, and sppm/pspm --schedule global; "
+                                              "the bits of a local render of the same passes)"))
 
     ph = sub.add_parser("photons", help="picture where photons and streams land",
                         description="Trace the photon map(s) of a photon method and write a PNG of the "
@@ -215,6 +225,8 @@ def _cmd_render(args) -> int:
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     defines = _parse_defines(args.defines)
     exposure = check_exposure(args.exposure)
+    from .cluster import check_args
+    check_args(args.dask, args.workers)
     given = args.output
     args.output = _output_path(given, f"{_default_stem(args.scene)}_{args.method}.exr", args.quiet)
     outputs = list(output_paths(args.output))
@@ -227,7 +239,7 @@ def _cmd_render(args) -> int:
     _note_integrator(scene, args.method, params)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
-                    checkpoint=args.checkpoint, aov=args.aov or (), **params)
+                    checkpoint=args.checkpoint, aov=args.aov or (), dask=args.dask, workers=args.workers, **params)
     exr, png, js = result.save(args.output, exposure_stops=exposure, inputs=scene.description.files)
     if not args.quiet:
         t = result.stats["timings"]

@@ -93,15 +93,7 @@ class PassLog:
 
 def run(method_cls, scene, settings, plan: PassPlan, progress):
     """Run the passes of ``plan``: (final state, PassLog)."""
-    state = None
-    log = PassLog()
-    if plan.checkpoint is not None:
-        state = ckpt.load(plan.checkpoint, method_cls, scene, settings)
-        if state is not None:
-            log.resumed_from = state.passes
-            if plan.passes is not None and state.passes > plan.passes:
-                raise ParameterError(f"--checkpoint {plan.checkpoint}: holds {state.passes} passes, more than "
-                                     f"--passes {plan.passes}; ask for at least {state.passes}")
+    state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
     multi = plan.multi
@@ -142,6 +134,20 @@ def run(method_cls, scene, settings, plan: PassPlan, progress):
             bar.close()
     if plan.checkpoint is not None and state.passes > saved:
         ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+    return state, log
+
+
+def load_checkpoint(method_cls, scene, settings, plan):
+    """(state saved in the plan's checkpoint or None, a PassLog that says where it resumed)."""
+    state = None
+    log = PassLog()
+    if plan.checkpoint is not None:
+        state = ckpt.load(plan.checkpoint, method_cls, scene, settings)
+        if state is not None:
+            log.resumed_from = state.passes
+            if plan.passes is not None and state.passes > plan.passes:
+                raise ParameterError(f"--checkpoint {plan.checkpoint}: holds {state.passes} passes, more than "
+                                     f"--passes {plan.passes}; ask for at least {state.passes}")
     return state, log
 
 

@@ -1,0 +1,308 @@
+"""Rendering beyond one machine: the passes of a render as tasks on a Dask cluster.
+
+Dask's ``distributed`` is the engine (imported only here, and only when a cluster is
+asked for): ``--dask ADDRESS`` connects to a running scheduler, ``--workers N`` starts
+a local cluster of N single-threaded worker processes.  What goes over the wire:
+
+* the scene, once per worker (``Client.scatter(..., broadcast=True)``);
+* a task per range of consecutive passes [a, b), run on one worker thread
+  (:meth:`~caustica.methods.independent.IndependentPasses.render_part`), which sends
+  back a part of the film (:class:`~caustica.film.PassSums`) and its per-pass stats;
+* the client merges the parts in pass order, so the image has the bits of a local
+  render of the same passes whatever the number of workers, the task sizes or the
+  order tasks finish in (:mod:`caustica.film`).
+
+Tasks start at one pass and grow (in powers of two, up to a film trunk block) until
+one takes about :data:`TASK_SECONDS`, so a task's overhead (scheduling, moving a part
+of the film) is a small share of its work; with a time budget a task is only sent if
+its predicted end is within the budget.  A worker that dies loses nothing: Dask runs
+its tasks again elsewhere, and as every pass's random numbers are keyed by its index
+the result is the same.  Ctrl-C cancels this render's tasks on the cluster.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+
+from . import checkpoint as ckpt
+from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
+from .errors import ParameterError
+from .film import TRUNK_PASSES
+from .limits import MAX_THREADS
+
+#: Address schemes of Dask's comms a scheduler can listen on.
+SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: Seconds to wait for a scheduler before giving up.
+CONNECT_TIMEOUT_S = 5.0
+#: A task is made about this long (its passes' measured work), once the first tasks are back.
+TASK_SECONDS = 1.0
+#: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
+#: only (the one that creates FILE), as a worker that dies mid-render.
+KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
+
+
+def _distributed():
+    try:
+        import distributed
+    except ModuleNotFoundError:
+        raise ParameterError("--dask and --workers need Dask's distributed package: "
+                             "pip install 'caustica[dask]'") from None
+    return distributed
+
+
+@dataclass
+class Cluster:
+    """A connected Dask client (and the local cluster it started, if any)."""
+    client: object
+    local: object = None
+    address: str = ""
+
+    @property
+    def worker_threads(self) -> dict:
+        """Threads of each worker, by worker address."""
+        return dict(self.client.nthreads())
+
+    @property
+    def threads(self) -> int:
+        return sum(self.worker_threads.values())
+
+    def close(self) -> None:
+        self.client.close()
+        if self.local is not None:
+            self.local.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def check_args(address=None, workers=None) -> None:
+    """One-line errors for --dask / --workers, before anything starts."""
+    if address is not None and workers is not None:
+        raise ParameterError("--dask and --workers: give one (a running scheduler, or a local cluster to start)")
+    if workers is not None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_THREADS:
+            raise ParameterError(f"--workers: an integer between 1 and {MAX_THREADS} (got {workers})")
+    if address is not None and not isinstance(address, str):
+        return  # a distributed.Client of the caller's
+    if address is not None and not address.strip():
+        raise ParameterError("--dask: give the scheduler's address, e.g. tcp://10.0.0.5:8786")
+
+
+def connect(address=None, workers=None) -> Cluster:
+    """Connect to the scheduler at ``address`` (or a ``distributed.Client``), or start ``workers`` local workers.
+
+    Refuses, in one line, a scheduler that does not answer within CONNECT_TIMEOUT_S, a
+    cluster without workers, and workers that run another build of caustica (their
+    passes would not have this build's bits).
+    """
+    check_args(address, workers)
+    distributed = _distributed()
+    if address is not None and not isinstance(address, str):
+        cluster = Cluster(address, None, str(address.scheduler.address))
+    elif address is not None:
+        _check_reachable(address)
+        try:
+            client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ParameterError(f"--dask {address}: no Dask scheduler answers there ({reason}); start one with "
+                                 f"'dask scheduler' and workers with 'dask worker ADDRESS'") from None
+        cluster = Cluster(client, None, address)
+    else:
+        local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, silence_logs=logging.ERROR)
+        cluster = Cluster(distributed.Client(local, set_as_default=False), local, local.scheduler_address)
+    try:
+        if workers is None:
+            try:
+                cluster.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+            except (TimeoutError, OSError):
+                raise ParameterError(f"--dask {cluster.address}: the scheduler has no workers; start some with "
+                                     f"'dask worker {cluster.address}'") from None
+        check_workers_build(cluster)
+    except BaseException:
+        cluster.close()
+        raise
+    return cluster
+
+
+def _check_reachable(address: str) -> None:
+    """A refused or unresolvable TCP scheduler address fails at once (Dask would retry it until its timeout)."""
+    import socket
+    from distributed.comm import get_address_host_port, parse_address
+    try:
+        scheme, _ = parse_address(address)
+    except ValueError as exc:
+        raise ParameterError(f"--dask {address}: not a scheduler address ({exc}); e.g. tcp://10.0.0.5:8786") from None
+    if scheme not in SCHEMES:
+        raise ParameterError(f"--dask {address}: '{scheme}://' is not a scheduler address Dask can reach "
+                             f"(use {', '.join(s + '://' for s in SCHEMES)}), e.g. tcp://10.0.0.5:8786")
+    if scheme not in ("tcp", "tls"):
+        return
+    try:
+        host, port = get_address_host_port(address)
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+        raise ParameterError(f"--dask {address}: no Dask scheduler answers there ({reason}); start one with "
+                             f"'dask scheduler' and workers with 'dask worker ADDRESS'") from None
+
+
+def _source_hash() -> str:
+    from .jit import source_hash
+    return source_hash()
+
+
+def check_workers_build(cluster: Cluster) -> None:
+    mine = _source_hash()
+    for worker, theirs in cluster.client.run(_source_hash).items():
+        if theirs != mine:
+            raise ParameterError(f"--dask {cluster.address}: worker {worker} runs another build of caustica "
+                                 f"(source {theirs}, this one {mine}); its passes would not have this "
+                                 f"build's bits: install the same caustica on every worker")
+
+
+def _kill_hook(start: int, stop: int) -> None:
+    hook = os.environ.get(KILL_HOOK_ENV)
+    if not hook:
+        return
+    at, _, flag = hook.partition(":")
+    if start <= int(at) < stop:
+        try:
+            fd = os.open(flag, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            return  # killed once already: this is the task run again
+        os.close(fd)
+        os._exit(70)
+
+
+def render_part_task(scene, method_name: str, settings: dict, start: int, stop: int):
+    """A worker's task: the passes [start, stop) on one thread, (part, per-pass log, seconds)."""
+    from . import methods
+    from .driver import QuietBar
+    _kill_hook(start, stop)
+    t0 = time.perf_counter()
+    part, log = methods.get(method_name).render_part(scene, dict(settings, threads=1), start, stop, QuietBar)
+    return part, log, time.perf_counter() - t0
+
+
+@dataclass
+class ClusterLog:
+    """What the distributed loop measured, for the sidecar."""
+    workers: int = 0
+    worker_threads: int = 0
+    tasks: int = 0
+    task_passes: list = field(default_factory=list)
+    task_seconds: list = field(default_factory=list)      # worker-side work of each task
+    task_wall_seconds: list = field(default_factory=list)  # from sending the task to having its result
+    scene_transfer_s: float = 0.0
+    result_transfer_s: float = 0.0
+    result_bytes: int = 0
+
+    def to_json(self, address: str) -> dict:
+        wall, work = sum(self.task_wall_seconds), sum(self.task_seconds)
+        return {"scheduler": address, "workers": self.workers, "worker_threads": self.worker_threads,
+                "tasks": self.tasks, "task_passes": self.task_passes, "task_seconds": self.task_seconds,
+                "task_wall_seconds": self.task_wall_seconds, "scene_transfer_s": self.scene_transfer_s,
+                "result_transfer_s": self.result_transfer_s, "result_bytes": self.result_bytes,
+                "task_overhead_s": max(0.0, wall - work)}
+
+
+def _next_size(start: int, want: int, limit: int) -> int:
+    """The passes of the next task: a power of two <= want and <= limit, aligned to ``start`` when it can be."""
+    size = 1
+    while size * 2 <= min(want, limit, TRUNK_PASSES):
+        size *= 2
+    while start % size:            # aligned parts carry one film block each
+        size //= 2
+    return max(1, min(size, limit))
+
+
+def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
+    """The driver's loop with passes as cluster tasks: (state, PassLog, ClusterLog)."""
+    distributed = _distributed()
+    client = cluster.client
+    clog = ClusterLog(workers=len(cluster.worker_threads), worker_threads=cluster.threads)
+    slots = max(1, clog.worker_threads)
+    state, log = load_checkpoint(method_cls, scene, settings, plan)
+    if state is None:
+        state = method_cls.new_state(scene, settings)
+    t0 = time.perf_counter()
+    scene_f = client.scatter(scene, broadcast=True, hash=False)
+    clog.scene_transfer_s = time.perf_counter() - t0
+    target = plan.passes
+    bar = progress(total=target, desc=f"{method_cls.name} passes on {clog.workers} workers", unit="pass")
+    if log.resumed_from:
+        bar.update(log.resumed_from)
+    flying: dict = {}          # future -> (start, stop, time sent)
+    done: dict = {}            # start -> (part, per-pass log)
+    next_pass = state.end
+    per_pass = []              # measured work seconds per pass of finished tasks
+    t_start = time.perf_counter()
+    last_save, saved = t_start, state.passes
+    seq = distributed.as_completed(loop=client.loop)
+    try:
+        while True:
+            while len(flying) < slots and (target is None or next_pass < target):
+                limit = (target - next_pass) if target is not None else TRUNK_PASSES
+                size = 1                 # until the first task is back, one pass per task
+                if per_pass:
+                    pass_s = max(per_pass[-3:])
+                    want = max(1, int(TASK_SECONDS / max(pass_s, 1e-6)))
+                    if target is not None:   # share what is left among the slots
+                        want = min(want, -(-(target - next_pass) // slots))
+                    size = _next_size(next_pass, want, limit)
+                    if plan.time_s is not None:
+                        left = plan.time_s - (time.perf_counter() - t_start)
+                        while size > 1 and size * pass_s > left:
+                            size //= 2
+                        if size * pass_s > left:
+                            break
+                elif plan.time_s is not None and time.perf_counter() - t_start > plan.time_s:
+                    break
+                fut = client.submit(render_part_task, scene_f, method_cls.name, settings, next_pass,
+                                    next_pass + size, pure=False)
+                flying[fut] = (next_pass, next_pass + size, time.perf_counter())
+                seq.add(fut)
+                next_pass += size
+            if not flying:
+                break
+            fut = next(seq)
+            start, stop, sent = flying.pop(fut)
+            t1 = time.perf_counter()
+            part, part_log, work_s = fut.result()
+            clog.result_transfer_s += time.perf_counter() - t1
+            clog.result_bytes += part.nbytes
+            clog.tasks += 1
+            clog.task_passes.append(stop - start)
+            clog.task_seconds.append(work_s)
+            clog.task_wall_seconds.append(time.perf_counter() - sent)
+            compile_s = sum(stats.get("timings", {}).get("compile_s", 0.0) for _, stats in part_log)
+            per_pass.append(max(0.0, work_s - compile_s) / (stop - start))
+            done[start] = (part, part_log)
+            bar.update(stop - start)
+            if plan.time_s is not None:
+                bar.set_postfix_str(f"{time.perf_counter() - t_start:.1f} of {plan.time_s:g} s")
+            while state.end in done:
+                part, part_log = done.pop(state.end)
+                state = state.merge(part)
+                for seconds, stats in part_log:
+                    log.add(seconds, stats)
+            if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
+                ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+                saved, last_save = state.passes, time.perf_counter()
+    except BaseException as exc:
+        client.cancel(list(flying))
+        if not isinstance(exc, KeyboardInterrupt) or state.passes == 0:
+            raise
+        log.interrupted = True
+    finally:
+        bar.close()
+    if plan.checkpoint is not None and state.passes > saved:
+        ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+    return state, log, clog
