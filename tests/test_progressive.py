@@ -134,15 +134,15 @@ def test_pt_passes_are_new_samples_and_average(diacaustic):
 
 # --------------------------------------------------------------------------- 3. analytic answers
 
-@pytest.mark.parametrize("method", PROGRESSIVE)
-def test_point_light_over_plane(method):
+@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("sppm", {"schedule": "global"})])
+def test_point_light_over_plane(method, params):
     """Direct light only: photons never scatter, so nothing is stored and every pass's
     visible point adds ρ/π I cos θ / d²; the only randomness is the sub-pixel jitter."""
     intensity = np.array([10.0, 20.0, 30.0])
     passes = 64
     scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
         <rgb name="intensity" value="{', '.join(map(str, intensity))}"/></emitter>""")
-    r = caustica.render(scene, method, seed=3, passes=passes)
+    r = caustica.render(scene, method, seed=3, passes=passes, **params)
     assert r.stats["events_stored"] == 0
     x, y = pixel_footprints(AW, AH, FOV_X, CAM_H)
     f = LIGHT_H / (x * x + y * y + LIGHT_H ** 2) ** 1.5
@@ -153,7 +153,8 @@ def test_point_light_over_plane(method):
     assert np.all(np.abs(img - expected) <= tol), np.max(np.abs(img - expected) / tol)
 
 
-FURNACE_CASES = [("sppm", {}), ("pspm", {}), ("pspm", {"estimator": "photons"}), ("pspm", {"specular": "split"})]
+FURNACE_CASES = [("sppm", {}), ("pspm", {}), ("pspm", {"estimator": "photons"}), ("pspm", {"specular": "split"}),
+                 ("sppm", {"schedule": "global"}), ("pspm", {"schedule": "global"})]
 
 
 @pytest.mark.parametrize("termination", ["cap", "roulette"])
@@ -210,7 +211,8 @@ def test_many_passes_match_the_reference(diacaustic, refs_dir, method, params):
 
 # --------------------------------------------------------------------------- 5. determinism, checkpoints
 
-@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"})])
+@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"}),
+                                            ("sppm", {"schedule": "global"})])
 def test_same_bits_for_any_thread_count(diacaustic, method, params):
     kw = dict(res=16, seed=5, passes=3, **params)
     one = caustica.render(diacaustic, method, threads=1, **kw).image
@@ -220,9 +222,9 @@ def test_same_bits_for_any_thread_count(diacaustic, method, params):
     assert one.tobytes() != other.tobytes()
 
 
-@pytest.mark.parametrize("method", ("pt", "sppm", "pspm"))
-def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, tmp_path):
-    kw = dict(res=12, seed=2)
+@pytest.mark.parametrize("method, params", [("pt", {}), ("sppm", {}), ("pspm", {}), ("sppm", {"schedule": "global"})])
+def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, params, tmp_path):
+    kw = dict(res=12, seed=2, **params)
     whole = caustica.render(diacaustic, method, passes=5, **kw)
     ck = tmp_path / "state.npz"
     part = caustica.render(diacaustic, method, passes=2, checkpoint=ck, threads=1, **kw)
@@ -232,7 +234,7 @@ def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, tmp_path):
     assert rest.image.tobytes() == whole.image.tobytes()
     # a checkpoint is never continued with other settings
     with pytest.raises(ParameterError, match="seed"):
-        caustica.render(diacaustic, method, passes=6, checkpoint=ck, res=12, seed=3)
+        caustica.render(diacaustic, method, passes=6, checkpoint=ck, res=12, seed=3, **params)
 
 
 def test_checkpoint_of_another_build_or_beyond_passes_is_refused(diacaustic, tmp_path, monkeypatch):
@@ -247,6 +249,27 @@ def test_checkpoint_of_another_build_or_beyond_passes_is_refused(diacaustic, tmp
     ck.write_bytes(b"not a checkpoint")
     with pytest.raises(ParameterError, match="not a caustica checkpoint"):
         caustica.render(diacaustic, "sppm", res=8, seed=2, passes=4, checkpoint=ck)
+
+
+def test_global_schedule_radius_is_knaus_zwicker_s_product():
+    from caustica.methods.progressive import global_radius
+    r2, alpha = 4.0, 0.7
+    for p in range(1, 200):
+        r2 *= (p + alpha) / (p + 1)
+        assert global_radius(2.0, alpha, p) == pytest.approx(math.sqrt(r2), rel=1e-12)
+    assert global_radius(2.0, alpha, 0) == 2.0
+    # R_p² falls as p^(α - 1): the ratio over a factor 1000 in passes
+    ratio = (global_radius(1.0, alpha, 10**9) / global_radius(1.0, alpha, 10**6)) ** 2
+    assert ratio == pytest.approx(1000.0 ** (alpha - 1), rel=1e-3)
+
+
+def test_global_schedule_sidecar_and_aovs(diacaustic):
+    r = caustica.render(diacaustic, "sppm", res=8, seed=1, passes=3, schedule="global", aov=("radius", "count"))
+    from caustica.methods.progressive import global_radius
+    r3 = global_radius(r.stats["initial_radius"], 2 / 3, 3)
+    assert r.stats["schedule"] == "global" and r.stats["radius_final"]["median"] == pytest.approx(r3)
+    assert np.all(r.aovs["radius"] == np.float32(r3))
+    assert r.aovs["count"].sum() == r.stats["events_gathered"]
 
 
 def test_pspm_stream_radius_shrinks_with_the_gather_radii(diacaustic):

@@ -12,7 +12,7 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   render of the same passes whatever the number of workers, the task sizes or the
   order tasks finish in (:mod:`caustica.film`).
 
-Tasks start at one pass and grow (in powers of two, up to a film trunk block) until
+Tasks start at one pass and grow (in powers of two, up to :data:`MAX_TASK_PASSES`) until
 one takes about :data:`TASK_SECONDS`, so a task's overhead (scheduling, moving a part
 of the film) is a small share of its work; with a time budget a task is only sent if
 its predicted end is within the budget.  A worker that dies loses nothing: Dask runs
@@ -36,6 +36,8 @@ from .limits import MAX_THREADS
 SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
 #: Seconds to wait for a scheduler before giving up.
 CONNECT_TIMEOUT_S = 5.0
+#: The most passes one task renders (16 film trunk blocks: a part of the film per 64 passes).
+MAX_TASK_PASSES = 16 * TRUNK_PASSES
 #: A task is made about this long (its passes' measured work), once the first tasks are back.
 TASK_SECONDS = 1.0
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
@@ -58,6 +60,8 @@ class Cluster:
     client: object
     local: object = None
     address: str = ""
+    #: Whether closing this closes the client (not when the caller handed in its own Client).
+    owned: bool = True
 
     @property
     def worker_threads(self) -> dict:
@@ -69,7 +73,8 @@ class Cluster:
         return sum(self.worker_threads.values())
 
     def close(self) -> None:
-        self.client.close()
+        if self.owned:
+            self.client.close()
         if self.local is not None:
             self.local.close()
 
@@ -103,7 +108,7 @@ def connect(address=None, workers=None) -> Cluster:
     check_args(address, workers)
     distributed = _distributed()
     if address is not None and not isinstance(address, str):
-        cluster = Cluster(address, None, str(address.scheduler.address))
+        cluster = Cluster(address, None, str(address.scheduler.address), owned=False)
     elif address is not None:
         _check_reachable(address)
         try:
@@ -115,7 +120,7 @@ def connect(address=None, workers=None) -> Cluster:
         cluster = Cluster(client, None, address)
     else:
         local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=logging.ERROR)
+                                         dashboard_address=":0", silence_logs=logging.ERROR)  # any free port
         cluster = Cluster(distributed.Client(local, set_as_default=False), local, local.scheduler_address)
     try:
         if workers is None:
@@ -214,11 +219,15 @@ class ClusterLog:
 
 
 def _next_size(start: int, want: int, limit: int) -> int:
-    """The passes of the next task: a power of two <= want and <= limit, aligned to ``start`` when it can be."""
+    """The passes of the next task: a power of two <= want, limit and MAX_TASK_PASSES, aligned when it can be.
+
+    A part aligned to its size (or to a trunk block, when larger) carries one film block
+    per trunk block of passes, the least data a part can carry.
+    """
     size = 1
-    while size * 2 <= min(want, limit, TRUNK_PASSES):
+    while size * 2 <= min(want, limit, MAX_TASK_PASSES):
         size *= 2
-    while start % size:            # aligned parts carry one film block each
+    while start % min(size, TRUNK_PASSES):
         size //= 2
     return max(1, min(size, limit))
 
@@ -249,7 +258,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     try:
         while True:
             while len(flying) < slots and (target is None or next_pass < target):
-                limit = (target - next_pass) if target is not None else TRUNK_PASSES
+                limit = (target - next_pass) if target is not None else MAX_TASK_PASSES
                 size = 1                 # until the first task is back, one pass per task
                 if per_pass:
                     pass_s = max(per_pass[-3:])

@@ -1,0 +1,139 @@
+"""Renders on a Dask cluster (caustica.cluster): the bits of a local render, whatever happens to the workers.
+
+A local cluster of two worker processes stands in for a real one: the same tasks, the
+same serialisation and the same scheduler.  Checked: images bit-identical to local
+rendering for pt and the global schedule of sppm and pspm; a worker that dies during a
+render (a test hook, not a race) changes nothing; Ctrl-C cancels the cluster's tasks and
+keeps the finished passes; a checkpoint written on the cluster resumes locally; bad
+addresses and renders that cannot be taken apart fail in one line before any work.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+
+import caustica  # noqa: E402
+from caustica import cluster  # noqa: E402
+from caustica.driver import QuietBar  # noqa: E402
+from caustica.errors import ParameterError  # noqa: E402
+from caustica.scene import builtin_scene_path  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def diacaustic():
+    return caustica.load_scene(builtin_scene_path("cornell-diacaustic"))
+
+
+@pytest.fixture(scope="module")
+def two_workers():
+    with cluster.connect(workers=2) as cl:
+        yield cl
+
+
+CASES = [("pt", {}), ("sppm", {"schedule": "global"}), ("pspm", {"schedule": "global"}),
+         ("pspm", {"schedule": "global", "specular": "split"})]
+
+
+@pytest.mark.parametrize("method, params", CASES)
+def test_cluster_render_has_the_bits_of_a_local_render(diacaustic, two_workers, method, params):
+    kw = dict(res=16, seed=4, passes=11, **params)
+    local = caustica.render(diacaustic, method, **kw)
+    far = caustica.render(diacaustic, method, dask=two_workers.client, **kw)
+    assert far.image.tobytes() == local.image.tobytes()
+    c = far.stats["cluster"]
+    assert c["workers"] == 2 and sum(c["task_passes"]) == 11 and c["tasks"] == len(c["task_seconds"])
+    # the per-pass counters are those of the same passes rendered here
+    for key in ("events_gathered", "camera_rays", "extension_rays"):
+        if key in local.stats:
+            assert far.stats[key] == local.stats[key]
+    assert far.stats["passes"] == 11 and len(far.stats["pass_seconds"]) == 11
+
+
+def test_time_budget_on_the_cluster(diacaustic, two_workers):
+    caustica.render(diacaustic, "pt", res=16, passes=2, dask=two_workers.client)   # workers compiled
+    r = caustica.render(diacaustic, "pt", res=16, time_s=1.5, dask=two_workers.client)
+    assert r.stats["passes"] >= 2 and not r.stats["interrupted"]
+    local = caustica.render(diacaustic, "pt", res=16, passes=r.stats["passes"])
+    assert r.image.tobytes() == local.image.tobytes()
+
+
+def test_cluster_checkpoint_resumes_locally(diacaustic, two_workers, tmp_path):
+    kw = dict(res=12, seed=2, schedule="global")
+    whole = caustica.render(diacaustic, "sppm", passes=9, **kw)
+    ck = tmp_path / "state.npz"
+    caustica.render(diacaustic, "sppm", passes=5, checkpoint=ck, dask=two_workers.client, **kw)
+    rest = caustica.render(diacaustic, "sppm", passes=9, checkpoint=ck, **kw)
+    assert rest.stats["resumed_from_pass"] == 5
+    assert rest.image.tobytes() == whole.image.tobytes()
+
+
+def test_a_worker_killed_mid_render_changes_nothing(diacaustic, tmp_path, monkeypatch):
+    """The hook makes the worker rendering pass 3 exit the first time; Dask runs that task again."""
+    flag = tmp_path / "killed"
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"3:{flag}")   # the worker processes inherit it
+    kw = dict(res=16, seed=8, passes=8)
+    with cluster.connect(workers=2) as cl:
+        far = caustica.render(diacaustic, "pt", dask=cl.client, **kw)
+    assert flag.exists()                                       # a worker did die
+    monkeypatch.delenv(cluster.KILL_HOOK_ENV)
+    assert far.image.tobytes() == caustica.render(diacaustic, "pt", **kw).image.tobytes()
+
+
+def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_passes(diacaustic, two_workers):
+    updates = []
+
+    class InterruptingBar(QuietBar):
+        def update(self, n=1):
+            updates.append(n)
+            if len(updates) == 3:
+                raise KeyboardInterrupt
+
+    scene, cls, settings = caustica.api.resolve_settings(diacaustic, "pt", res=16, seed=1, multi_pass=True)
+    plan = caustica.driver.check_plan(cls, passes=200)
+    state, log, _ = cluster.run(two_workers, cls, scene, settings, plan, InterruptingBar)
+    assert log.interrupted and 0 < state.passes < 200
+    local = caustica.render(diacaustic, "pt", res=16, seed=1, passes=state.passes)
+    assert cls.image(scene, settings, state).tobytes() == local.image.tobytes()
+    deadline = time.monotonic() + 10
+    while any(two_workers.client.processing().values()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(two_workers.client.processing().values())   # nothing left running for this render
+
+
+@pytest.mark.parametrize("method, kw, words", [
+    ("sppm", dict(passes=2), "--schedule pixel"),
+    ("pm", dict(), "one shot"),
+    ("pt", dict(), "--passes N or --time"),
+])
+def test_renders_a_cluster_cannot_take_apart_are_refused(diacaustic, method, kw, words):
+    with pytest.raises(ParameterError, match=words):
+        caustica.render(diacaustic, method, res=8, workers=2, **kw)
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--dask", "tcp://127.0.0.1:1"), "no Dask scheduler answers"),
+    (("--dask", "bad://x"), "not a scheduler address"),
+    (("--dask", "tcp://127.0.0.1:1", "--workers", "2"), "give one"),
+    (("--workers", "0"), "--workers"),
+])
+def test_cli_bad_cluster_input_is_one_line_exit_2_nothing_written(cli, tmp_path, args, words):
+    t0 = time.monotonic()
+    code, _, err = cli("render", "cornell-diacaustic", "--res", "8", "--passes", "2", "-o", tmp_path / "x.exr", *args)
+    assert code == 2 and time.monotonic() - t0 < 3.0          # fails fast, before any work
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("caustica: error:") and words in lines[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_render_on_local_workers_writes_the_cluster_sidecar(cli, tmp_path):
+    import json
+    code, _, err = cli("render", "cornell-diacaustic", "--res", "8", "--passes", "3", "--workers", "2",
+                       "-o", tmp_path / "x.exr", "--quiet")
+    assert code == 0, err
+    side = json.loads((tmp_path / "x.json").read_text())
+    assert side["passes"] == 3 and side["cluster"]["workers"] == 2
+    assert np.isfinite(side["cluster"]["scene_transfer_s"])
