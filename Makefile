@@ -25,6 +25,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_render.py
 	$(PY) benchmarks/bench_progressive.py
+	$(PY) benchmarks/bench_cluster.py
 
 ## Where the first render's compile time goes: a table per kernel, and the cold-start total.
 bench-compile: $(STAMP)

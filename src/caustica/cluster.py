@@ -13,8 +13,8 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   order tasks finish in (:mod:`caustica.film`).
 
 Tasks start at one pass and grow (in powers of two, up to :data:`MAX_TASK_PASSES`) until
-one takes about :data:`TASK_SECONDS`, so a task's overhead (scheduling, moving a part
-of the film) is a small share of its work; with a time budget a task is only sent if
+one takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
+overhead (scheduling, moving a part of the film) is a small share of its work; with a time budget a task is only sent if
 its predicted end is within the budget.  A worker that dies loses nothing: Dask runs
 its tasks again elsewhere, and as every pass's random numbers are keyed by its index
 the result is the same.  Ctrl-C cancels this render's tasks on the cluster.
@@ -38,8 +38,11 @@ SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
 CONNECT_TIMEOUT_S = 5.0
 #: The most passes one task renders (16 film trunk blocks: a part of the film per 64 passes).
 MAX_TASK_PASSES = 16 * TRUNK_PASSES
-#: A task is made about this long (its passes' measured work), once the first tasks are back.
+#: A task is made about this long (its passes' measured work), once the first tasks are back ...
 TASK_SECONDS = 1.0
+#: ... times (worker threads / this) when more: the client takes in one part per task, so with many
+#: workers longer tasks keep its network link and its merging from becoming the bottleneck.
+THREADS_PER_TASK_SECOND = 16
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
 #: only (the one that creates FILE), as a worker that dies mid-render.
 KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
@@ -238,6 +241,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     client = cluster.client
     clog = ClusterLog(workers=len(cluster.worker_threads), worker_threads=cluster.threads)
     slots = max(1, clog.worker_threads)
+    task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_PER_TASK_SECOND)
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
@@ -262,7 +266,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 size = 1                 # until the first task is back, one pass per task
                 if per_pass:
                     pass_s = max(per_pass[-3:])
-                    want = max(1, int(TASK_SECONDS / max(pass_s, 1e-6)))
+                    want = max(1, int(task_seconds / max(pass_s, 1e-6)))
                     if target is not None:   # share what is left among the slots
                         want = min(want, -(-(target - next_pass) // slots))
                     size = _next_size(next_pass, want, limit)
