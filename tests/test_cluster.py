@@ -119,6 +119,7 @@ def test_renders_a_cluster_cannot_take_apart_are_refused(diacaustic, method, kw,
     (("--dask", "bad://x"), "not a scheduler address"),
     (("--dask", "tcp://127.0.0.1:1", "--workers", "2"), "give one"),
     (("--workers", "0"), "--workers"),
+    (("--workers", "2", "--threads", "2"), "--threads"),
 ])
 def test_cli_bad_cluster_input_is_one_line_exit_2_nothing_written(cli, tmp_path, args, words):
     t0 = time.monotonic()
@@ -137,3 +138,17 @@ def test_cli_render_on_local_workers_writes_the_cluster_sidecar(cli, tmp_path):
     side = json.loads((tmp_path / "x.json").read_text())
     assert side["passes"] == 3 and side["cluster"]["workers"] == 2
     assert np.isfinite(side["cluster"]["scene_transfer_s"])
+
+
+def test_a_task_that_kills_every_worker_is_one_error_and_the_finished_passes_are_saved(diacaustic, tmp_path,
+                                                                                      monkeypatch):
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, "6:")          # every worker that renders pass 6 dies
+    ck = tmp_path / "state.npz"
+    with cluster.connect(workers=2) as cl:
+        with pytest.raises(caustica.errors.ClusterError, match="passes were finished") as info:
+            caustica.render(diacaustic, "pt", res=8, seed=1, passes=12, checkpoint=ck, dask=cl.client)
+    monkeypatch.delenv(cluster.KILL_HOOK_ENV)
+    assert "saved to" in str(info.value) and "\n" not in str(info.value)
+    resumed = caustica.render(diacaustic, "pt", res=8, seed=1, passes=12, checkpoint=ck)
+    assert 0 < resumed.stats["resumed_from_pass"] <= 6
+    assert resumed.image.tobytes() == caustica.render(diacaustic, "pt", res=8, seed=1, passes=12).image.tobytes()

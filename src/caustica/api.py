@@ -176,6 +176,9 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     else:
         from . import cluster
         cluster.check_args(dask, workers)
+        if threads is not None:
+            raise ParameterError("--threads sizes the local thread pool; on a cluster each task runs on one "
+                                 "worker thread (start workers with 'dask worker --nthreads T' to run T at once)")
         check_distributable(cls, settings, plan)
         with cluster.connect(dask, workers) as cl:
             state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))

@@ -225,8 +225,10 @@ def _cmd_render(args) -> int:
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     defines = _parse_defines(args.defines)
     exposure = check_exposure(args.exposure)
-    from .cluster import check_args
+    from .cluster import check_args, quiet_cluster_logs
     check_args(args.dask, args.workers)
+    if args.dask is not None or args.workers is not None:
+        quiet_cluster_logs()
     given = args.output
     args.output = _output_path(given, f"{_default_stem(args.scene)}_{args.method}.exr", args.quiet)
     outputs = list(output_paths(args.output))

@@ -4,7 +4,7 @@ Dask's ``distributed`` is the engine (imported only here, and only when a cluste
 asked for): ``--dask ADDRESS`` connects to a running scheduler, ``--workers N`` starts
 a local cluster of N single-threaded worker processes.  What goes over the wire:
 
-* the scene, once per worker (``Client.scatter(..., broadcast=True)``);
+* the scene, once per worker (:func:`send_scene`);
 * a task per range of consecutive passes [a, b), run on one worker thread
   (:meth:`~caustica.methods.independent.IndependentPasses.render_part`), which sends
   back a part of the film (:class:`~caustica.film.PassSums`) and its per-pass stats;
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
 from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
-from .errors import ParameterError
+from .errors import ClusterError, ParameterError
 from .film import TRUNK_PASSES
 from .limits import MAX_THREADS
 
@@ -44,7 +44,7 @@ TASK_SECONDS = 1.0
 #: workers longer tasks keep its network link and its merging from becoming the bottleneck.
 THREADS_PER_TASK_SECOND = 16
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
-#: only (the one that creates FILE), as a worker that dies mid-render.
+#: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time.
 KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
 
 
@@ -88,6 +88,16 @@ class Cluster:
         self.close()
 
 
+def quiet_cluster_logs() -> None:
+    """Keep Dask's own log lines (worker deaths, closing comms) off a command line's stderr.
+
+    What matters reaches the user as caustica's one-line error; the command line calls
+    this, the Python API leaves the caller's logging alone.
+    """
+    for name in ("distributed", "tornado.application", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
 def check_args(address=None, workers=None) -> None:
     """One-line errors for --dask / --workers, before anything starts."""
     if address is not None and workers is not None:
@@ -123,7 +133,7 @@ def connect(address=None, workers=None) -> Cluster:
         cluster = Cluster(client, None, address)
     else:
         local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=":0", silence_logs=logging.ERROR)  # any free port
+                                         dashboard_address=":0", silence_logs=logging.CRITICAL)  # any free port
         cluster = Cluster(distributed.Client(local, set_as_default=False), local, local.scheduler_address)
     try:
         if workers is None:
@@ -181,12 +191,30 @@ def _kill_hook(start: int, stop: int) -> None:
         return
     at, _, flag = hook.partition(":")
     if start <= int(at) < stop:
+        if not flag:
+            os._exit(70)   # no FILE: every time, as a task that always kills its worker
         try:
             fd = os.open(flag, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
         except FileExistsError:
             return  # killed once already: this is the task run again
         os.close(fd)
         os._exit(70)
+
+
+def _scene_task(scene):
+    return scene
+
+
+def send_scene(client, scene):
+    """A future of ``scene`` held by every worker; waits until it is.
+
+    Sent as a task's argument, not scattered: the scheduler keeps the task, so when
+    every worker holding the scene dies it is made again rather than lost (scattered
+    data cannot be recovered, and a lost scene would cancel the whole render).
+    """
+    fut = client.submit(_scene_task, scene, pure=False)
+    client.replicate([fut])    # waits for the task, then copies its result to every worker
+    return fut
 
 
 def render_part_task(scene, method_name: str, settings: dict, start: int, stop: int):
@@ -221,6 +249,30 @@ class ClusterLog:
                 "task_overhead_s": max(0.0, wall - work)}
 
 
+def _cluster_failures(distributed) -> tuple:
+    """The exceptions that mean the cluster, not caustica, failed: a task that killed its workers, a lost link."""
+    from asyncio import CancelledError
+    from concurrent.futures import CancelledError as FutureCancelled
+    from distributed.comm.core import CommClosedError
+    return (distributed.KilledWorker, CommClosedError, CancelledError, FutureCancelled, TimeoutError, OSError)
+
+
+def _failure_message(cluster, exc, method_cls, scene, settings, plan, state) -> str:
+    from concurrent.futures import CancelledError as FutureCancelled
+    if isinstance(exc, _distributed().KilledWorker):
+        what = "a task killed every worker that ran it (Dask's KilledWorker)"
+    elif isinstance(exc, FutureCancelled):
+        what = "the cluster dropped this render's tasks (workers died, and the scene sent to them with them)"
+    else:
+        what = f"lost the cluster ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else 'no detail'})"
+    saved = ""
+    if plan.checkpoint is not None and state.passes > 0:
+        ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+        saved = f"; saved to {plan.checkpoint}, rerun to resume"
+    flag = f"--dask {cluster.address}" if cluster.local is None else f"--workers (a local cluster at {cluster.address})"
+    return f"{flag}: {what}; {state.passes} passes were finished{saved}"
+
+
 def _next_size(start: int, want: int, limit: int) -> int:
     """The passes of the next task: a power of two <= want, limit and MAX_TASK_PASSES, aligned when it can be.
 
@@ -246,7 +298,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     if state is None:
         state = method_cls.new_state(scene, settings)
     t0 = time.perf_counter()
-    scene_f = client.scatter(scene, broadcast=True, hash=False)
+    scene_f = send_scene(client, scene)
     clog.scene_transfer_s = time.perf_counter() - t0
     target = plan.passes
     bar = progress(total=target, desc=f"{method_cls.name} passes on {clog.workers} workers", unit="pass")
@@ -310,10 +362,16 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
                 saved, last_save = state.passes, time.perf_counter()
     except BaseException as exc:
-        client.cancel(list(flying))
-        if not isinstance(exc, KeyboardInterrupt) or state.passes == 0:
+        try:
+            client.cancel(list(flying))
+        except Exception:   # a scheduler that is gone has nothing left to cancel
+            pass
+        if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
+            log.interrupted = True
+        elif isinstance(exc, _cluster_failures(distributed)):
+            raise ClusterError(_failure_message(cluster, exc, method_cls, scene, settings, plan, state)) from None
+        else:
             raise
-        log.interrupted = True
     finally:
         bar.close()
     if plan.checkpoint is not None and state.passes > saved:

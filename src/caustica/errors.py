@@ -17,6 +17,13 @@ class ParameterError(CausticaError):
     """A render parameter out of range, misspelt, or asking for more memory than the machine has."""
 
 
+class ClusterError(CausticaError):
+    """A Dask cluster that failed during a render (a task that kills every worker, a lost scheduler).
+
+    The message says how many passes were finished and where they were saved, if anywhere.
+    """
+
+
 #: How many characters of a user's value an error message repeats.
 QUOTE_LIMIT = 40
 
