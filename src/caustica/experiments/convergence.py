@@ -15,8 +15,11 @@ measure), the block-mean error and FLIP (:mod:`caustica.experiments.metrics`).
 Each configuration (and Mitsuba) renders once untimed before its first timed render,
 so start-up costs (compiling, caches) are not counted.  Every timed render runs alone,
 one at a time; Mitsuba uses every core (its default), caustica ``--threads`` (default:
-every core).  One seed per point, and the summary picks the best of caustica's
-configurations at each budget: the seed-to-seed spread is measured separately.
+every core).  On a Dask cluster (``--dask``, ``--workers``) every point, Mitsuba's too, is
+one task on one worker, alone on it and on all of its threads (:mod:`.dask_renders`), and
+each configuration warms up once on every worker that renders it.  One seed per point,
+and the summary picks the best of caustica's configurations at each budget: the
+seed-to-seed spread is measured separately.
 """
 from __future__ import annotations
 
@@ -143,7 +146,10 @@ class Convergence:
         return self.runner.renders.submit(scene, method, warm=warm, res=(res, res), seed=self.cfg.seed, **kw)
 
     def submit(self) -> None:
-        """Send every point's render on its way (once), Mitsuba's included; :meth:`run` collects them."""
+        """Send every point's render on its way (once), Mitsuba's included; :meth:`run` collects them.
+
+        Each timed render is one task on one worker, alone there (:mod:`.dask_renders`).
+        """
         if self.pending is not None:
             return
         self.pending = {}

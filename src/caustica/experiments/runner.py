@@ -139,6 +139,8 @@ class Config:
     seeds: int | None = None                         # seeds per measured configuration (errors: mean, s.d.)
     progress: bool = True
     log: object = None
+    dask: object = None                              # a scheduler's address (or a distributed.Client)
+    workers: int | None = None                       # or a local cluster of this many worker processes
 
     def __post_init__(self):
         self.out = Path(self.out)
@@ -158,6 +160,16 @@ class Config:
         # every method parameter given, against the photon methods' tables (the experiments render pm and spm)
         specs = {p.name: p for m in ("pm", "spm") for p in methods.get(m).params}
         resolve("pm/spm", tuple(specs.values()), self.params)
+        if self.on_cluster:
+            from ..cluster import check_args
+            check_args(self.dask, self.workers)
+            if self.threads is not None:
+                raise ParameterError("--threads: with --dask or --workers every render runs on all the threads of "
+                                     "its worker; leave --threads out")
+
+    @property
+    def on_cluster(self) -> bool:
+        return self.dask is not None or self.workers is not None
 
 
 def _fmt(v, digits=4):
@@ -993,8 +1005,21 @@ def measured_scenes(names) -> set[str]:
 
 @contextlib.contextmanager
 def _renders(config: Config, log):
-    """Where the renders run: here."""
-    yield LocalRenders(config.threads)
+    """Where the renders run: here, or on the cluster of ``--dask``/``--workers`` (connected for the run;
+    a ``distributed.Client`` of the caller's stays open)."""
+    if not config.on_cluster:
+        yield LocalRenders(config.threads)
+        return
+    from ..cluster import connect
+    from .dask_renders import DaskRenders
+    cluster = connect(config.dask, config.workers)
+    try:
+        log(f"rendering on the Dask cluster at {cluster.address}: {len(cluster.worker_threads)} workers, "
+            f"{cluster.threads} threads")
+        yield DaskRenders(cluster)
+    finally:
+        if config.dask is None or isinstance(config.dask, str):
+            cluster.close()
 
 
 def run(names, config: Config) -> dict:
@@ -1015,6 +1040,7 @@ def run(names, config: Config) -> dict:
                              f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
     runner = Runner(config)
     runner.preflight(names)   # nothing is created before every check has passed
+    # an unreachable scheduler fails here, in one line, before anything is created
     with _renders(config, runner.log) as renders:
         runner.renders = renders
         config.out.mkdir(parents=True, exist_ok=True)
