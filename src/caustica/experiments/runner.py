@@ -1014,7 +1014,8 @@ def _renders(config: Config, log):
     from .dask_renders import DaskRenders
     cluster = connect(config.dask, config.workers)
     try:
-        log(f"rendering on the Dask cluster at {cluster.address}: {len(cluster.worker_threads)} workers, "
+        n = len(cluster.worker_threads)
+        log(f"rendering on the Dask cluster at {cluster.address}: {n} worker{'' if n == 1 else 's'}, "
             f"{cluster.threads} threads")
         yield DaskRenders(cluster)
     finally:
