@@ -187,6 +187,9 @@ def _build_parser():
     ex.add_argument("--cache-dir", help="reference cache folder (default: $CAUSTICA_CACHE/references or "
                                         "~/.cache/caustica/references)")
     ex.add_argument("--quiet", "-q", action="store_true", help="no progress bars or messages")
+    _add_cluster_options(ex.add_argument_group(
+        "running the renders on a Dask cluster (each render one task on one worker, one render per worker at a "
+        "time, on all its threads; the same tables, the workers' own times; see docs/experiments.md)"))
     group = ex.add_argument_group("method parameters (override the paper's in every render that uses them; "
                                   "in Table 1 a swept one fixes that axis)")
     _add_method_flags(group, ("pm", "spm"), "paper:")
@@ -304,7 +307,7 @@ def _cmd_experiment(args) -> int:
     config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
                            threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,
-                           progress=not args.quiet, log=log)
+                           progress=not args.quiet, log=log, dask=args.dask, workers=args.workers)
     runner.run(names, config)
     if not args.quiet:
         print(f"{', '.join(names)} -> {out / 'report.md'}")

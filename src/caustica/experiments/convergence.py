@@ -15,8 +15,11 @@ measure), the block-mean error and FLIP (:mod:`caustica.experiments.metrics`).
 Each configuration (and Mitsuba) renders once untimed before its first timed render,
 so start-up costs (compiling, caches) are not counted.  Every timed render runs alone,
 one at a time; Mitsuba uses every core (its default), caustica ``--threads`` (default:
-every core).  One seed per point, and the summary picks the best of caustica's
-configurations at each budget: the seed-to-seed spread is measured separately.
+every core).  On a Dask cluster (``--dask``, ``--workers``) every point, Mitsuba's too, is
+one task on one worker, alone on it and on all of its threads (:mod:`.dask_renders`), and
+each configuration warms up once on every worker that renders it.  One seed per point,
+and the summary picks the best of caustica's configurations at each budget: the
+seed-to-seed spread is measured separately.
 """
 from __future__ import annotations
 
@@ -26,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..api import render
 from ..imageio import atomic_write
 from ..scene import builtin_scene_path
 from . import metrics as M
@@ -125,25 +127,44 @@ class Convergence:
         self.cfg = runner.cfg
         self.budgets = QUICK_BUDGETS_S if self.cfg.quick else BUDGETS_S
         self.pmc = QUICK_PMC_PHOTONS if self.cfg.quick else PMC_PHOTONS
-        self.warm = set()
+        self.pending = None      # what submit() sent on its way, by point
 
     def count(self) -> int:
-        mi = 1 if mitsuba_module() is not None else 0
+        mi = 1 if self.runner.renders.has_mitsuba() else 0
         return len(SCENES) * (len(self.budgets) * (len(PROGRESSIVE) + mi) + len(self.pmc))
 
     def _tick(self):
         if self.runner.bar is not None:
             self.runner.bar.update(1)
 
-    def _render(self, scene, method, res, **kw):
+    def _submit(self, scene, method, **kw):
+        """A point's render on its way; every configuration renders once untimed first (on each process
+        that renders it): its kernels compile (or load) there, not in the timed render."""
         untimed = {k: v for k, v in kw.items() if k != "time_s"}
-        key = (method, tuple(sorted(untimed.items())))
-        if key not in self.warm:   # every configuration once untimed: its kernels compile (or load) here
-            render(scene, method, res=(16, 16), seed=self.cfg.seed, threads=self.cfg.threads, **untimed)
-            self.warm.add(key)
-        t0 = time.perf_counter()
-        result = render(scene, method, res=(res, res), seed=self.cfg.seed, threads=self.cfg.threads, **kw)
-        return result, time.perf_counter() - t0
+        warm = ((method, tuple(sorted(untimed.items()))), self.cfg.seed)
+        res = self.cfg.res
+        return self.runner.renders.submit(scene, method, warm=warm, res=(res, res), seed=self.cfg.seed, **kw)
+
+    def submit(self) -> None:
+        """Send every point's render on its way (once), Mitsuba's included; :meth:`run` collects them.
+
+        Each timed render is one task on one worker, alone there (:mod:`.dask_renders`).
+        """
+        if self.pending is not None:
+            return
+        self.pending = {}
+        mitsuba = self.runner.renders.has_mitsuba()
+        for name in SCENES:
+            scene = self.runner.scene(name)
+            for label, method, params in PROGRESSIVE:
+                for budget in self.budgets:
+                    self.pending[name, label, budget] = self._submit(scene, method, time_s=budget, **params)
+            for n in self.pmc:
+                self.pending[name, "pm", n] = self._submit(scene, "pm", photons=n, caustic_photons=n)
+            if mitsuba:
+                for budget in self.budgets:
+                    self.pending[name, MITSUBA_LABEL, budget] = self.runner.renders.submit_mitsuba(
+                        name, self.cfg.res, budget, self.cfg.seed)
 
     def plan(self) -> list:
         """(label, scene, method, params) of every caustica render :meth:`run` makes (params with ``time_s``)."""
@@ -156,14 +177,14 @@ class Convergence:
         from .figures import convergence_plot
         res = self.cfg.res
         rows = []
-        mi = mitsuba_module()
+        self.submit()
+        pending = self.pending
         for name in SCENES:
-            scene = self.runner.scene(name)
             ref = self.runner.reference(name)
             mask = self.runner.mask(name)
             for label, method, params in PROGRESSIVE:
                 for budget in self.budgets:
-                    result, wall = self._render(scene, method, res, time_s=budget, **params)
+                    result, wall = pending.pop((name, label, budget)).result()
                     st = result.stats
                     rows.append({"scene": name, "label": label, "method": method, "budget_s": budget,
                                  "time_s": wall, "passes": st.get("passes"), **measure(result.image, ref.image,
@@ -171,14 +192,14 @@ class Convergence:
                     self._save(folder, name, label, budget, result)
                     self._tick()
             for n in self.pmc:
-                result, wall = self._render(scene, "pm", res, photons=n, caustic_photons=n)
+                result, wall = pending.pop((name, "pm", n)).result()
                 rows.append({"scene": name, "label": f"PM+C {n:,} + {n:,}", "method": "pm", "budget_s": None,
                              "time_s": wall, "passes": 1, **measure(result.image, ref.image, mask)})
                 self._save(folder, name, f"PMC_{n}", None, result)
                 self._tick()
-            if mi is not None:
-                for budget in self.budgets:
-                    image, wall, spp = mitsuba_equal_time(mi, name, res, budget, self.cfg.seed)
+            for budget in self.budgets:
+                if (name, MITSUBA_LABEL, budget) in pending:
+                    image, wall, spp = pending.pop((name, MITSUBA_LABEL, budget)).result()
                     rows.append({"scene": name, "label": MITSUBA_LABEL, "method": "mitsuba", "budget_s": budget,
                                  "time_s": wall, "passes": spp, **measure(image, ref.image, mask)})
                     self._tick()

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -97,14 +96,33 @@ def _spp_halves(spp: int) -> tuple[int, int]:
     return a, max(1, spp - a)
 
 
-def pt_reference(scene, width: int, height: int, *, spp: int, seed: int = 0, cache_dir=None,
-                 threads=None, progress: bool = False, mask=None, log=None) -> Reference:
-    """caustica's pt at ``spp`` samples (two halves), from the cache or rendered and cached."""
-    from ..api import render
+def cache_folder(scene_name: str, width: int, height: int, spp: int, seed: int, cache_dir=None) -> Path:
+    """The reference's folder in the cache (``cache_dir``, else :func:`default_cache_dir`)."""
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    folder = cache / cache_key(scene.name, width, height, spp, seed)
+    return cache / cache_key(scene_name, width, height, spp, seed)
+
+
+def is_cached(folder: Path) -> bool:
+    return all((folder / f"{k}.exr").is_file() for k in ("half_a", "half_b", "reference"))
+
+
+def submit_halves(renders, scene, width: int, height: int, *, spp: int, seed: int = 0, progress: bool = False):
+    """The two independent halves of :func:`pt_reference` as renders on their way (``renders``:
+    :mod:`caustica.experiments.renders`), so that a cluster renders them side by side."""
+    return tuple(renders.submit(scene, "pt", spp=s, res=(width, height), seed=sd, progress=progress)
+                 for s, sd in zip(_spp_halves(spp), (seed, seed + 1)))
+
+
+def pt_reference(scene, width: int, height: int, *, spp: int, seed: int = 0, cache_dir=None,
+                 threads=None, progress: bool = False, mask=None, log=None, halves=None) -> Reference:
+    """caustica's pt at ``spp`` samples (two halves), from the cache or rendered and cached.
+
+    ``halves``: the halves already submitted (:func:`submit_halves`), used when the cache has none.
+    """
+    from .renders import LocalRenders
+    folder = cache_folder(scene.name, width, height, spp, seed, cache_dir)
     files = {k: folder / f"{k}.exr" for k in ("half_a", "half_b", "reference")}
-    if all(p.is_file() for p in files.values()):
+    if is_cached(folder):
         a, b, full = (read_exr(files[k]) for k in ("half_a", "half_b", "reference"))
         if a.shape[:2] == (height, width):
             return Reference(full, f"caustica pt, {spp} spp, cached in {folder}",
@@ -113,10 +131,11 @@ def pt_reference(scene, width: int, height: int, *, spp: int, seed: int = 0, cac
         log(f"rendering the pt reference of {scene.name} at {width}x{height}, {spp} spp "
             f"(once; cached in {folder})")
     sa, sb = _spp_halves(spp)
-    t0 = time.perf_counter()
-    ra = render(scene, "pt", spp=sa, res=(width, height), seed=seed, threads=threads, progress=progress)
-    rb = render(scene, "pt", spp=sb, res=(width, height), seed=seed + 1, threads=threads, progress=progress)
-    render_s = time.perf_counter() - t0
+    if halves is None:
+        halves = submit_halves(LocalRenders(threads), scene, width, height, spp=spp, seed=seed, progress=progress)
+    (ra, _), (rb, _) = (h.result() for h in halves)
+    # the halves' own time, wherever they ran (the scene was loaded before, once)
+    render_s = sum(r.stats["timings"]["total_s"] - r.stats["timings"]["scene_load_s"] for r in (ra, rb))
     a, b = ra.image.astype(np.float64), rb.image.astype(np.float64)
     full = (sa * a + sb * b) / (sa + sb)
     try:

@@ -80,6 +80,12 @@ def write_report(out: Path) -> Path:
                      f"{', quick mode' if s.get('quick') else ''}"
                      f"{', overrides: ' + json.dumps(s.get('overrides')) if s.get('overrides') else ''}; "
                      f"wall time {res.get('wall_s', 0):.1f} s.\n")
+        if s.get("cluster"):
+            c = s["cluster"]
+            n = c.get("workers")
+            parts.append(f"Rendered on a Dask cluster ({c.get('scheduler')}, {n} worker{'' if n == 1 else 's'}): "
+                         f"every render one task on one worker, at most one render per worker at a time, on all of "
+                         f"its threads; the times are the workers' own.\n")
         if res.get("reference"):
             parts.append(f"{res['reference']}.\n")
         if res.get("summary"):

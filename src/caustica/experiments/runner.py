@@ -12,6 +12,7 @@ Every measured configuration is rendered with ``config.seeds`` seeds (seed, seed
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import driver, methods
-from ..api import check_common, load_scene, render, resolve_settings
+from ..api import check_common, load_scene, resolve_settings
 from ..errors import CausticaError, ParameterError, SceneError
 from ..imageio import atomic_write, read_exr, write_json, write_png
 from ..limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
@@ -32,8 +33,9 @@ from ..methods.params import Param, non_negative, positive, resolve
 from . import metrics as M
 from .convergence import RES as CONVERGENCE_RES, SCENES as CONVERGENCE_SCENES, Convergence, shared_refs_dir
 from .masks import caustic_mask
-from .reference import Reference, _spp_halves, cache_key, check_cache_writable, default_cache_dir, \
-    pt_reference, user_reference
+from .reference import Reference, _spp_halves, cache_folder, check_cache_writable, is_cached, pt_reference, \
+    submit_halves, user_reference
+from .renders import LocalRenders
 
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation", "convergence")
 #: What ``all`` runs: the paper's experiments and the ablation (``convergence`` takes half an hour: ask for it).
@@ -51,6 +53,8 @@ TABLE1_SCENE = "cornell-diacaustic"
 TABLE_SCENES = {"table2": "cornell-diacaustic", "table3": "cornell-catacaustic"}
 FIG_SCENES = {"fig5": "cornell-pyramid", "fig6": "cornell-bunny", "fig8": "cornell-diacaustic",
               "fig9": "cornell-catacaustic"}
+#: Figures that show images without measuring them (no reference).
+UNMEASURED = ("fig5", "fig6")
 BUDGET_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
 QUICK_BUDGET_FACTORS = (0.5, 1.0, 2.0)
 SWEEP_STREAMS = (1000, 5000, 10000)
@@ -135,6 +139,8 @@ class Config:
     seeds: int | None = None                         # seeds per measured configuration (errors: mean, s.d.)
     progress: bool = True
     log: object = None
+    dask: object = None                              # a scheduler's address (or a distributed.Client)
+    workers: int | None = None                       # or a local cluster of this many worker processes
 
     def __post_init__(self):
         self.out = Path(self.out)
@@ -154,6 +160,16 @@ class Config:
         # every method parameter given, against the photon methods' tables (the experiments render pm and spm)
         specs = {p.name: p for m in ("pm", "spm") for p in methods.get(m).params}
         resolve("pm/spm", tuple(specs.values()), self.params)
+        if self.on_cluster:
+            from ..cluster import check_args
+            check_args(self.dask, self.workers)
+            if self.threads is not None:
+                raise ParameterError("--threads: with --dask or --workers every render runs on all the threads of "
+                                     "its worker; leave --threads out")
+
+    @property
+    def on_cluster(self) -> bool:
+        return self.dask is not None or self.workers is not None
 
 
 def _fmt(v, digits=4):
@@ -258,15 +274,27 @@ def _work_time(stats: dict) -> float:
     return t["total_s"] - t.get("compile_s", 0.0) - t.get("scene_load_s", 0.0)
 
 
+@dataclass
+class _Submitted:
+    """A configuration's renders on their way: one per seed (measured), then the repeats (timed only)."""
+    seeds: list
+    repeats: list
+
+
 class Runner:
-    def __init__(self, config: Config):
+    """The experiments over one Config: every render is submitted to ``renders`` first (:meth:`submit`),
+    then each experiment collects what it needs in the order of its tables (:meth:`run_one`)."""
+
+    def __init__(self, config: Config, renders=None):
         self.cfg = config
+        self.renders = renders or LocalRenders(config.threads)
         self.scenes = {}
         self.masks = {}
         self.refs = {}
-        self.memo = {}       # (scene, method, params) -> (image, row)
+        self.halves = {}     # scene -> its pt reference's two halves on their way
+        self.memo = {}       # (scene, method, params) -> _Submitted, then (image, row) once collected
         self.bar = None
-        self.warm = set()
+        self._convergence = None
 
     # ------------------------------------------------------------------ helpers
     def log(self, msg):
@@ -315,8 +343,19 @@ class Runner:
                                                seed=self.cfg.seed + REFERENCE_SEED_OFFSET,
                                                cache_dir=self.cfg.cache_dir,
                                                threads=self.cfg.threads, progress=self.cfg.progress,
-                                               mask=self.mask(name), log=self.log)
+                                               mask=self.mask(name), log=self.log,
+                                               halves=self.halves.pop(name, None))
         return self.refs[name]
+
+    def submit_reference(self, name):
+        """Send the pt reference's halves on their way, unless a user's reference or the cache has it."""
+        if name in self.refs or name in self.halves or self._user_reference_path(name) is not None:
+            return
+        r, seed = self.cfg.res, self.cfg.seed + REFERENCE_SEED_OFFSET
+        scene = self.scene(name)
+        if not is_cached(cache_folder(scene.name, r, r, self.cfg.reference_spp, seed, self.cfg.cache_dir)):
+            self.halves[name] = submit_halves(self.renders, scene, r, r, spp=self.cfg.reference_spp, seed=seed,
+                                              progress=self.cfg.progress)
 
     def params_for(self, method, params, fixed=()):
         """The configuration's parameters with the user's overrides for the ones this method has."""
@@ -332,6 +371,25 @@ class Runner:
         """The seeds of every measured configuration: seed, seed + 1, ..., seed + seeds - 1."""
         return [self.cfg.seed + j for j in range(self.cfg.seeds)]
 
+    def submit_render(self, scene_name, method, params, measure=True):
+        """Send a configuration's renders on their way, once (:meth:`run_render` collects them).
+
+        One render per seed of :meth:`seed_list` (only the first when not ``measure``), then
+        the first seed again up to ``--repeat`` renders.  The first render of a method on a
+        process (here, or each worker) is preceded by an untimed one: it pays the start-up costs.
+        """
+        key = (scene_name, method, tuple(sorted(params.items())))
+        if key not in self.memo:
+            scene, r = self.scene(scene_name), self.cfg.res
+            seeds = self.seed_list() if measure else [self.cfg.seed]
+            warm = (method, self.cfg.seed)
+            self.memo[key] = _Submitted(
+                [self.renders.submit(scene, method, warm=warm, res=(r, r), seed=seed, progress=self.cfg.progress,
+                                     **params) for seed in seeds],
+                [self.renders.submit(scene, method, warm=warm, res=(r, r), seed=seeds[0], **params)
+                 for _ in range(len(seeds), self.cfg.repeat)])
+        return key
+
     def run_render(self, experiment, scene_name, label, method, params, folder: Path, measure=True,
                    stem=None) -> dict:
         """Render one configuration: (row, the first seed's image).
@@ -341,30 +399,23 @@ class Runner:
         (the seeds' renders, plus renders of the first seed again up to ``--repeat``).
         Only the first seed's render is saved under ``renders/``.
         """
-        key = (scene_name, method, tuple(sorted(params.items())))
-        if key in self.memo:
+        key = self.submit_render(scene_name, method, params, measure)
+        if not isinstance(self.memo[key], _Submitted):
             image, row = self.memo[key]
             row = dict(row, experiment=experiment, label=label)
         else:
-            scene = self.scene(scene_name)
-            r = self.cfg.res
-            if method not in self.warm:   # the first render of a method in a process pays start-up costs
-                render(scene, method, res=(16, 16), seed=self.cfg.seed, threads=self.cfg.threads, **params)
-                self.warm.add(method)
-            seeds = self.seed_list() if measure else [self.cfg.seed]
+            submitted = self.memo[key]
             times, per_seed, result = [], [], None
-            for seed in seeds:
-                res_s = render(scene, method, res=(r, r), seed=seed, threads=self.cfg.threads,
-                               progress=self.cfg.progress, **params)
+            for pending in submitted.seeds:
+                res_s, _ = pending.result()
                 times.append(_work_time(res_s.stats))
                 if measure:
                     ref = self.reference(scene_name)
                     per_seed.append(M.all_metrics(res_s.image, ref.image, self.mask(scene_name)))
                 if result is None:
                     result = res_s
-            while len(times) < self.cfg.repeat:   # the first seed again: the same image, only the time differs
-                times.append(_work_time(render(scene, method, res=(r, r), seed=seeds[0], threads=self.cfg.threads,
-                                               **params).stats))
+            for pending in submitted.repeats:   # the first seed again: the same image, only the time differs
+                times.append(_work_time(pending.result()[0].stats))
             stats = result.stats
             image = result.image
             row = {"experiment": experiment, "scene": scene_name, "label": label, "method": method,
@@ -372,7 +423,7 @@ class Runner:
                                                   "caustic_photons")},
                    "photons_emitted": stats.get("photons_emitted"), "photons_stored": stats.get("photons_stored"),
                    "map_mb": stats.get("map_mb"),
-                   "time_s": min(times), "seeds": len(seeds) if measure else None}
+                   "time_s": min(times), "seeds": len(submitted.seeds) if measure else None}
             fname = folder / "renders" / (_file_stem(stem or label) + ".exr")
             result.save(fname)
             row["image"] = str(fname.relative_to(self.cfg.out))
@@ -402,8 +453,34 @@ class Runner:
         if name == "merge-ablation":
             return len(ABLATION) * len(ABLATION_SCENES)
         if name == "convergence":
-            return Convergence(self).count()
+            return self.convergence().count()
         return {"fig5": 2, "fig6": 1, "fig8": 3, "fig9": 3}[name]
+
+    def convergence(self) -> Convergence:
+        """The convergence study over this runner (one, so that what it submits is what it collects)."""
+        if self._convergence is None:
+            self._convergence = Convergence(self)
+        return self._convergence
+
+    def submit(self, names):
+        """Send every render of the experiments ``names`` on its way: the references' halves first, then
+        each experiment's renders in the order its tables collect them.
+
+        Locally nothing runs yet: each render runs when collected, as in a plain loop.  On a
+        cluster the workers start at once, and the results wait there until collected.
+        """
+        for scene_name in sorted(measured_scenes(names)):
+            self.submit_reference(scene_name)
+        for name in names:
+            if name == "convergence":
+                self.convergence().submit()
+                continue
+            for _label, scene_name, method, params in self.plan(name):
+                try:
+                    self.scene(scene_name)
+                except SceneError:   # the experiment reports it as skipped
+                    continue
+                self.submit_render(scene_name, method, params, measure=name not in UNMEASURED)
 
     def _table1_grid(self):
         p = self.cfg.params
@@ -465,7 +542,7 @@ class Runner:
             return [(label, scene, method, self._ablation_params(method, base))
                     for scene in ABLATION_SCENES for label, method, base in ABLATION]
         if name == "convergence":
-            return Convergence(self).plan()
+            return self.convergence().plan()
         return [(lab, FIG_SCENES[name], m, p) for lab, m, p in self._figure_items(name)]
 
     def preflight(self, names):
@@ -503,9 +580,8 @@ class Runner:
             seed = cfg.seed + REFERENCE_SEED_OFFSET
             for half_spp, half_seed in zip(_spp_halves(cfg.reference_spp), (seed, seed + 1)):
                 resolve_settings(scene, "pt", spp=half_spp, res=(r, r), seed=half_seed, threads=cfg.threads)
-            cache = Path(cfg.cache_dir) if cfg.cache_dir else default_cache_dir()
-            folder = cache / cache_key(scene.name, r, r, cfg.reference_spp, seed)
-            if not all((folder / f"{k}.exr").is_file() for k in ("half_a", "half_b", "reference")):
+            folder = cache_folder(scene.name, r, r, cfg.reference_spp, seed, cfg.cache_dir)
+            if not is_cached(folder):
                 check_cache_writable(folder)
 
     def table1(self, folder):
@@ -646,7 +722,7 @@ class Runner:
         elif name == "merge-ablation":
             res = self.merge_ablation(folder)
         elif name == "convergence":
-            res = Convergence(self).run(folder)
+            res = self.convergence().run(folder)
             res["scenes"] = list(CONVERGENCE_SCENES)
         else:
             res = self.figure(name, folder)
@@ -670,6 +746,9 @@ class Runner:
         res["settings"] = {"res": self.cfg.res, "seed": self.cfg.seed, "seeds": self.seed_list(),
                            "quick": self.cfg.quick, "repeat": self.cfg.repeat,
                            "reference_spp": self.cfg.reference_spp, "overrides": self.cfg.params}
+        where = self.renders.describe()
+        if where is not None:
+            res["settings"]["cluster"] = where
         write_json(folder / "results.json", res)
         return res
 
@@ -921,7 +1000,27 @@ def scenes_of(name: str) -> tuple[str, ...]:
 
 def measured_scenes(names) -> set[str]:
     """The scenes whose renders these experiments measure against a reference."""
-    return {scene for n in names if n not in ("fig5", "fig6") for scene in scenes_of(n)}
+    return {scene for n in names if n not in UNMEASURED for scene in scenes_of(n)}
+
+
+@contextlib.contextmanager
+def _renders(config: Config, log):
+    """Where the renders run: here, or on the cluster of ``--dask``/``--workers`` (connected for the run;
+    a ``distributed.Client`` of the caller's stays open)."""
+    if not config.on_cluster:
+        yield LocalRenders(config.threads)
+        return
+    from ..cluster import connect
+    from .dask_renders import DaskRenders
+    cluster = connect(config.dask, config.workers)
+    try:
+        n = len(cluster.worker_threads)
+        log(f"rendering on the Dask cluster at {cluster.address}: {n} worker{'' if n == 1 else 's'}, "
+            f"{cluster.threads} threads")
+        yield DaskRenders(cluster)
+    finally:
+        if config.dask is None or isinstance(config.dask, str):
+            cluster.close()
 
 
 def run(names, config: Config) -> dict:
@@ -942,25 +1041,29 @@ def run(names, config: Config) -> dict:
                              f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
     runner = Runner(config)
     runner.preflight(names)   # nothing is created before every check has passed
-    config.out.mkdir(parents=True, exist_ok=True)
-    total = sum(runner.count(n) for n in names)
-    bar = None
-    if config.progress:
-        from tqdm import tqdm
-        bar = tqdm(total=total, desc="experiment", unit="render", position=0, file=sys.stderr,
-                   dynamic_ncols=True, disable=not sys.stderr.isatty())
-    runner.bar = bar
-    results = {}
-    t0 = time.perf_counter()
-    try:
-        for n in names:
+    # an unreachable scheduler fails here, in one line, before anything is created
+    with _renders(config, runner.log) as renders:
+        runner.renders = renders
+        config.out.mkdir(parents=True, exist_ok=True)
+        total = sum(runner.count(n) for n in names)
+        bar = None
+        if config.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=total, desc="experiment", unit="render", position=0, file=sys.stderr,
+                       dynamic_ncols=True, disable=not sys.stderr.isatty())
+        runner.bar = bar
+        results = {}
+        t0 = time.perf_counter()
+        try:
+            runner.submit(names)
+            for n in names:
+                if bar is not None:
+                    bar.set_description(f"experiment {n}")
+                results[n] = runner.run_one(n)
+                runner.log(f"{n}: done in {results[n]['wall_s']:.1f} s -> {config.out / n}")
+        finally:
             if bar is not None:
-                bar.set_description(f"experiment {n}")
-            results[n] = runner.run_one(n)
-            runner.log(f"{n}: done in {results[n]['wall_s']:.1f} s -> {config.out / n}")
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.close()
     report = write_report(config.out)
     runner.log(f"{', '.join(names)} in {time.perf_counter() - t0:.1f} s; report: {report}")
     return results
