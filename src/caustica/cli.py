@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
-from .errors import CausticaError, InterruptedAfterSaving, ParameterError
+from .errors import CausticaError, ClusterError, InterruptedAfterSaving, ParameterError
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -308,7 +308,19 @@ def _cmd_experiment(args) -> int:
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
                            threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,
                            progress=not args.quiet, log=log, dask=args.dask, workers=args.workers)
-    runner.run(names, config)
+    if args.dask is None and args.workers is None:
+        runner.run(names, config)
+    else:
+        from .cluster import cluster_failures, quiet_cluster_logs
+        quiet_cluster_logs()
+        try:
+            runner.run(names, config)
+        except cluster_failures() as exc:
+            if isinstance(exc, CausticaError):   # e.g. a full disk (OutputError is an OSError too)
+                raise
+            where = f"--dask {args.dask}" if args.dask else f"--workers {args.workers}"
+            raise ClusterError(f"{where}: the cluster failed during the experiment ({type(exc).__name__}: "
+                               f"{str(exc).splitlines()[0] if str(exc) else 'no detail'}); run it again") from None
     if not args.quiet:
         print(f"{', '.join(names)} -> {out / 'report.md'}")
     return 0

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
 from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
-from .errors import ClusterError, ParameterError
+from .errors import CausticaError, ClusterError, ParameterError
 from .film import TRUNK_PASSES
 from .limits import MAX_THREADS
 
@@ -249,11 +249,12 @@ class ClusterLog:
                 "task_overhead_s": max(0.0, wall - work)}
 
 
-def _cluster_failures(distributed) -> tuple:
+def cluster_failures() -> tuple:
     """The exceptions that mean the cluster, not caustica, failed: a task that killed its workers, a lost link."""
     from asyncio import CancelledError
     from concurrent.futures import CancelledError as FutureCancelled
     from distributed.comm.core import CommClosedError
+    distributed = _distributed()
     return (distributed.KilledWorker, CommClosedError, CancelledError, FutureCancelled, TimeoutError, OSError)
 
 
@@ -368,7 +369,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             pass
         if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
             log.interrupted = True
-        elif isinstance(exc, _cluster_failures(distributed)):
+        elif isinstance(exc, cluster_failures()) and not isinstance(exc, CausticaError):
             raise ClusterError(_failure_message(cluster, exc, method_cls, scene, settings, plan, state)) from None
         else:
             raise

@@ -2,7 +2,8 @@
 
 Every render is one task on one worker; a render is never split across workers
 (:func:`caustica.cluster.run` does that for one long render, not here).  The scene goes
-to every worker once (``Client.scatter(..., broadcast=True)``); a task receives it,
+to every worker once (:func:`caustica.cluster.send_scene`: recoverable, unlike scattered
+data, when the workers holding it die); a task receives it,
 renders with ``caustica.render`` on all of its worker's threads and sends back the
 RenderResult.  Renders whose numbers do not depend on time have the bits of a local
 render (same seed, same bits whatever the thread count); times are each worker's own.
@@ -25,6 +26,7 @@ import time
 
 from distributed import WorkerPlugin, get_worker
 
+from ..cluster import send_scene
 from .renders import Pending, render_job
 
 #: The Dask resource a render task holds: one unit per worker, one per task.
@@ -77,15 +79,14 @@ class DaskRenders:
         self._scenes = {}          # id(scene) -> (scene, its future on the workers)
         self._mitsuba = None
 
-    def _scattered(self, scene):
+    def _sent(self, scene):
         if id(scene) not in self._scenes:
             t0 = time.perf_counter()
-            self._scenes[id(scene)] = (scene, self.client.scatter(scene, broadcast=True, hash=False),
-                                       time.perf_counter() - t0)
+            self._scenes[id(scene)] = (scene, send_scene(self.client, scene), time.perf_counter() - t0)
         return self._scenes[id(scene)][1]
 
     def submit(self, scene, method: str, *, warm=None, **kw) -> Pending:
-        fut = self.client.submit(render_task, self._scattered(scene), method, kw, warm, pure=False,
+        fut = self.client.submit(render_task, self._sent(scene), method, kw, warm, pure=False,
                                  resources={RESOURCE: 1})
         return Pending(fut.result)
 

@@ -1019,8 +1019,7 @@ def _renders(config: Config, log):
             f"{cluster.threads} threads")
         yield DaskRenders(cluster)
     finally:
-        if config.dask is None or isinstance(config.dask, str):
-            cluster.close()
+        cluster.close()      # leaves a caller's own Client open (Cluster.owned)
 
 
 def run(names, config: Config) -> dict:
