@@ -43,9 +43,11 @@ def diacaustic():
 
 # --------------------------------------------------------------------------- 1. pieces
 
-def test_grid_range_sum_matches_brute_force():
+@pytest.mark.parametrize("n", [5000, 3, 0])
+def test_grid_range_sum_matches_brute_force(n):
+    """Also where many cells share a bucket (cell 0.05: 10^6 cells, 2^14 buckets for 5000 events)
+    and where a column is longer than the buckets (a few events: a few buckets)."""
     rng = np.random.default_rng(1)
-    n = 5000
     pos = rng.uniform(-2, 3, (n, 3)).astype(np.float32)
     nrm = rng.normal(size=(n, 3))
     nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
