@@ -87,10 +87,14 @@ CELL_PER_RADIUS = 2.0
 
 @kernel
 def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
-    """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1)."""
+    """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without one)."""
     grid = borrowed(grid)
     for i in range(i0, i1):
         if not vp_found[i]:
+            count[i] = 0
+            flux[i, 0] = 0.0
+            flux[i, 1] = 0.0
+            flux[i, 2] = 0.0
             continue
         p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
         n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
@@ -99,6 +103,35 @@ def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
         flux[i, 0] = s[0]
         flux[i, 1] = s[1]
         flux[i, 2] = s[2]
+
+
+@kernel
+def update_statistics(alpha, n_photons, radius, tau, direct, gathered, vp_found, vp_weight, flux, count, got_direct,
+                      n_new, r_new, tau_new, direct_new, gathered_new):
+    """SPPM's update (step 4) of every pixel, into the *_new arrays (the old state stays whole).
+
+    Per pixel with a visible point and M > 0 events: N <- N + alpha M, ratio = N_new / (N + M),
+    R <- R sqrt(ratio), tau <- (tau + W Phi) ratio; the others keep N, R and tau.  Every pixel
+    adds its direct radiance and its events.  The same operations, in the same order, as the
+    NumPy expressions it replaced, so the same bits.
+    """
+    for i in range(n_photons.shape[0]):
+        m = float(count[i])
+        if vp_found[i] and count[i] > 0:
+            nn = n_photons[i] + alpha * m
+            ratio = nn / max(n_photons[i] + m, 1e-300)
+            n_new[i] = nn
+            r_new[i] = radius[i] * math.sqrt(ratio)
+            for c in range(3):
+                tau_new[i, c] = (tau[i, c] + vp_weight[i, c] * flux[i, c]) * ratio
+        else:
+            n_new[i] = n_photons[i]
+            r_new[i] = radius[i]
+            for c in range(3):
+                tau_new[i, c] = tau[i, c]
+        for c in range(3):
+            direct_new[i, c] = direct[i, c] + got_direct[i, c]
+        gathered_new[i] = gathered[i] + m
 
 
 def initial_radius(scene, settings) -> float:
@@ -194,11 +227,12 @@ class ProgressivePhotonMethod(IndependentPasses):
         cam = scene.camera(settings["width"], settings["height"])
         threads = settings["threads"]
         # 1. camera pass: visible points and direct light
-        vp_pos = np.zeros((n, 3))
-        vp_nrm = np.zeros((n, 3))
-        vp_weight = np.zeros((n, 3))
-        vp_found = np.zeros(n, np.bool_)
-        direct = np.zeros((n, 3))
+        # every entry is written by the kernels (the camera pass for every pixel, the gather too)
+        vp_pos = np.empty((n, 3))
+        vp_nrm = np.empty((n, 3))
+        vp_weight = np.empty((n, 3))
+        vp_found = np.empty(n, np.bool_)
+        direct = np.empty((n, 3))
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
@@ -223,8 +257,8 @@ class ProgressivePhotonMethod(IndependentPasses):
             timings["grid_build_s"] = time.perf_counter() - t1
         stats["events_stored"] = grid.count
         # 3. gather
-        flux = np.zeros((n, 3))
-        count = np.zeros(n, np.int64)
+        flux = np.empty((n, 3))
+        count = np.empty(n, np.int64)
         t1 = time.perf_counter()
         c2 = parallel_for(gather_flux, n, (grid, vp_pos, vp_nrm, vp_found, radius, flux, count),
                           threads=threads)
@@ -240,15 +274,17 @@ class ProgressivePhotonMethod(IndependentPasses):
             return super().run_pass(scene, settings, state, progress)
         got, stats = cls.measure_pass(scene, settings, state.passes, state.radius, progress)
         # 4. the update, into new arrays: the old state stays whole until the pass is done
-        alpha = settings["alpha"]
-        m = got.count.astype(np.float64)
-        has = got.vp_found & (got.count > 0)
-        n_new = np.where(has, state.n_photons + alpha * m, state.n_photons)
-        ratio = np.where(has, n_new / np.maximum(state.n_photons + m, 1e-300), 1.0)
-        r_new = state.radius * np.sqrt(ratio)
-        tau_new = np.where(has[:, None], (state.tau + got.vp_weight * got.flux) * ratio[:, None], state.tau)
-        new = PixelStatistics(state.passes + 1, n_new, r_new, tau_new, state.direct + got.direct,
-                              state.gathered + m, state.emitted + got.emitted)
+        n_new, r_new, gathered_new = (np.empty_like(a) for a in (state.n_photons, state.radius, state.gathered))
+        tau_new, direct_new = np.empty_like(state.tau), np.empty_like(state.direct)
+        first = not update_statistics.compiled_for_python()
+        t0 = time.perf_counter()
+        update_statistics(float(settings["alpha"]), state.n_photons, state.radius, state.tau, state.direct,
+                          state.gathered, got.vp_found, got.vp_weight, got.flux, got.count, got.direct,
+                          n_new, r_new, tau_new, direct_new, gathered_new)
+        if first:  # compiled (or loaded from the cache) just now: compile time, not work
+            stats["timings"]["compile_s"] += time.perf_counter() - t0
+        new = PixelStatistics(state.passes + 1, n_new, r_new, tau_new, direct_new, gathered_new,
+                              state.emitted + got.emitted)
         return new, stats
 
     @classmethod

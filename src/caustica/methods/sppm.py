@@ -16,7 +16,7 @@ from ..jit import parallel_for
 from ..memory import check_budget
 import numpy as np
 
-from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, TraceBuffers, allocate_buffers
 from ..photons.trace import trace_caustic_photons, trace_photons
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON, pass_stream
 from . import register
@@ -52,32 +52,38 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         mr = settings["max_bounces"]
         check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
                      "lower --photons or --max-bounces")
+        n_c = settings["caustic_photons"]
+        spheres = scene.specular_bounding_spheres() if n_c > 0 else None
+        aimed = n_c > 0 and spheres.shape[0] > 0
+        if aimed:
+            check_budget(n_c * SLOT_BYTES, f"{n_c:,} caustic photons per pass", "lower --caustic-photons")
         t0 = time.perf_counter()
-        buf = allocate_buffers(n, mr + 1)
+        # one buffer: the photons' mr + 1 slots each, then the caustic photons' one slot each (the
+        # caustic photons write into a view of its tail, so no copy joins the two)
+        slots = n * (mr + 1)
+        buf = allocate_buffers(slots + (n_c if aimed else 0), 1)
+        head = TraceBuffers(*(a[:slots] for a in buf))
         bar = progress(total=n, desc="photon tracing", unit="photon")
         compile_s = parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
                                                     pass_stream(STREAM_PHOTON, pass_index), n, mr,
-                                                    TERMINATIONS[settings["termination"]], *buf),
+                                                    TERMINATIONS[settings["termination"]], *head),
                                  threads=settings["threads"], progress=bar)
         bar.close()
-        n_c = settings["caustic_photons"]
-        spheres = scene.specular_bounding_spheres() if n_c > 0 else None
-        if n_c == 0 or spheres.shape[0] == 0:
+        if not aimed:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
             return (buf.position, buf.power, buf.normal, buf.kind), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                 "photons_emitted": n}
         # caustic photons carry the light -> specular+ -> diffuse paths; the others leave them out
-        check_budget(n_c * SLOT_BYTES, f"{n_c:,} caustic photons per pass", "lower --caustic-photons")
-        cbuf = allocate_buffers(n_c, 1)
+        tail = TraceBuffers(*(a[slots:] for a in buf))
         c_s = parallel_for(trace_caustic_photons, n_c, (scene.geometry, scene.materials, scene.lights, spheres,
                                                         settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON,
-                                                                                      pass_index), n_c, *cbuf),
+                                                                                      pass_index), n_c, *tail),
                            threads=settings["threads"])
         compile_s += c_s
-        events = tuple(np.concatenate([a, b]) for a, b in zip((buf.position, buf.power, buf.normal),
-                                                               (cbuf.position, cbuf.power, cbuf.normal)))
-        valid = np.concatenate([(buf.kind == INDIRECT), (cbuf.kind == CAUSTIC)]).astype(np.int8)
-        return (*events, valid), n + n_c, {
+        valid = np.empty(slots + n_c, np.int8)
+        np.equal(head.kind, INDIRECT, out=valid[:slots], casting="unsafe")
+        np.equal(tail.kind, CAUSTIC, out=valid[slots:], casting="unsafe")
+        return (buf.position, buf.power, buf.normal, valid), n + n_c, {
             "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
             "photons_emitted": n + n_c}
