@@ -82,37 +82,39 @@ def _bucket(key, mask):
 
 @kernel
 def _counting_sort(position, power, normal, valid, lo, cell, dims, start, out_key, out_pos, out_pow, out_nrm):
-    """Sort the valid events by bucket into out_*; start receives the buckets' offsets."""
+    """Sort the valid events by bucket into out_*, stably; start receives the buckets' offsets.
+
+    Counts, a prefix sum, then the events placed from the last one back, each at the end of its
+    bucket's free part (a bucket's key is recomputed rather than stored: no temporary arrays).
+    """
     inv = 1.0 / cell
     n = position.shape[0]
     n_buckets = start.shape[0] - 1
     mask = n_buckets - 1
-    keys = np.empty(n, np.int64)
-    buckets = np.empty(n, np.int64)
     for i in range(n):
+        if valid[i] != 0:
+            ix, iy, iz = _cell_of(position[i, 0], position[i, 1], position[i, 2], lo, inv, dims)
+            start[_bucket((ix * dims[1] + iy) * dims[2] + iz, mask) + 1] += 1
+    for b in range(n_buckets):
+        start[b + 1] += start[b]
+    # start[b + 1] is now the end of bucket b; filling from the back moves it to the bucket's beginning
+    for i in range(n - 1, -1, -1):  # the same sorted arrays for any thread count
         if valid[i] == 0:
-            buckets[i] = -1
             continue
         ix, iy, iz = _cell_of(position[i, 0], position[i, 1], position[i, 2], lo, inv, dims)
         k = (ix * dims[1] + iy) * dims[2] + iz
         b = _bucket(k, mask)
-        keys[i] = k
-        buckets[i] = b
-        start[b + 1] += 1
+        j = start[b + 1] - 1
+        start[b + 1] = j
+        out_key[j] = k
+        for c in range(3):
+            out_pos[j, c] = position[i, c]
+            out_pow[j, c] = power[i, c]
+            out_nrm[j, c] = normal[i, c]
+    # start[b + 1] holds bucket b's beginning: shift down by one, and close with the total
     for b in range(n_buckets):
-        start[b + 1] += start[b]
-    fill = start[:-1].copy()
-    for i in range(n):  # in input order: the same sorted arrays for any thread count
-        b = buckets[i]
-        if b < 0:
-            continue
-        j = fill[b]
-        fill[b] += 1
-        out_key[j] = keys[i]
-        for k in range(3):
-            out_pos[j, k] = position[i, k]
-            out_pow[j, k] = power[i, k]
-            out_nrm[j, k] = normal[i, k]
+        start[b] = start[b + 1]
+    start[n_buckets] = out_key.shape[0]
 
 
 def grid_compiled() -> bool:
