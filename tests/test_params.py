@@ -174,5 +174,5 @@ def test_the_image_memory_check_counts_each_method_s_own_arrays(scene, monkeypat
     monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 2**30)   # 1 GiB: a 0.64 GB budget
     _, _, s = resolve_settings(scene, "pt", res=2000, spp=1)               # 2000^2 x 112 bytes = 0.45 GB
     assert s["width"] == 2000
-    with pytest.raises(ParameterError, match=r"a 2000x2000 image would need about 1\.0 GB"):
-        resolve_settings(scene, "sppm", res=2000)                          # 2000^2 x 240 bytes = 0.96 GB
+    with pytest.raises(ParameterError, match=r"a 2000x2000 image would need about 1\.4 GB"):
+        resolve_settings(scene, "sppm", res=2000)                          # 2000^2 x 340 bytes = 1.36 GB

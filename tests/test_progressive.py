@@ -270,15 +270,60 @@ def test_white_furnace_in_a_sphere(method, params, termination):
     assert np.all(np.abs(got - expected) <= N_SIGMA * se + 1e-4 * expected), (got, expected, se)
 
 
-def test_sppm_caustic_photons_keep_the_image_unbiased(diacaustic):
+@pytest.mark.parametrize("statistics", ["separate", "shared"])
+def test_sppm_caustic_photons_keep_the_image_unbiased(diacaustic, statistics):
     """Aimed caustic photons replace the global photons' light -> specular -> diffuse paths, with
-    the aiming pdf in their power: the image mean stays PM's (5 sigma of the seeds' spread)."""
+    the aiming pdf in their power: the image mean stays PM's (5 sigma of the seeds' spread), whether
+    they are gathered into statistics of their own or into the others'."""
     kw = dict(res=16, passes=4, photons=4000, radius=1.0)
     plain = np.array([caustica.render(diacaustic, "sppm", seed=s, **kw).image.mean() for s in range(6)])
-    aimed = np.array([caustica.render(diacaustic, "sppm", seed=s, caustic_photons=4000, **kw).image.mean()
-                      for s in range(6)])
+    aimed = np.array([caustica.render(diacaustic, "sppm", seed=s, caustic_photons=4000,
+                                      caustic_statistics=statistics, **kw).image.mean() for s in range(6)])
     se = math.sqrt(plain.var(ddof=1) / 6 + aimed.var(ddof=1) / 6)
     assert abs(plain.mean() - aimed.mean()) <= N_SIGMA * se, (plain.mean(), aimed.mean(), se)
+
+
+def test_separate_caustic_statistics_split_the_shared_ones(diacaustic):
+    """One pass from the same initial radius: the separate caustic statistics hold exactly the
+    caustic photons' events and the others the rest, so N_global + N_caustic is the shared N,
+    and the global radius shrinks only where non-caustic events were gathered."""
+    from caustica.api import resolve_settings
+    kw = dict(res=24, seed=3, multi_pass=True, photons=3000, caustic_photons=3000, radius=0.8)
+    states = {}
+    for mode in ("shared", "separate"):
+        scene, cls, settings = resolve_settings(diacaustic, "sppm", caustic_statistics=mode, caustic_radius=0.8, **kw)
+        states[mode], _ = cls.run_pass(scene, settings, cls.new_state(scene, settings), lambda **k: _NoBar())
+    shared, sep = states["shared"], states["separate"]
+    assert np.all(shared.n_caustic == 0) and np.all(shared.radius_caustic == 0.8)
+    assert sep.n_caustic.sum() > 0 and sep.n_photons.sum() > 0
+    np.testing.assert_allclose(sep.n_photons + sep.n_caustic, shared.n_photons, rtol=1e-12)
+    np.testing.assert_allclose(sep.tau + sep.tau_caustic, shared.tau, rtol=1e-6, atol=1e-12)
+    assert np.all(sep.radius >= shared.radius) and np.all(sep.radius_caustic >= shared.radius)
+    assert np.all((sep.radius < 0.8) == (sep.n_photons > 0))
+    assert np.all((sep.radius_caustic < 0.8) == (sep.n_caustic > 0))
+    assert shared.gathered.tolist() == sep.gathered.tolist()
+
+
+def test_separate_caustic_statistics_radius_and_sidecar(diacaustic):
+    r = caustica.render(diacaustic, "sppm", res=16, passes=3, photons=2000, caustic_photons=2000)
+    assert r.stats["caustic_statistics"] == "separate"
+    assert r.stats["initial_caustic_radius"] == pytest.approx(0.6 * r.stats["initial_radius"])
+    assert r.stats["radius_caustic_final"]["min"] < r.stats["initial_caustic_radius"]
+    r = caustica.render(diacaustic, "sppm", res=16, passes=3, photons=2000, caustic_photons=2000, caustic_radius=0.1)
+    assert r.stats["initial_caustic_radius"] == 0.1 and r.stats["radius_caustic_final"]["max"] <= 0.1
+    # without aimed photons, or with shared statistics, nothing is kept apart
+    for kw in ({}, {"caustic_statistics": "shared"}):
+        plain = caustica.render(diacaustic, "sppm", res=16, passes=2, photons=2000,
+                                caustic_photons=2000 if kw else 0, **kw)
+        assert "caustic_statistics" not in plain.stats
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
 
 
 # --------------------------------------------------------------------------- 4. the Mitsuba reference
@@ -304,7 +349,7 @@ def test_many_passes_match_the_reference(diacaustic, refs_dir, method, params):
 # --------------------------------------------------------------------------- 5. determinism, checkpoints
 
 @pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"}),
-                                            ("sppm", {"schedule": "global"})])
+                                            ("sppm", {"schedule": "global"}), ("sppm", {"caustic_photons": 500})])
 def test_same_bits_for_any_thread_count(diacaustic, method, params):
     kw = dict(res=16, seed=5, passes=3, **params)
     one = caustica.render(diacaustic, method, threads=1, **kw).image
@@ -314,7 +359,8 @@ def test_same_bits_for_any_thread_count(diacaustic, method, params):
     assert one.tobytes() != other.tobytes()
 
 
-@pytest.mark.parametrize("method, params", [("pt", {}), ("sppm", {}), ("pspm", {}), ("sppm", {"schedule": "global"})])
+@pytest.mark.parametrize("method, params", [("pt", {}), ("sppm", {}), ("pspm", {}), ("sppm", {"schedule": "global"}),
+                                            ("sppm", {"caustic_photons": 500})])
 def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, params, tmp_path):
     kw = dict(res=12, seed=2, **params)
     whole = caustica.render(diacaustic, method, passes=5, **kw)

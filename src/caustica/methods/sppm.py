@@ -22,7 +22,7 @@ from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod
+from .progressive import CAUSTIC_RADIUS_SCALE, PROGRESSIVE_PARAMS, ProgressivePhotonMethod
 
 
 def photons_per_pass(settings) -> int:
@@ -39,12 +39,25 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         Param("caustic_photons", int, 0, "photons per pass aimed at the specular objects for light -> "
                                          "specular -> diffuse paths, which the other photons then leave out "
                                          "(as PM's caustic map; 0: none, plain SPPM)", non_negative, ">= 0"),
+        Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
+                                                     "gathered into per-pixel statistics (N, R, tau) of their own, "
+                                                     "so the other photons keep their wider radius (pixel schedule); "
+                                                     "shared: one set of statistics for all events",
+              choices=("separate", "shared")),
+        Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
+                                             f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
+              positive, "> 0"),
     ) + PROGRESSIVE_PARAMS
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
         aimed = settings["caustic_photons"] > 0 and scene.specular_bounding_spheres().shape[0] > 0
         return photons_per_pass(settings) + (settings["caustic_photons"] if aimed else 0)
+
+    @classmethod
+    def separate_caustics(cls, scene, settings) -> bool:
+        return (settings["caustic_statistics"] == "separate" and settings["caustic_photons"] > 0
+                and scene.specular_bounding_spheres().shape[0] > 0)
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
@@ -84,6 +97,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         valid = np.empty(slots + n_c, np.int8)
         np.equal(head.kind, INDIRECT, out=valid[:slots], casting="unsafe")
         np.equal(tail.kind, CAUSTIC, out=valid[slots:], casting="unsafe")
+        valid[slots:] *= 2   # kind 2: the caustic events (their own statistics with --caustic-statistics separate)
         return (buf.position, buf.power, buf.normal, valid), n + n_c, {
             "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
             "photons_emitted": n + n_c}

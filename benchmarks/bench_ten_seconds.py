@@ -1,0 +1,102 @@
+"""The issue's 10-second goal: caustica's progressive methods against Mitsuba 3 at equal wall time.
+
+    python benchmarks/bench_ten_seconds.py [--budget 10] [--seeds 0] [--res 256] [--threads N]
+
+For cornell-diacaustic and cornell-catacaustic: each configuration below renders once
+untimed (a warm-up: kernels compiled or loaded), then with ``time_s=BUDGET``; Mitsuba 3's
+path tracer (``scalar_rgb``) gets the same budget in the same run
+(:func:`caustica.experiments.convergence.mitsuba_equal_time`: passes of 4 spp after its
+own warm-up, until the next would cross the budget).  Every image is measured against
+Mitsuba's converged reference in ``shared/refs`` over the caustic mask and the whole
+image (relative RMSE, :func:`caustica.experiments.convergence.rel_rmse`), and the ratios
+Mitsuba / caustica are printed.  The 1-minute load average is printed before each
+render: on this project's 2-core machine, read the numbers of a loaded machine as such.
+No asserts: numbers to read.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import caustica
+from caustica.experiments.convergence import mitsuba_equal_time, mitsuba_module, rel_rmse, shared_refs_dir
+from caustica.imageio import read_exr, read_png_mask
+
+SCENES = ("cornell-diacaustic", "cornell-catacaustic")
+#: (label, method, parameters): the README's best of 2026-12-01, and this benchmark's.
+CONFIGS = (
+    ("sppm 20k + 20k caustic (R0 default)", "sppm", {"photons": 20_000, "caustic_photons": 20_000}),
+    ("sppm 20k + 20k caustic, R0 0.2", "sppm", {"photons": 20_000, "caustic_photons": 20_000, "radius": 0.2}),
+    ("sppm 20k + 40k caustic, R0 0.2", "sppm", {"photons": 20_000, "caustic_photons": 40_000, "radius": 0.2}),
+)
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--budget", type=float, default=10.0, help="seconds per render (default 10)")
+    ap.add_argument("--seeds", default="0", help="comma-separated seeds (default 0)")
+    ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--threads", type=int)
+    ap.add_argument("--refs", type=Path, help="folder of <scene>_<res>.exr and masks (default: shared/refs)")
+    ap.add_argument("--only", help="run only the configurations whose label contains this text")
+    ap.add_argument("--json", type=Path, help="also write the rows to this file")
+    args = ap.parse_args()
+    refs = args.refs or shared_refs_dir()
+    if refs is None:
+        raise SystemExit("no reference folder: pass --refs or set CAUSTICA_SHARED")
+    mi = mitsuba_module()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    configs = [c for c in CONFIGS if args.only is None or args.only in c[0]]
+    print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, "
+          f"{args.res}x{args.res}, budget {args.budget:g} s, seeds {seeds}, "
+          f"Mitsuba {'yes' if mi is not None else 'not installed'}")
+    print("| scene | seed | renderer | passes / spp | wall s | caustic relRMSE | whole relRMSE | load |")
+    print("| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: |")
+    rows = []
+    for name in SCENES:
+        ref = read_exr(refs / f"{name}_{args.res}.exr")[..., :3]
+        mask = read_png_mask(refs / f"{name}_{args.res}_caustic_mask.png")
+        scene = caustica.load_scene(name)
+        for label, method, params in configs:   # warm-up: compile or load the kernels
+            caustica.render(scene, method, res=args.res, passes=2, threads=args.threads, **params)
+        for seed in seeds:
+            got = []
+            for label, method, params in configs:
+                before = load()
+                t0 = time.perf_counter()
+                r = caustica.render(scene, method, res=args.res, seed=seed, time_s=args.budget,
+                                    threads=args.threads, **params)
+                wall = time.perf_counter() - t0
+                row = {"scene": name, "seed": seed, "label": label, "passes": r.stats["passes"], "wall_s": wall,
+                       "caustic": rel_rmse(r.image, ref, mask), "whole": rel_rmse(r.image, ref), "load": before}
+                got.append(row)
+            if mi is not None:
+                before = load()
+                image, wall, spp = mitsuba_equal_time(mi, name, args.res, args.budget, seed)
+                got.append({"scene": name, "seed": seed, "label": "Mitsuba 3 path (scalar_rgb)", "passes": spp,
+                            "wall_s": wall, "caustic": rel_rmse(image, ref, mask), "whole": rel_rmse(image, ref),
+                            "load": before})
+            for row in got:
+                print(f"| {name} | {seed} | {row['label']} | {row['passes']} | {row['wall_s']:.2f} | "
+                      f"{row['caustic']:.4f} | {row['whole']:.4f} | {row['load']:.2f} |", flush=True)
+            if mi is not None:
+                peer = got[-1]
+                best = min(got[:-1], key=lambda r: r["caustic"])
+                print(f"|  |  | **ratio Mitsuba / best ({best['label']})** |  |  | "
+                      f"**{peer['caustic'] / best['caustic']:.1f}x** | {peer['whole'] / best['whole']:.2f}x |  |",
+                      flush=True)
+            rows += got
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
