@@ -318,6 +318,26 @@ def test_separate_caustic_statistics_radius_and_sidecar(diacaustic):
         assert "caustic_statistics" not in plain.stats
 
 
+def test_sppm_default_photons_are_split_where_there_is_a_mirror_or_glass(diacaustic):
+    """Defaults in a scene with glass: one photon per pixel, half of them aimed (separate statistics);
+    --caustic-photons 0, or --photons alone, keep every photon unaimed; no mirror or glass, no aiming."""
+    from caustica.methods.sppm import photon_counts
+    from caustica.api import resolve_settings
+    def counts(scene, **kw):
+        sc, _, settings = resolve_settings(scene, "sppm", res=16, multi_pass=True, **kw)
+        return photon_counts(sc, settings)
+    assert counts(diacaustic) == (128, 128)
+    assert counts(diacaustic, caustic_photons=0) == (256, 0)
+    assert counts(diacaustic, photons=1000) == (1000, 0)
+    assert counts(diacaustic, caustic_photons=50) == (256, 50)
+    assert counts(diacaustic, photons=1000, caustic_photons=50) == (1000, 50)
+    plane = plane_scene("""<emitter type="point"><point name="position" x="0" y="0" z="2"/>
+        <rgb name="intensity" value="1, 1, 1"/></emitter>""")
+    assert counts(plane) == (256, 0) and counts(plane, caustic_photons=50) == (256, 0)
+    r = caustica.render(diacaustic, "sppm", res=16, passes=2)
+    assert r.stats["emitted_all_passes"] == 2 * 256 and r.stats["caustic_statistics"] == "separate"
+
+
 class _NoBar:
     def update(self, n=1):
         pass
@@ -426,7 +446,9 @@ def test_time_budget_stops_between_passes(diacaustic):
 
 
 def test_radius_shrinks_and_aovs(diacaustic):
-    r = caustica.render(diacaustic, "sppm", res=16, seed=1, passes=8, aov=("radius", "count"))
+    # plain SPPM: one set of statistics (with separate caustic statistics, radius is the other photons'
+    # radius and count every event gathered)
+    r = caustica.render(diacaustic, "sppm", res=16, seed=1, passes=8, caustic_photons=0, aov=("radius", "count"))
     r0 = r.stats["initial_radius"]
     rad, cnt = r.aovs["radius"], r.aovs["count"]
     assert rad.shape == cnt.shape == (16, 16)

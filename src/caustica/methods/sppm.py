@@ -25,8 +25,21 @@ from .photon_common import TERMINATIONS
 from .progressive import CAUSTIC_RADIUS_SCALE, PROGRESSIVE_PARAMS, ProgressivePhotonMethod
 
 
-def photons_per_pass(settings) -> int:
-    return settings["photons"] or settings["width"] * settings["height"]
+def photon_counts(scene, settings) -> tuple[int, int]:
+    """(photons, caustic photons) traced per pass; caustic photons only where there is a mirror or glass to aim at.
+
+    Both left to their defaults in a scene with mirrors or glass: one photon per pixel in all, as
+    pbrt-v4, half of them aimed at those objects (docs/progressive.md has the measurements).  Otherwise
+    ``--photons`` (default one per pixel) and ``--caustic-photons`` (default 0) as given.
+    """
+    pixels = settings["width"] * settings["height"]
+    specular = scene.specular_bounding_spheres().shape[0] > 0
+    n_c = settings["caustic_photons"]
+    if n_c is None:
+        if specular and settings["photons"] is None:
+            return pixels - pixels // 2, pixels // 2
+        n_c = 0
+    return settings["photons"] or pixels, (n_c if specular else 0)
 
 
 @register
@@ -34,11 +47,14 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     name = "sppm"
     summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass (consistent)"
     params = (
-        Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4)",
+        Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
+                                    "aimed at the mirrors and glass, if any, when --caustic-photons is not given)",
               positive, ">= 1"),
-        Param("caustic_photons", int, 0, "photons per pass aimed at the specular objects for light -> "
-                                         "specular -> diffuse paths, which the other photons then leave out "
-                                         "(as PM's caustic map; 0: none, plain SPPM)", non_negative, ">= 0"),
+        Param("caustic_photons", int, None, "photons per pass aimed at the specular objects for light -> "
+                                            "specular -> diffuse paths, which the other photons then leave out "
+                                            "(as PM's caustic map; 0: none, plain SPPM; default: half of the "
+                                            "default photons in a scene with mirrors or glass, else 0)",
+              non_negative, ">= 0"),
         Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
                                                      "gathered into per-pixel statistics (N, R, tau) of their own, "
                                                      "so the other photons keep their wider radius (pixel schedule); "
@@ -51,23 +67,20 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
-        aimed = settings["caustic_photons"] > 0 and scene.specular_bounding_spheres().shape[0] > 0
-        return photons_per_pass(settings) + (settings["caustic_photons"] if aimed else 0)
+        return sum(photon_counts(scene, settings))
 
     @classmethod
     def separate_caustics(cls, scene, settings) -> bool:
-        return (settings["caustic_statistics"] == "separate" and settings["caustic_photons"] > 0
-                and scene.specular_bounding_spheres().shape[0] > 0)
+        return settings["caustic_statistics"] == "separate" and photon_counts(scene, settings)[1] > 0
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
-        n = photons_per_pass(settings)
+        n, n_c = photon_counts(scene, settings)
         mr = settings["max_bounces"]
         check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
                      "lower --photons or --max-bounces")
-        n_c = settings["caustic_photons"]
-        spheres = scene.specular_bounding_spheres() if n_c > 0 else None
-        aimed = n_c > 0 and spheres.shape[0] > 0
+        aimed = n_c > 0
+        spheres = scene.specular_bounding_spheres() if aimed else None
         if aimed:
             check_budget(n_c * SLOT_BYTES, f"{n_c:,} caustic photons per pass", "lower --caustic-photons")
         t0 = time.perf_counter()
