@@ -27,8 +27,9 @@ from caustica.experiments.convergence import mitsuba_equal_time, mitsuba_module,
 from caustica.imageio import read_exr, read_png_mask
 
 SCENES = ("cornell-diacaustic", "cornell-catacaustic")
-#: (label, method, parameters).  With --caustic-photons, sppm keeps separate caustic statistics by
-#: default (R_c = 0.6 R_0); "shared" is the README's configuration of 2026-12-01.
+#: (label, method, parameters).  sppm's defaults in these scenes: 32,768 + 32,768 aimed photons per
+#: pass; with caustic photons it keeps separate caustic statistics (R_c = 0.6 R_0) unless told
+#: "shared" -- the README's best configuration of 2026-12-01 (now with this branch's camera pass).
 CONFIGS = (
     ("sppm defaults", "sppm", {}),
     ("sppm 20k + 20k caustic, shared", "sppm", {"photons": 20_000, "caustic_photons": 20_000,

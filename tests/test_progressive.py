@@ -245,6 +245,35 @@ def test_stratified_passes_beat_independent_jitter_on_smooth_light():
     assert np.sqrt(np.mean(err ** 2)) <= 0.25 * np.sqrt(np.mean(independent_se ** 2))
 
 
+def test_camera_pass_adds_a_light_seen_in_glass_with_its_fresnel_weight():
+    """A camera ray meets glass at 45 degrees and its reflection meets an area light: every pass adds
+    F Le (the light's expected share), instead of Le in a fraction F of the passes and 0 in the rest."""
+    from test_pt import scene_from_xml, sensor_xml
+    from caustica.bsdf import fresnel_dielectric
+    le = np.array([2.0, 3.0, 4.0])
+    scene = scene_from_xml(f"""<scene version="3.0.0">
+        {sensor_xml((0, -2, 2), (0, 0, 0), (0, 0, 1), 0.01, 1, 1)}
+        <shape type="rectangle">
+            <transform name="to_world"><scale value="5"/></transform>
+            <bsdf type="dielectric"><float name="int_ior" value="1.5"/><float name="ext_ior" value="1"/></bsdf>
+        </shape>
+        <shape type="rectangle">
+            <transform name="to_world"><scale value="3"/><rotate x="1" angle="135"/><translate y="3" z="3"/></transform>
+            <emitter type="area"><rgb name="radiance" value="{', '.join(map(str, le))}"/></emitter>
+        </shape>
+    </scene>""")
+    cam = scene.camera(1, 1)
+    F, _ = fresnel_dielectric(math.cos(math.pi / 4), 1.5)
+    assert 0.05 < F < 0.2
+    for p in range(24):
+        out = [np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1, np.bool_), np.zeros((1, 3))]
+        visible_points(scene.geometry, scene.materials, scene.lights, cam, 7, pass_stream(STREAM_CAMERA, p), p, 1,
+                       False, 64, *out, 0, 1)
+        # (the refracted ray escapes; the reflected one, when chosen, ends on the light's own diffuse
+        # surface, which the light does not light: either way the light's share is all there is)
+        np.testing.assert_allclose(out[4][0], F * le, rtol=1e-3)   # the 0.01 degree pixel moves F a little
+
+
 FURNACE_CASES = [("sppm", {}), ("pspm", {}), ("pspm", {"estimator": "photons"}), ("pspm", {"specular": "split"}),
                  ("sppm", {"schedule": "global"}), ("pspm", {"schedule": "global"})]
 

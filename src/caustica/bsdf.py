@@ -131,3 +131,24 @@ def sample_dielectric(d, ng, ns, eta_int_over_ext, u):
     if u < F:
         return reflect(d, n), True, 1.0
     return refract(d, n, eta, cos_i, cos_t), False, eta
+
+
+@kernel
+def dielectric_branches(d, ng, ns, eta_int_over_ext):
+    """Both branches at glass, as :func:`sample_dielectric` would choose between them.
+
+    Returns (reflected direction, refracted direction, F, eta): F is the probability
+    sample_dielectric gives reflection (1 under total internal reflection, when the
+    refracted direction is meaningless) and eta the relative IOR of the refraction.
+    ``u < F`` picks reflection exactly as sample_dielectric(d, ng, ns, eta, u) does.
+    """
+    n, n_geo, eta = dielectric_interface(d, ng, ns, eta_int_over_ext)
+    cos_i = -vec.dot(d, n)
+    if cos_i <= 0.0:  # the shading normal disagrees with the geometry: use the geometric normal
+        n = n_geo
+        cos_i = -vec.dot(d, n)
+    F, cos_t = fresnel_dielectric(cos_i, eta)
+    wr = reflect(d, n)
+    if F >= 1.0:
+        return wr, wr, 1.0, eta
+    return wr, refract(d, n, eta, cos_i, cos_t), F, eta

@@ -11,6 +11,13 @@ position, shading normal on the viewed side, and weight W = β · ρ / π (the
 throughput β of the specular chain times the diffuse BRDF), so that the photons'
 flux Φ gathered there contributes W · Φ.
 
+**Emitters seen in glass.**  At glass the path takes one branch (reflection with the Fresnel
+probability F), but an emitter met first along either branch is added with its expected weight
+β F Le or β (1 − F) Le / η² at once, and the branch taken leaves its next hit's emission out: the
+same expectation, without the rare spike of a light's reflection seen in a few passes only (on the
+diacaustic scene the brightest noise of the caustic's pixels was the area light glinting in the
+sphere's silhouette).  It costs one or two rays at each glass hit of a camera path.
+
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
 estimate, so the numbers that matter most are drawn from low-discrepancy sequences
 indexed by the pass, each randomised per pixel (keys of ``STREAM_CAMERA_SCRAMBLE``):
@@ -32,7 +39,7 @@ import math
 
 import numpy as np
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -45,6 +52,21 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel
+def emitted_along(geom, lights, o, d):
+    """The radiance of the emitter a ray from o along d meets first, front side (0 if none)."""
+    prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+    if prim < 0:
+        return (0.0, 0.0, 0.0)
+    e = geom.prim_emitter[prim]
+    if e < 0:
+        return (0.0, 0.0, 0.0)
+    _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+    if vec.dot(d, ng) >= 0.0:
+        return (0.0, 0.0, 0.0)
+    return vec.row(lights.radiance, e)
+
+
+@kernel
 def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fixed_grid, max_specular):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct)."""
     L = (0.0, 0.0, 0.0)
@@ -53,6 +75,7 @@ def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fix
     dim = 2
     depth = 0
     first_glass = True
+    counted = False   # this hit's emission was already added, in expectation, at the glass before it
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if prim < 0:
@@ -60,8 +83,9 @@ def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fix
         p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
         front = vec.dot(d, ng) < 0.0
         e = geom.prim_emitter[prim]
-        if e >= 0 and front:
+        if e >= 0 and front and not counted:
             L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+        counted = False
         m = geom.prim_material[prim]
         kind = mats.kind[m]
         scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
@@ -88,11 +112,24 @@ def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fix
                 first_glass = False
             else:
                 u = uniform(key, dim)
-            wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], u)
+            wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
             beta = vec.hadamard(beta, rgb)
-            if not is_reflection:
-                beta = vec.mul(beta, 1.0 / (eta * eta))
+            # an emitter seen along either branch is added with its expected weight (F, 1 - F) rather
+            # than when the choice happens to take that branch: a light's reflection in the glass is
+            # a smooth term, not a rare spike; the branch taken then leaves its first hit's emission out
+            Lr = emitted_along(geom, lights, vec.offset_origin(p, ng, wr), wr)
+            L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
+            inv_eta2 = 1.0 / (eta * eta)
+            if F < 1.0:
+                Lt = emitted_along(geom, lights, vec.offset_origin(p, ng, wt), wt)
+                L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
+            counted = True
+            if u < F:
+                wi = wr
+            else:
+                wi = wt
+                beta = vec.mul(beta, inv_eta2)
         o = vec.offset_origin(p, ng, wi)
         d = wi
 
