@@ -15,7 +15,8 @@ Stochastic progressive photon mapping (Hachisuka & Jensen 2009, as pbrt-v4's
        τ_i ← (τ_i + W_i Φ) · R_i,new² / R_i²;
    every pixel adds its direct radiance to a running sum.
 
-After P passes L_i = direct_i / P + τ_i / (π R_i² P).  Each event's power is already
+After P passes L_i = direct_i / P + τ_i / (π R_i² P) (+ τ_c,i / (π R_c,i² P) when the caustic
+events keep statistics of their own: sppm's aimed caustic photons, docs/progressive.md).  Each event's power is already
 divided by the photons of its pass (Φ / N), so pbrt's division by N is in it.
 Everything persists as arrays of the pixel statistics, which are also the checkpoint.
 """
@@ -207,7 +208,9 @@ class ProgressivePhotonMethod(IndependentPasses):
     """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, radius, progress)``.
 
     ``photon_events`` returns ((position, power, normal, valid) of this pass's events,
-    paths emitted, stats); events with valid == 0 are empty slots; ``radius`` holds the
+    paths emitted, stats); events with valid == 0 are empty slots, and when
+    ``separate_caustics`` is true those with valid == 2 are the caustic events, gathered into
+    the statistics n_caustic, radius_caustic, tau_caustic of their own; ``radius`` holds the
     pass's gather radii (float64[n]).  With ``--schedule pixel``
     the state is a :class:`PixelStatistics` and passes run in order; with ``global`` it
     is the film of independent passes (:class:`~caustica.methods.independent.IndependentPasses`).
