@@ -85,6 +85,9 @@ def compile_scene(desc: SceneDescription) -> Scene:
                          f"inside a shape or an <emitter type=\"point\">")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
+    if desc.has_media:   # read, not rendered yet: never silently ignored
+        raise SceneError(f"{desc.source}: the scene has participating media or null-BSDF boundaries, which "
+                         f"caustica reads but does not render yet")
     return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0})
 
 

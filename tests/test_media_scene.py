@@ -1,0 +1,180 @@
+"""Participating media in scene files: Mitsuba 3's homogeneous medium, phase functions, the null BSDF.
+
+What is read (sigma_t x scale, albedo, isotropic / hg phase, a shape's interior and exterior,
+the sensor's medium, nested or by reference), Mitsuba's defaults, what makes a scene one
+"with media", and every bad input as one line naming file, line and element (exit 2 from the
+command line).  The renders are tested in tests/test_media_pt.py.
+"""
+from __future__ import annotations
+
+import pytest
+
+import caustica
+from caustica.errors import SceneError
+from caustica.scene import load_scene_description, load_scene_file, parse_scene_string
+from caustica.scene.description import DIFFUSE, HENYEY_GREENSTEIN, ISOTROPIC, NULL
+
+SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/>'
+          '<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>{}</sensor>')
+LIGHT = '<shape type="rectangle"><transform name="to_world"><translate z="-3"/></transform><emitter type="area"/></shape>'
+
+
+def scene(body: str, sensor_inner: str = "") -> str:
+    """A scene whose body starts on line 4 (the sensor is line 3)."""
+    return f'<?xml version="1.0"?>\n<scene version="3.0.0">\n{SENSOR.format(sensor_inner)}\n{body}\n</scene>\n'
+
+
+def test_media_nested_referenced_and_defaults():
+    d = parse_scene_string(scene("""<medium type="homogeneous" id="fog">
+    <rgb name="sigma_t" value="0.1, 0.2, 0.4"/><float name="scale" value="2.5"/><rgb name="albedo" value="0.9, 0.8, 0.7"/>
+    <phase type="hg"><float name="g" value="-0.3"/></phase>
+</medium>
+<shape type="cube" id="box"><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+<shape type="sphere" id="ball"><bsdf type="dielectric"/><ref name="exterior" id="fog"/>
+    <medium type="homogeneous" name="interior"/></shape>
+<shape type="sphere" id="hg"><medium type="homogeneous" name="exterior"><phase type="hg"/></medium></shape>
+""", '<ref id="fog"/>'))
+    assert len(d.media) == 3
+    fog, inner, hg = d.media
+    assert fog.sigma_t == pytest.approx((0.25, 0.5, 1.0)) and fog.albedo == (0.9, 0.8, 0.7)
+    assert (fog.phase, fog.g, fog.id) == (HENYEY_GREENSTEIN, -0.3, "fog") and fog.source == "<string>:4"
+    # Mitsuba's defaults: sigma_t 1, albedo 0.75, isotropic; hg's g 0.8
+    assert inner.sigma_t == (1.0, 1.0, 1.0) and inner.albedo == (0.75, 0.75, 0.75) and inner.phase == ISOTROPIC
+    assert (hg.phase, hg.g) == (HENYEY_GREENSTEIN, 0.8)
+    by_id = {s.id: s for s in d.shapes}
+    assert (by_id["box"].interior, by_id["box"].exterior) == (0, -1)
+    assert d.materials[by_id["box"].material].kind == NULL
+    assert (by_id["ball"].interior, by_id["ball"].exterior) == (1, 0)
+    assert (by_id["hg"].interior, by_id["hg"].exterior) == (-1, 2)
+    assert d.materials[by_id["hg"].material].kind == DIFFUSE      # the default BSDF
+    assert d.camera.medium == 0 and d.has_media
+
+
+def test_float_coefficients_and_a_nested_sensor_medium():
+    d = parse_scene_string(scene("", '<medium type="homogeneous"><float name="sigma_t" value="0.5"/>'
+                                     '<float name="albedo" value="1"/><phase type="isotropic"/></medium>'))
+    assert d.media[0].sigma_t == (0.5, 0.5, 0.5) and d.media[0].albedo == (1.0, 1.0, 1.0)
+    assert d.camera.medium == 0 and d.has_media
+
+
+def test_what_makes_a_scene_one_with_media():
+    # a medium defined but never used does not; a null boundary without a medium does
+    assert not parse_scene_string(scene('<medium type="homogeneous" id="fog"/>' + LIGHT)).has_media
+    assert parse_scene_string(scene('<shape type="cube"><bsdf type="null"/></shape>' + LIGHT)).has_media
+    for name in ("cornell-diacaustic", "cornell-catacaustic", "cornell-pyramid"):
+        d = load_scene_description(name)
+        assert not d.has_media and d.media == [] and d.camera.medium == -1
+        assert all(s.interior == -1 and s.exterior == -1 for s in d.shapes)
+
+
+#: Bad media input: (body from line 4, or the sensor's inner elements; line; element; a word of the message).
+MEDIUM = '<medium type="homogeneous">\n{}</medium>'
+BAD = {
+    "negative sigma_t": (MEDIUM.format('<rgb name="sigma_t" value="1, -0.5, 1"/>'), 5, '<rgb name="sigma_t">',
+                         "must not be negative"),
+    "NaN sigma_t": (MEDIUM.format('<float name="sigma_t" value="nan"/>'), 5, '<float name="sigma_t">',
+                    "not a finite number"),
+    "infinite sigma_t": (MEDIUM.format('<float name="sigma_t" value="inf"/>'), 5, '<float name="sigma_t">',
+                         "not a finite number"),
+    "negative albedo": (MEDIUM.format('<float name="albedo" value="-0.1"/>'), 5, '<float name="albedo">',
+                        "must not be negative"),
+    "NaN albedo": (MEDIUM.format('<rgb name="albedo" value="0.5, nan, 0.5"/>'), 5, '<rgb name="albedo">',
+                   "not a finite number"),
+    "albedo above 1": (MEDIUM.format('<rgb name="albedo" value="0.5, 1.5, 0.5"/>'), 5, '<rgb name="albedo">',
+                       "[0, 1]"),
+    "negative scale": (MEDIUM.format('<float name="scale" value="-2"/>'), 5, '<float name="scale">',
+                       "must not be negative"),
+    "NaN scale": (MEDIUM.format('<float name="scale" value="NaN"/>'), 5, '<float name="scale">', "finite"),
+    "sigma_t x scale overflows": (MEDIUM.format('<float name="sigma_t" value="1e20"/><float name="scale" '
+                                                'value="1e20"/>'), 5, '<float name="scale">', "float32"),
+    "g = 1": (MEDIUM.format('<phase type="hg"><float name="g" value="1"/></phase>'), 5, '<float name="g">',
+              "strictly between -1 and 1"),
+    "g = -1": (MEDIUM.format('<phase type="hg"><float name="g" value="-1"/></phase>'), 5, '<float name="g">',
+               "strictly between -1 and 1"),
+    "g = 2.5": (MEDIUM.format('<phase type="hg"><float name="g" value="2.5"/></phase>'), 5, '<float name="g">',
+                "strictly between -1 and 1"),
+    "NaN g": (MEDIUM.format('<phase type="hg"><float name="g" value="nan"/></phase>'), 5, '<float name="g">',
+              "finite"),
+    "g on isotropic": (MEDIUM.format('<phase type="isotropic"><float name="g" value="0.5"/></phase>'), 5,
+                       '<float name="g">', "unknown property 'g'"),
+    "two phases": (MEDIUM.format('<phase type="isotropic"/><phase type="hg"/>'), 5, '<phase type="hg">',
+                   "only one <phase>"),
+    "unknown phase": (MEDIUM.format('<phase type="rayleigh"/>'), 5, '<phase type="rayleigh">',
+                      "supported: isotropic, hg"),
+    "heterogeneous medium": ('<medium type="heterogeneous"/>', 4, '<medium type="heterogeneous">',
+                             "supported: homogeneous"),
+    "sigma_s (Mitsuba 0.6)": (MEDIUM.format('<float name="sigma_s" value="1"/>'), 5, '<float name="sigma_s">',
+                              "supported: sigma_t, albedo, scale"),
+    "a volume texture": (MEDIUM.format('<volume type="gridvolume" name="albedo"/>'), 5, "<volume",
+                         "unexpected element"),
+    "medium referenced but not defined": ('<shape type="cube"><bsdf type="null"/>\n<ref name="interior" id="fog"/>'
+                                          '</shape>', 5, '<ref name="interior" id="fog">', "no element has id 'fog'"),
+    "sensor's medium not defined": ('', 3, '<ref id="fog">', "no element has id 'fog'", '<ref id="fog"/>'),
+    "a BSDF as a medium": ('<bsdf type="diffuse" id="white"/>\n<shape type="cube"><ref name="exterior" id="white"/>'
+                           '</shape>', 5, '<ref name="exterior" id="white">', "a <medium> is needed here"),
+    "a shape's medium without a name": ('<shape type="cube">\n<medium type="homogeneous"/></shape>', 5,
+                                        '<medium type="homogeneous">', 'name="interior" or name="exterior"'),
+    "a shape's medium named otherwise": ('<shape type="cube">\n<medium type="homogeneous" name="inside"/></shape>', 5,
+                                         '<medium type="homogeneous" name="inside">', "supported: interior, exterior"),
+    "two interiors": ('<medium type="homogeneous" id="a"/><shape type="cube"><ref name="interior" id="a"/>\n'
+                      '<medium type="homogeneous" name="interior"/></shape>', 5,
+                      '<medium type="homogeneous" name="interior">', "given twice"),
+    "two sensor media": ('', 3, '<medium type="homogeneous">', "only one <medium>",
+                         '<medium type="homogeneous"/><medium type="homogeneous"/>'),
+    "twosided null": ('<bsdf type="twosided">\n<bsdf type="null"/></bsdf>', 5, '<bsdf type="null">',
+                      "twosided cannot wrap a null BSDF"),
+    "null with a property": ('<bsdf type="null">\n<float name="alpha" value="1"/></bsdf>', 5, '<float name="alpha">',
+                             "unknown property 'alpha'"),
+    "a medium inside a BSDF": ('<bsdf type="null">\n<medium type="homogeneous"/></bsdf>', 5,
+                               '<medium type="homogeneous">', "unexpected element"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_media_are_one_line_naming_file_line_and_element(tmp_path, case):
+    body, line, element, part, *sensor = BAD[case]
+    path = tmp_path / "bad-scene.xml"
+    path.write_text(scene(body, *sensor))
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"{path}:{line}: {element}"), msg
+    assert part in msg, msg
+
+
+@pytest.mark.parametrize("case", ["negative sigma_t", "NaN sigma_t", "g = 1", "medium referenced but not defined"])
+def test_bad_media_on_the_command_line_exit_2_with_one_line(cli, tmp_path, case):
+    body, line, element, part, *sensor = BAD[case]
+    path = tmp_path / "bad-scene.xml"
+    path.write_text(scene(body, *sensor))
+    code, out, err = cli("render", path, "--res", "8", "--spp", "1", "-q", "-o", tmp_path / "x.exr")
+    assert code == 2 and out == "", (code, out, err)
+    assert err.count("\n") == 1 and err.startswith(f"caustica: error: {path}:{line}: {element}"), err
+    assert part in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad-scene.xml"]
+
+
+def test_mitsuba_reads_the_same_media(tmp_path):
+    """The subset is Mitsuba's: a scene using every element above loads in Mitsuba 3 too."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    text = scene("""<medium type="homogeneous" id="fog"><rgb name="sigma_t" value="0.1, 0.2, 0.4"/>
+    <float name="scale" value="2.5"/><rgb name="albedo" value="0.9, 0.8, 0.7"/><phase type="hg"><float name="g" value="-0.3"/></phase>
+</medium>
+<shape type="cube" id="box"><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+<shape type="sphere" id="ball"><bsdf type="dielectric"/><ref name="exterior" id="fog"/>
+    <medium type="homogeneous" name="interior"><float name="albedo" value="1"/><phase type="isotropic"/></medium></shape>
+""" + LIGHT, '<ref id="fog"/>')
+    path = tmp_path / "media.xml"
+    path.write_text(text)
+    mi.load_file(str(path))
+    d = load_scene_file(path)
+    assert len(d.media) == 2 and d.has_media
+
+
+def test_scenes_with_media_are_not_rendered_yet(tmp_path):
+    path = tmp_path / "fog.xml"
+    path.write_text(scene('<shape type="cube"><bsdf type="null"/><medium type="homogeneous" name="interior"/>'
+                          '</shape>\n' + LIGHT))
+    with pytest.raises(SceneError, match="reads but does not render yet"):
+        caustica.load_scene(str(path))
