@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 import caustica
-from caustica.errors import SceneError
+from caustica.errors import ParameterError, SceneError
 from caustica.scene import load_scene_description, load_scene_file, parse_scene_string
 from caustica.scene.description import DIFFUSE, HENYEY_GREENSTEIN, ISOTROPIC, NULL
 
@@ -172,9 +172,45 @@ def test_mitsuba_reads_the_same_media(tmp_path):
     assert len(d.media) == 2 and d.has_media
 
 
-def test_scenes_with_media_are_not_rendered_yet(tmp_path):
+# ----------------------------------------------------------------------------- methods
+
+FOG_SCENE = scene('<shape type="cube"><bsdf type="null"/><medium type="homogeneous" name="interior"/></shape>\n'
+                  + LIGHT)
+
+
+@pytest.mark.parametrize("method", ["pm", "spm", "sppm", "pspm"])
+def test_photon_methods_refuse_media_in_one_line(tmp_path, cli, method):
     path = tmp_path / "fog.xml"
-    path.write_text(scene('<shape type="cube"><bsdf type="null"/><medium type="homogeneous" name="interior"/>'
-                          '</shape>\n' + LIGHT))
-    with pytest.raises(SceneError, match="reads but does not render yet"):
-        caustica.load_scene(str(path))
+    path.write_text(FOG_SCENE)
+    with pytest.raises(ParameterError) as e:
+        caustica.render(str(path), method, res=8)
+    msg = str(e.value)
+    assert msg == (f"{path}:4: the scene has participating media or null-BSDF boundaries, which are rendered by "
+                   f"pt only so far, not by {method} (docs/media.md)"), msg
+    code, out, err = cli("render", path, "--method", method, "--res", "8", "-q", "-o", tmp_path / "x.exr")
+    assert code == 2 and err == f"caustica: error: {msg}\n", err
+    code, out, err = cli("photons", path, "--method", "pm", "--res", "8", "-q", "-o", tmp_path / "x.png")
+    assert code == 2 and "pt only so far" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fog.xml"]
+
+
+def test_a_null_boundary_alone_also_makes_photon_methods_refuse(tmp_path):
+    path = tmp_path / "null.xml"
+    path.write_text(scene('<shape type="sphere"><bsdf type="null"/></shape>\n' + LIGHT))
+    with pytest.raises(ParameterError, match=r"null.xml:4: .* pt only so far, not by pm"):
+        caustica.render(str(path), "pm", res=8)
+
+
+def test_integrator_note_for_media_scenes(tmp_path):
+    path = tmp_path / "fog.xml"
+    for kind in ("volpath", "path"):
+        path.write_text(FOG_SCENE.replace("<scene version=\"3.0.0\">",
+                                          f'<scene version="3.0.0"><integrator type="{kind}"/>'))
+        d = load_scene_file(path)
+        note = d.integrator_note("pt", {"max_depth": -1})
+        if kind == "volpath":   # volpath is what pt does
+            assert note is None
+            assert d.integrator_note("pm", {}).startswith(f"integrator 'volpath' in {path}:2 is not used")
+        else:                   # Mitsuba's path ignores media; pt does not
+            assert note == (f"integrator 'path' in {path}:2 would ignore the scene's media in Mitsuba; pt renders "
+                            f"them (as Mitsuba's volpath does)")

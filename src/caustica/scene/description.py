@@ -172,24 +172,29 @@ class SceneDescription:
         """What a render with ``method`` and its ``parameters`` does with the scene's
         ``<integrator>``, when that differs from what the file asks; None otherwise.
 
-        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, so it
-        goes without a word unless the render is ``pt`` with settings other than the
-        file's (e.g. ``max_depth``); any other integrator (``bdpt``, ``volpath``, ...)
-        gets a note whatever the method, so a scene never renders differently from what
-        it asks without the user being told.
+        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, and so is
+        ``volpath`` (``pt`` follows rays through media, docs/media.md), so they go without
+        a word unless the render is ``pt`` with settings other than the file's (e.g.
+        ``max_depth``), or ``path`` on a scene with media (Mitsuba's ``path`` ignores
+        them, ``pt`` does not); any other integrator (``bdpt``, ...), and ``volpath``
+        with another method, gets a note, so a scene never renders differently from
+        what it asks without the user being told.
         """
         if not self.integrator_source:
             return None
         kind, where = self.integrator, self.integrator_source
-        if kind != "path":
+        if kind not in ("path", "volpath") or (kind == "volpath" and method != "pt"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
         if method != "pt":
             return None
+        if kind == "path" and self.has_media:
+            return (f"integrator 'path' in {where} would ignore the scene's media in Mitsuba; pt renders them "
+                    f"(as Mitsuba's volpath does)")
         differ = {k: v for k, v in self.integrator_props.items() if parameters.get(k, object()) != v}
         if not differ:
             return None
         asked = ", ".join(f"{k}={v}" for k, v in differ.items())
         ran = ", ".join(f"{k}={parameters[k]}" if k in parameters else f"no {k}" for k in differ)
-        return (f"integrator 'path' in {where} asks for {asked}, which is not read; pt runs with {ran} "
+        return (f"integrator '{kind}' in {where} asks for {asked}, which is not read; pt runs with {ran} "
                 f"(set pt's own flags, e.g. --max-depth, to change it)")
