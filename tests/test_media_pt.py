@@ -12,7 +12,8 @@
    with a medium of albedo 1 keeps L = Le / (1 - rho) whatever sigma_t and the phase.
 4. Bits: scenes without media render exactly as the surface path tracer; media renders give
    the same bits for any thread count.
-5. Mitsuba 3's volpath (scalar_rgb) on a small scene of media, glass and null boundaries.
+5. Mitsuba 3's volpath (scalar_rgb) on a small scene of media, glass and null boundaries, and on
+   the built-in cornell-diacaustic-fog (tests/imagestats.py: image mean within 2 %, block means within noise).
 
 Tolerances are derived from noise measured in each test (or, for the slab, computed), as
 in tests/test_pt.py; 5 sigma.
@@ -306,7 +307,7 @@ def test_scenes_without_media_compile_without_a_medium_table():
 
 CMP_RES = 32
 CMP_SEEDS = (1, 2, 3, 4)      # independent renders of each image, to measure its noise (tests/imagestats.py)
-CMP_SPP = {"media-glass": 256}
+CMP_SPP = {"media-glass": 256, "cornell-diacaustic-fog": 512}
 
 
 @pytest.fixture(scope="module")
@@ -336,3 +337,11 @@ def test_media_scene_matches_mitsuba_volpath(mi, test_scenes_dir, max_depth):
     that scattering in a medium counts as a bounce and crossing a null boundary does not (Mitsuba's depth)."""
     ours, theirs = media_renders(mi, test_scenes_dir / "media-glass.xml", CMP_SPP["media-glass"], max_depth)
     assert_images_agree(ours, theirs, label=f"media-glass, max_depth {max_depth}")
+
+
+@pytest.mark.mitsuba
+def test_fog_box_matches_mitsuba_volpath(mi):
+    """The built-in cornell-diacaustic-fog: the light's cone and the sphere's focused beam in thin fog."""
+    from caustica.scene import builtin_scene_path
+    ours, theirs = media_renders(mi, builtin_scene_path("cornell-diacaustic-fog"), CMP_SPP["cornell-diacaustic-fog"])
+    assert_images_agree(ours, theirs, label="cornell-diacaustic-fog")

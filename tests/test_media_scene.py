@@ -214,3 +214,30 @@ def test_integrator_note_for_media_scenes(tmp_path):
         else:                   # Mitsuba's path ignores media; pt does not
             assert note == (f"integrator 'path' in {path}:2 would ignore the scene's media in Mitsuba; pt renders "
                             f"them (as Mitsuba's volpath does)")
+
+
+# ----------------------------------------------------------------------------- the built-in fog scene
+
+def test_fog_scene_is_the_diacaustic_scene_in_fog():
+    import numpy as np
+    fog = load_scene_description("cornell-diacaustic-fog")
+    plain = load_scene_description("cornell-diacaustic")
+    assert fog.has_media and fog.integrator == "volpath" and fog.camera.medium == -1   # the camera is outside
+    assert [m.__dict__ for m in fog.materials[:len(plain.materials)]] == [m.__dict__ for m in plain.materials]
+    np.testing.assert_array_equal(fog.camera.to_world, plain.camera.to_world)
+    (medium,) = fog.media
+    assert medium.sigma_t == (0.05, 0.05, 0.05) and medium.albedo == (0.9, 0.9, 0.9) and medium.phase == ISOTROPIC
+    assert 1 / medium.sigma_t[0] == pytest.approx(20.0)         # the mean free path: the box's size
+    by_id = {s.id: s for s in fog.shapes}
+    assert [s.id for s in fog.shapes] == [s.id for s in plain.shapes] + ["fog_volume"]
+    for s in plain.shapes:
+        mine = by_id[s.id]
+        assert (mine.kind, mine.material, mine.emitter_radiance) == (s.kind, s.material, s.emitter_radiance)
+        if s.mesh is not None:
+            np.testing.assert_array_equal(mine.mesh.positions, s.mesh.positions)
+    assert (by_id["glass_sphere"].interior, by_id["glass_sphere"].exterior) == (-1, 0)   # no fog in the glass
+    volume = by_id["fog_volume"]
+    assert fog.materials[volume.material].kind == NULL and (volume.interior, volume.exterior) == (0, -1)
+    lo, hi = volume.mesh.positions.min(axis=0), volume.mesh.positions.max(axis=0)
+    np.testing.assert_allclose(lo, [-10.01, -0.01, -10.01])
+    np.testing.assert_allclose(hi, [10.01, 20.01, 10.01])
