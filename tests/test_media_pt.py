@@ -234,8 +234,8 @@ FURNACE_RHO = np.array([0.3, 0.6, 0.8])
 FURNACE_LE = np.array([1.0, 2.0, 0.5])
 
 
-def furnace_media_scene(kind):
-    fog = ('<medium type="homogeneous" id="fog"><rgb name="sigma_t" value="0.4, 0.8, 1.6"/><float name="albedo" '
+def furnace_media_scene(kind, sigma_t="0.4, 0.8, 1.6"):
+    fog = (f'<medium type="homogeneous" id="fog"><rgb name="sigma_t" value="{sigma_t}"/><float name="albedo" '
            'value="1"/><phase type="hg"><float name="g" value="0.5"/></phase></medium>')
     walls = f"""<shape type="sphere"><float name="radius" value="2"/><boolean name="flip_normals" value="true"/>
             <bsdf type="diffuse"><rgb name="reflectance" value="{rgb(FURNACE_RHO)}"/></bsdf>
@@ -345,3 +345,12 @@ def test_fog_box_matches_mitsuba_volpath(mi):
     from caustica.scene import builtin_scene_path
     ours, theirs = media_renders(mi, builtin_scene_path("cornell-diacaustic-fog"), CMP_SPP["cornell-diacaustic-fog"])
     assert_images_agree(ours, theirs, label="cornell-diacaustic-fog")
+
+
+
+def test_checkpoints_tell_media_apart():
+    """A checkpoint's scene fingerprint covers the media: a resumed render cannot mix two fogs."""
+    from caustica.checkpoint import scene_fingerprint
+    a, b = furnace_media_scene("ball"), furnace_media_scene("ball")
+    assert scene_fingerprint(a) == scene_fingerprint(b)
+    assert scene_fingerprint(furnace_media_scene("ball", sigma_t="0.4, 0.8, 1.7")) != scene_fingerprint(a)
