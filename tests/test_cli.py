@@ -21,7 +21,7 @@ import pytest
 
 from caustica import __version__, imageio, memory, methods
 
-BUILTINS = ("cornell-diacaustic", "cornell-catacaustic", "cornell-pyramid", "cornell-bunny")
+BUILTINS = ("cornell-diacaustic", "cornell-catacaustic", "cornell-pyramid", "cornell-bunny", "cornell-diacaustic-fog")
 SCENE = "cornell-diacaustic"
 TINY = ("--res", "16", "--spp", "1", "-q")
 #: Small photon counts for each method; an empty tuple for the path tracer.
@@ -406,7 +406,7 @@ def test_python_m_caustica_real_exit_code_and_no_traceback(tmp_path):
 # ----------------------------------------------------------------------------- listings and help
 
 
-def test_scenes_lists_the_four_builtins(cli):
+def test_scenes_lists_the_builtins(cli):
     code, out, err = cli("scenes")
     assert code == 0 and err == ""
     lines = out.strip().splitlines()

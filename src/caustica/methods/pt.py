@@ -6,6 +6,10 @@ followed as Dirac deltas (glass chooses reflection or refraction with the Fresne
 probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
 ``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
 only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
+
+A scene with participating media or null-BSDF boundaries is rendered by the volumetric
+kernel of :mod:`caustica.methods.pt_volume` instead (the same samples, keys and depth
+convention; docs/media.md); every other scene by :func:`radiance` below, as before.
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ from ..scene.description import CONDUCTOR, DIFFUSE
 from . import register
 from .independent import IndependentPasses
 from .params import Param
+from .pt_volume import render_pixels_media
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
@@ -142,8 +147,9 @@ def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_dept
 @register
 class PathTracer(IndependentPasses):
     name = "pt"
-    summary = "path tracing with next-event estimation and MIS (the unbiased reference)"
+    summary = "path tracing with next-event estimation and MIS (the unbiased reference), through media too"
     progressive = True
+    renders_media = True
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),
@@ -163,10 +169,13 @@ class PathTracer(IndependentPasses):
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, cam,
-                                                    settings["seed"], stream, settings["spp"], max_depth,
-                                                    settings["rr_depth"], image, rays),
-                                 threads=settings["threads"], progress=bar)
+        tables = (scene.geometry, scene.materials, scene.lights)
+        kernel_args = (cam, settings["seed"], stream, settings["spp"], max_depth, settings["rr_depth"], image, rays)
+        if scene.media is None:
+            compile_s = parallel_for(render_pixels, n, tables + kernel_args, threads=settings["threads"], progress=bar)
+        else:   # a volumetric path tracer (methods/pt_volume.py, docs/media.md)
+            compile_s = parallel_for(render_pixels_media, n, tables + (scene.media,) + kernel_args,
+                                     threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, None, {
