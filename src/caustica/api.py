@@ -219,6 +219,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
             out["resumed_from_pass"] = log.resumed_from
     if cluster_log is not None:
         out["cluster"] = cluster_log
+        out["threads"] = cluster_log["worker_threads"]   # the threads that rendered, not this process's
     out["peak_memory_bytes"] = peak_memory_bytes()
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     aovs = {name: cls.aov(scene, settings, state, name) for name in aov}
