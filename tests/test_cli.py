@@ -790,7 +790,10 @@ def test_ctrl_c_stops_a_render_within_seconds_and_keeps_the_outputs(tmp_path, th
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))   # tqdm needs a width
     proc = subprocess.Popen([sys.executable, "-m", "caustica", "render", SCENE, "--res", "32", "--spp", "8192",
                              "--threads", threads, "-o", str(out)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave,
+                            # a suite started in the background has SIGINT ignored, and a child inherits
+                            # that; a terminal's Ctrl-C reaches a render with the default disposition
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     os.close(slave)
     try:
         seen = b""
