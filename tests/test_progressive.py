@@ -26,6 +26,8 @@ from caustica.errors import ParameterError
 from caustica.film import Film
 from caustica.photons.grid import build_grid, grid_range_sum
 from caustica.photons.kdtree import FACING_COS
+from caustica.photons.visible_points import visible_points
+from caustica.sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, kronecker, pass_stream, sobol02
 from caustica.scene import builtin_scene_path
 from imagestats import N_SIGMA, assert_images_agree, downsample, load_reference
 from test_pt import FURNACE_LE, FURNACE_RHO, PLANE_RHO, AH, AW, CAM_H, FOV_X, LIGHT_H, furnace_scene, \
@@ -41,9 +43,11 @@ def diacaustic():
 
 # --------------------------------------------------------------------------- 1. pieces
 
-def test_grid_range_sum_matches_brute_force():
+@pytest.mark.parametrize("n", [5000, 3, 0])
+def test_grid_range_sum_matches_brute_force(n):
+    """Also where many cells share a bucket (cell 0.05: 10^6 cells, 2^14 buckets for 5000 events)
+    and where a column is longer than the buckets (a few events: a few buckets)."""
     rng = np.random.default_rng(1)
-    n = 5000
     pos = rng.uniform(-2, 3, (n, 3)).astype(np.float32)
     nrm = rng.normal(size=(n, 3))
     nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
@@ -63,6 +67,44 @@ def test_grid_range_sum_matches_brute_force():
             count, s = grid_range_sum(grid, (q[0], q[1], q[2]), (qn[0], qn[1], qn[2]), r)
             assert count == take.sum()
             np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("key", [0, 1, 0x9E3779B97F4A7C15, 2**64 - 1])
+def test_sobol02_prefixes_are_nets_whatever_the_shift(key):
+    """The first 2^m points of the shifted Sobol' (0, 2)-sequence put one point in each elementary
+    box of every shape 2^-a x 2^-(m-a): the digital shift keeps the net property."""
+    pts = np.array([sobol02(i, np.uint64(key)) for i in range(256)])
+    assert np.all((pts >= 0) & (pts < 1))
+    for m in range(9):
+        for a in range(m + 1):
+            cx = np.floor(pts[:2 ** m, 0] * 2 ** a).astype(int)
+            cy = np.floor(pts[:2 ** m, 1] * 2 ** (m - a)).astype(int)
+            assert len(set(zip(cx, cy))) == 2 ** m, (m, a)
+
+
+def test_sobol02_and_kronecker_points_are_uniform_over_shifts():
+    """Each single point is uniform over the random shifts: a pass alone is an unbiased sample."""
+    keys = np.arange(4000, dtype=np.uint64) * np.uint64(0x2545F4914F6CDD1D)
+    rng = np.random.default_rng(5)
+    for index in (0, 1, 7, 1000):
+        u = np.array([sobol02(index, k) for k in keys])
+        v = np.array([kronecker(index, KRONECKER_ALPHA[0], s) for s in rng.uniform(size=4000)])
+        for x in (u[:, 0], u[:, 1], v):
+            counts = np.histogram(x, bins=8, range=(0, 1))[0]
+            chi2 = float(((counts - 500.0) ** 2 / 500.0).sum())
+            assert chi2 < 30.0, (index, counts)   # 7 degrees of freedom: p < 1e-4
+
+
+def test_kronecker_points_over_passes_are_evenly_spread():
+    """frac(s + k alpha) for k < n: the share below any F is within 10/n of F (independent
+    numbers stray by about sqrt(F (1 - F) / n), 1/32 at n = 256), for every generator and shift."""
+    rng = np.random.default_rng(2)
+    f = np.linspace(0, 1, 65)
+    for alpha in KRONECKER_ALPHA:
+        for shift in rng.uniform(size=20):
+            for n in (16, 64, 256):
+                x = np.array([kronecker(k, alpha, shift) for k in range(n)])
+                assert np.max(np.abs((x[None, :] < f[:, None]).mean(axis=1) - f)) <= 10.0 / n
 
 
 def test_film_adds_passes_in_its_tree():
@@ -151,6 +193,56 @@ def test_point_light_over_plane(method, params):
     tol = (N_SIGMA * f.std(axis=2) / math.sqrt(passes))[..., None] * scale + 1e-4 * expected
     img = r.image.astype(np.float64)
     assert np.all(np.abs(img - expected) <= tol), np.max(np.abs(img - expected) / tol)
+
+
+def test_camera_pass_stratifies_each_pixel_over_the_passes():
+    """Over 16 passes a pixel's visible points on a plane facing the camera fall one in each of the
+    4 x 4 (and 2 x 8, 8 x 2, 1 x 16) sub-pixel cells: the jitter is a (0, 4, 2)-net over the passes."""
+    scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
+        <rgb name="intensity" value="1, 1, 1"/></emitter>""")
+    cam = scene.camera(AW, AH)
+    n = AW * AH
+    tan_x = math.tan(math.radians(FOV_X) / 2)
+    tan_y = tan_x * AH / AW
+    offsets = []
+    for p in range(16):
+        pos, nrm, w, found, direct = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.bool_), \
+            np.zeros((n, 3))
+        visible_points(scene.geometry, scene.materials, scene.lights, cam, 11, pass_stream(STREAM_CAMERA, p), p, 1,
+                       False, 64, pos, nrm, w, found, direct, 0, n)
+        assert found.all()
+        # film coordinates of the visible point (the inverse of tests/test_pt.py's pixel_footprints)
+        fx = (1 - pos[:, 0] / (CAM_H * tan_x)) / 2 * AW
+        fy = (1 - pos[:, 1] / (CAM_H * tan_y)) / 2 * AH
+        col = np.arange(n) % AW
+        row = np.arange(n) // AW
+        # the camera's handedness may mirror x or y: fold the film coordinate into the pixel
+        ux = np.where(np.abs(fx - col - 0.5) <= 0.5, fx - col, (AW - fx) - col)
+        uy = np.where(np.abs(fy - row - 0.5) <= 0.5, fy - row, (AH - fy) - row)
+        assert np.all((ux > -1e-9) & (ux < 1 + 1e-9) & (uy > -1e-9) & (uy < 1 + 1e-9))
+        offsets.append(np.stack([ux, uy], axis=1))
+    offsets = np.clip(np.array(offsets), 0, 1 - 1e-12)    # (pass, pixel, 2)
+    for a in range(5):
+        cells = np.floor(offsets[..., 0] * 2 ** a) * 2 ** (4 - a) + np.floor(offsets[..., 1] * 2 ** (4 - a))
+        for i in range(n):
+            assert len(set(cells[:, i].tolist())) == 16, (a, i)
+
+
+def test_stratified_passes_beat_independent_jitter_on_smooth_light():
+    """Direct light from a point light is smooth over a pixel: with the jitter stratified over the
+    passes, 64 passes leave an error far below the independent-jitter standard error."""
+    intensity = np.array([10.0, 20.0, 30.0])
+    passes = 64
+    scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
+        <rgb name="intensity" value="{', '.join(map(str, intensity))}"/></emitter>""")
+    r = caustica.render(scene, "sppm", seed=4, passes=passes)
+    x, y = pixel_footprints(AW, AH, FOV_X, CAM_H)
+    f = LIGHT_H / (x * x + y * y + LIGHT_H ** 2) ** 1.5
+    scale = intensity * np.asarray(PLANE_RHO) / math.pi
+    expected = f.mean(axis=2)[..., None] * scale
+    independent_se = (f.std(axis=2) / math.sqrt(passes))[..., None] * scale
+    err = r.image.astype(np.float64) - expected
+    assert np.sqrt(np.mean(err ** 2)) <= 0.25 * np.sqrt(np.mean(independent_se ** 2))
 
 
 FURNACE_CASES = [("sppm", {}), ("pspm", {}), ("pspm", {"estimator": "photons"}), ("pspm", {"specular": "split"}),

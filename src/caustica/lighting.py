@@ -20,7 +20,7 @@ from .emitters import AREA, choose_light, sample_area_emitter
 from .geometry import vec
 from .geometry.scene_geometry import occluded
 from .jit import kernel
-from .sampling.rng import uniform
+from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 
 
 @kernel(inline=True)
@@ -101,6 +101,35 @@ def direct_one_sample(geom, lights, p, ng, ns, key, dim):
     if cos_s <= 0.0:
         return zero, 0.0, 0.0, False, traced
     return vec.mul(vec.row(lights.radiance, li), cos_s / (dist2 * sel_pdf)), 0.0, cos_s, False, traced
+
+
+@kernel
+def direct_stratified_qmc(geom, lights, p, ng, ns, qkey, qdim, pass_index, n_strata):
+    """``direct_stratified`` with each stratum's jitter from a shifted Kronecker sequence over passes.
+
+    Stratum s of pass k is jittered by frac(u_s + k alpha) with u_s the pixel's own random shift
+    (numbers qdim + 2 s, qdim + 2 s + 1 of qkey): each pass's point is uniform in its stratum,
+    and over the passes the points of a stratum fill it evenly.
+    """
+    E = (0.0, 0.0, 0.0)
+    n_total = n_strata * n_strata
+    for li in range(lights.kind.shape[0]):
+        if lights.kind[li] == AREA:
+            acc = 0.0
+            for s in range(n_total):
+                i = s % n_strata
+                j = s // n_strata
+                u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, qdim + 2 * s))) / n_strata
+                u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, qdim + 2 * s + 1))) / n_strata
+                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
+                cos_s, cos_l, dist2, _ = area_light_geometry(geom, p, ng, ns, q, nq)
+                if cos_s > 0.0:
+                    acc += cos_s * cos_l / dist2
+            E = vec.madd(E, vec.row(lights.radiance, li), acc * lights.area[li] / n_total)
+        else:
+            cos_s, dist2, _ = point_light_geometry(geom, lights, li, p, ng, ns)
+            E = vec.madd(E, vec.row(lights.radiance, li), cos_s / dist2)
+    return E
 
 
 @kernel

@@ -202,7 +202,7 @@ class ProgressivePhotonMethod(IndependentPasses):
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
-                                              pass_stream(STREAM_CAMERA, pass_index), settings["light_samples"],
+                                              pass_stream(STREAM_CAMERA, pass_index), pass_index, settings["light_samples"],
                                               settings["fixed_light_grid"], settings["max_specular_depth"],
                                               vp_pos, vp_nrm, vp_weight, vp_found, direct),
                           threads=threads, progress=bar)

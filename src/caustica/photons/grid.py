@@ -1,16 +1,24 @@
-"""A uniform grid over one pass's photon events, for the progressive methods' fixed-radius gather.
+"""A uniform grid over one pass's photon events, folded into buckets, for the progressive methods' gather.
 
 SPPM asks, every pass and for every pixel, "which of this pass's photons lie within
 R_i of my visible point?".  A kd-tree answers in O(log n + found) but costs a
 median-split build per pass (O(n log n), the largest part of a pass in measurements);
 a uniform grid with cells about as large as the radii is built by one counting sort
-(O(n + cells)) and answers by scanning the few cells the query's sphere overlaps.
+and answers by scanning the few cells the query's sphere overlaps.
 
-Layout: cells of side ``cell`` cover the box ``[lo, lo + dims * cell)``; cell
-(ix, iy, iz) is number ``(ix * dims[1] + iy) * dims[2] + iz``, and its events are
-entries ``start[c] .. start[c + 1]`` of the sorted arrays (position, power, normal:
-structure of arrays, float32 like the photon records).  Points outside the box are
-clamped into its border cells (the distance test stays exact).
+Cells of side ``cell`` cover the box ``[lo, lo + dims * cell)``; cell (ix, iy, iz) has the
+key ``(ix * dims[1] + iy) * dims[2] + iz``.  The events lie on surfaces, so most cells of
+the box are empty: once the radii have shrunk, a dense table of every cell (a million
+or more for 10^5 events) cost more to clear and to sum per pass than the sort itself.
+So the cells are *folded* into a power of two of buckets, at least twice the events
+(and no more than the cells): cell ``key`` lives in bucket ``key mod buckets``.  The
+build is then O(events) whatever the radius, and a z-column's cells z0..z1 are still
+consecutive buckets (one run, or two where the buckets wrap), so a query reads memory
+as the dense grid did.  A bucket's events are entries ``start[b] .. start[b + 1]`` of
+the sorted arrays (position, power, normal: structure of arrays, float32 like the
+photon records) with their cells' keys: a query takes an event only if its key is one
+of the cells it scans, so the cells that share a bucket never mix.  Points outside the
+box are clamped into its border cells (the distance test stays exact).
 """
 from __future__ import annotations
 
@@ -22,16 +30,17 @@ import numpy as np
 from ..jit import kernel
 from .kdtree import FACING_COS
 
-#: Most cells a grid may have (its ``start`` array is int64: 8 bytes a cell).
-MAX_CELLS = 1 << 22
+#: Most cells along one axis (keys stay far inside int64).
+MAX_DIM = 1 << 20
 
 
 class PhotonGrid(NamedTuple):
     lo: np.ndarray        # float64[3], the box's low corner
     cell: np.ndarray      # float64[1], the side of a cell
     dims: np.ndarray      # int64[3], cells along x, y, z
-    start: np.ndarray     # int64[cells + 1]
-    position: np.ndarray  # float32[n, 3], sorted by cell
+    start: np.ndarray     # int64[buckets + 1]
+    key: np.ndarray       # int64[n], each sorted event's cell key
+    position: np.ndarray  # float32[n, 3], sorted by bucket
     power: np.ndarray     # float32[n, 3]
     normal: np.ndarray    # float32[n, 3]
 
@@ -44,15 +53,18 @@ class PhotonGrid(NamedTuple):
 
 
 def grid_shape(box: np.ndarray, cell: float) -> tuple[np.ndarray, float, np.ndarray]:
-    """(low corner, cell side, dims) for cells of about ``cell`` over ``box`` (lo, hi), at most MAX_CELLS."""
+    """(low corner, cell side, dims) for cells of about ``cell`` over ``box`` (lo, hi), at most MAX_DIM a side."""
     lo = np.asarray(box[:3], np.float64)
     ext = np.maximum(np.asarray(box[3:], np.float64) - lo, 1e-9)
-    cell = max(float(cell), 1e-9)
-    while True:
-        dims = np.maximum(1, np.ceil(ext / cell).astype(np.int64))
-        if int(np.prod(dims)) <= MAX_CELLS:
-            return lo, cell, dims
-        cell *= 1.25
+    cell = max(float(cell), float(ext.max()) / MAX_DIM, 1e-9)
+    dims = np.minimum(MAX_DIM, np.maximum(1, np.ceil(ext / cell).astype(np.int64)))
+    return lo, cell, dims
+
+
+def bucket_count(n_events: int, n_cells: int) -> int:
+    """Buckets: the least power of two >= 2 n_events (at least 1), and no more than needed for n_cells."""
+    want = max(1, min(2 * n_events, n_cells))
+    return 1 << (want - 1).bit_length()
 
 
 @kernel
@@ -63,30 +75,40 @@ def _cell_of(px, py, pz, lo, inv, dims):
     return ix, iy, iz
 
 
+@kernel(inline=True)
+def _bucket(key, mask):
+    return key & mask
+
+
 @kernel
-def _counting_sort(position, power, normal, valid, lo, cell, dims, start, out_pos, out_pow, out_nrm):
-    """Sort the valid events by cell into out_*; start receives the cells' offsets."""
+def _counting_sort(position, power, normal, valid, lo, cell, dims, start, out_key, out_pos, out_pow, out_nrm):
+    """Sort the valid events by bucket into out_*; start receives the buckets' offsets."""
     inv = 1.0 / cell
     n = position.shape[0]
-    n_cells = start.shape[0] - 1
-    cells = np.empty(n, np.int64)
+    n_buckets = start.shape[0] - 1
+    mask = n_buckets - 1
+    keys = np.empty(n, np.int64)
+    buckets = np.empty(n, np.int64)
     for i in range(n):
         if valid[i] == 0:
-            cells[i] = -1
+            buckets[i] = -1
             continue
         ix, iy, iz = _cell_of(position[i, 0], position[i, 1], position[i, 2], lo, inv, dims)
-        c = (ix * dims[1] + iy) * dims[2] + iz
-        cells[i] = c
-        start[c + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
+        k = (ix * dims[1] + iy) * dims[2] + iz
+        b = _bucket(k, mask)
+        keys[i] = k
+        buckets[i] = b
+        start[b + 1] += 1
+    for b in range(n_buckets):
+        start[b + 1] += start[b]
     fill = start[:-1].copy()
     for i in range(n):  # in input order: the same sorted arrays for any thread count
-        c = cells[i]
-        if c < 0:
+        b = buckets[i]
+        if b < 0:
             continue
-        j = fill[c]
-        fill[c] += 1
+        j = fill[b]
+        fill[b] += 1
+        out_key[j] = keys[i]
         for k in range(3):
             out_pos[j, k] = position[i, k]
             out_pow[j, k] = power[i, k]
@@ -101,11 +123,13 @@ def grid_compiled() -> bool:
 def build_grid(position, power, normal, valid, box, cell) -> PhotonGrid:
     """The grid of the events with ``valid`` != 0, cells of about ``cell`` over ``box`` (lo, hi)."""
     lo, cell, dims = grid_shape(box, cell)
+    valid = np.ascontiguousarray(valid, np.int8)
     n = int(np.count_nonzero(valid))
-    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
+    start = np.zeros(bucket_count(n, int(np.prod(dims))) + 1, np.int64)
+    key = np.empty(n, np.int64)
     out = [np.empty((n, 3), np.float32) for _ in range(3)]
-    _counting_sort(position, power, normal, np.ascontiguousarray(valid, np.int8), lo, cell, dims, start, *out)
-    return PhotonGrid(lo, np.array([cell]), dims, start, *out)
+    _counting_sort(position, power, normal, valid, lo, cell, dims, start, key, *out)
+    return PhotonGrid(lo, np.array([cell]), dims, start, key, *out)
 
 
 @kernel
@@ -123,25 +147,44 @@ def grid_range_sum(grid, qp, qn, r):
     lo = grid.lo
     dims = grid.dims
     inv = 1.0 / grid.cell[0]
+    mask = grid.start.shape[0] - 2
     x0, y0, z0 = _cell_of(qp[0] - r, qp[1] - r, qp[2] - r, lo, inv, dims)
     x1, y1, z1 = _cell_of(qp[0] + r, qp[1] + r, qp[2] + r, lo, inv, dims)
     r2 = r * r
     pos = grid.position
     pw = grid.power
     nrm = grid.normal
+    keys = grid.key
     for ix in range(x0, x1 + 1):
         for iy in range(y0, y1 + 1):
-            base = (ix * dims[1] + iy) * dims[2]
-            a = grid.start[base + z0]
-            b = grid.start[base + z1 + 1]   # cells z0..z1 of this column are contiguous
-            for j in range(a, b):
-                dx = pos[j, 0] - qp[0]
-                dy = pos[j, 1] - qp[1]
-                dz = pos[j, 2] - qp[2]
-                if dx * dx + dy * dy + dz * dz <= r2:
-                    if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
-                        count += 1
-                        s0 += pw[j, 0]
-                        s1 += pw[j, 1]
-                        s2 += pw[j, 2]
+            # cells z0..z1 of this column are consecutive keys: consecutive buckets, in at most two runs
+            # when the buckets wrap (or all of them, when the column is longer than the buckets)
+            k0 = (ix * dims[1] + iy) * dims[2] + z0
+            k1 = k0 + (z1 - z0)
+            b0 = k0 & mask
+            b1 = k1 & mask
+            if k1 - k0 >= mask:
+                b0 = 0
+                b1 = mask
+            runs = 1 if b1 >= b0 else 2
+            for run in range(runs):
+                if runs == 1:
+                    a, e = grid.start[b0], grid.start[b1 + 1]
+                elif run == 0:
+                    a, e = grid.start[b0], grid.start[mask + 1]
+                else:
+                    a, e = grid.start[0], grid.start[b1 + 1]
+                for j in range(a, e):
+                    kj = keys[j]
+                    if kj < k0 or kj > k1:
+                        continue
+                    dx = pos[j, 0] - qp[0]
+                    dy = pos[j, 1] - qp[1]
+                    dz = pos[j, 2] - qp[2]
+                    if dx * dx + dy * dy + dz * dz <= r2:
+                        if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
+                            count += 1
+                            s0 += pw[j, 0]
+                            s1 += pw[j, 1]
+                            s2 += pw[j, 2]
     return count, (s0, s1, s2)

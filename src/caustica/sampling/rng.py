@@ -11,6 +11,8 @@ passes BigCrush when used as a counter-based generator.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..jit import kernel
@@ -21,6 +23,8 @@ STREAM_PHOTON = 2
 STREAM_CAUSTIC_PHOTON = 3
 STREAM_SPM = 4
 STREAM_DIRECT = 5
+# Per-pixel scrambles of the camera pass's low-discrepancy sequence over passes (never a pass's own numbers).
+STREAM_CAMERA_SCRAMBLE = 6
 # Tags from 100 up belong to measurement tools, not to any method's image: the caustic
 # mask of the experiments (experiments/masks.py) traces its own photons, so the region an
 # experiment measures is never drawn from the very photons of the PM+C render it judges.
@@ -73,3 +77,57 @@ def uniform(key, dim):
     """The ``dim``-th uniform number in [0, 1) of the path with this key."""
     z = mix64(key + np.uint64(dim + 1) * _GOLDEN)
     return float(z >> _S11) * _INV53
+
+
+_MASK32 = np.uint64(0xFFFFFFFF)
+_ONE = np.uint64(1)
+_INV32 = 1.0 / 4294967296.0
+
+
+@kernel(inline=True)
+def _reverse32(v):
+    v = np.uint64(v) & _MASK32
+    v = ((v >> np.uint64(1)) & np.uint64(0x55555555)) | ((v & np.uint64(0x55555555)) << np.uint64(1))
+    v = ((v >> np.uint64(2)) & np.uint64(0x33333333)) | ((v & np.uint64(0x33333333)) << np.uint64(2))
+    v = ((v >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((v & np.uint64(0x0F0F0F0F)) << np.uint64(4))
+    v = ((v >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((v & np.uint64(0x00FF00FF)) << np.uint64(8))
+    return ((v >> np.uint64(16)) | (v << np.uint64(16))) & _MASK32
+
+
+@kernel
+def sobol02(index, key):
+    """Point ``index`` of the 2-D Sobol' (0, 2)-sequence, digitally shifted by ``key``'s numbers: (u1, u2).
+
+    The first two dimensions of Sobol's sequence (van der Corput in base 2, and the
+    Pascal-matrix dimension): every block of 2^m consecutive points from 0 is a
+    (0, m, 2)-net -- one point in each of 2^m elementary boxes of every shape.  The shift XORs
+    each coordinate's 32 bits with a random word drawn from ``key`` (Cranley-Patterson's
+    rotation in base 2): it keeps the net property and makes every single point uniform
+    on [0, 1)^2, so each point is an unbiased sample and a prefix of n points stratifies.
+    """
+    i = np.uint64(index) & _MASK32
+    x = _reverse32(i)
+    y = np.uint64(0)
+    v = np.uint64(0x80000000)
+    while i != np.uint64(0):
+        if i & _ONE:
+            y ^= v
+        i >>= _ONE
+        v ^= v >> _ONE
+    sx = mix64(key + _GOLDEN) & _MASK32
+    sy = mix64(key + np.uint64(2) * _GOLDEN) & _MASK32
+    return float(x ^ sx) * _INV32, float(y ^ sy) * _INV32
+
+
+#: Kronecker (rank-1) generators for the progressive camera pass's other dimensions: the
+#: fractional powers 1/g, 1/g^2, 1/g^3 of the root g of x^4 = x + 1 (Roberts' R_3 sequence),
+#: rationally independent, so frac(s + k alpha) is uniformly distributed in 3-D.
+_G3 = 1.2207440846057596
+KRONECKER_ALPHA = (1.0 / _G3, 1.0 / _G3 ** 2, 1.0 / _G3 ** 3)
+
+
+@kernel(inline=True)
+def kronecker(index, alpha, shift):
+    """frac(shift + index * alpha): point ``index`` of a randomly shifted 1-D Kronecker sequence."""
+    x = shift + float(index) * alpha
+    return x - math.floor(x)
