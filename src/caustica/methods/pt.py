@@ -18,15 +18,14 @@ import time
 
 import numpy as np
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdf import sample_surface, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel, parallel_for
 from ..lighting import direct_one_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..sampling.warps import square_to_cosine_hemisphere
-from ..scene.description import CONDUCTOR, DIFFUSE
+from ..scene.description import DIFFUSE
 from . import register
 from .independent import IndependentPasses
 from .params import Param
@@ -85,27 +84,12 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
                     pdf_b = cos_s * INV_PI
                     w = pdf_light * pdf_light / (pdf_light * pdf_light + pdf_b * pdf_b)
                 L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * INV_PI)
-            local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-            s, tt = vec.orthonormal_basis(ns)
-            wi = vec.from_local(s, tt, ns, local)
-            if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
-                break
-            beta = vec.hadamard(beta, rgb)
-            pdf_bsdf = local[2] * INV_PI
-            specular = False
-        elif kind == CONDUCTOR:
-            wi = mirror_reflect(d, ng, ns)
-            beta = vec.hadamard(beta, rgb)
-            specular = True
-        else:
-            wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], uniform(key, dim))
-            dim += 1
-            beta = vec.hadamard(beta, rgb)
-            if not is_reflection:
-                beta = vec.mul(beta, 1.0 / (eta * eta))
-                eta_scale *= eta * eta
-            specular = True
+        alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns, key,
+                                                                        dim, beta, eta_scale)
+        if not alive:
+            break
+        if not specular:
+            pdf_bsdf = pdf
         o = vec.offset_origin(p, ng, wi)
         d = wi
         if depth >= rr_depth:

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdf import sample_surface, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -38,8 +38,7 @@ from ..jit import borrowed, kernel
 from ..media import NULL_CROSSINGS_CAP, direct_transmitted, flight_weight, medium_after, phase_pdf, \
     phase_sample, phase_value, sample_distance
 from ..sampling.rng import path_key, uniform
-from ..sampling.warps import square_to_cosine_hemisphere
-from ..scene.description import CONDUCTOR, DIFFUSE, NULL
+from ..scene.description import DIFFUSE, NULL
 
 INV_PI = 1.0 / math.pi
 
@@ -150,27 +149,12 @@ def radiance_media(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
                     if is_area:
                         w = power_heuristic(pdf_light, cos_s * INV_PI)
                     L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * cos_s * INV_PI)
-                local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-                dim += 2
-                s, tt = vec.orthonormal_basis(ns)
-                wi = vec.from_local(s, tt, ns, local)
-                if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
-                    break
-                beta = vec.hadamard(beta, rgb)
-                pdf_last = local[2] * INV_PI
-                specular = False
-            elif kind == CONDUCTOR:
-                wi = mirror_reflect(d, ng, ns)
-                beta = vec.hadamard(beta, rgb)
-                specular = True
-            else:
-                wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], uniform(key, dim))
-                dim += 1
-                beta = vec.hadamard(beta, rgb)
-                if not is_reflection:
-                    beta = vec.mul(beta, 1.0 / (eta * eta))
-                    eta_scale *= eta * eta
-                specular = True
+            alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns,
+                                                                            key, dim, beta, eta_scale)
+            if not alive:
+                break
+            if not specular:
+                pdf_last = pdf
             medium = medium_after(media, shape, ng_front, wi, medium)
             p_last = p
             crossings = 0
