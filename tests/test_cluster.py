@@ -46,6 +46,7 @@ def test_cluster_render_has_the_bits_of_a_local_render(diacaustic, two_workers, 
     assert far.image.tobytes() == local.image.tobytes()
     c = far.stats["cluster"]
     assert c["workers"] == 2 and sum(c["task_passes"]) == 11 and c["tasks"] == len(c["task_seconds"])
+    assert far.stats["threads"] == 2
     # the per-pass counters are those of the same passes rendered here
     for key in ("events_gathered", "camera_rays", "extension_rays"):
         if key in local.stats:

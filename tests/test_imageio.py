@@ -486,11 +486,16 @@ def test_ctrl_c_during_the_renames_is_held_until_the_set_is_complete(tmp_path, m
         real_replace(src, dst)
 
     monkeypatch.setattr(imageio.os, "replace", replace)
-    with pytest.raises(InterruptedAfterSaving):
-        imageio.atomic_write_all([(p, _new(b"new " + p.name.encode())) for p in paths])
-    assert [p.read_bytes() for p in paths] == [b"new r.exr", b"new r.png", b"new r.json"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr", "r.json", "r.png"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # Python's own Ctrl-C handler, also when the suite runs in the background (SIGINT ignored there)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(InterruptedAfterSaving):
+            imageio.atomic_write_all([(p, _new(b"new " + p.name.encode())) for p in paths])
+        assert [p.read_bytes() for p in paths] == [b"new r.exr", b"new r.png", b"new r.json"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["r.exr", "r.json", "r.png"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler   # the save put it back
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_openexr_runtime_error_becomes_one_output_error_and_keeps_the_old_file(tmp_path, monkeypatch,

@@ -130,6 +130,9 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     common = check_common(spp=spp, width=width, height=height, seed=seed, threads=threads,
                           film_source=scene.description.camera.film_source if res is None else None,
                           bytes_per_pixel=per_pixel)
+    if scene.has_media and not getattr(cls, "renders_media", False):
+        raise ParameterError(f"{scene.media_source()}: the scene has participating media or null-BSDF boundaries, "
+                             f"which are rendered by pt only so far, not by {method} (docs/media.md)")
     settings = methods.params.resolve(method, cls.params, params)
     # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
     for p in cls.params:
@@ -216,6 +219,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
             out["resumed_from_pass"] = log.resumed_from
     if cluster_log is not None:
         out["cluster"] = cluster_log
+        out["threads"] = cluster_log["worker_threads"]   # the threads that rendered, not this process's
     out["peak_memory_bytes"] = peak_memory_bytes()
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     aovs = {name: cls.aov(scene, settings, state, name) for name in aov}

@@ -18,6 +18,8 @@ import numpy as np
 
 from .geometry import vec
 from .jit import kernel
+from .sampling.rng import uniform
+from .sampling.warps import square_to_cosine_hemisphere
 from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneDescription  # noqa: F401
 
 
@@ -152,3 +154,32 @@ def dielectric_branches(d, ng, ns, eta_int_over_ext):
     if F >= 1.0:
         return wr, wr, 1.0, eta
     return wr, refract(d, n, eta, cos_i, cos_t), F, eta
+
+
+@kernel(inline=True)
+def sample_surface(kind, rgb, eta, d, ng, ns, key, dim, beta, eta_scale):
+    """Continue a path at a surface: sample its BSDF and weight the throughput.
+
+    Diffuse: a cosine-weighted direction (``pdf`` its density; ``alive`` is False when it
+    falls below the geometric surface); mirror: the reflection; glass: reflection or
+    refraction with the Fresnel probability (β /= η² when refracting, ``eta_scale`` *= η²,
+    for Russian roulette).  Returns (alive, wi, β, eta_scale, pdf, specular, dim), ``dim``
+    past the random numbers used; ``pdf`` is 0 for the Dirac lobes (specular).
+    """
+    if kind == DIFFUSE:
+        local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
+        dim += 2
+        s, t = vec.orthonormal_basis(ns)
+        wi = vec.from_local(s, t, ns, local)
+        if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
+            return False, wi, beta, eta_scale, 0.0, False, dim
+        return True, wi, vec.hadamard(beta, rgb), eta_scale, local[2] * (1.0 / math.pi), False, dim
+    if kind == CONDUCTOR:
+        return True, mirror_reflect(d, ng, ns), vec.hadamard(beta, rgb), eta_scale, 0.0, True, dim
+    wi, is_reflection, eta_t = sample_dielectric(d, ng, ns, eta, uniform(key, dim))
+    dim += 1
+    beta = vec.hadamard(beta, rgb)
+    if not is_reflection:
+        beta = vec.mul(beta, 1.0 / (eta_t * eta_t))
+        eta_scale *= eta_t * eta_t
+    return True, wi, beta, eta_scale, 0.0, True, dim

@@ -26,9 +26,10 @@ FORMAT = 1
 
 
 def scene_fingerprint(scene) -> str:
-    """A hash of what the renderer sees of the scene: geometry, materials, lights, camera."""
+    """A hash of what the renderer sees of the scene: geometry, materials, lights, media (if any), camera."""
     h = hashlib.sha1()
-    for table in (scene.geometry, scene.materials, scene.lights):
+    tables = (scene.geometry, scene.materials, scene.lights) + ((scene.media,) if scene.media is not None else ())
+    for table in tables:
         for a in table:
             a = np.ascontiguousarray(a)
             h.update(str(a.dtype).encode())

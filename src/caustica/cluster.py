@@ -12,8 +12,8 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   render of the same passes whatever the number of workers, the task sizes or the
   order tasks finish in (:mod:`caustica.film`).
 
-Tasks start at one pass and grow (in powers of two, up to :data:`MAX_TASK_PASSES`) until
-one takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
+Tasks start at one pass; once the first are back, a task gets a power of two of passes
+(at most :data:`MAX_TASK_PASSES`) that takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
 overhead (scheduling, moving a part of the film) is a small share of its work; with a time budget a task is only sent if
 its predicted end is within the budget.  A worker that dies loses nothing: Dask runs
 its tasks again elsewhere, and as every pass's random numbers are keyed by its index
@@ -42,7 +42,7 @@ MAX_TASK_PASSES = 16 * TRUNK_PASSES
 TASK_SECONDS = 1.0
 #: ... times (worker threads / this) when more: the client takes in one part per task, so with many
 #: workers longer tasks keep its network link and its merging from becoming the bottleneck.
-THREADS_PER_TASK_SECOND = 16
+THREADS_FOR_LONGER_TASKS = 16
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
 #: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time.
 KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
@@ -76,10 +76,12 @@ class Cluster:
         return sum(self.worker_threads.values())
 
     def close(self) -> None:
-        if self.owned:
-            self.client.close()
-        if self.local is not None:
-            self.local.close()
+        try:
+            if self.owned:
+                self.client.close()
+        finally:
+            if self.local is not None:
+                self.local.close()
 
     def __enter__(self):
         return self
@@ -94,7 +96,9 @@ def quiet_cluster_logs() -> None:
     What matters reaches the user as caustica's one-line error; the command line calls
     this, the Python API leaves the caller's logging alone.
     """
-    for name in ("distributed", "tornado.application", "asyncio"):
+    names = ["distributed", "tornado.application", "asyncio"]
+    names += [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
+    for name in names:   # distributed.client and others have handlers of their own and do not propagate
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
@@ -106,6 +110,8 @@ def check_args(address=None, workers=None) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_THREADS:
             raise ParameterError(f"--workers: an integer between 1 and {MAX_THREADS} (got {workers})")
     if address is not None and not isinstance(address, str):
+        if type(address).__name__ != "Client" or not hasattr(address, "submit"):
+            raise ParameterError(f"dask=: a scheduler address (str) or a distributed.Client, not {address!r}")
         return  # a distributed.Client of the caller's
     if address is not None and not address.strip():
         raise ParameterError("--dask: give the scheduler's address, e.g. tcp://10.0.0.5:8786")
@@ -132,9 +138,22 @@ def connect(address=None, workers=None) -> Cluster:
                                  f"'dask scheduler' and workers with 'dask worker ADDRESS'") from None
         cluster = Cluster(client, None, address)
     else:
-        local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=":0", silence_logs=logging.CRITICAL)  # any free port
-        cluster = Cluster(distributed.Client(local, set_as_default=False), local, local.scheduler_address)
+        import signal
+        # worker processes started with SIGINT ignored keep ignoring it: Ctrl-C reaches this process
+        # alone, which cancels the tasks and closes the cluster (no traceback from every worker)
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+        try:
+            local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                             dashboard_address=":0", silence_logs=logging.CRITICAL)  # any port
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+        try:
+            client = distributed.Client(local, set_as_default=False)
+        except BaseException:
+            local.close()
+            raise
+        cluster = Cluster(client, local, local.scheduler_address)
     try:
         if workers is None:
             try:
@@ -147,6 +166,11 @@ def connect(address=None, workers=None) -> Cluster:
         cluster.close()
         raise
     return cluster
+
+
+def _main_thread() -> bool:
+    import threading
+    return threading.current_thread() is threading.main_thread()
 
 
 def _check_reachable(address: str) -> None:
@@ -217,10 +241,21 @@ def send_scene(client, scene):
     return fut
 
 
-def render_part_task(scene, method_name: str, settings: dict, start: int, stop: int):
-    """A worker's task: the passes [start, stop) on one thread, (part, per-pass log, seconds)."""
+class WorkerBuildError(ParameterError):
+    """A worker that runs another build of caustica than the client (its passes would have other bits)."""
+
+
+def render_part_task(scene, method_name: str, settings: dict, start: int, stop: int, source: str):
+    """A worker's task: the passes [start, stop) on one thread, (part, per-pass log, seconds).
+
+    ``source`` is the client's source hash: a worker that joined after connecting and runs
+    another build refuses the task rather than mixing its bits in.
+    """
     from . import methods
     from .driver import QuietBar
+    if _source_hash() != source:
+        raise WorkerBuildError(f"a worker runs another build of caustica (source {_source_hash()}, the client's "
+                               f"{source}): install the same caustica on every worker")
     _kill_hook(start, stop)
     t0 = time.perf_counter()
     part, log = methods.get(method_name).render_part(scene, dict(settings, threads=1), start, stop, QuietBar)
@@ -249,6 +284,14 @@ class ClusterLog:
                 "task_overhead_s": max(0.0, wall - work)}
 
 
+class _ClusterFailed(Exception):
+    """What the cluster (not caustica, not the disk) raised while this render waited on it."""
+
+    def __init__(self, cause):
+        super().__init__(str(cause))
+        self.cause = cause
+
+
 def cluster_failures() -> tuple:
     """The exceptions that mean the cluster, not caustica, failed: a task that killed its workers, a lost link."""
     from asyncio import CancelledError
@@ -259,17 +302,17 @@ def cluster_failures() -> tuple:
 
 
 def _failure_message(cluster, exc, method_cls, scene, settings, plan, state) -> str:
-    from concurrent.futures import CancelledError as FutureCancelled
-    if isinstance(exc, _distributed().KilledWorker):
-        what = "a task killed every worker that ran it (Dask's KilledWorker)"
-    elif isinstance(exc, FutureCancelled):
-        what = "the cluster dropped this render's tasks (workers died, and the scene sent to them with them)"
-    else:
-        what = f"lost the cluster ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else 'no detail'})"
     saved = ""
     if plan.checkpoint is not None and state.passes > 0:
         ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
         saved = f"; saved to {plan.checkpoint}, rerun to resume"
+    if isinstance(exc, _distributed().KilledWorker):
+        what = "a task killed every worker that ran it (Dask's KilledWorker)"
+    elif cluster.client.status != "running":
+        what = f"lost the scheduler ({type(exc).__name__})"
+    else:
+        what = f"the cluster dropped this render's tasks ({type(exc).__name__}: " \
+               f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})"
     flag = f"--dask {cluster.address}" if cluster.local is None else f"--workers (a local cluster at {cluster.address})"
     return f"{flag}: {what}; {state.passes} passes were finished{saved}"
 
@@ -285,7 +328,7 @@ def _next_size(start: int, want: int, limit: int) -> int:
         size *= 2
     while start % min(size, TRUNK_PASSES):
         size //= 2
-    return max(1, min(size, limit))
+    return size
 
 
 def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
@@ -293,8 +336,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     distributed = _distributed()
     client = cluster.client
     clog = ClusterLog(workers=len(cluster.worker_threads), worker_threads=cluster.threads)
-    slots = max(1, clog.worker_threads)
-    task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_PER_TASK_SECOND)
+    source = _source_hash()
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
@@ -314,6 +356,13 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     seq = distributed.as_completed(loop=client.loop)
     try:
         while True:
+            try:
+                slots = max(1, cluster.threads)     # workers may join (or leave) during the render
+            except cluster_failures() as exc:
+                raise _ClusterFailed(exc) from exc
+            clog.workers = max(clog.workers, len(cluster.worker_threads))
+            clog.worker_threads = max(clog.worker_threads, slots)
+            task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_FOR_LONGER_TASKS)
             while len(flying) < slots and (target is None or next_pass < target):
                 limit = (target - next_pass) if target is not None else MAX_TASK_PASSES
                 size = 1                 # until the first task is back, one pass per task
@@ -332,16 +381,21 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 elif plan.time_s is not None and time.perf_counter() - t_start > plan.time_s:
                     break
                 fut = client.submit(render_part_task, scene_f, method_cls.name, settings, next_pass,
-                                    next_pass + size, pure=False)
+                                    next_pass + size, source, pure=False)
                 flying[fut] = (next_pass, next_pass + size, time.perf_counter())
                 seq.add(fut)
                 next_pass += size
             if not flying:
                 break
-            fut = next(seq)
-            start, stop, sent = flying.pop(fut)
-            t1 = time.perf_counter()
-            part, part_log, work_s = fut.result()
+            try:
+                fut = next(seq)
+                start, stop, sent = flying.pop(fut)
+                t1 = time.perf_counter()
+                part, part_log, work_s = fut.result()
+            except cluster_failures() as exc:
+                if isinstance(exc, CausticaError):
+                    raise
+                raise _ClusterFailed(exc) from exc
             clog.result_transfer_s += time.perf_counter() - t1
             clog.result_bytes += part.nbytes
             clog.tasks += 1
@@ -369,8 +423,9 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             pass
         if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
             log.interrupted = True
-        elif isinstance(exc, cluster_failures()) and not isinstance(exc, CausticaError):
-            raise ClusterError(_failure_message(cluster, exc, method_cls, scene, settings, plan, state)) from None
+        elif isinstance(exc, _ClusterFailed):
+            raise ClusterError(_failure_message(cluster, exc.cause, method_cls, scene, settings, plan,
+                                                state)) from None
         else:
             raise
     finally:

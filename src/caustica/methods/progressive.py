@@ -56,7 +56,7 @@ PROGRESSIVE_PARAMS = (
           lambda a: 0.0 < a < 1.0, "between 0 and 1, exclusive"),
     Param("schedule", str, "pixel", "pixel: each pixel's radius shrinks with the photons it gathered "
                                     "(Hachisuka & Jensen 2009; passes run in order); global: pass p gathers "
-                                    "within R_0 sqrt(prod_{i<=p} (i + alpha) / (i + 1)) everywhere, so passes "
+                                    "within R_0 sqrt(prod_{i=1..p} (i + alpha) / (i + 1)) everywhere, so passes "
                                     "are independent and can run on a cluster (Knaus & Zwicker 2011)",
           choices=SCHEDULES),
     # the rest are the photon methods' own, with the progressive camera pass's defaults

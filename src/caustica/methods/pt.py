@@ -6,6 +6,10 @@ followed as Dirac deltas (glass chooses reflection or refraction with the Fresne
 probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
 ``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
 only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
+
+A scene with participating media or null-BSDF boundaries is rendered by the volumetric
+kernel of :mod:`caustica.methods.pt_volume` instead (the same samples, keys and depth
+convention; docs/media.md); every other scene by :func:`radiance` below, as before.
 """
 from __future__ import annotations
 
@@ -14,18 +18,18 @@ import time
 
 import numpy as np
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdf import sample_surface, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel, parallel_for
 from ..lighting import direct_one_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..sampling.warps import square_to_cosine_hemisphere
-from ..scene.description import CONDUCTOR, DIFFUSE
+from ..scene.description import DIFFUSE
 from . import register
 from .independent import IndependentPasses
 from .params import Param
+from .pt_volume import render_pixels_media
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
@@ -80,27 +84,12 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
                     pdf_b = cos_s * INV_PI
                     w = pdf_light * pdf_light / (pdf_light * pdf_light + pdf_b * pdf_b)
                 L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * INV_PI)
-            local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-            s, tt = vec.orthonormal_basis(ns)
-            wi = vec.from_local(s, tt, ns, local)
-            if vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0:
-                break
-            beta = vec.hadamard(beta, rgb)
-            pdf_bsdf = local[2] * INV_PI
-            specular = False
-        elif kind == CONDUCTOR:
-            wi = mirror_reflect(d, ng, ns)
-            beta = vec.hadamard(beta, rgb)
-            specular = True
-        else:
-            wi, is_reflection, eta = sample_dielectric(d, ng, ns, mats.eta[m], uniform(key, dim))
-            dim += 1
-            beta = vec.hadamard(beta, rgb)
-            if not is_reflection:
-                beta = vec.mul(beta, 1.0 / (eta * eta))
-                eta_scale *= eta * eta
-            specular = True
+        alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns, key,
+                                                                        dim, beta, eta_scale)
+        if not alive:
+            break
+        if not specular:
+            pdf_bsdf = pdf
         o = vec.offset_origin(p, ng, wi)
         d = wi
         if depth >= rr_depth:
@@ -142,8 +131,9 @@ def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_dept
 @register
 class PathTracer(IndependentPasses):
     name = "pt"
-    summary = "path tracing with next-event estimation and MIS (the unbiased reference)"
+    summary = "path tracing with next-event estimation and MIS (the unbiased reference), through media too"
     progressive = True
+    renders_media = True
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),
@@ -163,10 +153,13 @@ class PathTracer(IndependentPasses):
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, cam,
-                                                    settings["seed"], stream, settings["spp"], max_depth,
-                                                    settings["rr_depth"], image, rays),
-                                 threads=settings["threads"], progress=bar)
+        tables = (scene.geometry, scene.materials, scene.lights)
+        kernel_args = (cam, settings["seed"], stream, settings["spp"], max_depth, settings["rr_depth"], image, rays)
+        if scene.media is None:
+            compile_s = parallel_for(render_pixels, n, tables + kernel_args, threads=settings["threads"], progress=bar)
+        else:   # a volumetric path tracer (methods/pt_volume.py, docs/media.md)
+            compile_s = parallel_for(render_pixels_media, n, tables + (scene.media,) + kernel_args,
+                                     threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, None, {

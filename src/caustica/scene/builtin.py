@@ -1,4 +1,4 @@
-"""The built-in scenes (the paper's four test scenes) and the data search path.
+"""The built-in scenes (the paper's four test scenes, and the diacaustic one in fog) and the data search path.
 
 The XML files live in the package folder ``scene/builtin/`` together with the small
 ``half_ring.obj``.  The Stanford bunny is data, not part of the package: mesh files
@@ -25,6 +25,8 @@ _SCENES = {
     "cornell-pyramid": "six white cubes stacked 3-2-1 in the Cornell box: the paper's Fig. 5",
     "cornell-bunny": "the Stanford bunny in the Cornell box: the paper's Fig. 6 "
                      "(needs bunny.ply, not shipped; see CAUSTICA_DATA_PATH)",
+    "cornell-diacaustic-fog": "the diacaustic scene filled with a thin fog (mean free path 20, the box's size): "
+                              "the light's cone and the sphere's focused beam show (pt only; docs/media.md)",
 }
 
 #: What to tell users about data files that are not shipped with caustica.

@@ -2,7 +2,9 @@
 
 :func:`compile_scene` turns a :class:`SceneDescription` into a :class:`Scene`
 holding the geometry (primitives + BVH), the material table, the light table and
-the camera.  It is what :func:`caustica.load_scene` returns.
+the camera, and the medium table when the scene uses media (None otherwise: a scene
+without media compiles to exactly the tables it always did).  It is what
+:func:`caustica.load_scene` returns.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from ..emitters import LightTable, build_light_table
 from ..errors import SceneError
 from ..geometry.bounds import shape_bounding_sphere
 from ..geometry.scene_geometry import Geometry, build_geometry
-from .description import SceneDescription
+from ..media import MediumTable, build_medium_table
+from .description import NULL, SceneDescription
 from .transforms import MAX_ABS_FLOAT
 
 
@@ -28,11 +31,27 @@ class Scene:
     materials: MaterialTable
     lights: LightTable
     timings: dict = field(default_factory=dict)
+    media: MediumTable | None = None
     _specular_spheres: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:
         return self.description.source
+
+    @property
+    def has_media(self) -> bool:
+        """Whether the scene has media or null-BSDF boundaries (then only ``pt`` renders it so far)."""
+        return self.media is not None
+
+    def media_source(self) -> str:
+        """"file:line" of the first thing that makes the scene one with media (for messages)."""
+        d = self.description
+        if d.camera.medium >= 0:
+            return d.media[d.camera.medium].source
+        for s in d.shapes:
+            if s.interior >= 0 or s.exterior >= 0 or d.materials[s.material].kind == NULL:
+                return s.source
+        return d.source
 
     @property
     def width(self) -> int:
@@ -85,7 +104,8 @@ def compile_scene(desc: SceneDescription) -> Scene:
                          f"inside a shape or an <emitter type=\"point\">")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
-    return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0})
+    media = build_medium_table(desc) if desc.has_media else None
+    return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0}, media)
 
 
 def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:

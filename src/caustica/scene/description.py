@@ -17,7 +17,8 @@ from ..errors import shorten
 DIFFUSE = 0
 CONDUCTOR = 1
 DIELECTRIC = 2
-MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric"}
+NULL = 3  # Mitsuba's null BSDF: an invisible boundary (of a medium) that rays cross unchanged
+MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null"}
 
 
 @dataclass
@@ -25,8 +26,9 @@ class Material:
     """A BSDF of the supported subset.
 
     kind: DIFFUSE (``rgb`` = reflectance), CONDUCTOR (a perfect mirror, ``rgb`` =
-    specular_reflectance) or DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
-    ``rgb`` = specular transmittance/reflectance scale, normally 1).
+    specular_reflectance), DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
+    ``rgb`` = specular transmittance/reflectance scale, normally 1) or NULL (no surface:
+    rays cross it unchanged; the boundary of a medium, see :class:`Medium`).
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -56,6 +58,30 @@ class Mesh:
     normals: np.ndarray | None = None
 
 
+# Phase functions of a medium.
+ISOTROPIC = 0
+HENYEY_GREENSTEIN = 1
+PHASE_NAMES = {ISOTROPIC: "isotropic", HENYEY_GREENSTEIN: "hg"}
+
+
+@dataclass
+class Medium:
+    """A homogeneous participating medium (Mitsuba's ``homogeneous``).
+
+    ``sigma_t``: extinction coefficient per scene unit per RGB channel, already multiplied
+    by the file's ``scale``; ``albedo``: single-scattering albedo sigma_s / sigma_t per
+    channel, in [0, 1]; ``phase``: ISOTROPIC or HENYEY_GREENSTEIN with asymmetry ``g`` in
+    (-1, 1) (g > 0 scatters forwards).  A shape's ``interior`` / ``exterior`` and the
+    camera's ``medium`` are indices into :attr:`SceneDescription.media` (-1: none).
+    """
+    sigma_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    albedo: tuple[float, float, float] = (0.75, 0.75, 0.75)
+    phase: int = ISOTROPIC
+    g: float = 0.0
+    id: str = ""
+    source: str = ""  # "file:line" for messages
+
+
 # Shape kinds.
 MESH = "mesh"
 SPHERE = "sphere"
@@ -74,6 +100,10 @@ class Shape:
     outwards.  ``flip_normals`` turns the front side around (for meshes it is
     already applied to the winding and normals).  ``emitter_radiance`` is the RGB
     radiance of an ``area`` emitter on the shape's front side, or None.
+    ``interior`` / ``exterior``: the media behind and in front of the surface (indices
+    into :attr:`SceneDescription.media`, -1 for none).  As in Mitsuba, a ray that leaves
+    a surface towards its front enters the exterior medium and towards its back the
+    interior one, and a shape with neither leaves the ray's medium as it was.
     """
     kind: str
     material: int
@@ -83,6 +113,8 @@ class Shape:
     emitter_radiance: tuple[float, float, float] | None = None
     id: str = ""
     source: str = ""  # "file:line" for messages
+    interior: int = -1
+    exterior: int = -1
 
 
 @dataclass
@@ -98,6 +130,7 @@ class Camera:
 
     to_world maps camera space (looking along +z, +y up, +x towards the image's
     left) to the world; fov_deg is measured along ``fov_axis`` (x, y, smaller or larger).
+    ``medium``: the medium the camera sits in (an index into the scene's media, -1 for none).
     """
     to_world: np.ndarray
     fov_deg: float
@@ -106,6 +139,7 @@ class Camera:
     height: int = 576
     near_clip: float = 1e-2
     film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
+    medium: int = -1
 
 
 @dataclass
@@ -124,29 +158,43 @@ class SceneDescription:
     source: str = ""  # the file it came from, or the built-in name
     integrator_source: str = ""
     files: list = field(default_factory=list)  # the scene file and every mesh file it read (Paths)
+    media: list[Medium] = field(default_factory=list)
+
+    @property
+    def has_media(self) -> bool:
+        """Whether rendering must follow rays through media: the camera or a shape has a medium,
+        or a shape is a null-BSDF boundary.  A medium defined but never referenced does not count."""
+        return (self.camera.medium >= 0
+                or any(s.interior >= 0 or s.exterior >= 0 or self.materials[s.material].kind == NULL
+                       for s in self.shapes))
 
     def integrator_note(self, method: str, parameters: dict) -> str | None:
         """What a render with ``method`` and its ``parameters`` does with the scene's
         ``<integrator>``, when that differs from what the file asks; None otherwise.
 
-        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, so it
-        goes without a word unless the render is ``pt`` with settings other than the
-        file's (e.g. ``max_depth``); any other integrator (``bdpt``, ``volpath``, ...)
-        gets a note whatever the method, so a scene never renders differently from what
-        it asks without the user being told.
+        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, and so is
+        ``volpath`` (``pt`` follows rays through media, docs/media.md), so they go without
+        a word unless the render is ``pt`` with settings other than the file's (e.g.
+        ``max_depth``), or ``path`` on a scene with media (Mitsuba's ``path`` ignores
+        them, ``pt`` does not); any other integrator (``bdpt``, ...), and ``volpath``
+        with another method, gets a note, so a scene never renders differently from
+        what it asks without the user being told.
         """
         if not self.integrator_source:
             return None
         kind, where = self.integrator, self.integrator_source
-        if kind != "path":
+        if kind not in ("path", "volpath") or (kind == "volpath" and method != "pt"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
         if method != "pt":
             return None
+        if kind == "path" and self.has_media:
+            return (f"integrator 'path' in {where} would ignore the scene's media in Mitsuba; pt renders them "
+                    f"(as Mitsuba's volpath does)")
         differ = {k: v for k, v in self.integrator_props.items() if parameters.get(k, object()) != v}
         if not differ:
             return None
         asked = ", ".join(f"{k}={v}" for k, v in differ.items())
         ran = ", ".join(f"{k}={parameters[k]}" if k in parameters else f"no {k}" for k in differ)
-        return (f"integrator 'path' in {where} asks for {asked}, which is not read; pt runs with {ran} "
+        return (f"integrator '{kind}' in {where} asks for {asked}, which is not read; pt runs with {ran} "
                 f"(set pt's own flags, e.g. --max-depth, to change it)")

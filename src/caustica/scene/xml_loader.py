@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import math
 import re
 import xml.parsers.expat
 from dataclasses import dataclass, field
@@ -26,15 +27,15 @@ from ..errors import SceneError, quoted, shorten
 from ..limits import MAX_PIXELS, MAX_SPP
 from . import transforms as tf
 from .builtin import find_data_file
-from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, MESH, SPHERE, Camera,
-                          Material, PointLight, SceneDescription, Shape)
+from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
+                          NULL, SPHERE, Camera, Material, Medium, PointLight, SceneDescription, Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 
 # ----------------------------------------------------------------------------- the subset
 
 #: Property tags and plugin tags this loader knows.
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "integrator", "sensor", "bsdf", "shape", "emitter")
+TOP_LEVEL_TAGS = ("default", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
@@ -60,11 +61,16 @@ BSDF_PROPS = {
     "dielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
                    "specular_reflectance": COLOR, "specular_transmittance": COLOR},
     "twosided": {},
+    "null": {},
 }
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
 }
+MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT}}
+PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
+#: The names a medium takes inside a shape (Mitsuba's interior and exterior media).
+SHAPE_MEDIUM_NAMES = ("interior", "exterior")
 SENSOR_PROPS = {"perspective": {"fov": FLOAT, "fov_axis": STR, "near_clip": FLOAT, "to_world": XFORM}}
 FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
 SAMPLER_TYPES = ("independent", "stratified", "multijitter")
@@ -94,7 +100,7 @@ DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
-             "rfilter": RFILTER_PROPS}
+             "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS}
 
 
 def _names(items) -> str:
@@ -242,6 +248,8 @@ class _Loader:
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
         self.default_material: int | None = None
+        self.media: list[Medium] = []
+        self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
 
@@ -397,6 +405,8 @@ class _Loader:
                           f"conductor material=\"{shorten(mat)}\" is not supported: only material=\"none\" "
                           f"(a perfect mirror, scaled by specular_reflectance) is supported")
             return Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name)
+        if kind == "null":
+            return Material(NULL, (1.0, 1.0, 1.0), name=name)
         if kind == "dielectric":
             for p in ("specular_reflectance", "specular_transmittance"):
                 if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
@@ -422,9 +432,10 @@ class _Loader:
                             f"(different front and back BSDFs are not supported)")
         inner_node = self.resolve(props.objects[0], "bsdf")
         inner = self.build_material(inner_node)
-        if inner.kind == DIELECTRIC:
-            self.fail(props.objects[0], "twosided cannot wrap a dielectric (Mitsuba forbids "
-                                        "transmissive BSDFs inside twosided)", supported=["diffuse", "conductor"])
+        if inner.kind in (DIELECTRIC, NULL):
+            self.fail(props.objects[0], f"twosided cannot wrap a {'dielectric' if inner.kind == DIELECTRIC else 'null'} "
+                                        f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
+                      supported=["diffuse", "conductor"])
         out = copy.copy(inner)
         out.twosided = True
         out.name = name or inner.name
@@ -446,17 +457,69 @@ class _Loader:
             self.materials.append(Material(DIFFUSE, DEFAULT_REFLECTANCE, name="default"))
         return self.default_material
 
+    # -- media ------------------------------------------------------------------------
+    def medium_index(self, node: Node) -> int:
+        """Index of the Medium of a <medium> (or <ref> to one); each element becomes one entry."""
+        node = self.resolve(node, "medium")
+        key = id(node)
+        if key not in self.medium_of_node:
+            medium = self.build_medium(node)
+            self.medium_of_node[key] = len(self.media)
+            self.media.append(medium)
+        return self.medium_of_node[key]
+
+    def build_medium(self, node: Node) -> Medium:
+        """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults)."""
+        props = self.plugin(node, MEDIUM_PROPS, ("phase",))
+        scale = float(self.number(props, "scale", 1.0, nonneg=True))
+        sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0))
+        albedo = self.color(props, "albedo", (0.75, 0.75, 0.75))
+        if max(albedo) > 1.0:
+            self.fail(props.node_of("albedo"), f"'albedo' is sigma_s / sigma_t and must lie in [0, 1], got {albedo}")
+        sigma = tuple(c * scale for c in sigma_t)
+        if not all(math.isfinite(c) and c <= tf.MAX_ABS_FLOAT for c in sigma):
+            self.fail(props.node_of("scale" if props.has("scale") else "sigma_t"),
+                      f"sigma_t x scale = {max(sigma_t)} x {scale} is beyond {tf.MAX_ABS_FLOAT:.3g} (float32)")
+        phase, g = ISOTROPIC, 0.0
+        if len(props.objects) > 1:
+            self.fail(props.objects[1], "a medium takes only one <phase>")
+        for obj in props.objects:
+            pprops = self.plugin(obj, PHASE_PROPS)
+            if obj.attrs["type"] == "hg":
+                phase, g = HENYEY_GREENSTEIN, float(pprops.get("g", 0.8))   # Mitsuba's default g
+                if not -1.0 < g < 1.0:
+                    self.fail(pprops.node_of("g"), f"'g' must lie strictly between -1 and 1, got {g}")
+        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=f"{self.source}:{node.line}")
+
+    def is_medium(self, obj: Node) -> bool:
+        """Whether a shape's or sensor's child is a medium: a <medium>, or a <ref> named like one or
+        naming one (a <ref> naming a BSDF is the shape's BSDF, as before)."""
+        if obj.tag == "medium":
+            return True
+        target = self.ids.get(obj.attrs.get("id", ""))
+        return obj.tag == "ref" and (obj.attrs.get("name") in SHAPE_MEDIUM_NAMES
+                                     or (target is not None and target.tag == "medium"))
+
     # -- shapes ----------------------------------------------------------------------
     def shape(self, node: Node) -> Shape:
-        props = self.plugin(node, SHAPE_PROPS, ("bsdf", "ref", "emitter"), extra=_SHAPE_COMMON)
+        props = self.plugin(node, SHAPE_PROPS, ("bsdf", "ref", "emitter", "medium"), extra=_SHAPE_COMMON)
         kind = node.attrs["type"]
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         flip = bool(props.get("flip_normals", False))
 
         material, radiance = None, None
+        media = {}
         for obj in props.objects:
-            if obj.tag in ("bsdf", "ref"):
+            if self.is_medium(obj):
+                name = obj.attrs.get("name")
+                if name not in SHAPE_MEDIUM_NAMES:
+                    self.fail(obj, "a medium inside a shape needs name=\"interior\" or name=\"exterior\" "
+                                   "(the side of the surface it fills)", supported=list(SHAPE_MEDIUM_NAMES))
+                if name in media:
+                    self.fail(obj, f"the shape's {name} medium is given twice")
+                media[name] = self.medium_index(obj)
+            elif obj.tag in ("bsdf", "ref"):
                 if material is not None:
                     self.fail(obj, "a shape takes only one BSDF")
                 material = self.material_index(obj)
@@ -470,7 +533,8 @@ class _Loader:
 
         src = f"{self.source}:{node.line}"
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
-                      id=node.attrs.get("id", ""), source=src)
+                      id=node.attrs.get("id", ""), source=src,
+                      interior=media.get("interior", -1), exterior=media.get("exterior", -1))
         if kind in ("rectangle", "cube", "obj", "ply"):
             if kind == "rectangle":
                 # Under a mirroring to_world the front side follows the winding, as in
@@ -536,7 +600,7 @@ class _Loader:
 
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
-        props = self.plugin(node, SENSOR_PROPS, ("film", "sampler"))
+        props = self.plugin(node, SENSOR_PROPS, ("film", "sampler", "medium", "ref"))
         if not props.has("fov"):
             self.fail(node, "the perspective sensor needs <float name=\"fov\" .../> "
                             "(focal_length is not supported)")
@@ -551,12 +615,16 @@ class _Loader:
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
         film_line = node.line
+        medium = -1
         seen = set()
         for obj in props.objects:
-            if obj.tag in seen:
-                self.fail(obj, f"the sensor takes only one <{obj.tag}>")
-            seen.add(obj.tag)
-            if obj.tag == "film":
+            tag = "medium" if obj.tag == "ref" else obj.tag
+            if tag in seen:
+                self.fail(obj, f"the sensor takes only one <{tag}>")
+            seen.add(tag)
+            if tag == "medium":   # the medium the camera sits in
+                medium = self.medium_index(obj)
+            elif obj.tag == "film":
                 film_line = obj.line
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
@@ -580,7 +648,7 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, film_source=f"{self.source}:{film_line}")
+                     near_clip=near, film_source=f"{self.source}:{film_line}", medium=medium)
         return cam, spp
 
     # -- integrator -------------------------------------------------------------------
@@ -620,6 +688,8 @@ class _Loader:
                 camera, spp = self.sensor(node)
             elif tag == "bsdf":
                 self.material_index(node)
+            elif tag == "medium":
+                self.medium_index(node)
             elif tag == "shape":
                 shapes.append(self.shape(node))
             elif tag == "emitter":
@@ -645,7 +715,7 @@ class _Loader:
             raise SceneError(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
                              f"add <sensor type=\"perspective\">")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
-                                point_lights=lights, spp=spp, integrator=integrator,
+                                point_lights=lights, spp=spp, integrator=integrator, media=self.media,
                                 integrator_props=integrator_props, source=self.source,
                                 integrator_source="" if integrator_node is None
                                 else f"{self.source}:{integrator_node.line}")

@@ -1,0 +1,269 @@
+"""Participating media: homogeneous media, their phase functions, free flights and transmittance.
+
+A scene's media live in a :class:`MediumTable` (structure of arrays, indexed by the
+medium's position in :attr:`SceneDescription.media`), with each shape's interior and
+exterior medium and the camera's.  -1 means no medium (vacuum).  The table exists only
+for a scene that uses media (:attr:`SceneDescription.has_media`); every other scene
+compiles and renders exactly as before.
+
+Conventions (Mitsuba 3's):
+
+* A ray leaving a surface towards its front (``dot(d, ng) > 0``, ``ng`` the front normal)
+  is in the shape's exterior medium, towards its back in the interior one; a shape with
+  neither does not change the ray's medium.  So glass without media inside fog is full
+  of fog, and a null-BSDF shape with an interior medium is a medium without a surface.
+* ``sigma_t`` is the extinction per scene unit (``scale`` applied), ``albedo`` =
+  sigma_s / sigma_t; the transmittance over a distance t is exp(-sigma_t t) per channel.
+* Phase functions are written for the direction of propagation: p(d -> wo) depends on
+  mu = dot(d, wo), and Henyey-Greenstein with g > 0 scatters forwards (mu near 1).
+
+Free-flight sampling with spectrally varying sigma_t (docs/media.md): a channel c is
+chosen uniformly at each flight and the distance drawn from exp(-sigma_c t) sigma_c;
+the weight divides by the *mixture* of the three channels' densities (the one-sample
+balance heuristic over channels, "spectral MIS").  Its weights are bounded (by 3
+times the albedo for a scattering event, by 3 for a flight that reaches a surface),
+where the single-channel scheme of Mitsuba's ``volpath`` (one channel per path, weights
+T_k / T_c that grow exponentially with distance) is not.  For a grey medium both reduce
+to the classic estimator: weight 1 for passing, the albedo for scattering.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .emitters import AREA, choose_light, sample_area_emitter
+from .geometry import vec
+from .geometry.scene_geometry import intersect, surface_at
+from .jit import kernel
+from .sampling.rng import uniform
+from .scene.description import HENYEY_GREENSTEIN, NULL, SceneDescription
+
+INV_4PI = 1.0 / (4.0 * math.pi)
+
+#: Null-surface crossings a ray or shadow ray may make in a row (without scattering) before it
+#: is given up: a guard against a ray trapped between coincident null surfaces, never reached
+#: in a sensible scene (each crossing moves the ray forwards).
+NULL_CROSSINGS_CAP = 256
+
+#: |g| below which a Henyey-Greenstein phase function is sampled as the isotropic one (its
+#: inverse CDF loses precision as g -> 0); its value is still the exact HG value.
+HG_ISOTROPIC_G = 1e-4
+
+
+class MediumTable(NamedTuple):
+    sigma_t: np.ndarray    # float64[K, 3]: extinction per scene unit (scale applied)
+    albedo: np.ndarray     # float64[K, 3]: sigma_s / sigma_t
+    phase: np.ndarray      # int32[K]: ISOTROPIC or HENYEY_GREENSTEIN
+    g: np.ndarray          # float64[K]: HG asymmetry (0 for isotropic)
+    interior: np.ndarray   # int32[S]: each shape's interior medium, -1 for none
+    exterior: np.ndarray   # int32[S]: each shape's exterior medium, -1 for none
+    camera: np.ndarray     # int32[1]: the medium the camera is in, -1 for none
+
+
+def build_medium_table(desc: SceneDescription) -> MediumTable:
+    k = max(1, len(desc.media))
+    sigma_t = np.zeros((k, 3))
+    albedo = np.zeros((k, 3))
+    phase = np.zeros(k, np.int32)
+    g = np.zeros(k)
+    for i, m in enumerate(desc.media):
+        sigma_t[i] = m.sigma_t
+        albedo[i] = m.albedo
+        phase[i] = m.phase
+        g[i] = m.g
+    interior = np.array([s.interior for s in desc.shapes], np.int32).reshape(-1)
+    exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
+    return MediumTable(sigma_t, albedo, phase, g, interior, exterior,
+                       np.array([desc.camera.medium], np.int32))
+
+
+# ----------------------------------------------------------------------------- boundaries
+
+@kernel(inline=True)
+def medium_after(media, shape, ng, d, current):
+    """The medium a ray is in after leaving a surface of ``shape`` in direction d (ng: its front normal)."""
+    inside = media.interior[shape]
+    outside = media.exterior[shape]
+    if inside < 0 and outside < 0:
+        return current
+    if vec.dot(d, ng) > 0.0:
+        return outside
+    return inside
+
+
+# ----------------------------------------------------------------------------- free flights
+
+@kernel(inline=True)
+def sample_distance(media, m, u_channel, u):
+    """A free-flight distance in medium m: channel chosen by u_channel, distance exp-distributed in it.
+
+    Infinite when the chosen channel does not attenuate; the density of the result is the mean
+    of the three channels' densities (see :func:`flight_weight`).
+    """
+    c = min(int(u_channel * 3.0), 2)
+    s = media.sigma_t[m, c]
+    if s <= 0.0:
+        return np.inf
+    return -math.log(1.0 - u) / s
+
+
+@kernel
+def flight_weight(media, m, t, scattered):
+    """Per channel: the path throughput's factor for a flight of length t sampled by :func:`sample_distance`.
+
+    scattered: the flight ended in a scattering event at t (weight T_k(t) sigma_s,k / p(t),
+    p(t) = mean_c sigma_c T_c(t)); otherwise it reached a surface at t first (weight
+    T_k(t) / P(t), P(t) = mean_c T_c(t), the probability of flying at least t).  The common
+    factor exp(-min_c sigma_c t) is taken out of both, so that long flights do not
+    underflow to 0 / 0.  Finite t only.
+    """
+    s0 = media.sigma_t[m, 0]
+    s1 = media.sigma_t[m, 1]
+    s2 = media.sigma_t[m, 2]
+    smin = min(s0, min(s1, s2))
+    e0 = math.exp(-(s0 - smin) * t)
+    e1 = math.exp(-(s1 - smin) * t)
+    e2 = math.exp(-(s2 - smin) * t)
+    if scattered:
+        p = (s0 * e0 + s1 * e1 + s2 * e2) / 3.0
+        if not p > 0.0:
+            return (0.0, 0.0, 0.0)
+        return (media.albedo[m, 0] * s0 * e0 / p, media.albedo[m, 1] * s1 * e1 / p,
+                media.albedo[m, 2] * s2 * e2 / p)
+    p = (e0 + e1 + e2) / 3.0
+    return (e0 / p, e1 / p, e2 / p)
+
+
+@kernel(inline=True)
+def attenuation(media, m, t):
+    """exp(-sigma_t t) per channel in medium m (1 in vacuum, m < 0)."""
+    if m < 0:
+        return (1.0, 1.0, 1.0)
+    return (math.exp(-media.sigma_t[m, 0] * t), math.exp(-media.sigma_t[m, 1] * t),
+            math.exp(-media.sigma_t[m, 2] * t))
+
+
+@kernel
+def transmittance(geom, mats, media, o, target, medium):
+    """(T per channel, rays traced) along the segment from o to target, starting in ``medium``.
+
+    Null-BSDF surfaces are crossed (switching medium as :func:`medium_after` says); any other
+    surface blocks (T = 0): glass too, as in Mitsuba's volpath.  The transmittance of each
+    medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so a
+    shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
+    """
+    T = (1.0, 1.0, 1.0)
+    seg = vec.sub(target, o)
+    dist = vec.length(seg)
+    if dist <= 0.0:
+        return T, 0
+    d = vec.mul(seg, 1.0 / dist)
+    rays = 0
+    for _ in range(NULL_CROSSINGS_CAP):
+        rays += 1
+        prim, t, b1, b2 = intersect(geom, o, d, dist)
+        if prim < 0:
+            return vec.hadamard(T, attenuation(media, medium, dist)), rays
+        if mats.kind[geom.prim_material[prim]] != NULL:
+            return (0.0, 0.0, 0.0), rays
+        T = vec.hadamard(T, attenuation(media, medium, t))
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
+        o = vec.offset_origin(p, ng, d)
+        dist = vec.length(vec.sub(target, o))
+    return (0.0, 0.0, 0.0), rays
+
+
+# ----------------------------------------------------------------------------- phase functions
+
+@kernel(inline=True)
+def phase_value(media, m, d, wo):
+    """p(d -> wo) per steradian (d: the direction the light was travelling in)."""
+    if media.phase[m] == HENYEY_GREENSTEIN:
+        g = media.g[m]
+        denom = 1.0 + g * g - 2.0 * g * vec.dot(d, wo)
+        return INV_4PI * (1.0 - g * g) / (denom * math.sqrt(denom))
+    return INV_4PI
+
+
+@kernel(inline=True)
+def phase_pdf(media, m, d, wo):
+    """The density with which :func:`phase_sample` picks wo (its value, except for HG with g ~ 0)."""
+    if media.phase[m] == HENYEY_GREENSTEIN and abs(media.g[m]) >= HG_ISOTROPIC_G:
+        return phase_value(media, m, d, wo)
+    return INV_4PI
+
+
+@kernel
+def phase_sample(media, m, d, u1, u2):
+    """(wo, value / pdf, pdf): a direction sampled from medium m's phase function about d.
+
+    Henyey-Greenstein by its inverse CDF in mu = cos(d, wo):
+    mu = (1 + g^2 - ((1 - g^2) / (1 - g + 2 g u))^2) / (2 g); isotropic uniformly.
+    """
+    g = media.g[m] if media.phase[m] == HENYEY_GREENSTEIN else 0.0
+    if abs(g) >= HG_ISOTROPIC_G:
+        sq = (1.0 - g * g) / (1.0 - g + 2.0 * g * u1)
+        mu = (1.0 + g * g - sq * sq) / (2.0 * g)
+    else:
+        mu = 1.0 - 2.0 * u1
+    mu = min(1.0, max(-1.0, mu))
+    sin_t = math.sqrt(max(0.0, 1.0 - mu * mu))
+    phi = 2.0 * math.pi * u2
+    s, t = vec.orthonormal_basis(d)
+    wo = vec.normalize(vec.from_local(s, t, d, (sin_t * math.cos(phi), sin_t * math.sin(phi), mu)))
+    pdf = phase_pdf(media, m, d, wo)
+    if not pdf > 0.0:
+        return wo, 0.0, 0.0
+    return wo, phase_value(media, m, d, wo) / pdf, pdf
+
+
+# ----------------------------------------------------------------------------- direct light
+
+@kernel(hot=True)
+def direct_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim):
+    """One light sample seen from p through media and null boundaries (next-event estimation).
+
+    p is a surface point of ``shape`` (ng, ns its normals on the scattering side, ng_front its
+    front normal) or, with shape < 0, a point in ``medium``.  Uses dimensions dim .. dim + 2.
+    Returns (L_e T / pdf, wi, pdf, is_area, ok, shadow rays): wi the unit direction to the
+    light; pdf the solid-angle density of choosing that direction (light choice included;
+    0 for a point light, a delta); ok False when the sample cannot light p (behind the light
+    or the surface, or blocked), in which case the radiance is 0.  The caller multiplies by
+    the BSDF and cosine, or the phase function, and weights area lights by MIS.
+    """
+    zero = (0.0, 0.0, 0.0)
+    if lights.kind.shape[0] == 0:
+        return zero, zero, 0.0, False, False, 0
+    li, sel_pdf, _ = choose_light(lights, uniform(key, dim))
+    is_area = lights.kind[li] == AREA
+    if is_area:
+        q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
+    else:
+        q = vec.row(lights.position, li)
+        nq = zero
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    if not dist2 > 0.0:
+        return zero, zero, 0.0, is_area, False, 0
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    pdf = sel_pdf * dist2
+    if is_area:
+        cos_l = -vec.dot(nq, wi)
+        if cos_l <= 0.0:
+            return zero, wi, 0.0, True, False, 0
+        pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
+    o = p
+    if shape >= 0:
+        if vec.dot(ns, wi) <= 0.0 or vec.dot(ng, wi) <= 0.0:
+            return zero, wi, 0.0, is_area, False, 0
+        medium = medium_after(media, shape, ng_front, wi, medium)
+        o = vec.offset_origin(p, ng, to_l)
+    target = vec.offset_origin(q, nq, vec.neg(to_l))
+    T, rays = transmittance(geom, mats, media, o, target, medium)
+    if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
+        return zero, wi, 0.0, is_area, False, rays
+    Le = vec.hadamard(vec.row(lights.radiance, li), T)
+    return vec.mul(Le, 1.0 / pdf), wi, pdf if is_area else 0.0, is_area, True, rays
