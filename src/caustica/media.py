@@ -37,7 +37,7 @@ from .emitters import AREA, choose_light, sample_area_emitter
 from .geometry import vec
 from .geometry.scene_geometry import intersect, surface_at
 from .jit import kernel
-from .sampling.rng import uniform
+from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 from .scene.description import HENYEY_GREENSTEIN, NULL, SceneDescription
 
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -267,3 +267,160 @@ def direct_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, me
         return zero, wi, 0.0, is_area, False, rays
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
     return vec.mul(Le, 1.0 / pdf), wi, pdf if is_area else 0.0, is_area, True, rays
+
+
+# ----------------------------------------------------------------------------- distances within a segment
+
+@kernel(inline=True)
+def sample_distance_within(media, m, s, u_channel, u):
+    """A distance in [0, s] of medium m: a channel c chosen by u_channel, t from σc e^(−σc t) / (1 − e^(−σc s)).
+
+    Uniform in [0, s] when the chosen channel does not attenuate.  Unlike :func:`sample_distance`
+    it always lands inside the segment: the photon methods' next-event estimate of the direct
+    light scattered along a camera segment (docs/media.md).  Its density is the mean of the three
+    channels' (:func:`within_weight`).
+    """
+    c = min(int(u_channel * 3.0), 2)
+    sc = media.sigma_t[m, c]
+    if not sc * s > 1e-12:
+        return u * s
+    return min(-math.log1p(u * math.expm1(-sc * s)) / sc, s)
+
+
+@kernel
+def within_weight(media, m, s, t):
+    """Per channel T_k(t) σs,k / p(t) for t drawn by :func:`sample_distance_within` over [0, s].
+
+    p(t) = mean_c q_c(t), q_c = σc e^(−σc t) / (1 − e^(−σc s)) (1 / s for σc = 0); the common
+    factor exp(−min σ t) is taken out of numerator and denominator, as in :func:`flight_weight`.
+    """
+    s0 = media.sigma_t[m, 0]
+    s1 = media.sigma_t[m, 1]
+    s2 = media.sigma_t[m, 2]
+    smin = min(s0, min(s1, s2))
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
+    p = 0.0
+    for c in range(3):
+        sc = media.sigma_t[m, c]
+        e = math.exp(-(sc - smin) * t)
+        if sc * s > 1e-12:
+            p += sc * e / (-math.expm1(-sc * s))
+        else:
+            p += e / s
+        if c == 0:
+            out0 = media.albedo[m, 0] * sc * e
+        elif c == 1:
+            out1 = media.albedo[m, 1] * sc * e
+        else:
+            out2 = media.albedo[m, 2] * sc * e
+    p /= 3.0
+    if not p > 0.0:
+        return (0.0, 0.0, 0.0)
+    return (out0 / p, out1 / p, out2 / p)
+
+
+# ----------------------------------------------------------------------------- where a point is
+
+@kernel
+def medium_at(geom, media, o, d, fallback):
+    """The medium point o is in, found by a probe ray along d: the first surface of a shape with media decides.
+
+    Hit on its front (the ray arrives from outside), o is in the shape's exterior medium; on its back,
+    in its interior.  Shapes without media are passed.  A probe that meets none gives ``fallback``
+    (the camera's medium: the medium that fills what nothing bounds).  For a consistent scene
+    (docs/media.md) any direction gives the same answer.
+    """
+    for _ in range(4 * NULL_CROSSINGS_CAP):
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if prim < 0:
+            return fallback
+        shape = geom.prim_shape[prim]
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        if media.interior[shape] >= 0 or media.exterior[shape] >= 0:
+            if vec.dot(d, ng) < 0.0:
+                return media.exterior[shape]
+            return media.interior[shape]
+        o = vec.offset_origin(p, ng, d)
+    return fallback
+
+
+@kernel
+def light_medium(geom, lights, media, e):
+    """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe).
+
+    An area light on a shape with media emits into that shape's exterior (its front side, as
+    Mitsuba); otherwise a probe from just in front of the light's middle, along its normal
+    (:func:`medium_at`), says where it is.  A point light is probed from its position.
+    """
+    fallback = media.camera[0]
+    if lights.kind[e] == AREA:
+        shape = geom.prim_shape[lights.prims[lights.prim_first[e]]]
+        if media.interior[shape] >= 0 or media.exterior[shape] >= 0:
+            return media.exterior[shape]
+        p, n = sample_area_emitter(lights, geom, e, 0.5, 0.5)
+        return medium_at(geom, media, vec.offset_origin(p, n, n), n, fallback)
+    return medium_at(geom, media, vec.row(lights.position, e), vec.normalize((0.3, 0.5, 0.81)), fallback)
+
+
+def light_media(scene) -> np.ndarray:
+    """int32[L]: the medium each light emits into (:func:`light_medium`).
+
+    A light is taken to sit wholly in one medium (docs/media.md).
+    """
+    lights = scene.lights
+    return np.array([light_medium(scene.geometry, lights, scene.media, e) for e in range(lights.kind.shape[0])],
+                    np.int32)
+
+
+# ----------------------------------------------------------------------------- direct light at a surface
+
+@kernel
+def direct_stratified_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, qkey, qdim,
+                                  pass_index, n_strata):
+    """:func:`caustica.lighting.direct_stratified_qmc` through media and null boundaries.
+
+    The same strata and Kronecker jitter; each shadow ray's visibility is replaced by its
+    transmittance (:func:`transmittance`, starting in the medium on the light's side of the
+    surface).  Returns the irradiance-like E (the caller multiplies by ρ / π).
+    """
+    E = (0.0, 0.0, 0.0)
+    n_total = n_strata * n_strata
+    for li in range(lights.kind.shape[0]):
+        if lights.kind[li] == AREA:
+            acc = (0.0, 0.0, 0.0)
+            for s in range(n_total):
+                i = s % n_strata
+                j = s // n_strata
+                u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, qdim + 2 * s))) / n_strata
+                u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, qdim + 2 * s + 1))) / n_strata
+                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
+                to_l = vec.sub(q, p)
+                dist2 = vec.dot(to_l, to_l)
+                if not dist2 > 0.0:
+                    continue
+                wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+                cos_l = -vec.dot(nq, wi)
+                cos_s = vec.dot(ns, wi)
+                if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+                    continue
+                T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
+                                     vec.offset_origin(q, nq, vec.neg(to_l)),
+                                     medium_after(media, shape, ng_front, wi, medium))
+                acc = vec.madd(acc, T, cos_s * cos_l / dist2)
+            E = vec.add(E, vec.mul(vec.hadamard(vec.row(lights.radiance, li), acc), lights.area[li] / n_total))
+        else:
+            q = vec.row(lights.position, li)
+            to_l = vec.sub(q, p)
+            dist2 = vec.dot(to_l, to_l)
+            if not dist2 > 0.0:
+                continue
+            wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+            cos_s = vec.dot(ns, wi)
+            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+                continue
+            T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
+                                 medium_after(media, shape, ng_front, wi, medium))
+            E = vec.add(E, vec.mul(vec.hadamard(vec.row(lights.radiance, li), T), cos_s / dist2))
+    return E
