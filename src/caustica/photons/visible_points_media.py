@@ -1,0 +1,223 @@
+"""The progressive camera pass in a scene with participating media (sppm; docs/media.md).
+
+The pass of :mod:`caustica.photons.visible_points` — one camera ray per pixel through a
+jittered (Sobol') position, followed through mirrors and glass to its first diffuse point —
+with three additions:
+
+* **Attenuation.**  The camera path tracks the medium it is in (the camera's, then
+  :func:`caustica.media.medium_after` at every surface it leaves) and crosses null
+  boundaries without scattering.  It samples no free flights: over each medium segment its
+  throughput β is multiplied by the exact transmittance exp(−σt s) (homogeneous media), so the
+  visible point's weight W = β ρ / π and every emitter the path sees are attenuated exactly.
+* **Segments.**  Each medium segment of the path (origin, direction, length, medium, β at its
+  origin) is written out for the volume radiance estimate (:mod:`caustica.photons.beams`).  A
+  path has room for :data:`MEDIUM_SEGMENTS` of them; one that would need more ends there, as a
+  path ends after ``max_specular`` mirror or glass bounces.
+* **Direct light scattered along a segment** (single scattering of the lights' own light) is
+  estimated here by next-event estimation, not by photons — as direct light at surfaces is
+  (SPEC §2): one distance per segment per pass, drawn within the segment
+  (:func:`caustica.media.sample_distance_within`, weight T σs / pdf), and one light sample
+  from it through media and null boundaries (:func:`caustica.media.direct_transmitted`,
+  exact transmittance), times the phase function.  Unbiased, one shadow ray per segment.
+
+Direct light at the visible point is :func:`caustica.media.direct_stratified_transmitted`:
+the same strata and Kronecker jitter as without media, each shadow ray weighted by its
+transmittance.  Random numbers: the camera pass's own keys and dimensions for the path;
+the segments' next-event estimates draw from a stream of their own (``STREAM_CAMERA_MEDIA``,
+five numbers per segment), so a scene's media never shift the numbers of anything else.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
+from ..camera import generate_ray
+from ..geometry import vec
+from ..geometry.scene_geometry import intersect, surface_at
+from ..jit import borrowed, kernel
+from ..media import NULL_CROSSINGS_CAP, attenuation, direct_stratified_transmitted, direct_transmitted, \
+    medium_after, phase_value, sample_distance_within, within_weight
+from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
+from ..scene.description import CONDUCTOR, DIFFUSE, NULL
+
+INV_PI = 1.0 / math.pi
+
+#: Medium segments a camera path may have (room for them is allocated per pixel); a path that
+#: would need more ends, as at the specular depth cap.
+MEDIUM_SEGMENTS = 8
+#: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; count).
+SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
+
+
+@kernel
+def emitted_along_media(geom, mats, lights, media, o, d, medium):
+    """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries.
+
+    Emitters on null surfaces crossed count, as in the path tracer; the first other surface ends
+    the ray (its emission counts if it is an emitter's front).
+    """
+    L = (0.0, 0.0, 0.0)
+    T = (1.0, 1.0, 1.0)
+    for _ in range(NULL_CROSSINGS_CAP):
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if prim < 0:
+            return L
+        if medium >= 0:
+            T = vec.hadamard(T, attenuation(media, medium, t))
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        e = geom.prim_emitter[prim]
+        if e >= 0 and vec.dot(d, ng) < 0.0:
+            L = vec.add(L, vec.hadamard(T, vec.row(lights.radiance, e)))
+        if mats.kind[geom.prim_material[prim]] != NULL:
+            return L
+        medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
+        o = vec.offset_origin(p, ng, d)
+    return L
+
+
+@kernel
+def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, vkey, vdim):
+    """β times one next-event estimate of the direct light scattered towards o along the segment (o, d, s) in m."""
+    zero = (0.0, 0.0, 0.0)
+    t = sample_distance_within(media, m, s, uniform(vkey, vdim), uniform(vkey, vdim + 1))
+    w = within_weight(media, m, s, t)
+    if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
+        return zero
+    p = vec.madd(o, d, t)
+    contrib, wi, _, _, ok, _ = direct_transmitted(geom, mats, lights, media, p, zero, zero, zero, -1, m,
+                                                  vkey, vdim + 2)
+    if not ok:
+        return zero
+    return vec.mul(vec.hadamard(vec.hadamard(beta, w), contrib), phase_value(media, m, d, wi))
+
+
+@kernel
+def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, n_strata, max_specular,
+                        seg_o, seg_d, seg_len, seg_beta, seg_medium, slot0):
+    """Follow a camera ray through media to its visible point: (found, position, normal, W, L_direct, segments).
+
+    The segments are written to slots slot0, slot0 + 1, ... of the seg_* arrays.
+    """
+    L = (0.0, 0.0, 0.0)
+    beta = (1.0, 1.0, 1.0)
+    zero = (0.0, 0.0, 0.0)
+    dim = 2
+    depth = 0
+    first_glass = True
+    counted = False   # the next surface's emission was already added, in expectation, at the glass before it
+    medium = media.camera[0]
+    n_seg = 0
+    crossings = 0
+    while True:
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if medium >= 0:
+            if n_seg >= MEDIUM_SEGMENTS:
+                return False, zero, zero, zero, L, n_seg
+            s = t if prim >= 0 else np.inf
+            k = slot0 + n_seg
+            for c in range(3):
+                seg_o[k, c] = o[c]
+                seg_d[k, c] = d[c]
+                seg_beta[k, c] = beta[c]
+            seg_len[k] = s
+            seg_medium[k] = medium
+            L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
+                                             vkey, 5 * n_seg))
+            n_seg += 1
+            if prim < 0:
+                return False, zero, zero, zero, L, n_seg
+            beta = vec.hadamard(beta, attenuation(media, medium, t))
+        if prim < 0:
+            return False, zero, zero, zero, L, n_seg
+        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+        front = vec.dot(d, ng) < 0.0
+        e = geom.prim_emitter[prim]
+        if e >= 0 and front and not counted:
+            L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+        m = geom.prim_material[prim]
+        kind = mats.kind[m]
+        shape = geom.prim_shape[prim]
+        if kind == NULL:
+            medium = medium_after(media, shape, ng, d, medium)
+            o = vec.offset_origin(p, ng, d)
+            crossings += 1
+            if crossings > NULL_CROSSINGS_CAP:
+                return False, zero, zero, zero, L, n_seg
+            continue
+        crossings = 0
+        counted = False
+        ng_front = ng
+        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+        if not scatters:
+            return False, zero, zero, zero, L, n_seg
+        rgb = vec.row(mats.rgb, m)
+        if kind == DIFFUSE:
+            w = vec.mul(vec.hadamard(beta, rgb), INV_PI)
+            E = direct_stratified_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
+                                              qkey, 3, pass_index, n_strata)
+            L = vec.add(L, vec.hadamard(w, E))
+            return True, p, ns, w, L, n_seg
+        depth += 1
+        if depth > max_specular:
+            return False, zero, zero, zero, L, n_seg
+        if kind == CONDUCTOR:
+            wi = mirror_reflect(d, ng, ns)
+            beta = vec.hadamard(beta, rgb)
+        else:
+            if first_glass:
+                u = kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2))
+                first_glass = False
+            else:
+                u = uniform(key, dim)
+            wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
+            dim += 1
+            beta = vec.hadamard(beta, rgb)
+            # emitters seen along either branch, with their expected weights (visible_points.py)
+            Lr = emitted_along_media(geom, mats, lights, media, vec.offset_origin(p, ng, wr), wr,
+                                     medium_after(media, shape, ng_front, wr, medium))
+            L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
+            inv_eta2 = 1.0 / (eta * eta)
+            if F < 1.0:
+                Lt = emitted_along_media(geom, mats, lights, media, vec.offset_origin(p, ng, wt), wt,
+                                         medium_after(media, shape, ng_front, wt, medium))
+                L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
+            counted = True
+            if u < F:
+                wi = wr
+            else:
+                wi = wt
+                beta = vec.mul(beta, inv_eta2)
+        medium = medium_after(media, shape, ng_front, wi, medium)
+        o = vec.offset_origin(p, ng, wi)
+        d = wi
+
+
+@kernel
+def visible_points_media(geom, mats, lights, media, cam, seed, stream, vstream, pass_index, n_strata, max_specular,
+                         vp_pos, vp_nrm, vp_weight, vp_found, direct, seg_o, seg_d, seg_len, seg_beta, seg_medium,
+                         seg_count, i0, i1):
+    """:func:`caustica.photons.visible_points.visible_points` through media, with each pixel's medium segments."""
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+    width = cam.width
+    for i in range(i0, i1):
+        y = i // width
+        x = i % width
+        key = path_key(seed, stream, i)
+        qkey = path_key(seed, STREAM_CAMERA_SCRAMBLE, i)
+        vkey = path_key(seed, vstream, i)
+        u1, u2 = sobol02(pass_index, qkey)
+        o, d = generate_ray(cam, x, y, u1, u2)
+        found, p, n, w, L, n_seg = visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index,
+                                                       n_strata, max_specular, seg_o, seg_d, seg_len, seg_beta,
+                                                       seg_medium, i * MEDIUM_SEGMENTS)
+        if not math.isfinite(L[0] + L[1] + L[2]):
+            L = (0.0, 0.0, 0.0)
+        for c in range(3):
+            vp_pos[i, c] = p[c]
+            vp_nrm[i, c] = n[c]
+            vp_weight[i, c] = w[c]
+            direct[i, c] = L[c]
+        vp_found[i] = found
+        seg_count[i] = n_seg
