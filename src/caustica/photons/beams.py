@@ -1,0 +1,257 @@
+"""The beam radiance estimate along camera segments (Jarosz, Zwicker & Jensen 2008), over one pass's volume photons.
+
+Every volume photon of the pass is a sphere of radius r (the pass's volume radius).  A camera
+segment (origin o, unit direction d, length s, in medium m, throughput β at o) gathers every
+photon whose sphere it pierces with its projection t_i = (x_i − o)·d inside [0, s]:
+
+    L_m ≈ β Σ_i T(t_i) p(ω_i → −d) Φ_i / (π r²)
+
+T(t) = exp(−σt t) per channel, p the medium's phase function, ω_i the photon's direction of
+travel and Φ_i its stored power, which already holds σs / σt and the transmittance of its
+flight (:mod:`caustica.photons.trace_media`): with photons stored at scattering events, Σ Φ_i
+δ(x − x_i) δ(ω − ω_i) estimates σs L, and the 2-D kernel 1 / (π r²) across the segment
+turns the integral of T σs p L along it into that sum.  The kernel is 2-D (across the beam),
+so its progressive radius follows the 2-D rule of Knaus & Zwicker 2011: r_p² ∝ ∏ (i + α) / (i + 1),
+the surfaces' global schedule (docs/media.md).
+
+**The grid.**  One radius for every photon of a pass makes a uniform grid natural: cells of
+side c ≥ 2 r, each photon entered in every cell its sphere's bounding box overlaps (at most 8).
+A segment then only visits the cells it passes through (3-D DDA, Amanatides & Woo 1987), and
+every photon whose sphere it pierces is entered in the cell that holds the segment's point
+nearest to it — the point at t_i, within r of the photon.  A photon found in a visited cell
+is counted there only if t_i lies in that cell's stretch [t_enter, t_exit) of the segment, so a
+photon entered in several visited cells counts once.  The cells are folded into a power of two
+of buckets (cell key mod buckets), as in :mod:`caustica.photons.grid`, so building is a counting
+sort in O(entries) however small r gets; an entry stores its cell key and the photon's index.
+A pixel-parallel gather needs no atomics: the same bits for any thread count.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ..jit import borrowed, kernel
+from ..media import phase_value
+from .grid import MAX_DIM, bucket_count
+
+#: Cells are this many photon radii across (>= 2, so a sphere overlaps at most 2 cells a side).
+CELL_PER_RADIUS = 2.0
+
+
+class VolumeGrid(NamedTuple):
+    lo: np.ndarray         # float64[3]: low corner of the grid's box
+    cell: np.ndarray       # float64[1]: side of a cell
+    radius: np.ndarray     # float64[1]: the photons' radius r
+    dims: np.ndarray       # int64[3]
+    start: np.ndarray      # int64[buckets + 1]: entries of bucket b are start[b] .. start[b + 1]
+    key: np.ndarray        # int64[entries]: each entry's cell key
+    photon: np.ndarray     # int32[entries]: each entry's photon
+    position: np.ndarray   # float32[n, 3]
+    direction: np.ndarray  # float32[n, 3]: direction of travel at the event
+    power: np.ndarray      # float32[n, 3]
+
+    @property
+    def count(self) -> int:
+        return self.position.shape[0]
+
+    @property
+    def entries(self) -> int:
+        return self.key.shape[0]
+
+
+@kernel(inline=True)
+def _index(x, lo, inv, dim):
+    return min(max(int(math.floor((x - lo) * inv)), 0), dim - 1)
+
+
+@kernel
+def _count_entries(position, r, lo, inv, dims):
+    n = 0
+    for i in range(position.shape[0]):
+        nx = _index(position[i, 0] + r, lo[0], inv, dims[0]) - _index(position[i, 0] - r, lo[0], inv, dims[0]) + 1
+        ny = _index(position[i, 1] + r, lo[1], inv, dims[1]) - _index(position[i, 1] - r, lo[1], inv, dims[1]) + 1
+        nz = _index(position[i, 2] + r, lo[2], inv, dims[2]) - _index(position[i, 2] - r, lo[2], inv, dims[2]) + 1
+        n += nx * ny * nz
+    return n
+
+
+@kernel
+def _fill(position, r, lo, inv, dims, start, out_key, out_photon):
+    """Counting sort of the (photon, cell) entries by bucket: counts, prefix sum, placement from the back."""
+    n_buckets = start.shape[0] - 1
+    mask = n_buckets - 1
+    for rnd in range(2):
+        if rnd == 1:
+            for b in range(n_buckets):
+                start[b + 1] += start[b]
+        for ii in range(position.shape[0]):
+            i = ii if rnd == 0 else position.shape[0] - 1 - ii
+            x0 = _index(position[i, 0] - r, lo[0], inv, dims[0])
+            x1 = _index(position[i, 0] + r, lo[0], inv, dims[0])
+            y0 = _index(position[i, 1] - r, lo[1], inv, dims[1])
+            y1 = _index(position[i, 1] + r, lo[1], inv, dims[1])
+            z0 = _index(position[i, 2] - r, lo[2], inv, dims[2])
+            z1 = _index(position[i, 2] + r, lo[2], inv, dims[2])
+            for ix in range(x1, x0 - 1, -1):
+                for iy in range(y1, y0 - 1, -1):
+                    for iz in range(z1, z0 - 1, -1):
+                        k = (ix * dims[1] + iy) * dims[2] + iz
+                        b = k & mask
+                        if rnd == 0:
+                            start[b + 1] += 1
+                        else:
+                            j = start[b + 1] - 1
+                            start[b + 1] = j
+                            out_key[j] = k
+                            out_photon[j] = i
+    for b in range(n_buckets):
+        start[b] = start[b + 1]
+    start[n_buckets] = out_key.shape[0]
+
+
+def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
+    """The grid over these volume photons (float32 arrays, already compacted) as spheres of ``radius``."""
+    position = np.ascontiguousarray(position, np.float32)
+    n = position.shape[0]
+    r = float(radius)
+    if n:
+        lo = position.min(axis=0).astype(np.float64) - 2.0 * r
+        hi = position.max(axis=0).astype(np.float64) + 2.0 * r
+    else:
+        lo, hi = np.zeros(3), np.ones(3)
+    ext = np.maximum(hi - lo, 1e-9)
+    cell = max(CELL_PER_RADIUS * r, float(ext.max()) / MAX_DIM, 1e-9)
+    dims = np.minimum(MAX_DIM, np.maximum(1, np.ceil(ext / cell).astype(np.int64)))
+    inv = 1.0 / cell
+    entries = _count_entries(position, r, lo, inv, dims) if n else 0
+    start = np.zeros(bucket_count(entries, int(np.prod(dims))) + 1, np.int64)
+    key = np.empty(entries, np.int64)
+    photon = np.empty(entries, np.int32)
+    if n:
+        _fill(position, r, lo, inv, dims, start, key, photon)
+    return VolumeGrid(lo, np.array([cell]), np.array([r]), dims, start, key, photon, position,
+                      np.ascontiguousarray(direction, np.float32), np.ascontiguousarray(power, np.float32))
+
+
+@kernel
+def segment_estimate(vg, media, o, d, s, m):
+    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces.
+
+    Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
+    """
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    found = 0
+    if vg.position.shape[0] == 0:
+        return (a0, a1, a2), found
+    r = vg.radius[0]
+    r2 = r * r
+    c = vg.cell[0]
+    lo = vg.lo
+    dims = vg.dims
+    # clip [0, s] to the grid's box
+    t0 = 0.0
+    t1 = s
+    for k in range(3):
+        hi = lo[k] + dims[k] * c
+        if d[k] != 0.0:
+            ta = (lo[k] - o[k]) / d[k]
+            tb = (hi - o[k]) / d[k]
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+        elif o[k] < lo[k] or o[k] > hi:
+            return (a0, a1, a2), found
+    if not t0 < t1:
+        return (a0, a1, a2), found
+    inv = 1.0 / c
+    ix = _index(o[0] + d[0] * t0, lo[0], inv, dims[0])   # the cell where the clipped segment starts
+    iy = _index(o[1] + d[1] * t0, lo[1], inv, dims[1])
+    iz = _index(o[2] + d[2] * t0, lo[2], inv, dims[2])
+    # the DDA's state per axis: step, t of the next boundary, t between boundaries
+    sx = 1 if d[0] > 0.0 else -1
+    sy = 1 if d[1] > 0.0 else -1
+    sz = 1 if d[2] > 0.0 else -1
+    nx = (lo[0] + (ix + (1 if sx > 0 else 0)) * c - o[0]) / d[0] if d[0] != 0.0 else np.inf
+    ny = (lo[1] + (iy + (1 if sy > 0 else 0)) * c - o[1]) / d[1] if d[1] != 0.0 else np.inf
+    nz = (lo[2] + (iz + (1 if sz > 0 else 0)) * c - o[2]) / d[2] if d[2] != 0.0 else np.inf
+    dx = c / abs(d[0]) if d[0] != 0.0 else np.inf
+    dy = c / abs(d[1]) if d[1] != 0.0 else np.inf
+    dz = c / abs(d[2]) if d[2] != 0.0 else np.inf
+    st0 = media.sigma_t[m, 0]
+    st1 = media.sigma_t[m, 1]
+    st2 = media.sigma_t[m, 2]
+    wo = (-d[0], -d[1], -d[2])
+    mask = vg.start.shape[0] - 2
+    t_enter = t0
+    while t_enter < t1:
+        t_exit = min(min(nx, ny), min(nz, t1))
+        k = (ix * dims[1] + iy) * dims[2] + iz
+        b = k & mask
+        for j in range(vg.start[b], vg.start[b + 1]):
+            if vg.key[j] != k:
+                continue
+            i = vg.photon[j]
+            vx = vg.position[i, 0] - o[0]
+            vy = vg.position[i, 1] - o[1]
+            vz = vg.position[i, 2] - o[2]
+            ti = vx * d[0] + vy * d[1] + vz * d[2]
+            if ti < t_enter or ti >= t_exit:
+                continue
+            d2 = vx * vx + vy * vy + vz * vz - ti * ti
+            if d2 > r2:
+                continue
+            wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
+            ph = phase_value(media, m, wi, wo)
+            a0 += math.exp(-st0 * ti) * ph * vg.power[i, 0]
+            a1 += math.exp(-st1 * ti) * ph * vg.power[i, 1]
+            a2 += math.exp(-st2 * ti) * ph * vg.power[i, 2]
+            found += 1
+        if t_exit >= t1:
+            break
+        if nx <= ny and nx <= nz:
+            ix += sx
+            if ix < 0 or ix >= dims[0]:
+                break
+            nx += dx
+        elif ny <= nz:
+            iy += sy
+            if iy < 0 or iy >= dims[1]:
+                break
+            ny += dy
+        else:
+            iz += sz
+            if iz < 0 or iz >= dims[2]:
+                break
+            nz += dz
+        t_enter = t_exit
+    return (a0, a1, a2), found
+
+
+@kernel
+def beam_gather(vg, media, seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_count, per_pixel, out, found, i0, i1):
+    """Pixels [i0, i1): out[i] = Σ over its segments of β Σ_i T p Φ_i / (π r²); found[i] the photons counted."""
+    vg, media = borrowed(vg), borrowed(media)
+    norm = 1.0 / (math.pi * vg.radius[0] * vg.radius[0])
+    for i in range(i0, i1):
+        acc0 = 0.0
+        acc1 = 0.0
+        acc2 = 0.0
+        nf = 0
+        for j in range(seg_count[i]):
+            k = i * per_pixel + j
+            o = (seg_o[k, 0], seg_o[k, 1], seg_o[k, 2])
+            d = (seg_d[k, 0], seg_d[k, 1], seg_d[k, 2])
+            a, f = segment_estimate(vg, media, o, d, seg_len[k], seg_medium[k])
+            acc0 += seg_beta[k, 0] * a[0]
+            acc1 += seg_beta[k, 1] * a[1]
+            acc2 += seg_beta[k, 2] * a[2]
+            nf += f
+        out[i, 0] = acc0 * norm
+        out[i, 1] = acc1 * norm
+        out[i, 2] = acc2 * norm
+        found[i] = nf
