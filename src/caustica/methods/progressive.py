@@ -32,8 +32,11 @@ import numpy as np
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
+from ..memory import check_budget
+from ..photons.beams import beam_gather, build_volume_grid, _fill as _volume_fill
 from ..photons.visible_points import visible_points
-from ..sampling.rng import STREAM_CAMERA, pass_stream
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, visible_points_media
+from ..sampling.rng import STREAM_CAMERA, STREAM_CAMERA_MEDIA, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
@@ -42,6 +45,8 @@ from .photon_common import ESTIMATE_PARAMS
 RADIUS_FRACTION = 0.01
 #: The default initial radius of separate caustic statistics, as a fraction of R_0 (see docs/progressive.md).
 CAUSTIC_RADIUS_SCALE = 0.6
+#: The default initial radius of the volume estimate (scenes with media), as a fraction of R_0.
+VOLUME_RADIUS_SCALE = 2.0
 #: Radius schedules: per pixel (SPPM's α update, sequential) or one per pass (independent passes).
 SCHEDULES = ("pixel", "global")
 
@@ -171,6 +176,16 @@ def initial_radius(scene, settings) -> float:
     return RADIUS_FRACTION * float(np.linalg.norm(box[3:] - box[:3]))
 
 
+def initial_volume_radius(scene, settings) -> float:
+    """R_0 of the volume estimate: ``volume_radius`` when set, else VOLUME_RADIUS_SCALE R_0 (docs/media.md)."""
+    r = settings.get("volume_radius")
+    return VOLUME_RADIUS_SCALE * initial_radius(scene, settings) if r is None else r
+
+
+def _fill_compiled() -> bool:
+    return _volume_fill.compiled_for_python()
+
+
 def initial_caustic_radius(scene, settings) -> float:
     """R_0 of the separate caustic statistics: ``caustic_radius`` when set, else CAUSTIC_RADIUS_SCALE R_0."""
     r = settings.get("caustic_radius")
@@ -287,12 +302,27 @@ class ProgressivePhotonMethod(IndependentPasses):
         direct = np.empty((n, 3))
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
-        c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
-                                              pass_stream(STREAM_CAMERA, pass_index), pass_index, settings["light_samples"],
-                                              settings["fixed_light_grid"], settings["max_specular_depth"],
-                                              vp_pos, vp_nrm, vp_weight, vp_found, direct),
-                          threads=threads, progress=bar)
-        bar.close()
+        media = scene.media
+        if media is None:
+            c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
+                                                  pass_stream(STREAM_CAMERA, pass_index), pass_index,
+                                                  settings["light_samples"], settings["fixed_light_grid"],
+                                                  settings["max_specular_depth"], vp_pos, vp_nrm, vp_weight, vp_found,
+                                                  direct),
+                              threads=threads, progress=bar)
+        else:
+            # the camera path's medium segments, for the volume estimate (docs/media.md)
+            check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
+                         "lower the resolution")
+            k = n * MEDIUM_SEGMENTS
+            segments = (np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
+                        np.empty(n, np.int32))
+            c0 = parallel_for(visible_points_media, n, (scene.geometry, scene.materials, scene.lights, media, cam,
+                                                        settings["seed"], pass_stream(STREAM_CAMERA, pass_index),
+                                                        pass_stream(STREAM_CAMERA_MEDIA, pass_index), pass_index,
+                                                        settings["light_samples"], settings["max_specular_depth"],
+                                                        vp_pos, vp_nrm, vp_weight, vp_found, direct, *segments),
+                              threads=threads, progress=bar)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
         seen = radius[vp_found]
@@ -302,6 +332,7 @@ class ProgressivePhotonMethod(IndependentPasses):
         c1 = timings.pop("compile_s", 0.0)
         t1 = time.perf_counter()
         first_build = not grid_compiled()
+        volume = stats.pop("volume_photons", None)
         position, power, normal, valid = events
         if radius_caustic is None:
             grid = build_grid(position, power, normal, valid, scene.geometry.scene_box, CELL_PER_RADIUS * typical)
@@ -333,7 +364,29 @@ class ProgressivePhotonMethod(IndependentPasses):
             c2 = parallel_for(gather_flux_two, n, (grid, grid_c, vp_pos, vp_nrm, vp_found, radius, radius_caustic,
                                                    flux, count, flux_c, count_c), threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
-        timings["compile_s"] = c0 + c1 + c2
+        c3 = 0.0
+        if media is not None:
+            # 4. the volume: the beam radiance estimate along the camera segments, within this pass's radius
+            r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
+            t1 = time.perf_counter()
+            first_build = not _fill_compiled()
+            vgrid = build_volume_grid(*volume, r_v)
+            if first_build:
+                c3 += time.perf_counter() - t1
+            else:
+                timings["volume_grid_s"] = time.perf_counter() - t1
+            vol = np.empty((n, 3))
+            vfound = np.empty(n, np.int64)
+            t1 = time.perf_counter()
+            c4 = parallel_for(beam_gather, n, (vgrid, media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol, vfound),
+                              threads=threads)
+            timings["volume_gather_s"] = time.perf_counter() - t1 - c4
+            c3 += c4
+            direct += vol
+            stats["volume_photons"] = vgrid.count
+            stats["volume_grid_entries"] = vgrid.entries
+            stats["volume_photons_gathered"] = int(vfound.sum())
+        timings["compile_s"] = c0 + c1 + c2 + c3
         stats["events_gathered"] = int(count.sum()) + (int(count_c.sum()) if count_c is not None else 0)
         stats["timings"] = timings
         return PassMeasurements(vp_found, vp_weight, flux, count, direct, emitted, flux_c, count_c), stats
@@ -420,6 +473,9 @@ class ProgressivePhotonMethod(IndependentPasses):
         out = {"samples_per_pixel": state.passes, "emitted_all_passes": state.passes * cls.emitted_per_pass(scene, settings),
                "initial_radius": initial_radius(scene, settings), "schedule": settings["schedule"],
                "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())}}
+        if scene.media is not None:
+            out["initial_volume_radius"] = initial_volume_radius(scene, settings)
+            out["volume_radius_final"] = global_radius(out["initial_volume_radius"], settings["alpha"], state.passes)
         if not cls.independent(settings):
             out["photons_kept_mean"] = float(state.n_photons.mean())
             if cls.separate_caustics(scene, settings):

@@ -12,17 +12,21 @@ from __future__ import annotations
 
 import time
 
-from ..jit import parallel_for
-from ..memory import check_budget
 import numpy as np
 
-from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, TraceBuffers, allocate_buffers
+from ..errors import ParameterError
+from ..jit import parallel_for
+from ..media import light_media
+from ..memory import check_budget
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
+    allocate_buffers
 from ..photons.trace import trace_caustic_photons, trace_photons
+from ..photons.trace_media import trace_caustic_photons_media, trace_photons_media
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import CAUSTIC_RADIUS_SCALE, PROGRESSIVE_PARAMS, ProgressivePhotonMethod
+from .progressive import CAUSTIC_RADIUS_SCALE, PROGRESSIVE_PARAMS, VOLUME_RADIUS_SCALE, ProgressivePhotonMethod
 
 
 def photon_counts(scene, settings) -> tuple[int, int]:
@@ -63,7 +67,19 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
                                              f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
               positive, "> 0"),
+        Param("volume_radius", float, None, "scenes with media: initial radius of the volume photons' spheres in the "
+                                            "beam radiance estimate; pass p uses it times sqrt(prod_{i=1..p} "
+                                            f"(i + alpha) / (i + 1)) (default: {VOLUME_RADIUS_SCALE} x the initial "
+                                            "--radius)",
+              positive, "> 0"),
     ) + PROGRESSIVE_PARAMS
+    renders_media = True
+
+    @classmethod
+    def check(cls, scene, settings):
+        super().check(scene, settings)
+        if scene.has_media and settings["fixed_light_grid"]:
+            raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
@@ -90,27 +106,53 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         buf = allocate_buffers(slots + (n_c if aimed else 0), 1)
         head = TraceBuffers(*(a[:slots] for a in buf))
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        compile_s = parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
-                                                    pass_stream(STREAM_PHOTON, pass_index), n, mr,
-                                                    TERMINATIONS[settings["termination"]], *head),
-                                 threads=settings["threads"], progress=bar)
+        media = scene.media
+        if media is None:
+            compile_s = parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
+                                                        pass_stream(STREAM_PHOTON, pass_index), n, mr,
+                                                        TERMINATIONS[settings["termination"]], *head),
+                                     threads=settings["threads"], progress=bar)
+        else:
+            lm = light_media(scene)
+            compile_s = parallel_for(trace_photons_media, n, (scene.geometry, scene.materials, scene.lights, media, lm,
+                                                              settings["seed"], pass_stream(STREAM_PHOTON, pass_index),
+                                                              n, mr, TERMINATIONS[settings["termination"]], *head),
+                                     threads=settings["threads"], progress=bar)
         bar.close()
-        if not aimed:
+        if not aimed and media is None:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
             return (buf.position, buf.power, buf.normal, buf.kind), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                 "photons_emitted": n}
-        # caustic photons carry the light -> specular+ -> diffuse paths; the others leave them out
-        tail = TraceBuffers(*(a[slots:] for a in buf))
-        c_s = parallel_for(trace_caustic_photons, n_c, (scene.geometry, scene.materials, scene.lights, spheres,
-                                                        settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON,
-                                                                                      pass_index), n_c, *tail),
-                           threads=settings["threads"])
-        compile_s += c_s
-        valid = np.empty(slots + n_c, np.int8)
-        np.equal(head.kind, INDIRECT, out=valid[:slots], casting="unsafe")
-        np.equal(tail.kind, CAUSTIC, out=valid[slots:], casting="unsafe")
-        valid[slots:] *= 2   # kind 2: the caustic events (their own statistics with --caustic-statistics separate)
-        return (buf.position, buf.power, buf.normal, valid), n + n_c, {
-            "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
-            "photons_emitted": n + n_c}
+        if aimed:
+            # caustic photons carry the light -> specular+ -> diffuse (or medium) paths; the others leave them out
+            tail = TraceBuffers(*(a[slots:] for a in buf))
+            if media is None:
+                c_s = parallel_for(trace_caustic_photons, n_c, (scene.geometry, scene.materials, scene.lights, spheres,
+                                                                settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON,
+                                                                                              pass_index), n_c, *tail),
+                                   threads=settings["threads"])
+            else:
+                c_s = parallel_for(trace_caustic_photons_media, n_c,
+                                   (scene.geometry, scene.materials, scene.lights, media, lm, spheres, settings["seed"],
+                                    pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_c, *tail),
+                                   threads=settings["threads"])
+            compile_s += c_s
+        valid = np.empty(buf.kind.shape[0], np.int8)
+        if aimed:
+            np.equal(head.kind, INDIRECT, out=valid[:slots], casting="unsafe")
+            np.equal(tail.kind, CAUSTIC, out=valid[slots:], casting="unsafe")
+            valid[slots:] *= 2   # kind 2: the caustic events (their own statistics with --caustic-statistics separate)
+        else:
+            valid[:] = (buf.kind == INDIRECT) | (buf.kind == CAUSTIC)   # the surface records, not the volume's
+        stats = {"timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
+                 "photons_emitted": n + n_c}
+        if media is not None:
+            # volume photons: all of the unaimed ones', or, with caustic photons, the unaimed photons'
+            # VOLUME_INDIRECT and the aimed ones' VOLUME_CAUSTIC (the same split as at surfaces)
+            if aimed:
+                keep = np.concatenate([head.kind == VOLUME_INDIRECT, tail.kind == VOLUME_CAUSTIC])
+            else:
+                keep = (buf.kind == VOLUME_INDIRECT) | (buf.kind == VOLUME_CAUSTIC)
+            stats["volume_photons"] = (buf.position[keep], buf.direction[keep], buf.power[keep])
+        return (buf.position, buf.power, buf.normal, valid), n + n_c, stats
