@@ -234,13 +234,20 @@ def direct_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, me
     or the surface, or blocked), in which case the radiance is 0.  The caller multiplies by
     the BSDF and cosine, or the phase function, and weights area lights by MIS.
     """
+    return direct_transmitted_u(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
+                                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+
+
+@kernel(hot=True)
+def direct_transmitted_u(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, u0, u1, u2):
+    """:func:`direct_transmitted` with its three numbers given: u0 chooses the light, (u1, u2) the point on it."""
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
         return zero, zero, 0.0, False, False, 0
-    li, sel_pdf, _ = choose_light(lights, uniform(key, dim))
+    li, sel_pdf, _ = choose_light(lights, u0)
     is_area = lights.kind[li] == AREA
     if is_area:
-        q, nq = sample_area_emitter(lights, geom, li, uniform(key, dim + 1), uniform(key, dim + 2))
+        q, nq = sample_area_emitter(lights, geom, li, u1, u2)
     else:
         q = vec.row(lights.position, li)
         nq = zero

@@ -18,13 +18,18 @@ with three additions:
   (SPEC §2): one distance per segment per pass, drawn within the segment
   (:func:`caustica.media.sample_distance_within`, weight T σs / pdf), and one light sample
   from it through media and null boundaries (:func:`caustica.media.direct_transmitted`,
-  exact transmittance), times the phase function.  Unbiased, one shadow ray per segment.
+  exact transmittance), times the phase function.  Unbiased, one shadow ray per segment.  On the
+  first segment (the camera's own ray, usually the longest), the distance and the point on the light
+  are points ``pass`` of randomly shifted Kronecker sequences, as the surface's shadow rays are
+  (visible_points.py): each pass alone is still an unbiased sample, and a pixel's passes cover the
+  segment and the light evenly.
 
 Direct light at the visible point is :func:`caustica.media.direct_stratified_transmitted`:
 the same strata and Kronecker jitter as without media, each shadow ray weighted by its
 transmittance.  Random numbers: the camera pass's own keys and dimensions for the path;
 the segments' next-event estimates draw from a stream of their own (``STREAM_CAMERA_MEDIA``,
-five numbers per segment), so a scene's media never shift the numbers of anything else.
+five numbers per segment; the first segment's stratified numbers are shifted by numbers
+QMC_SEGMENT_DIM .. + 2 of the scramble key), so a scene's media never shift the numbers of anything else.
 """
 from __future__ import annotations
 
@@ -37,7 +42,7 @@ from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import NULL_CROSSINGS_CAP, attenuation, direct_stratified_transmitted, direct_transmitted, \
+from ..media import NULL_CROSSINGS_CAP, attenuation, direct_stratified_transmitted, direct_transmitted_u, \
     medium_after, phase_value, sample_distance_within, within_weight
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE, NULL
@@ -47,6 +52,9 @@ INV_PI = 1.0 / math.pi
 #: Medium segments a camera path may have (room for them is allocated per pixel); a path that
 #: would need more ends, as at the specular depth cap.
 MEDIUM_SEGMENTS = 8
+#: The per-pixel shifts (numbers of the camera pass's scramble key) of the Kronecker points that stratify the
+#: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n².
+QMC_SEGMENT_DIM = 1000
 #: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; count).
 SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
 
@@ -78,16 +86,20 @@ def emitted_along_media(geom, mats, lights, media, o, d, medium):
 
 
 @kernel
-def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, vkey, vdim):
-    """β times one next-event estimate of the direct light scattered towards o along the segment (o, d, s) in m."""
+def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_dist, u_light, u1, u2):
+    """β times one next-event estimate of the direct light scattered towards o along the segment (o, d, s) in m.
+
+    u_channel and u_dist draw the distance (:func:`caustica.media.sample_distance_within`), u_light the
+    light and (u1, u2) the point on it.
+    """
     zero = (0.0, 0.0, 0.0)
-    t = sample_distance_within(media, m, s, uniform(vkey, vdim), uniform(vkey, vdim + 1))
+    t = sample_distance_within(media, m, s, u_channel, u_dist)
     w = within_weight(media, m, s, t)
     if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
         return zero
     p = vec.madd(o, d, t)
-    contrib, wi, _, _, ok, _ = direct_transmitted(geom, mats, lights, media, p, zero, zero, zero, -1, m,
-                                                  vkey, vdim + 2)
+    contrib, wi, _, _, ok, _ = direct_transmitted_u(geom, mats, lights, media, p, zero, zero, zero, -1, m,
+                                                    u_light, u1, u2)
     if not ok:
         return zero
     return vec.mul(vec.hadamard(vec.hadamard(beta, w), contrib), phase_value(media, m, d, wi))
@@ -123,8 +135,16 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
                 seg_beta[k, c] = beta[c]
             seg_len[k] = s
             seg_medium[k] = medium
+            vd = 5 * n_seg
+            u_dist = uniform(vkey, vd + 1)
+            u1 = uniform(vkey, vd + 3)
+            u2 = uniform(vkey, vd + 4)
+            if n_seg == 0:   # the first segment's distance and light point: stratified over the passes
+                u_dist = kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, QMC_SEGMENT_DIM))
+                u1 = kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, QMC_SEGMENT_DIM + 1))
+                u2 = kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, QMC_SEGMENT_DIM + 2))
             L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
-                                             vkey, 5 * n_seg))
+                                             uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2))
             n_seg += 1
             if prim < 0:
                 return False, zero, zero, zero, L, n_seg
