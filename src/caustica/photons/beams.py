@@ -185,6 +185,7 @@ def segment_estimate(vg, media, o, d, s, m):
     st0 = media.sigma_t[m, 0]
     st1 = media.sigma_t[m, 1]
     st2 = media.sigma_t[m, 2]
+    grey = st0 == st1 and st1 == st2   # one exponential per photon (the same bits as three)
     wo = (-d[0], -d[1], -d[2])
     mask = vg.start.shape[0] - 2
     t_enter = t0
@@ -207,9 +208,15 @@ def segment_estimate(vg, media, o, d, s, m):
                 continue
             wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
             ph = phase_value(media, m, wi, wo)
-            a0 += math.exp(-st0 * ti) * ph * vg.power[i, 0]
-            a1 += math.exp(-st1 * ti) * ph * vg.power[i, 1]
-            a2 += math.exp(-st2 * ti) * ph * vg.power[i, 2]
+            if grey:
+                w = math.exp(-st0 * ti) * ph
+                a0 += w * vg.power[i, 0]
+                a1 += w * vg.power[i, 1]
+                a2 += w * vg.power[i, 2]
+            else:
+                a0 += math.exp(-st0 * ti) * ph * vg.power[i, 0]
+                a1 += math.exp(-st1 * ti) * ph * vg.power[i, 1]
+                a2 += math.exp(-st2 * ti) * ph * vg.power[i, 2]
             found += 1
         if t_exit >= t1:
             break
