@@ -222,6 +222,12 @@ def phase_sample(media, m, d, u1, u2):
 
 # ----------------------------------------------------------------------------- direct light
 
+@kernel(inline=True)
+def power_heuristic(a, b):
+    """Veach's power heuristic (β = 2): the MIS weight of a sample of the strategy with density a."""
+    return a * a / (a * a + b * b)
+
+
 @kernel(hot=True)
 def direct_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim):
     """One light sample seen from p through media and null boundaries (next-event estimation).

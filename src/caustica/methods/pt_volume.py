@@ -36,16 +36,11 @@ from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
 from ..media import NULL_CROSSINGS_CAP, direct_transmitted, flight_weight, medium_after, phase_pdf, \
-    phase_sample, phase_value, sample_distance
+    phase_sample, phase_value, power_heuristic, sample_distance
 from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
 
 INV_PI = 1.0 / math.pi
-
-
-@kernel(inline=True)
-def power_heuristic(a, b):
-    return a * a / (a * a + b * b)
 
 
 @kernel(hot=True)

@@ -43,7 +43,7 @@ from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
 from ..media import NULL_CROSSINGS_CAP, attenuation, direct_stratified_transmitted, direct_transmitted_u, \
-    medium_after, phase_value, sample_distance_within, within_weight
+    medium_after, phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE, NULL
 
@@ -86,11 +86,45 @@ def emitted_along_media(geom, mats, lights, media, o, d, medium):
 
 
 @kernel
-def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_dist, u_light, u1, u2):
-    """β times one next-event estimate of the direct light scattered towards o along the segment (o, d, s) in m.
+def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
+    """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
 
-    u_channel and u_dist draw the distance (:func:`caustica.media.sample_distance_within`), u_light the
-    light and (u1, u2) the point on it.
+    d was sampled with solid-angle density pdf_dir (the phase function); an area emitter met at
+    distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
+    select_pdf r² / (area cos_l), as :func:`caustica.media.direct_transmitted_u` samples it.
+    """
+    L = (0.0, 0.0, 0.0)
+    T = (1.0, 1.0, 1.0)
+    dist = 0.0
+    for _ in range(NULL_CROSSINGS_CAP):
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if prim < 0:
+            return L
+        if medium >= 0:
+            T = vec.hadamard(T, attenuation(media, medium, t))
+        dist += t
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        e = geom.prim_emitter[prim]
+        cos_l = -vec.dot(d, ng)
+        if e >= 0 and cos_l > 0.0:
+            pdf_light = lights.select_pdf[e] * dist * dist / (lights.area[e] * cos_l)
+            L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), power_heuristic(pdf_dir, pdf_light))
+        if mats.kind[geom.prim_material[prim]] != NULL:
+            return L
+        medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
+        o = vec.offset_origin(p, ng, d)
+    return L
+
+
+@kernel
+def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2):
+    """β times one estimate of the direct light scattered towards o along the segment (o, d, s) in m.
+
+    One distance (u_channel, u_dist: :func:`caustica.media.sample_distance_within`); from there one
+    light sample (u_light chooses the light, (u1, u2) the point on it) and one phase-function sample
+    (u_ph1, u_ph2) that counts the emitter it sees, combined by MIS (power heuristic) for area
+    lights.  Light sampling alone has unbounded variance where a segment passes close to an area
+    light (its value grows as 1 / distance²); the phase sample takes over there.
     """
     zero = (0.0, 0.0, 0.0)
     t = sample_distance_within(media, m, s, u_channel, u_dist)
@@ -98,11 +132,18 @@ def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_
     if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
         return zero
     p = vec.madd(o, d, t)
-    contrib, wi, _, _, ok, _ = direct_transmitted_u(geom, mats, lights, media, p, zero, zero, zero, -1, m,
-                                                    u_light, u1, u2)
-    if not ok:
-        return zero
-    return vec.mul(vec.hadamard(vec.hadamard(beta, w), contrib), phase_value(media, m, d, wi))
+    bw = vec.hadamard(beta, w)
+    L = zero
+    contrib, wi, pdf_light, is_area, ok, _ = direct_transmitted_u(geom, mats, lights, media, p, zero, zero, zero,
+                                                                  -1, m, u_light, u1, u2)
+    if ok:
+        mis = power_heuristic(pdf_light, phase_pdf(media, m, d, wi)) if is_area else 1.0
+        L = vec.mul(vec.hadamard(bw, contrib), mis * phase_value(media, m, d, wi))
+    wo, weight, pdf = phase_sample(media, m, d, u_ph1, u_ph2)
+    if pdf > 0.0:
+        Le = emission_weighted(geom, mats, lights, media, p, wo, m, pdf)
+        L = vec.add(L, vec.mul(vec.hadamard(bw, Le), weight))
+    return L
 
 
 @kernel
@@ -135,7 +176,7 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
                 seg_beta[k, c] = beta[c]
             seg_len[k] = s
             seg_medium[k] = medium
-            vd = 5 * n_seg
+            vd = 7 * n_seg
             u_dist = uniform(vkey, vd + 1)
             u1 = uniform(vkey, vd + 3)
             u2 = uniform(vkey, vd + 4)
@@ -144,7 +185,8 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
                 u1 = kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, QMC_SEGMENT_DIM + 1))
                 u2 = kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, QMC_SEGMENT_DIM + 2))
             L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
-                                             uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2))
+                                             uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2,
+                                             uniform(vkey, vd + 5), uniform(vkey, vd + 6)))
             n_seg += 1
             if prim < 0:
                 return False, zero, zero, zero, L, n_seg
