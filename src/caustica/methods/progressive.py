@@ -46,7 +46,7 @@ RADIUS_FRACTION = 0.01
 #: The default initial radius of separate caustic statistics, as a fraction of R_0 (see docs/progressive.md).
 CAUSTIC_RADIUS_SCALE = 0.6
 #: The default initial radius of the volume estimate (scenes with media), as a fraction of R_0.
-VOLUME_RADIUS_SCALE = 2.0
+VOLUME_RADIUS_SCALE = 1.0
 #: Radius schedules: per pixel (SPPM's α update, sequential) or one per pass (independent passes).
 SCHEDULES = ("pixel", "global")
 
