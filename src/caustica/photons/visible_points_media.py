@@ -14,21 +14,21 @@ with three additions:
   path has room for :data:`MEDIUM_SEGMENTS` of them; one that would need more ends there, as a
   path ends after ``max_specular`` mirror or glass bounces.
 * **Direct light scattered along a segment** (single scattering of the lights' own light) is
-  estimated here by next-event estimation, not by photons — as direct light at surfaces is
-  (SPEC §2): one distance per segment per pass, drawn within the segment
-  (:func:`caustica.media.sample_distance_within`, weight T σs / pdf), and one light sample
-  from it through media and null boundaries (:func:`caustica.media.direct_transmitted`,
-  exact transmittance), times the phase function.  Unbiased, one shadow ray per segment.  On the
-  first segment (the camera's own ray, usually the longest), the distance and the point on the light
-  are points ``pass`` of randomly shifted Kronecker sequences, as the surface's shadow rays are
-  (visible_points.py): each pass alone is still an unbiased sample, and a pixel's passes cover the
-  segment and the light evenly.
+  estimated here, not by photons — as direct light at surfaces is (SPEC §2): one distance per
+  segment per pass, drawn within the segment (:func:`caustica.media.sample_distance_within`,
+  weight T σs / pdf); from it one light sample through media and null boundaries
+  (:func:`caustica.media.direct_transmitted_u`, exact transmittance) and one phase-function sample
+  that counts the emitter it sees, combined by MIS (:func:`segment_inscatter`).  Unbiased, two rays
+  per segment.  On the first segment (the camera's own ray, usually the longest), the distance and
+  the point on the light are points ``pass`` of randomly shifted Kronecker sequences, as the
+  surface's shadow rays are (visible_points.py): each pass alone is still an unbiased sample, and
+  a pixel's passes cover the segment and the light evenly.
 
 Direct light at the visible point is :func:`caustica.media.direct_stratified_transmitted`:
 the same strata and Kronecker jitter as without media, each shadow ray weighted by its
 transmittance.  Random numbers: the camera pass's own keys and dimensions for the path;
 the segments' next-event estimates draw from a stream of their own (``STREAM_CAMERA_MEDIA``,
-five numbers per segment; the first segment's stratified numbers are shifted by numbers
+seven numbers per segment; the first segment's stratified numbers are shifted by numbers
 QMC_SEGMENT_DIM .. + 2 of the scramble key), so a scene's media never shift the numbers of anything else.
 """
 from __future__ import annotations
