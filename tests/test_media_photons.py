@@ -279,3 +279,27 @@ def test_bad_input_in_media_is_one_line(cli, tmp_path, args, what):
     assert code == 2 and lines[-1].startswith("caustica: error: ") and what in lines[-1], err
     assert err.count("caustica: error:") == 1 and all(ln.startswith("caustica: note: ") for ln in lines[:-1]), err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_in_scattering_samples_near_an_area_light_stay_bounded():
+    """The camera segments' in-scattering sample is bounded by construction: with MIS between the light
+    sample and the phase sample, each is at most 1.5 L_e times the distance weight (<= the albedo in a grey
+    medium).  Light sampling alone grows as 1 / h² for a segment at height h under the light (before MIS, one
+    such sample made a 256 x 256 fog-box pixel 161 after 277 passes, against 25)."""
+    from caustica.photons.visible_points_media import segment_inscatter
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=8)
+    rng = np.random.default_rng(1)
+    le = float(scene.lights.radiance[0].max())
+    albedo = float(scene.media.albedo[0].max())
+    worst = 0.0
+    total = np.zeros(3)
+    n = 4000
+    for h in (1e-2, 1e-3, 1e-4):   # the light is the square |x|, |z| <= 1.5 at y = 19.99, facing down
+        o, d = (-1.4, 19.99 - h, 0.1), (1.0, 0.0, 0.0)
+        for u in rng.random((n, 7)):
+            c = segment_inscatter(scene.geometry, scene.materials, scene.lights, scene.media, o, d, 2.8, 0,
+                                  (1.0, 1.0, 1.0), *map(float, u))
+            worst = max(worst, max(c))
+            total += c
+    assert worst <= 1.5 * le * albedo * (1 + 1e-9), worst
+    assert total.min() > 0    # the light is seen: the samples are not all zero
