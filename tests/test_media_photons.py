@@ -17,6 +17,7 @@
    spread, 4-7 % of a block here; the 5 % goal itself is measured with converged renders by
    benchmarks/bench_media.py, docs/media.md).
    And tests/scenes/media-glass.xml (haze, HG both ways, RGB extinction, glass) against pt.
+   The camera segments' in-scattering samples stay bounded just below an area light (MIS).
 5. Bits: 1 and 2 threads, checkpoint + resume, pixel and global schedules; bad input in one line.
 """
 from __future__ import annotations
