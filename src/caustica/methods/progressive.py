@@ -31,9 +31,12 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
+from ..memory import check_budget
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
+from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
+from ..photons.trace import trace_caustic_photons
 from ..photons.visible_points import visible_points
-from ..sampling.rng import STREAM_CAMERA, pass_stream
+from ..sampling.rng import STREAM_CAMERA, STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
@@ -68,6 +71,38 @@ PROGRESSIVE_PARAMS = (
             help="use the n x n grid's cell centres instead of jittered samples (biased: never converges)"),
     _ESTIMATE["max_specular_depth"],
 )
+
+#: How aimed caustic photons are gathered (sppm and pspm with --caustic-photons).
+CAUSTIC_STATISTICS_PARAMS = (
+    Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
+                                                 "gathered into per-pixel statistics (N, R, tau) of their own, "
+                                                 "so the other events keep their wider radius (pixel schedule); "
+                                                 "shared: one set of statistics for all events",
+          choices=("separate", "shared")),
+    Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
+                                         f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
+          positive, "> 0"),
+)
+
+
+def trace_caustic_pass(scene, settings, pass_index, n_caustic, out: TraceBuffers) -> float:
+    """Trace the pass's ``n_caustic`` photons aimed at the mirrors and glass into ``out`` (one slot each).
+
+    They carry every light -> specular+ -> diffuse path (as PM's caustic map, their power divided
+    by the aiming pdf); the method's other photons or streams must then leave those paths out.
+    Returns the compile seconds.
+    """
+    check_budget(n_caustic * SLOT_BYTES, f"{n_caustic:,} caustic photons per pass", "lower --caustic-photons")
+    return parallel_for(trace_caustic_photons, n_caustic,
+                        (scene.geometry, scene.materials, scene.lights, scene.specular_bounding_spheres(),
+                         settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_caustic, *out),
+                        threads=settings["threads"])
+
+
+def caustic_event_kind(kind: np.ndarray, out: np.ndarray) -> None:
+    """Event kinds of caustic photons' slots into ``out`` (int8): 2 where a caustic event was stored, else 0."""
+    np.equal(kind, CAUSTIC, out=out, casting="unsafe")
+    out *= 2
 
 
 class PixelStatistics(NamedTuple):
@@ -263,9 +298,15 @@ class ProgressivePhotonMethod(IndependentPasses):
         return st
 
     @classmethod
+    def caustic_photons_per_pass(cls, scene, settings) -> int:
+        """Photons aimed at the mirrors and glass per pass (0: none, or no mirror or glass to aim at)."""
+        return 0
+
+    @classmethod
     def separate_caustics(cls, scene, settings) -> bool:
-        """Whether events of kind 2 are caustic events with their own statistics (SPPM's aimed caustic photons)."""
-        return False
+        """Whether events of kind 2 are caustic events with their own statistics (the aimed caustic photons)."""
+        return (settings.get("caustic_statistics") == "separate"
+                and cls.caustic_photons_per_pass(scene, settings) > 0)
 
     @classmethod
     def measure_pass(cls, scene, settings, pass_index, radius, progress, radius_caustic=None):
