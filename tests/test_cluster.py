@@ -84,6 +84,35 @@ def test_a_worker_killed_mid_render_changes_nothing(diacaustic, tmp_path, monkey
     assert far.image.tobytes() == caustica.render(diacaustic, "pt", **kw).image.tobytes()
 
 
+def test_a_hung_task_is_given_up_after_the_time_budget(diacaustic, monkeypatch):
+    """The hook makes the task rendering pass 4 sleep for an hour: with --time the render ends soon
+    after the budget and its grace, with the passes merged before that task, and says so."""
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"4:{cluster.HANG_FLAG}")
+    monkeypatch.setattr(cluster, "LATE_TASK_GRACE_S", 1.0)
+    kw = dict(res=16, seed=3)
+    with cluster.connect(workers=2) as cl:
+        caustica.render(diacaustic, "pt", passes=2, dask=cl.client, **kw)   # the workers load their kernels
+        t0 = time.perf_counter()
+        r = caustica.render(diacaustic, "pt", time_s=2.0, dask=cl.client, **kw)
+        wall = time.perf_counter() - t0
+        late = r.stats["cluster"]
+        assert late["late_tasks"] >= 1 and late["dropped_passes"] >= 1
+        assert 1 <= r.stats["passes"] <= 4 and not r.stats["interrupted"]
+        # the budget, then the grace: at least 1 s, at most 3x the longest task (tasks are ~1 s)
+        assert wall < 2.0 + max(1.0, 3.0 * max(late["task_wall_seconds"])) + 5.0, wall
+    monkeypatch.delenv(cluster.KILL_HOOK_ENV)
+    local = caustica.render(diacaustic, "pt", passes=r.stats["passes"], **kw)
+    assert r.image.tobytes() == local.image.tobytes()
+
+
+def test_no_pass_back_within_the_budget_is_one_error(diacaustic, monkeypatch):
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"0:{cluster.HANG_FLAG}")
+    monkeypatch.setattr(cluster, "LATE_TASK_GRACE_S", 1.0)
+    with cluster.connect(workers=2) as cl:
+        with pytest.raises(caustica.errors.ClusterError, match="no task came back within the budget"):
+            caustica.render(diacaustic, "pt", res=8, time_s=1.0, dask=cl.client)
+
+
 def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_passes(diacaustic, two_workers):
     updates = []
 

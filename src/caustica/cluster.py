@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import os
+import queue
 import time
 from dataclasses import dataclass, field
 
@@ -43,9 +44,18 @@ TASK_SECONDS = 1.0
 #: ... times (worker threads / this) when more: the client takes in one part per task, so with many
 #: workers longer tasks keep its network link and its merging from becoming the bottleneck.
 THREADS_FOR_LONGER_TASKS = 16
+#: With --time, tasks still out this long after the budget (or 3x the longest task so far, if more)
+#: are given up, once any task has come back: the render keeps the passes merged in order before
+#: them (a hung worker, a lost task) rather than waiting for ever.
+LATE_TASK_GRACE_S = 10.0
+#: Parts finished ahead of a pass still out are held by the client until it is back; past this
+#: many per task slot, no new task is sent (their memory, up to 7 images each, stays bounded).
+MAX_HELD_PARTS_PER_SLOT = 4
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
-#: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time.
+#: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time;
+#: "PASS:hang" makes that task sleep for an hour, as a hung task.
 KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
+HANG_FLAG = "hang"
 
 
 def _distributed():
@@ -215,6 +225,9 @@ def _kill_hook(start: int, stop: int) -> None:
         return
     at, _, flag = hook.partition(":")
     if start <= int(at) < stop:
+        if flag == HANG_FLAG:
+            time.sleep(3600)
+            return
         if not flag:
             os._exit(70)   # no FILE: every time, as a task that always kills its worker
         try:
@@ -274,6 +287,8 @@ class ClusterLog:
     scene_transfer_s: float = 0.0
     result_transfer_s: float = 0.0
     result_bytes: int = 0
+    late_tasks: int = 0       # tasks given up past the --time budget's grace (their passes dropped)
+    dropped_passes: int = 0   # passes rendered or in flight but not merged: after a late task's gap
 
     def to_json(self, address: str) -> dict:
         wall, work = sum(self.task_wall_seconds), sum(self.task_seconds)
@@ -281,7 +296,8 @@ class ClusterLog:
                 "tasks": self.tasks, "task_passes": self.task_passes, "task_seconds": self.task_seconds,
                 "task_wall_seconds": self.task_wall_seconds, "scene_transfer_s": self.scene_transfer_s,
                 "result_transfer_s": self.result_transfer_s, "result_bytes": self.result_bytes,
-                "task_overhead_s": max(0.0, wall - work)}
+                "task_overhead_s": max(0.0, wall - work), "late_tasks": self.late_tasks,
+                "dropped_passes": self.dropped_passes}
 
 
 class _ClusterFailed(Exception):
@@ -353,7 +369,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     per_pass = []              # measured work seconds per pass of finished tasks
     t_start = time.perf_counter()
     last_save, saved = t_start, state.passes
-    seq = distributed.as_completed(loop=client.loop)
+    arrived = queue.SimpleQueue()   # tasks that ended (done, failed or cancelled), in the order they did
     try:
         while True:
             try:
@@ -363,7 +379,8 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             clog.workers = max(clog.workers, len(cluster.worker_threads))
             clog.worker_threads = max(clog.worker_threads, slots)
             task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_FOR_LONGER_TASKS)
-            while len(flying) < slots and (target is None or next_pass < target):
+            held_cap = MAX_HELD_PARTS_PER_SLOT * slots
+            while len(flying) < slots and len(done) < held_cap and (target is None or next_pass < target):
                 limit = (target - next_pass) if target is not None else MAX_TASK_PASSES
                 size = 1                 # until the first task is back, one pass per task
                 if per_pass:
@@ -383,12 +400,32 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 fut = client.submit(render_part_task, scene_f, method_cls.name, settings, next_pass,
                                     next_pass + size, source, pure=False)
                 flying[fut] = (next_pass, next_pass + size, time.perf_counter())
-                seq.add(fut)
+                fut.add_done_callback(arrived.put)   # on Dask's thread, when the task ends however it ends
                 next_pass += size
             if not flying:
                 break
+            deadline = None
+            # past the budget and its grace, what is still out is given up -- once a task has come back:
+            # before that the workers may still be compiling or loading their kernels, not hung
+            if plan.time_s is not None and clog.tasks > 0:
+                grace = max(LATE_TASK_GRACE_S, 3.0 * max(clog.task_wall_seconds, default=0.0))
+                deadline = t_start + plan.time_s + grace
+            fut = None
+            while fut is None and (deadline is None or time.perf_counter() < deadline):
+                wait_s = 0.5 if deadline is None else min(0.5, max(0.0, deadline - time.perf_counter()))
+                try:   # in short waits, so Ctrl-C is seen at once whatever the platform's locks do
+                    fut = arrived.get(timeout=wait_s)
+                except queue.Empty:
+                    pass
+            if fut is None:
+                clog.late_tasks = len(flying)
+                clog.dropped_passes = (sum(stop - start for start, stop, _ in flying.values())
+                                       + sum(len(part_log) for _, part_log in done.values()))
+                client.cancel(list(flying))
+                flying.clear()
+                done.clear()
+                break
             try:
-                fut = next(seq)
                 start, stop, sent = flying.pop(fut)
                 t1 = time.perf_counter()
                 part, part_log, work_s = fut.result()
@@ -430,6 +467,9 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             raise
     finally:
         bar.close()
+    if clog.late_tasks and state.passes == 0:
+        raise ClusterError(f"--time {plan.time_s:g}: no task came back within the budget and its grace of "
+                           f"{LATE_TASK_GRACE_S:g} s ({clog.late_tasks} still out, given up): are the workers hung?")
     if plan.checkpoint is not None and state.passes > saved:
         ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
     return state, log, clog
