@@ -23,6 +23,8 @@ seed-to-seed spread is measured separately.
 """
 from __future__ import annotations
 
+import math
+
 import os
 import time
 from pathlib import Path
@@ -40,11 +42,12 @@ RES = 256
 #: Progressive configurations: (label, method, parameters).
 PROGRESSIVE = (
     ("pt", "pt", {}),
-    ("SPPM", "sppm", {}),
+    ("SPPM", "sppm", {}),   # in these scenes: half of the pass's photons aimed (separate caustic statistics)
+    ("SPPM plain", "sppm", {"caustic_photons": 0}),
     ("SPPM 20k + 20k caustic", "sppm", {"photons": 20_000, "caustic_photons": 20_000}),
     ("PSPM merge", "pspm", {}),
     ("PSPM split r_s=1", "pspm", {"specular": "split", "stream_radius": 1.0}),
-    ("PSPM split r_s=1, photons", "pspm", {"specular": "split", "stream_radius": 1.0, "estimator": "photons"}),
+    ("PSPM merge + 32k caustic", "pspm", {"caustic_photons": 32_768}),
 )
 #: PM + caustic map at these photon counts (global = caustic), one shot each.
 PMC_PHOTONS = (25_000, 100_000, 400_000)
@@ -82,6 +85,26 @@ def reference_floor(ref, mask) -> dict:
         return {"rel_rmse": None, "caustic_rel_rmse": None}
     return {"rel_rmse": rel_rmse(ref.half_a, ref.half_b) / 2,
             "caustic_rel_rmse": rel_rmse(ref.half_a, ref.half_b, mask) / 2}
+
+
+def peer_floor(ref, peer_rows) -> dict:
+    """The reference's own relative RMSE estimated from Mitsuba's equal-time renders.
+
+    Only for a reference rendered by Mitsuba's path tracer with a known sample count N_ref
+    (``shared/refs``): the peer renders are the same estimator with N_b samples, so their
+    expected relative MSE against the reference is v / N_b + v / N_ref, with v the estimator's
+    per-sample relative variance.  Each budget gives v = relMSE_b / (1 / N_b + 1 / N_ref);
+    their mean v-bar gives the reference's relRMSE sqrt(v-bar / N_ref).  Every error measured
+    against this reference includes it in quadrature.  None when this does not apply.
+    """
+    none = {"rel_rmse": None, "caustic_rel_rmse": None}
+    if not ref.spp or not ref.renderer.lower().startswith("mitsuba") or not peer_rows:
+        return none
+    out = {}
+    for key in ("rel_rmse", "caustic_rel_rmse"):
+        v = [r[key] ** 2 / (1.0 / r["passes"] + 1.0 / ref.spp) for r in peer_rows]
+        out[key] = math.sqrt(sum(v) / len(v) / ref.spp)
+    return out
 
 
 def shared_refs_dir() -> Path | None:
@@ -203,8 +226,13 @@ class Convergence:
                     rows.append({"scene": name, "label": MITSUBA_LABEL, "method": "mitsuba", "budget_s": budget,
                                  "time_s": wall, "passes": spp, **measure(image, ref.image, mask)})
                     self._tick()
-            rows.append({"scene": name, "label": "reference's own noise", "method": "reference", "budget_s": None,
-                         "time_s": None, "passes": None, **reference_floor(ref, mask)})
+            floor = reference_floor(ref, mask)
+            label = "reference's own noise"
+            if floor["rel_rmse"] is None:
+                floor = peer_floor(ref, [r for r in rows if r["scene"] == name and r["method"] == "mitsuba"])
+                label = "reference's own noise (est. from the Mitsuba renders' 1/N)"
+            rows.append({"scene": name, "label": label, "method": "reference", "budget_s": None,
+                         "time_s": None, "passes": ref.spp, **floor})
         tables, figures = {}, []
         from .runner import markdown_table, write_csv
         cols = ("label", "budget_s", "time_s", "passes", "caustic_rel_rmse", "rel_rmse", "caustic_block_err",
@@ -236,6 +264,12 @@ def summary(rows, budgets) -> str:
     """Which method has the lowest caustic relRMSE at each budget, and its ratio to Mitsuba's."""
     lines = []
     for scene in SCENES:
+        floor = [r for r in rows if r["scene"] == scene and r["method"] == "reference"
+                 and r.get("caustic_rel_rmse") is not None]
+        if floor:
+            f = floor[0]
+            lines.append(f"{scene}: {f['label']}: {f['caustic_rel_rmse']:.4f} on the caustic, {f['rel_rmse']:.4f} "
+                         f"on the whole image; every error below contains it in quadrature")
         for b in budgets:
             at = [r for r in rows if r["scene"] == scene and r.get("budget_s") == b
                   and r.get("caustic_rel_rmse") is not None]
