@@ -128,24 +128,28 @@ class PixelStatistics(NamedTuple):
 CELL_PER_RADIUS = 2.0
 
 
+@kernel(inline=True)
+def _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i):
+    """Σ Φ and the number of the grid's events within radius[i] of visible point i into flux[i], count[i]."""
+    if not vp_found[i]:
+        count[i] = 0
+        for c in range(3):
+            flux[i, c] = 0.0
+        return
+    p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
+    n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
+    m, s = grid_range_sum(grid, p, n, radius[i])
+    count[i] = m
+    for c in range(3):
+        flux[i, c] = s[c]
+
+
 @kernel
 def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
     """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without one)."""
     grid = borrowed(grid)
     for i in range(i0, i1):
-        if not vp_found[i]:
-            count[i] = 0
-            flux[i, 0] = 0.0
-            flux[i, 1] = 0.0
-            flux[i, 2] = 0.0
-            continue
-        p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
-        n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-        m, s = grid_range_sum(grid, p, n, radius[i])
-        count[i] = m
-        flux[i, 0] = s[0]
-        flux[i, 1] = s[1]
-        flux[i, 2] = s[2]
+        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
 
 
 @kernel
@@ -154,25 +158,8 @@ def gather_flux_two(grid, grid_c, vp_pos, vp_nrm, vp_found, radius, radius_c, fl
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
     for i in range(i0, i1):
-        if not vp_found[i]:
-            count[i] = 0
-            count_c[i] = 0
-            for c in range(3):
-                flux[i, c] = 0.0
-                flux_c[i, c] = 0.0
-            continue
-        p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
-        n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-        m, s = grid_range_sum(grid, p, n, radius[i])
-        count[i] = m
-        flux[i, 0] = s[0]
-        flux[i, 1] = s[1]
-        flux[i, 2] = s[2]
-        m, s = grid_range_sum(grid_c, p, n, radius_c[i])
-        count_c[i] = m
-        flux_c[i, 0] = s[0]
-        flux_c[i, 1] = s[1]
-        flux_c[i, 2] = s[2]
+        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
+        _gather_at(grid_c, vp_pos, vp_nrm, vp_found, radius_c, flux_c, count_c, i)
 
 
 @kernel
