@@ -167,6 +167,7 @@ def test_cli_render_on_local_workers_writes_the_cluster_sidecar(cli, tmp_path):
     assert code == 0, err
     side = json.loads((tmp_path / "x.json").read_text())
     assert side["passes"] == 3 and side["cluster"]["workers"] == 2
+    assert side["cluster"]["max_task_passes"] == cluster.MAX_TASK_PASSES   # an 8x8 image: no memory cap
     assert np.isfinite(side["cluster"]["scene_transfer_s"])
 
 
@@ -182,3 +183,31 @@ def test_a_task_that_kills_every_worker_is_one_error_and_the_finished_passes_are
     resumed = caustica.render(diacaustic, "pt", res=8, seed=1, passes=12, checkpoint=ck)
     assert 0 < resumed.stats["resumed_from_pass"] <= 6
     assert resumed.image.tobytes() == caustica.render(diacaustic, "pt", res=8, seed=1, passes=12).image.tobytes()
+
+
+class _Share:
+    """A stand-in for Cluster with a given memory share per worker thread."""
+
+    def __init__(self, share):
+        self.share = share
+
+    def task_memory_bytes(self):
+        return self.share
+
+
+def test_task_size_is_capped_by_the_workers_memory():
+    """A part holds a float64 image per whole 64-pass block it covers (plus two chains of at most 7):
+    the task cap keeps that and a pass's work within 60 % of a worker thread's memory share."""
+    cls = caustica.methods.get("pt")
+    settings = {"width": 1000, "height": 1000}
+    px = 10 ** 6
+    per_pass = getattr(cls, "bytes_per_pixel", caustica.api.IMAGE_BYTES_PER_PIXEL)
+    need = px * per_pass + px * cluster.part_bytes_per_pixel(1)
+    assert cluster.max_task_passes(_Share(None), cls, settings) == cluster.MAX_TASK_PASSES
+    assert cluster.max_task_passes(_Share(10 ** 15), cls, settings) == cluster.MAX_TASK_PASSES
+    three_blocks = int((need + 3 * px * 24) / cluster.TASK_MEMORY_FRACTION) + 10
+    cap = cluster.max_task_passes(_Share(three_blocks), cls, settings)
+    assert cap == 4 * cluster.TRUNK_PASSES - 1
+    assert cluster.part_bytes_per_pixel(cap) * px + px * per_pass <= three_blocks * 0.6
+    with pytest.raises(ParameterError, match=r"a task of a 1000x1000 pt render would need about .* GB"):
+        cluster.max_task_passes(_Share(int(need * 0.5)), cls, settings)

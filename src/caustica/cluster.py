@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from . import checkpoint as ckpt
 from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
 from .errors import CausticaError, ClusterError, ParameterError
-from .film import TRUNK_PASSES
+from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
 
 #: Address schemes of Dask's comms a scheduler can listen on.
@@ -48,6 +48,8 @@ THREADS_FOR_LONGER_TASKS = 16
 #: are given up, once any task has come back: the render keeps the passes merged in order before
 #: them (a hung worker, a lost task) rather than waiting for ever.
 LATE_TASK_GRACE_S = 10.0
+#: Of a worker's memory share per thread, what one task may fill (Dask itself pauses a worker at 80 %).
+TASK_MEMORY_FRACTION = 0.6
 #: Parts finished ahead of a pass still out are held by the client until it is back; past this
 #: many per task slot, no new task is sent (their memory, up to 7 images each, stays bounded).
 MAX_HELD_PARTS_PER_SLOT = 4
@@ -84,6 +86,12 @@ class Cluster:
     @property
     def threads(self) -> int:
         return sum(self.worker_threads.values())
+
+    def task_memory_bytes(self) -> int | None:
+        """The memory one task may use: the smallest worker's memory limit per thread (None: no limit set)."""
+        shares = [w["memory_limit"] / max(1, w.get("nthreads", 1))
+                  for w in self.client.scheduler_info()["workers"].values() if w.get("memory_limit")]
+        return int(min(shares)) if shares else None
 
     def close(self) -> None:
         try:
@@ -287,6 +295,7 @@ class ClusterLog:
     scene_transfer_s: float = 0.0
     result_transfer_s: float = 0.0
     result_bytes: int = 0
+    max_task_passes: int = MAX_TASK_PASSES   # the cap the workers' memory set (max_task_passes)
     late_tasks: int = 0       # tasks given up past the --time budget's grace (their passes dropped)
     dropped_passes: int = 0   # passes rendered or in flight but not merged: after a late task's gap
 
@@ -296,7 +305,8 @@ class ClusterLog:
                 "tasks": self.tasks, "task_passes": self.task_passes, "task_seconds": self.task_seconds,
                 "task_wall_seconds": self.task_wall_seconds, "scene_transfer_s": self.scene_transfer_s,
                 "result_transfer_s": self.result_transfer_s, "result_bytes": self.result_bytes,
-                "task_overhead_s": max(0.0, wall - work), "late_tasks": self.late_tasks,
+                "task_overhead_s": max(0.0, wall - work), "max_task_passes": self.max_task_passes,
+                "late_tasks": self.late_tasks,
                 "dropped_passes": self.dropped_passes}
 
 
@@ -347,6 +357,37 @@ def _next_size(start: int, want: int, limit: int) -> int:
     return size
 
 
+def part_bytes_per_pixel(passes: int) -> int:
+    """Bytes per pixel of a part of ``passes`` passes at most: a float64 RGB image per block it holds.
+
+    A part keeps each whole aligned block of TRUNK_PASSES passes apart (the client folds them into
+    its trunk, in order), plus up to two partial block chains of MAX_FILM_IMAGES at its two ends.
+    """
+    return (passes // TRUNK_PASSES + 2 * MAX_FILM_IMAGES) * 3 * 8
+
+
+def max_task_passes(cluster: Cluster, method_cls, settings) -> int:
+    """The most passes a task may take so that its part and a pass's work fit a worker's memory share.
+
+    Raises ParameterError, with the estimate, when not even one pass fits.
+    """
+    budget = cluster.task_memory_bytes()
+    if budget is None:
+        return MAX_TASK_PASSES
+    budget = int(budget * TASK_MEMORY_FRACTION)
+    pixels = settings["width"] * settings["height"]
+    from .api import IMAGE_BYTES_PER_PIXEL
+    per_pass = pixels * getattr(method_cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
+    need = per_pass + pixels * part_bytes_per_pixel(1)
+    if need > budget:
+        raise ParameterError(f"--dask: a task of a {settings['width']}x{settings['height']} {method_cls.name} render "
+                             f"would need about {need / 1e9:.2f} GB, more than the {budget / 1e9:.2f} GB a worker "
+                             f"thread may use ({TASK_MEMORY_FRACTION:.0%} of its share of the worker's memory "
+                             f"limit); give the workers more memory or fewer threads, or lower --res")
+    blocks = (budget - need) // (pixels * 3 * 8)
+    return int(max(1, min(MAX_TASK_PASSES, (blocks + 1) * TRUNK_PASSES - 1)))
+
+
 def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     """The driver's loop with passes as cluster tasks: (state, PassLog, ClusterLog)."""
     distributed = _distributed()
@@ -356,6 +397,8 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
+    task_cap = max_task_passes(cluster, method_cls, settings)
+    clog.max_task_passes = task_cap
     t0 = time.perf_counter()
     scene_f = send_scene(client, scene)
     clog.scene_transfer_s = time.perf_counter() - t0
@@ -381,7 +424,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_FOR_LONGER_TASKS)
             held_cap = MAX_HELD_PARTS_PER_SLOT * slots
             while len(flying) < slots and len(done) < held_cap and (target is None or next_pass < target):
-                limit = (target - next_pass) if target is not None else MAX_TASK_PASSES
+                limit = min(target - next_pass, task_cap) if target is not None else task_cap
                 size = 1                 # until the first task is back, one pass per task
                 if per_pass:
                     pass_s = max(per_pass[-3:])
