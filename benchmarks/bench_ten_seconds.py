@@ -54,7 +54,8 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--threads", type=int)
     ap.add_argument("--refs", type=Path, help="folder of <scene>_<res>.exr and masks (default: shared/refs)")
-    ap.add_argument("--only", help="run only the configurations whose label contains this text")
+    ap.add_argument("--only", action="append", help="run only the configurations whose label contains this "
+                                                    "text (may be given more than once)")
     ap.add_argument("--json", type=Path, help="also write the rows to this file")
     args = ap.parse_args()
     refs = args.refs or shared_refs_dir()
@@ -62,7 +63,7 @@ def main() -> None:
         raise SystemExit("no reference folder: pass --refs or set CAUSTICA_SHARED")
     mi = mitsuba_module()
     seeds = [int(s) for s in args.seeds.split(",")]
-    configs = [c for c in CONFIGS if args.only is None or args.only in c[0]]
+    configs = [c for c in CONFIGS if args.only is None or any(o in c[0] for o in args.only)]
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, "
           f"{args.res}x{args.res}, budget {args.budget:g} s, seeds {seeds}, "
           f"Mitsuba {'yes' if mi is not None else 'not installed'}")

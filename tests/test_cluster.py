@@ -211,3 +211,48 @@ def test_task_size_is_capped_by_the_workers_memory():
     assert cluster.part_bytes_per_pixel(cap) * px + px * per_pass <= three_blocks * 0.6
     with pytest.raises(ParameterError, match=r"a task of a 1000x1000 pt render would need about .* GB"):
         cluster.max_task_passes(_Share(int(need * 0.5)), cls, settings)
+
+
+def test_a_lost_scheduler_is_one_error_and_the_finished_passes_are_saved(diacaustic, tmp_path):
+    """A scheduler (and its worker) in processes of their own, the scheduler killed mid-render."""
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+    bindir = Path(sys.executable).parent
+    info = tmp_path / "scheduler.json"
+    sched = subprocess.Popen([bindir / "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
+                              "--no-dashboard", "--scheduler-file", info], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        for _ in range(300):
+            if info.is_file() and info.stat().st_size:
+                break
+            time.sleep(0.05)
+        worker = subprocess.Popen([bindir / "dask", "worker", "--scheduler-file", info, "--nthreads", "1",
+                                   "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        import json
+        address = json.loads(info.read_text())["address"]
+        ck = tmp_path / "state.npz"
+        with cluster.connect(address) as cl:
+            for _ in range(600):   # until the worker has joined
+                if cl.threads:
+                    break
+                time.sleep(0.05)
+            caustica.render(diacaustic, "pt", res=8, passes=2, dask=cl.client)   # the worker loads its kernels
+            killer = threading.Timer(2.0, sched.kill)
+            killer.start()
+            with pytest.raises(caustica.errors.ClusterError) as err:
+                caustica.render(diacaustic, "pt", res=16, seed=4, time_s=60.0, checkpoint=ck, dask=cl.client)
+            killer.join()
+        msg = str(err.value)
+        assert "lost the scheduler" in msg and "\n" not in msg, msg
+        assert "saved to" in msg and ck.is_file()
+        resumed = caustica.render(diacaustic, "pt", res=16, seed=4, time_s=0.5, checkpoint=ck)
+        assert resumed.stats["resumed_from_pass"] > 0
+    finally:
+        for p in (worker, sched):
+            if p is not None:
+                p.kill()
+                p.wait()
