@@ -105,11 +105,15 @@ def test_a_hung_task_is_given_up_after_the_time_budget(diacaustic, monkeypatch):
     assert r.image.tobytes() == local.image.tobytes()
 
 
-def test_no_pass_back_within_the_budget_is_one_error(diacaustic, monkeypatch):
+@pytest.mark.parametrize("workers", [1, 2])
+def test_no_pass_back_within_the_budget_is_one_error(diacaustic, monkeypatch, workers):
+    """Pass 0 hangs: with 2 workers pass 1 comes back but nothing can be merged; with 1, no task ever
+    comes back (the first task's longer grace, for compiling, then applies)."""
     monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"0:{cluster.HANG_FLAG}")
     monkeypatch.setattr(cluster, "LATE_TASK_GRACE_S", 1.0)
-    with cluster.connect(workers=2) as cl:
-        with pytest.raises(caustica.errors.ClusterError, match="no task came back within the budget"):
+    monkeypatch.setattr(cluster, "FIRST_TASK_GRACE_S", 3.0)
+    with cluster.connect(workers=workers) as cl:
+        with pytest.raises(caustica.errors.ClusterError, match="no pass could be merged within the budget"):
             caustica.render(diacaustic, "pt", res=8, time_s=1.0, dask=cl.client)
 
 
@@ -256,3 +260,15 @@ def test_a_lost_scheduler_is_one_error_and_the_finished_passes_are_saved(diacaus
             if p is not None:
                 p.kill()
                 p.wait()
+
+
+def test_the_memory_cap_counts_a_pass_s_photon_buffers(diacaustic):
+    """sppm's photon records do not scale with the pixels: a worker share that holds a small image's
+    arrays but not 10 million photons' records refuses the render."""
+    scene, cls, settings = caustica.api.resolve_settings(diacaustic, "sppm", res=16, multi_pass=True,
+                                                         schedule="global", photons=10_000_000, caustic_photons=0)
+    assert cls.pass_buffer_bytes(scene, settings) > 10_000_000 * 5
+    share = int(cls.pass_buffer_bytes(scene, settings) / 2 / cluster.TASK_MEMORY_FRACTION)
+    assert cluster.max_task_passes(_Share(share), cls, settings) == cluster.MAX_TASK_PASSES   # without the scene
+    with pytest.raises(ParameterError, match="would need about"):
+        cluster.max_task_passes(_Share(share), cls, settings, scene)

@@ -48,10 +48,13 @@ THREADS_FOR_LONGER_TASKS = 16
 #: are given up, once any task has come back: the render keeps the passes merged in order before
 #: them (a hung worker, a lost task) rather than waiting for ever.
 LATE_TASK_GRACE_S = 10.0
+#: ... and before any task has come back (the workers may be compiling their kernels: a cold
+#: compile of the progressive methods takes about a minute on a 2-core machine).
+FIRST_TASK_GRACE_S = 180.0
 #: Of a worker's memory share per thread, what one task may fill (Dask itself pauses a worker at 80 %).
 TASK_MEMORY_FRACTION = 0.6
 #: Parts finished ahead of a pass still out are held by the client until it is back; past this
-#: many per task slot, no new task is sent (their memory, up to 7 images each, stays bounded).
+#: many per task slot, no new task is sent (their memory, part_bytes_per_pixel each, stays bounded).
 MAX_HELD_PARTS_PER_SLOT = 4
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
 #: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time;
@@ -89,8 +92,12 @@ class Cluster:
 
     def task_memory_bytes(self) -> int | None:
         """The memory one task may use: the smallest worker's memory limit per thread (None: no limit set)."""
+        try:
+            info = self.client.scheduler_info(n_workers=-1)   # some releases list only 5 workers by default
+        except TypeError:   # releases without the argument list them all
+            info = self.client.scheduler_info()
         shares = [w["memory_limit"] / max(1, w.get("nthreads", 1))
-                  for w in self.client.scheduler_info()["workers"].values() if w.get("memory_limit")]
+                  for w in info["workers"].values() if w.get("memory_limit")]
         return int(min(shares)) if shares else None
 
     def close(self) -> None:
@@ -296,6 +303,7 @@ class ClusterLog:
     result_transfer_s: float = 0.0
     result_bytes: int = 0
     max_task_passes: int = MAX_TASK_PASSES   # the cap the workers' memory set (max_task_passes)
+    late_grace_s: float = 0.0  # the grace after the budget when tasks were given up
     late_tasks: int = 0       # tasks given up past the --time budget's grace (their passes dropped)
     dropped_passes: int = 0   # passes rendered or in flight but not merged: after a late task's gap
 
@@ -358,18 +366,22 @@ def _next_size(start: int, want: int, limit: int) -> int:
 
 
 def part_bytes_per_pixel(passes: int) -> int:
-    """Bytes per pixel of a part of ``passes`` passes at most: a float64 RGB image per block it holds.
+    """Bytes per pixel a worker's part of ``passes`` passes holds at most: a float64 RGB image per block.
 
-    A part keeps each whole aligned block of TRUNK_PASSES passes apart (the client folds them into
-    its trunk, in order), plus up to two partial block chains of MAX_FILM_IMAGES at its two ends.
+    Tasks are powers of two aligned to min(size, TRUNK_PASSES) (:func:`_next_size`): a part keeps
+    each finished 64-pass block apart (the client folds them into its trunk, in order) and, while
+    it adds passes, the pairwise chain of the block in progress, at most MAX_FILM_IMAGES images.
     """
-    return (passes // TRUNK_PASSES + 2 * MAX_FILM_IMAGES) * 3 * 8
+    return (passes // TRUNK_PASSES + MAX_FILM_IMAGES) * 3 * 8
 
 
-def max_task_passes(cluster: Cluster, method_cls, settings) -> int:
+def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
     """The most passes a task may take so that its part and a pass's work fit a worker's memory share.
 
-    Raises ParameterError, with the estimate, when not even one pass fits.
+    A pass's work: the method's per-pixel arrays and its photon or stream buffers
+    (``pass_buffer_bytes``, which do not scale with the pixels).  Read once per render: a
+    worker with less memory that joins later is not seen.  Raises ParameterError, with the
+    estimate, when not even one pass fits.
     """
     budget = cluster.task_memory_bytes()
     if budget is None:
@@ -378,6 +390,8 @@ def max_task_passes(cluster: Cluster, method_cls, settings) -> int:
     pixels = settings["width"] * settings["height"]
     from .api import IMAGE_BYTES_PER_PIXEL
     per_pass = pixels * getattr(method_cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
+    if scene is not None and hasattr(method_cls, "pass_buffer_bytes"):
+        per_pass += method_cls.pass_buffer_bytes(scene, settings)
     need = per_pass + pixels * part_bytes_per_pixel(1)
     if need > budget:
         raise ParameterError(f"--dask: a task of a {settings['width']}x{settings['height']} {method_cls.name} render "
@@ -397,7 +411,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
-    task_cap = max_task_passes(cluster, method_cls, settings)
+    task_cap = max_task_passes(cluster, method_cls, settings, scene)
     clog.max_task_passes = task_cap
     t0 = time.perf_counter()
     scene_f = send_scene(client, scene)
@@ -448,10 +462,11 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             if not flying:
                 break
             deadline = None
-            # past the budget and its grace, what is still out is given up -- once a task has come back:
-            # before that the workers may still be compiling or loading their kernels, not hung
-            if plan.time_s is not None and clog.tasks > 0:
-                grace = max(LATE_TASK_GRACE_S, 3.0 * max(clog.task_wall_seconds, default=0.0))
+            if plan.time_s is not None:
+                # past the budget and its grace, what is still out is given up; before any task has come
+                # back the workers may still be compiling or loading their kernels: a longer allowance
+                grace = (max(LATE_TASK_GRACE_S, 3.0 * max(clog.task_wall_seconds)) if clog.tasks
+                         else FIRST_TASK_GRACE_S)
                 deadline = t_start + plan.time_s + grace
             fut = None
             while fut is None and (deadline is None or time.perf_counter() < deadline):
@@ -460,7 +475,13 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                     fut = arrived.get(timeout=wait_s)
                 except queue.Empty:
                     pass
+            if fut is None:   # a task that ended just now is not late
+                try:
+                    fut = arrived.get_nowait()
+                except queue.Empty:
+                    pass
             if fut is None:
+                clog.late_grace_s = grace
                 clog.late_tasks = len(flying)
                 clog.dropped_passes = (sum(stop - start for start, stop, _ in flying.values())
                                        + sum(len(part_log) for _, part_log in done.values()))
@@ -469,9 +490,10 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 done.clear()
                 break
             try:
-                start, stop, sent = flying.pop(fut)
+                start, stop, sent = flying[fut]
                 t1 = time.perf_counter()
                 part, part_log, work_s = fut.result()
+                del flying[fut]
             except cluster_failures() as exc:
                 if isinstance(exc, CausticaError):
                     raise
@@ -511,8 +533,9 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     finally:
         bar.close()
     if clog.late_tasks and state.passes == 0:
-        raise ClusterError(f"--time {plan.time_s:g}: no task came back within the budget and its grace of "
-                           f"{LATE_TASK_GRACE_S:g} s ({clog.late_tasks} still out, given up): are the workers hung?")
+        raise ClusterError(f"--time {plan.time_s:g}: no pass could be merged within the budget and its grace of "
+                           f"{clog.late_grace_s:g} s ({clog.late_tasks} task(s) still out, given up): are the "
+                           f"workers hung?")
     if plan.checkpoint is not None and state.passes > saved:
         ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
     return state, log, clog

@@ -53,6 +53,10 @@ PROGRESSIVE = (
 PMC_PHOTONS = (25_000, 100_000, 400_000)
 QUICK_PMC_PHOTONS = (5_000,)
 MITSUBA_SPP_PER_PASS = 4
+#: Mitsuba's render(spp, seed) is a prefix of render(more spp, same seed), and shared/refs was rendered
+#: in passes seeded 0, 1, 2, ...: the peer's passes start far past those seeds, so that its samples are
+#: independent of the reference's (peer_floor assumes it).
+MITSUBA_SEED_BASE = 1 << 20
 MITSUBA_LABEL = "Mitsuba 3 path (scalar_rgb)"
 
 
@@ -91,19 +95,24 @@ def peer_floor(ref, peer_rows) -> dict:
     """The reference's own relative RMSE estimated from Mitsuba's equal-time renders.
 
     Only for a reference rendered by Mitsuba's path tracer with a known sample count N_ref
-    (``shared/refs``): the peer renders are the same estimator with N_b samples, so their
-    expected relative MSE against the reference is v / N_b + v / N_ref, with v the estimator's
-    per-sample relative variance.  Each budget gives v = relMSE_b / (1 / N_b + 1 / N_ref);
-    their mean v-bar gives the reference's relRMSE sqrt(v-bar / N_ref).  Every error measured
-    against this reference includes it in quadrature.  None when this does not apply.
+    (``shared/refs``): the peer renders are the same estimator with N_b samples, independent of
+    the reference's (MITSUBA_SEED_BASE), so their expected relative MSE against the reference is
+    v / N_b + v / N_ref, with v the estimator's per-sample relative variance.  Each budget gives
+    v_b = relMSE_b / (1 / N_b + 1 / N_ref); they are pooled weighted by N_b, since a path
+    tracer's caustic is heavy-tailed and few samples tend to underestimate v; the reference's
+    relRMSE is then sqrt(v / N_ref).  The budgets' renders are nested (each starts from the
+    same seeds), so they are not independent checks of one another, and E of a ratio is taken
+    as a ratio of expectations: an estimate, not a bound.  Every error measured against this reference
+    contains it in quadrature.  None when this does not apply.
     """
     none = {"rel_rmse": None, "caustic_rel_rmse": None}
     if not ref.spp or not ref.renderer.lower().startswith("mitsuba") or not peer_rows:
         return none
     out = {}
+    weight = sum(r["passes"] for r in peer_rows)
     for key in ("rel_rmse", "caustic_rel_rmse"):
-        v = [r[key] ** 2 / (1.0 / r["passes"] + 1.0 / ref.spp) for r in peer_rows]
-        out[key] = math.sqrt(sum(v) / len(v) / ref.spp)
+        v = sum(r["passes"] * r[key] ** 2 / (1.0 / r["passes"] + 1.0 / ref.spp) for r in peer_rows) / weight
+        out[key] = math.sqrt(v / ref.spp)
     return out
 
 
@@ -134,7 +143,8 @@ def mitsuba_equal_time(mi, scene_name, res, budget_s, seed):
     last = 0.0
     while passes == 0 or time.perf_counter() - t0 + last <= budget_s:
         t1 = time.perf_counter()
-        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS, seed=(seed * 100_003 + passes) % 2**32),
+        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS,
+                                 seed=(MITSUBA_SEED_BASE + seed * 100_003 + passes) % 2**32),
                        dtype=np.float64)[..., :3]
         acc = img if acc is None else acc + img
         passes += 1

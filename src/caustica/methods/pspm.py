@@ -30,7 +30,7 @@ import numpy as np
 from ..jit import parallel_for
 from ..memory import check_budget
 from ..errors import ParameterError
-from ..photons.records import allocate_buffers
+from ..photons.records import SLOT_BYTES, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_streams
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
@@ -92,6 +92,14 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     def emitted_per_pass(cls, scene, settings) -> int:
         """Streams, plus the aimed caustic photons (counted as paths emitted, as sppm's photons)."""
         return streams_per_pass(settings) + cls.caustic_photons_per_pass(scene, settings)
+
+    @classmethod
+    def pass_buffer_bytes(cls, scene, settings) -> int:
+        """A pass's stream buffers and caustic photons' records, and the grid's sorted copy of the events."""
+        n = streams_per_pass(settings)
+        streams = StreamBuffers.bytes_needed(n, settings["assoc"], settings["max_bounces"],
+                                             settings["specular"] == "split")
+        return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES)
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:

@@ -67,6 +67,12 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         return photon_counts(scene, settings)[1]
 
     @classmethod
+    def pass_buffer_bytes(cls, scene, settings) -> int:
+        """A pass's photon records (mr + 1 slots a photon, one a caustic photon), and the grid's sorted copy."""
+        n, n_c = photon_counts(scene, settings)
+        return 2 * (n * (settings["max_bounces"] + 1) + n_c) * SLOT_BYTES
+
+    @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
         n, n_c = photon_counts(scene, settings)
         mr = settings["max_bounces"]
