@@ -38,6 +38,9 @@ CONFIGS = (
     ("sppm 20k + 20k caustic, R0 0.5, Rc 0.2", "sppm", {"photons": 20_000, "caustic_photons": 20_000,
                                                         "radius": 0.5, "caustic_radius": 0.2}),
     ("sppm 20k + 40k caustic", "sppm", {"photons": 20_000, "caustic_photons": 40_000}),
+    # pspm with a caustic map: streams for the rest of the light, aimed photons for the caustic
+    ("pspm + 32k caustic", "pspm", {"caustic_photons": 32_768}),
+    ("pspm 2979 streams + 32k caustic", "pspm", {"streams": 2_979, "caustic_photons": 32_768}),
 )
 
 def load() -> float:
@@ -51,7 +54,8 @@ def main() -> None:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--threads", type=int)
     ap.add_argument("--refs", type=Path, help="folder of <scene>_<res>.exr and masks (default: shared/refs)")
-    ap.add_argument("--only", help="run only the configurations whose label contains this text")
+    ap.add_argument("--only", action="append", help="run only the configurations whose label contains this "
+                                                    "text (may be given more than once)")
     ap.add_argument("--json", type=Path, help="also write the rows to this file")
     args = ap.parse_args()
     refs = args.refs or shared_refs_dir()
@@ -59,7 +63,7 @@ def main() -> None:
         raise SystemExit("no reference folder: pass --refs or set CAUSTICA_SHARED")
     mi = mitsuba_module()
     seeds = [int(s) for s in args.seeds.split(",")]
-    configs = [c for c in CONFIGS if args.only is None or args.only in c[0]]
+    configs = [c for c in CONFIGS if args.only is None or any(o in c[0] for o in args.only)]
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, "
           f"{args.res}x{args.res}, budget {args.budget:g} s, seeds {seeds}, "
           f"Mitsuba {'yes' if mi is not None else 'not installed'}")
@@ -68,6 +72,7 @@ def main() -> None:
     rows = []
     for name in SCENES:
         ref = read_exr(refs / f"{name}_{args.res}.exr")[..., :3]
+        ref_spp = json.loads((refs / f"{name}_{args.res}.json").read_text())["spp"]
         mask = read_png_mask(refs / f"{name}_{args.res}_caustic_mask.png")
         scene = caustica.load_scene(name)
         for label, method, params in configs:   # warm-up: compile or load the kernels
@@ -98,6 +103,12 @@ def main() -> None:
                 print(f"|  |  | **ratio Mitsuba / best ({best['label']})** |  |  | "
                       f"**{peer['caustic'] / best['caustic']:.1f}x** | {peer['whole'] / best['whole']:.2f}x |  |",
                       flush=True)
+                # The reference is a Mitsuba render too, of ref_spp samples: its own error in the same
+                # measure is about the peer's scaled by sqrt(spp / ref_spp) (the peer's error is nearly
+                # all its variance), and every error above includes it in quadrature.
+                noise = {k: peer[k] * (peer["passes"] / ref_spp) ** 0.5 for k in ("caustic", "whole")}
+                print(f"|  |  | reference's own noise (est. {ref_spp:,} spp) |  |  | {noise['caustic']:.4f} | "
+                      f"{noise['whole']:.4f} |  |", flush=True)
             rows += got
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

@@ -94,6 +94,39 @@ def test_a_worker_killed_mid_render_changes_nothing(diacaustic, tmp_path, monkey
     assert far.image.tobytes() == caustica.render(diacaustic, "pt", **kw).image.tobytes()
 
 
+def test_a_hung_task_is_given_up_after_the_time_budget(diacaustic, monkeypatch):
+    """The hook makes the task rendering pass 4 sleep for an hour: with --time the render ends soon
+    after the budget and its grace, with the passes merged before that task, and says so."""
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"4:{cluster.HANG_FLAG}")
+    monkeypatch.setattr(cluster, "LATE_TASK_GRACE_S", 1.0)
+    kw = dict(res=16, seed=3)
+    with cluster.connect(workers=2) as cl:
+        caustica.render(diacaustic, "pt", passes=2, dask=cl.client, **kw)   # the workers load their kernels
+        t0 = time.perf_counter()
+        r = caustica.render(diacaustic, "pt", time_s=2.0, dask=cl.client, **kw)
+        wall = time.perf_counter() - t0
+        late = r.stats["cluster"]
+        assert late["late_tasks"] >= 1 and late["dropped_passes"] >= 1
+        assert 1 <= r.stats["passes"] <= 4 and not r.stats["interrupted"]
+        # the budget, then the grace: at least 1 s, at most 3x the longest task (tasks are ~1 s)
+        assert wall < 2.0 + max(1.0, 3.0 * max(late["task_wall_seconds"])) + 5.0, wall
+    monkeypatch.delenv(cluster.KILL_HOOK_ENV)
+    local = caustica.render(diacaustic, "pt", passes=r.stats["passes"], **kw)
+    assert r.image.tobytes() == local.image.tobytes()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_no_pass_back_within_the_budget_is_one_error(diacaustic, monkeypatch, workers):
+    """Pass 0 hangs: with 2 workers pass 1 comes back but nothing can be merged; with 1, no task ever
+    comes back (the first task's longer grace, for compiling, then applies)."""
+    monkeypatch.setenv(cluster.KILL_HOOK_ENV, f"0:{cluster.HANG_FLAG}")
+    monkeypatch.setattr(cluster, "LATE_TASK_GRACE_S", 1.0)
+    monkeypatch.setattr(cluster, "FIRST_TASK_GRACE_S", 3.0)
+    with cluster.connect(workers=workers) as cl:
+        with pytest.raises(caustica.errors.ClusterError, match="no pass could be merged within the budget"):
+            caustica.render(diacaustic, "pt", res=8, time_s=1.0, dask=cl.client)
+
+
 def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_passes(diacaustic, two_workers):
     updates = []
 
@@ -148,6 +181,7 @@ def test_cli_render_on_local_workers_writes_the_cluster_sidecar(cli, tmp_path):
     assert code == 0, err
     side = json.loads((tmp_path / "x.json").read_text())
     assert side["passes"] == 3 and side["cluster"]["workers"] == 2
+    assert side["cluster"]["max_task_passes"] == cluster.MAX_TASK_PASSES   # an 8x8 image: no memory cap
     assert np.isfinite(side["cluster"]["scene_transfer_s"])
 
 
@@ -163,3 +197,88 @@ def test_a_task_that_kills_every_worker_is_one_error_and_the_finished_passes_are
     resumed = caustica.render(diacaustic, "pt", res=8, seed=1, passes=12, checkpoint=ck)
     assert 0 < resumed.stats["resumed_from_pass"] <= 6
     assert resumed.image.tobytes() == caustica.render(diacaustic, "pt", res=8, seed=1, passes=12).image.tobytes()
+
+
+class _Share:
+    """A stand-in for Cluster with a given memory share per worker thread."""
+
+    def __init__(self, share):
+        self.share = share
+
+    def task_memory_bytes(self):
+        return self.share
+
+
+def test_task_size_is_capped_by_the_workers_memory():
+    """A part holds a float64 image per whole 64-pass block it covers (plus two chains of at most 7):
+    the task cap keeps that and a pass's work within 60 % of a worker thread's memory share."""
+    cls = caustica.methods.get("pt")
+    settings = {"width": 1000, "height": 1000}
+    px = 10 ** 6
+    per_pass = getattr(cls, "bytes_per_pixel", caustica.api.IMAGE_BYTES_PER_PIXEL)
+    need = px * per_pass + px * cluster.part_bytes_per_pixel(1)
+    assert cluster.max_task_passes(_Share(None), cls, settings) == cluster.MAX_TASK_PASSES
+    assert cluster.max_task_passes(_Share(10 ** 15), cls, settings) == cluster.MAX_TASK_PASSES
+    three_blocks = int((need + 3 * px * 24) / cluster.TASK_MEMORY_FRACTION) + 10
+    cap = cluster.max_task_passes(_Share(three_blocks), cls, settings)
+    assert cap == 4 * cluster.TRUNK_PASSES - 1
+    assert cluster.part_bytes_per_pixel(cap) * px + px * per_pass <= three_blocks * 0.6
+    with pytest.raises(ParameterError, match=r"a task of a 1000x1000 pt render would need about .* GB"):
+        cluster.max_task_passes(_Share(int(need * 0.5)), cls, settings)
+
+
+def test_a_lost_scheduler_is_one_error_and_the_finished_passes_are_saved(diacaustic, tmp_path):
+    """A scheduler (and its worker) in processes of their own, the scheduler killed mid-render."""
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+    bindir = Path(sys.executable).parent
+    info = tmp_path / "scheduler.json"
+    sched = subprocess.Popen([bindir / "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
+                              "--no-dashboard", "--scheduler-file", info], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        for _ in range(300):
+            if info.is_file() and info.stat().st_size:
+                break
+            time.sleep(0.05)
+        worker = subprocess.Popen([bindir / "dask", "worker", "--scheduler-file", info, "--nthreads", "1",
+                                   "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        import json
+        address = json.loads(info.read_text())["address"]
+        ck = tmp_path / "state.npz"
+        with cluster.connect(address) as cl:
+            for _ in range(600):   # until the worker has joined
+                if cl.threads:
+                    break
+                time.sleep(0.05)
+            caustica.render(diacaustic, "pt", res=8, passes=2, dask=cl.client)   # the worker loads its kernels
+            killer = threading.Timer(2.0, sched.kill)
+            killer.start()
+            with pytest.raises(caustica.errors.ClusterError) as err:
+                caustica.render(diacaustic, "pt", res=16, seed=4, time_s=60.0, checkpoint=ck, dask=cl.client)
+            killer.join()
+        msg = str(err.value)
+        assert "lost the scheduler" in msg and "\n" not in msg, msg
+        assert "saved to" in msg and ck.is_file()
+        resumed = caustica.render(diacaustic, "pt", res=16, seed=4, time_s=0.5, checkpoint=ck)
+        assert resumed.stats["resumed_from_pass"] > 0
+    finally:
+        for p in (worker, sched):
+            if p is not None:
+                p.kill()
+                p.wait()
+
+
+def test_the_memory_cap_counts_a_pass_s_photon_buffers(diacaustic):
+    """sppm's photon records do not scale with the pixels: a worker share that holds a small image's
+    arrays but not 10 million photons' records refuses the render."""
+    scene, cls, settings = caustica.api.resolve_settings(diacaustic, "sppm", res=16, multi_pass=True,
+                                                         schedule="global", photons=10_000_000, caustic_photons=0)
+    assert cls.pass_buffer_bytes(scene, settings) > 10_000_000 * 5
+    share = int(cls.pass_buffer_bytes(scene, settings) / 2 / cluster.TASK_MEMORY_FRACTION)
+    assert cluster.max_task_passes(_Share(share), cls, settings) == cluster.MAX_TASK_PASSES   # without the scene
+    with pytest.raises(ParameterError, match="would need about"):
+        cluster.max_task_passes(_Share(share), cls, settings, scene)

@@ -390,3 +390,20 @@ def test_convergence_experiment_end_to_end(tmp_path, monkeypatch):
     folder = tmp_path / "exp" / "convergence"
     assert (folder / "convergence_cornell-diacaustic.png").is_file()
     assert json.loads((folder / "results.json").read_text())["name"] == "convergence"
+
+
+def test_the_reference_noise_estimated_from_the_peer_renders():
+    """A Mitsuba reference of N_ref samples: peer renders of N_b samples measured against it have
+    expected relMSE v / N_b + v / N_ref; peer_floor inverts that to the reference's sqrt(v / N_ref)."""
+    from caustica.experiments.convergence import peer_floor
+    from caustica.experiments.reference import Reference
+    ref = Reference(np.zeros((2, 2, 3), np.float32), "refs", spp=32_768, renderer="mitsuba 3.9.1 (scalar_rgb)")
+    v_whole, v_caustic = 0.09, 16.0
+    rows = [{"passes": n, "rel_rmse": math.sqrt(v_whole / n + v_whole / 32_768),
+             "caustic_rel_rmse": math.sqrt(v_caustic / n + v_caustic / 32_768)} for n in (40, 160, 640)]
+    got = peer_floor(ref, rows)
+    assert got["rel_rmse"] == pytest.approx(math.sqrt(v_whole / 32_768))
+    assert got["caustic_rel_rmse"] == pytest.approx(math.sqrt(v_caustic / 32_768))
+    # not a Mitsuba render, or its samples unknown: no estimate
+    assert peer_floor(Reference(ref.image, "pt", spp=32_768, renderer="caustica pt"), rows)["rel_rmse"] is None
+    assert peer_floor(Reference(ref.image, "x"), rows)["caustic_rel_rmse"] is None

@@ -312,6 +312,42 @@ def test_sppm_caustic_photons_keep_the_image_unbiased(diacaustic, statistics):
     assert abs(plain.mean() - aimed.mean()) <= N_SIGMA * se, (plain.mean(), aimed.mean(), se)
 
 
+def test_pspm_caustic_photons_keep_the_image_unbiased(diacaustic):
+    """pspm --caustic-photons: the streams leave their light -> specular -> diffuse records out and
+    the aimed photons carry them: the image mean stays plain pspm's (5 sigma of the seeds' spread)."""
+    kw = dict(res=16, passes=4, streams=800, radius=1.0)
+    plain = np.array([caustica.render(diacaustic, "pspm", seed=s, **kw).image.mean() for s in range(6)])
+    aimed = np.array([caustica.render(diacaustic, "pspm", seed=s, caustic_photons=4000, **kw).image.mean()
+                      for s in range(6)])
+    se = math.sqrt(plain.var(ddof=1) / 6 + aimed.var(ddof=1) / 6)
+    assert abs(plain.mean() - aimed.mean()) <= N_SIGMA * se, (plain.mean(), aimed.mean(), se)
+
+
+def test_the_stream_records_pspm_leaves_out_carry_the_caustic_photons_flux(diacaustic):
+    """The records marked 2 (light -> specular+ -> diffuse, which --caustic-photons leaves to the aimed
+    photons) and the aimed photons' events estimate the same caustic flux: totals agree within 5 sigma
+    (per-path spreads), and no other record of a stream is left out."""
+    from caustica.jit import parallel_for
+    from caustica.photons.records import CAUSTIC, allocate_buffers
+    from caustica.photons.streams import StreamBuffers, trace_streams
+    from caustica.photons.trace import TERMINATION_CAP, trace_caustic_photons
+    s, n, mr = diacaustic, 40_000, 4
+    buf = StreamBuffers(n, 10, mr)
+    parallel_for(trace_streams, n, (s.geometry, s.materials, s.lights, 3, 11, n, 10, 5.0, mr, TERMINATION_CAP,
+                                    False, *buf.kernel_args))
+    energy, valid = buf.rec[5].astype(np.float64), buf.rec[7]
+    per_stream = np.where((valid == 2)[:, None], energy, 0.0).reshape(n, mr + 1, 3).sum(axis=(1, 2))
+    cb = allocate_buffers(n, 1)
+    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, s.specular_bounding_spheres(), 3, 12,
+                                            n, *cb))
+    per_photon = np.where((cb.kind == CAUSTIC)[:, None], cb.power.astype(np.float64), 0.0).sum(axis=1)
+    a, b = per_stream.sum(), per_photon.sum()
+    se = math.sqrt(n * per_stream.var() + n * per_photon.var())
+    assert a > 0 and abs(a - b) <= N_SIGMA * se, (a, b, se)
+    kept = buf.events("stream", leave_caustics=True)[0].shape[0]
+    assert kept == int((valid == 1).sum()) and kept + int((valid == 2).sum()) == buf.events("stream")[0].shape[0]
+
+
 def test_separate_caustic_statistics_split_the_shared_ones(diacaustic):
     """One pass from the same initial radius: the separate caustic statistics hold exactly the
     caustic photons' events and the others the rest, so N_global + N_caustic is the shared N,
@@ -398,7 +434,8 @@ def test_many_passes_match_the_reference(diacaustic, refs_dir, method, params):
 # --------------------------------------------------------------------------- 5. determinism, checkpoints
 
 @pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"}),
-                                            ("sppm", {"schedule": "global"}), ("sppm", {"caustic_photons": 500})])
+                                            ("sppm", {"schedule": "global"}), ("sppm", {"caustic_photons": 500}),
+                                            ("pspm", {"caustic_photons": 500})])
 def test_same_bits_for_any_thread_count(diacaustic, method, params):
     kw = dict(res=16, seed=5, passes=3, **params)
     one = caustica.render(diacaustic, method, threads=1, **kw).image
@@ -409,7 +446,7 @@ def test_same_bits_for_any_thread_count(diacaustic, method, params):
 
 
 @pytest.mark.parametrize("method, params", [("pt", {}), ("sppm", {}), ("pspm", {}), ("sppm", {"schedule": "global"}),
-                                            ("sppm", {"caustic_photons": 500})])
+                                            ("sppm", {"caustic_photons": 500}), ("pspm", {"caustic_photons": 500})])
 def test_checkpoint_resume_gives_the_same_bits(diacaustic, method, params, tmp_path):
     kw = dict(res=12, seed=2, **params)
     whole = caustica.render(diacaustic, method, passes=5, **kw)
@@ -518,6 +555,11 @@ def test_interrupt_returns_the_finished_passes(diacaustic, monkeypatch):
 def test_bad_progressive_parameters(diacaustic, kw, match):
     with pytest.raises(ParameterError, match=match):
         caustica.render(diacaustic, "sppm", res=8, **kw)
+
+
+def test_pspm_caustic_photons_need_the_merge(diacaustic):
+    with pytest.raises(ParameterError, match="--caustic-photons: .*--specular merge"):
+        caustica.render(diacaustic, "pspm", res=8, passes=2, caustic_photons=100, specular="split")
 
 
 def test_one_shot_methods_refuse_passes(diacaustic):

@@ -433,6 +433,25 @@ def mitsuba_xml(tmp_path) -> Path:
     return path
 
 
+DEFAULT_BSDF_XML = """<shape type="rectangle" id="light"><emitter type="area"/></shape>
+<shape type="rectangle" id="plain"/>"""
+
+
+def test_default_bsdf_is_black_on_an_emitter_grey_elsewhere():
+    """Mitsuba 3 gives a shape without a BSDF a diffuse one, reflectance 0.5, or 0 when it emits."""
+    d = parse_scene_string(scene(DEFAULT_BSDF_XML))
+    light, plain = d.shapes
+    assert d.materials[light.material].kind == DIFFUSE and d.materials[light.material].rgb == (0.0, 0.0, 0.0)
+    assert d.materials[plain.material].kind == DIFFUSE and d.materials[plain.material].rgb == (0.5, 0.5, 0.5)
+
+
+def test_default_bsdfs_agree_with_mitsuba(mi):
+    theirs = {s.id(): mi.traverse(s)["bsdf.reflectance.value"] for s in mi.load_string(
+        '<scene version="3.0.0">' + DEFAULT_BSDF_XML + "</scene>").shapes()}
+    d = parse_scene_string(scene(DEFAULT_BSDF_XML))
+    assert {s.id: d.materials[s.material].rgb[0] for s in d.shapes} == pytest.approx(theirs)
+
+
 def test_against_mitsuba_shapes_and_sensor(mi, tmp_path):
     path = mitsuba_xml(tmp_path)
     theirs = mi.load_file(str(path))

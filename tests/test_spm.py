@@ -51,7 +51,7 @@ def records(buf, n, mr):
     pos, dirs, nrm, lead, assoc, energy, count, valid = buf.rec
     shp = (n, mr + 1)
     e = energy.astype(np.float64).reshape(*shp, 3).copy()
-    v = valid.reshape(shp) == 1
+    v = valid.reshape(shp) != 0
     e[~v] = 0.0
     return e, v, count.reshape(shp), lead.astype(np.float64).reshape(*shp, 3), \
         assoc.astype(np.float64).reshape(*shp, 3)
@@ -148,7 +148,7 @@ def test_associated_photons_never_land_where_the_stream_left(diacaustic):
     pos, _, _, _, _, _, count, valid = buf.rec
     apos = buf.assoc[0].astype(np.float64).reshape(n, mr + 1, n_fa, 3)
     lead = pos.astype(np.float64).reshape(n, mr + 1, 3)
-    v = (valid == 1).reshape(n, mr + 1)
+    v = (valid != 0).reshape(n, mr + 1)
     c = count.reshape(n, mr + 1)
     used = np.arange(n_fa)[None, None, :] < c[:, :, None]
     # record b (b >= 1) follows record b - 1 of the same stream: the leading photon bounced there
@@ -203,7 +203,7 @@ def test_merge_on_escape_and_mirror_conserves_every_stream_exactly():
     # associated positions are on a surface: never above the walls' extent
     ap = buf.assoc[0].reshape(n * (mr + 1), n_fa, 3)
     used = np.arange(n_fa)[None, :] < buf.rec[6][:, None]
-    used &= (buf.rec[7] == 1)[:, None]
+    used &= (buf.rec[7] != 0)[:, None]
     p = ap[used]
     assert np.all(np.abs(p) <= 8 + 1e-3)
 
@@ -225,8 +225,11 @@ def test_rs0_assoc0_is_pm_bit_for_bit(diacaustic, termination):
     pb = allocate_buffers(n, mr + 1)
     parallel_for(trace_photons, n, (s.geometry, s.materials, s.lights, 7, STREAM_SPM, n, mr, termination, *pb))
     pos, dirs, nrm, lead, assoc, energy, count, valid = sb.rec
-    np.testing.assert_array_equal(valid == 1, pb.kind != EMPTY)
-    keep = valid == 1
+    np.testing.assert_array_equal(valid != 0, pb.kind != EMPTY)
+    # a record marked 2 is a light -> specular+ -> diffuse one: PM's CAUSTIC kind
+    np.testing.assert_array_equal(valid == 2, pb.kind == CAUSTIC)
+    assert (valid == 2).sum() > 0
+    keep = valid != 0
     assert keep.sum() > 0.3 * n
     for a, b in ((pos, pb.position), (dirs, pb.direction), (nrm, pb.normal), (energy, pb.power), (lead, pb.power)):
         np.testing.assert_array_equal(a[keep], b[keep])
@@ -261,7 +264,7 @@ def _lsd_mask(buf, n, mr, e_s):
     the red and blue walls have green albedo 0; glass has weight 1.  So a record has green
     energy E_s exactly when no diffuse bounce preceded it.
     """
-    energy, valid = buf.rec[5], buf.rec[7] == 1
+    energy, valid = buf.rec[5], buf.rec[7] != 0
     return valid & (np.abs(energy[:, 1] / e_s - 1.0) < 1e-5)
 
 
@@ -270,7 +273,7 @@ def test_caustic_records_carry_the_merged_stream(dia_streams, diacaustic):
     e_s = math.pi * 40.0 * 9.0 / n              # the light: 3 x 3, radiance 40; E_s = E_z / n_fs
     lsd = _lsd_mask(buf, n, mr, e_s)
     pos, dirs, nrm, lead, assoc, energy, count, valid = buf.rec
-    valid = valid == 1
+    valid = valid != 0
     assert lsd.sum() > 0.02 * n
     # a stream that met the glass first: all n_fa + 1 photons merged into the leader, E_i = E_s
     np.testing.assert_allclose(energy[lsd], e_s, rtol=1e-5)
@@ -342,8 +345,8 @@ def test_stream_map_stats(diacaustic):
     assert 0 < st["associated_photons_stored"] <= 7 * st["stream_records_stored"]
     buf = trace_spm(diacaustic, 3000, 7, 2.5, 4, seed=2)
     smap = StreamMap(buf)
-    assert smap.n_records == st["stream_records_stored"] == int((buf.rec[7] == 1).sum())
-    assert smap.n_associated == st["associated_photons_stored"] == int(buf.rec[6][buf.rec[7] == 1].sum())
+    assert smap.n_records == st["stream_records_stored"] == int((buf.rec[7] != 0).sum())
+    assert smap.n_associated == st["associated_photons_stored"] == int(buf.rec[6][buf.rec[7] != 0].sum())
 
 
 # ----------------------------------------------------------------------------- determinism, parameters

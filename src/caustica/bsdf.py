@@ -115,6 +115,18 @@ def dielectric_interface(d, ng, ns, eta_int_over_ext):
 
 
 @kernel
+def dielectric_fresnel(d, ng, ns, eta_int_over_ext):
+    """At a dielectric hit: (incident-side normal n, relative IOR eta, cos_i, Fresnel reflectance F, cos_t)."""
+    n, n_geo, eta = dielectric_interface(d, ng, ns, eta_int_over_ext)
+    cos_i = -vec.dot(d, n)
+    if cos_i <= 0.0:  # the shading normal disagrees with the geometry: use the geometric normal
+        n = n_geo
+        cos_i = -vec.dot(d, n)
+    F, cos_t = fresnel_dielectric(cos_i, eta)
+    return n, eta, cos_i, F, cos_t
+
+
+@kernel
 def sample_dielectric(d, ng, ns, eta_int_over_ext, u):
     """Choose reflection or refraction at glass with probability F (Fresnel).
 
@@ -124,12 +136,7 @@ def sample_dielectric(d, ng, ns, eta_int_over_ext, u):
     refracted camera ray is additionally scaled by 1 / eta^2 (solid-angle
     compression), which callers apply in radiance mode only.
     """
-    n, n_geo, eta = dielectric_interface(d, ng, ns, eta_int_over_ext)
-    cos_i = -vec.dot(d, n)
-    if cos_i <= 0.0:  # the shading normal disagrees with the geometry: use the geometric normal
-        n = n_geo
-        cos_i = -vec.dot(d, n)
-    F, cos_t = fresnel_dielectric(cos_i, eta)
+    n, eta, cos_i, F, cos_t = dielectric_fresnel(d, ng, ns, eta_int_over_ext)
     if u < F:
         return reflect(d, n), True, 1.0
     return refract(d, n, eta, cos_i, cos_t), False, eta
@@ -144,12 +151,7 @@ def dielectric_branches(d, ng, ns, eta_int_over_ext):
     refracted direction is meaningless) and eta the relative IOR of the refraction.
     ``u < F`` picks reflection exactly as sample_dielectric(d, ng, ns, eta, u) does.
     """
-    n, n_geo, eta = dielectric_interface(d, ng, ns, eta_int_over_ext)
-    cos_i = -vec.dot(d, n)
-    if cos_i <= 0.0:  # the shading normal disagrees with the geometry: use the geometric normal
-        n = n_geo
-        cos_i = -vec.dot(d, n)
-    F, cos_t = fresnel_dielectric(cos_i, eta)
+    n, eta, cos_i, F, cos_t = dielectric_fresnel(d, ng, ns, eta_int_over_ext)
     wr = reflect(d, n)
     if F >= 1.0:
         return wr, wr, 1.0, eta

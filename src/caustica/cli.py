@@ -251,6 +251,11 @@ def _cmd_render(args) -> int:
         passes = f", {result.stats['passes']} passes" if "passes" in result.stats else ""
         print(f"{scene.name}: {result.width}x{result.height} {args.method} in {t['total_s']:.2f} s{passes} "
               f"-> {exr}, {png}, {js}")
+    late = result.stats.get("cluster", {}).get("late_tasks", 0)
+    if late:
+        print(f"caustica: warning: {late} task(s) had not come back within the --time budget's "
+              f"grace and were given up (docs/cluster.md); the image has the {result.stats['passes']} passes merged in "
+              f"order before them", file=sys.stderr)
     if result.stats.get("interrupted"):
         print(f"caustica: interrupted: wrote the image of the {result.stats['passes']} passes finished",
               file=sys.stderr)

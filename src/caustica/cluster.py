@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import logging
 import os
+import queue
 import time
 from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
 from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
 from .errors import CausticaError, ClusterError, ParameterError
-from .film import TRUNK_PASSES
+from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
 
 #: Address schemes of Dask's comms a scheduler can listen on.
@@ -43,9 +44,23 @@ TASK_SECONDS = 1.0
 #: ... times (worker threads / this) when more: the client takes in one part per task, so with many
 #: workers longer tasks keep its network link and its merging from becoming the bottleneck.
 THREADS_FOR_LONGER_TASKS = 16
+#: With --time, tasks still out this long after the budget (or 3x the longest task so far, if more)
+#: are given up, once any task has come back: the render keeps the passes merged in order before
+#: them (a hung worker, a lost task) rather than waiting for ever.
+LATE_TASK_GRACE_S = 10.0
+#: ... and before any task has come back (the workers may be compiling their kernels: a cold
+#: compile of the progressive methods takes about a minute on a 2-core machine).
+FIRST_TASK_GRACE_S = 180.0
+#: Of a worker's memory share per thread, what one task may fill (Dask itself pauses a worker at 80 %).
+TASK_MEMORY_FRACTION = 0.6
+#: Parts finished ahead of a pass still out are held by the client until it is back; past this
+#: many per task slot, no new task is sent (their memory, part_bytes_per_pixel each, stays bounded).
+MAX_HELD_PARTS_PER_SLOT = 4
 #: Test hook: "PASS:FILE" makes the worker that renders pass PASS exit at once, the first time
-#: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time.
+#: only (the one that creates FILE), as a worker that dies mid-render; "PASS:" every time;
+#: "PASS:hang" makes that task sleep for an hour, as a hung task.
 KILL_HOOK_ENV = "CAUSTICA_TEST_KILL_WORKER_AT_PASS"
+HANG_FLAG = "hang"
 
 
 def _distributed():
@@ -74,6 +89,16 @@ class Cluster:
     @property
     def threads(self) -> int:
         return sum(self.worker_threads.values())
+
+    def task_memory_bytes(self) -> int | None:
+        """The memory one task may use: the smallest worker's memory limit per thread (None: no limit set)."""
+        try:
+            info = self.client.scheduler_info(n_workers=-1)   # some releases list only 5 workers by default
+        except TypeError:   # releases without the argument list them all
+            info = self.client.scheduler_info()
+        shares = [w["memory_limit"] / max(1, w.get("nthreads", 1))
+                  for w in info["workers"].values() if w.get("memory_limit")]
+        return int(min(shares)) if shares else None
 
     def close(self) -> None:
         try:
@@ -215,6 +240,9 @@ def _kill_hook(start: int, stop: int) -> None:
         return
     at, _, flag = hook.partition(":")
     if start <= int(at) < stop:
+        if flag == HANG_FLAG:
+            time.sleep(3600)
+            return
         if not flag:
             os._exit(70)   # no FILE: every time, as a task that always kills its worker
         try:
@@ -274,6 +302,10 @@ class ClusterLog:
     scene_transfer_s: float = 0.0
     result_transfer_s: float = 0.0
     result_bytes: int = 0
+    max_task_passes: int = MAX_TASK_PASSES   # the cap the workers' memory set (max_task_passes)
+    late_grace_s: float = 0.0  # the grace after the budget when tasks were given up
+    late_tasks: int = 0       # tasks given up past the --time budget's grace (their passes dropped)
+    dropped_passes: int = 0   # passes rendered or in flight but not merged: after a late task's gap
 
     def to_json(self, address: str) -> dict:
         wall, work = sum(self.task_wall_seconds), sum(self.task_seconds)
@@ -281,7 +313,9 @@ class ClusterLog:
                 "tasks": self.tasks, "task_passes": self.task_passes, "task_seconds": self.task_seconds,
                 "task_wall_seconds": self.task_wall_seconds, "scene_transfer_s": self.scene_transfer_s,
                 "result_transfer_s": self.result_transfer_s, "result_bytes": self.result_bytes,
-                "task_overhead_s": max(0.0, wall - work)}
+                "task_overhead_s": max(0.0, wall - work), "max_task_passes": self.max_task_passes,
+                "late_tasks": self.late_tasks,
+                "dropped_passes": self.dropped_passes}
 
 
 class _ClusterFailed(Exception):
@@ -331,6 +365,43 @@ def _next_size(start: int, want: int, limit: int) -> int:
     return size
 
 
+def part_bytes_per_pixel(passes: int) -> int:
+    """Bytes per pixel a worker's part of ``passes`` passes holds at most: a float64 RGB image per block.
+
+    Tasks are powers of two aligned to min(size, TRUNK_PASSES) (:func:`_next_size`): a part keeps
+    each finished 64-pass block apart (the client folds them into its trunk, in order) and, while
+    it adds passes, the pairwise chain of the block in progress, at most MAX_FILM_IMAGES images.
+    """
+    return (passes // TRUNK_PASSES + MAX_FILM_IMAGES) * 3 * 8
+
+
+def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
+    """The most passes a task may take so that its part and a pass's work fit a worker's memory share.
+
+    A pass's work: the method's per-pixel arrays and its photon or stream buffers
+    (``pass_buffer_bytes``, which do not scale with the pixels).  Read once per render: a
+    worker with less memory that joins later is not seen.  Raises ParameterError, with the
+    estimate, when not even one pass fits.
+    """
+    budget = cluster.task_memory_bytes()
+    if budget is None:
+        return MAX_TASK_PASSES
+    budget = int(budget * TASK_MEMORY_FRACTION)
+    pixels = settings["width"] * settings["height"]
+    from .api import IMAGE_BYTES_PER_PIXEL
+    per_pass = pixels * getattr(method_cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
+    if scene is not None and hasattr(method_cls, "pass_buffer_bytes"):
+        per_pass += method_cls.pass_buffer_bytes(scene, settings)
+    need = per_pass + pixels * part_bytes_per_pixel(1)
+    if need > budget:
+        raise ParameterError(f"--dask: a task of a {settings['width']}x{settings['height']} {method_cls.name} render "
+                             f"would need about {need / 1e9:.2f} GB, more than the {budget / 1e9:.2f} GB a worker "
+                             f"thread may use ({TASK_MEMORY_FRACTION:.0%} of its share of the worker's memory "
+                             f"limit); give the workers more memory or fewer threads, or lower --res")
+    blocks = (budget - need) // (pixels * 3 * 8)
+    return int(max(1, min(MAX_TASK_PASSES, (blocks + 1) * TRUNK_PASSES - 1)))
+
+
 def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     """The driver's loop with passes as cluster tasks: (state, PassLog, ClusterLog)."""
     distributed = _distributed()
@@ -340,6 +411,8 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
+    task_cap = max_task_passes(cluster, method_cls, settings, scene)
+    clog.max_task_passes = task_cap
     t0 = time.perf_counter()
     scene_f = send_scene(client, scene)
     clog.scene_transfer_s = time.perf_counter() - t0
@@ -353,7 +426,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     per_pass = []              # measured work seconds per pass of finished tasks
     t_start = time.perf_counter()
     last_save, saved = t_start, state.passes
-    seq = distributed.as_completed(loop=client.loop)
+    arrived = queue.SimpleQueue()   # tasks that ended (done, failed or cancelled), in the order they did
     try:
         while True:
             try:
@@ -363,8 +436,9 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             clog.workers = max(clog.workers, len(cluster.worker_threads))
             clog.worker_threads = max(clog.worker_threads, slots)
             task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_FOR_LONGER_TASKS)
-            while len(flying) < slots and (target is None or next_pass < target):
-                limit = (target - next_pass) if target is not None else MAX_TASK_PASSES
+            held_cap = MAX_HELD_PARTS_PER_SLOT * slots
+            while len(flying) < slots and len(done) < held_cap and (target is None or next_pass < target):
+                limit = min(target - next_pass, task_cap) if target is not None else task_cap
                 size = 1                 # until the first task is back, one pass per task
                 if per_pass:
                     pass_s = max(per_pass[-3:])
@@ -383,15 +457,43 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 fut = client.submit(render_part_task, scene_f, method_cls.name, settings, next_pass,
                                     next_pass + size, source, pure=False)
                 flying[fut] = (next_pass, next_pass + size, time.perf_counter())
-                seq.add(fut)
+                fut.add_done_callback(arrived.put)   # on Dask's thread, when the task ends however it ends
                 next_pass += size
             if not flying:
                 break
+            deadline = None
+            if plan.time_s is not None:
+                # past the budget and its grace, what is still out is given up; before any task has come
+                # back the workers may still be compiling or loading their kernels: a longer allowance
+                grace = (max(LATE_TASK_GRACE_S, 3.0 * max(clog.task_wall_seconds)) if clog.tasks
+                         else FIRST_TASK_GRACE_S)
+                deadline = t_start + plan.time_s + grace
+            fut = None
+            while fut is None and (deadline is None or time.perf_counter() < deadline):
+                wait_s = 0.5 if deadline is None else min(0.5, max(0.0, deadline - time.perf_counter()))
+                try:   # in short waits, so Ctrl-C is seen at once whatever the platform's locks do
+                    fut = arrived.get(timeout=wait_s)
+                except queue.Empty:
+                    pass
+            if fut is None:   # a task that ended just now is not late
+                try:
+                    fut = arrived.get_nowait()
+                except queue.Empty:
+                    pass
+            if fut is None:
+                clog.late_grace_s = grace
+                clog.late_tasks = len(flying)
+                clog.dropped_passes = (sum(stop - start for start, stop, _ in flying.values())
+                                       + sum(len(part_log) for _, part_log in done.values()))
+                client.cancel(list(flying))
+                flying.clear()
+                done.clear()
+                break
             try:
-                fut = next(seq)
-                start, stop, sent = flying.pop(fut)
+                start, stop, sent = flying[fut]
                 t1 = time.perf_counter()
                 part, part_log, work_s = fut.result()
+                del flying[fut]
             except cluster_failures() as exc:
                 if isinstance(exc, CausticaError):
                     raise
@@ -430,6 +532,10 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             raise
     finally:
         bar.close()
+    if clog.late_tasks and state.passes == 0:
+        raise ClusterError(f"--time {plan.time_s:g}: no pass could be merged within the budget and its grace of "
+                           f"{clog.late_grace_s:g} s ({clog.late_tasks} task(s) still out, given up): are the "
+                           f"workers hung?")
     if plan.checkpoint is not None and state.passes > saved:
         ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
     return state, log, clog

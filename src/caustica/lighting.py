@@ -104,40 +104,12 @@ def direct_one_sample(geom, lights, p, ng, ns, key, dim):
 
 
 @kernel
-def direct_stratified_qmc(geom, lights, p, ng, ns, qkey, qdim, pass_index, n_strata):
-    """``direct_stratified`` with each stratum's jitter from a shifted Kronecker sequence over passes.
+def _stratified_irradiance(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid, pass_index):
+    """Irradiance E at p from every light, area lights by n_strata x n_strata strata (SPEC §2).
 
-    Stratum s of pass k is jittered by frac(u_s + k alpha) with u_s the pixel's own random shift
-    (numbers qdim + 2 s, qdim + 2 s + 1 of qkey): each pass's point is uniform in its stratum,
-    and over the passes the points of a stratum fill it evenly.
-    """
-    E = (0.0, 0.0, 0.0)
-    n_total = n_strata * n_strata
-    for li in range(lights.kind.shape[0]):
-        if lights.kind[li] == AREA:
-            acc = 0.0
-            for s in range(n_total):
-                i = s % n_strata
-                j = s // n_strata
-                u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, qdim + 2 * s))) / n_strata
-                u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, qdim + 2 * s + 1))) / n_strata
-                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
-                cos_s, cos_l, dist2, _ = area_light_geometry(geom, p, ng, ns, q, nq)
-                if cos_s > 0.0:
-                    acc += cos_s * cos_l / dist2
-            E = vec.madd(E, vec.row(lights.radiance, li), acc * lights.area[li] / n_total)
-        else:
-            cos_s, dist2, _ = point_light_geometry(geom, lights, li, p, ng, ns)
-            E = vec.madd(E, vec.row(lights.radiance, li), cos_s / dist2)
-    return E
-
-
-@kernel
-def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
-    """Irradiance E = Σ_lights ∫ L cos θ dω at p, every light sampled (SPEC §2).
-
-    Area lights: n_strata x n_strata stratified points (jittered, or the cell centres
-    when fixed_grid is true: the paper's grid of point lights).  Point lights exactly.
+    Stratum s = (i, j) is jittered by: its cell centre when ``fixed_grid``; else, when
+    ``pass_index`` < 0, numbers dim + 2 s, dim + 2 s + 1 of ``key``; else frac(u + k alpha)
+    over the passes k, u those numbers (a shifted Kronecker sequence).  Point lights exactly.
     """
     E = (0.0, 0.0, 0.0)
     n_total = n_strata * n_strata
@@ -150,9 +122,12 @@ def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
                 if fixed_grid:
                     u1 = (i + 0.5) / n_strata
                     u2 = (j + 0.5) / n_strata
-                else:
+                elif pass_index < 0:
                     u1 = (i + uniform(key, dim + 2 * s)) / n_strata
                     u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
+                else:
+                    u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(key, dim + 2 * s))) / n_strata
+                    u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(key, dim + 2 * s + 1))) / n_strata
                 q, nq = sample_area_emitter(lights, geom, li, u1, u2)
                 cos_s, cos_l, dist2, _ = area_light_geometry(geom, p, ng, ns, q, nq)
                 if cos_s > 0.0:
@@ -162,3 +137,24 @@ def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
             cos_s, dist2, _ = point_light_geometry(geom, lights, li, p, ng, ns)
             E = vec.madd(E, vec.row(lights.radiance, li), cos_s / dist2)
     return E
+
+
+@kernel
+def direct_stratified_qmc(geom, lights, p, ng, ns, qkey, qdim, pass_index, n_strata):
+    """``direct_stratified`` with each stratum's jitter from a shifted Kronecker sequence over passes.
+
+    Stratum s of pass k is jittered by frac(u_s + k alpha) with u_s the pixel's own random shift
+    (numbers qdim + 2 s, qdim + 2 s + 1 of qkey): each pass's point is uniform in its stratum,
+    and over the passes the points of a stratum fill it evenly.
+    """
+    return _stratified_irradiance(geom, lights, p, ng, ns, qkey, qdim, n_strata, False, pass_index)
+
+
+@kernel
+def direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid):
+    """Irradiance E = Σ_lights ∫ L cos θ dω at p, every light sampled (SPEC §2).
+
+    Area lights: n_strata x n_strata stratified points (jittered, or the cell centres
+    when fixed_grid is true: the paper's grid of point lights).  Point lights exactly.
+    """
+    return _stratified_irradiance(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid, -1)

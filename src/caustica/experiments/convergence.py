@@ -23,6 +23,8 @@ seed-to-seed spread is measured separately.
 """
 from __future__ import annotations
 
+import math
+
 import os
 import time
 from pathlib import Path
@@ -40,16 +42,21 @@ RES = 256
 #: Progressive configurations: (label, method, parameters).
 PROGRESSIVE = (
     ("pt", "pt", {}),
-    ("SPPM", "sppm", {}),
+    ("SPPM", "sppm", {}),   # in these scenes: half of the pass's photons aimed (separate caustic statistics)
+    ("SPPM plain", "sppm", {"caustic_photons": 0}),
     ("SPPM 20k + 20k caustic", "sppm", {"photons": 20_000, "caustic_photons": 20_000}),
     ("PSPM merge", "pspm", {}),
     ("PSPM split r_s=1", "pspm", {"specular": "split", "stream_radius": 1.0}),
-    ("PSPM split r_s=1, photons", "pspm", {"specular": "split", "stream_radius": 1.0, "estimator": "photons"}),
+    ("PSPM merge + 32k caustic", "pspm", {"caustic_photons": 32_768}),
 )
 #: PM + caustic map at these photon counts (global = caustic), one shot each.
 PMC_PHOTONS = (25_000, 100_000, 400_000)
 QUICK_PMC_PHOTONS = (5_000,)
 MITSUBA_SPP_PER_PASS = 4
+#: Mitsuba's render(spp, seed) is a prefix of render(more spp, same seed), and shared/refs was rendered
+#: in passes seeded 0, 1, 2, ...: the peer's passes start far past those seeds, so that its samples are
+#: independent of the reference's (peer_floor assumes it).
+MITSUBA_SEED_BASE = 1 << 20
 MITSUBA_LABEL = "Mitsuba 3 path (scalar_rgb)"
 
 
@@ -84,6 +91,31 @@ def reference_floor(ref, mask) -> dict:
             "caustic_rel_rmse": rel_rmse(ref.half_a, ref.half_b, mask) / 2}
 
 
+def peer_floor(ref, peer_rows) -> dict:
+    """The reference's own relative RMSE estimated from Mitsuba's equal-time renders.
+
+    Only for a reference rendered by Mitsuba's path tracer with a known sample count N_ref
+    (``shared/refs``): the peer renders are the same estimator with N_b samples, independent of
+    the reference's (MITSUBA_SEED_BASE), so their expected relative MSE against the reference is
+    v / N_b + v / N_ref, with v the estimator's per-sample relative variance.  Each budget gives
+    v_b = relMSE_b / (1 / N_b + 1 / N_ref); they are pooled weighted by N_b, since a path
+    tracer's caustic is heavy-tailed and few samples tend to underestimate v; the reference's
+    relRMSE is then sqrt(v / N_ref).  The budgets' renders are nested (each starts from the
+    same seeds), so they are not independent checks of one another, and E of a ratio is taken
+    as a ratio of expectations: an estimate, not a bound.  Every error measured against this reference
+    contains it in quadrature.  None when this does not apply.
+    """
+    none = {"rel_rmse": None, "caustic_rel_rmse": None}
+    if not ref.spp or not ref.renderer.lower().startswith("mitsuba") or not peer_rows:
+        return none
+    out = {}
+    weight = sum(r["passes"] for r in peer_rows)
+    for key in ("rel_rmse", "caustic_rel_rmse"):
+        v = sum(r["passes"] * r[key] ** 2 / (1.0 / r["passes"] + 1.0 / ref.spp) for r in peer_rows) / weight
+        out[key] = math.sqrt(v / ref.spp)
+    return out
+
+
 def shared_refs_dir() -> Path | None:
     """``$CAUSTICA_SHARED/refs``, else ``shared/refs`` beside this checkout (None when neither exists)."""
     env = os.environ.get("CAUSTICA_SHARED")
@@ -111,7 +143,8 @@ def mitsuba_equal_time(mi, scene_name, res, budget_s, seed):
     last = 0.0
     while passes == 0 or time.perf_counter() - t0 + last <= budget_s:
         t1 = time.perf_counter()
-        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS, seed=(seed * 100_003 + passes) % 2**32),
+        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS,
+                                 seed=(MITSUBA_SEED_BASE + seed * 100_003 + passes) % 2**32),
                        dtype=np.float64)[..., :3]
         acc = img if acc is None else acc + img
         passes += 1
@@ -203,8 +236,13 @@ class Convergence:
                     rows.append({"scene": name, "label": MITSUBA_LABEL, "method": "mitsuba", "budget_s": budget,
                                  "time_s": wall, "passes": spp, **measure(image, ref.image, mask)})
                     self._tick()
-            rows.append({"scene": name, "label": "reference's own noise", "method": "reference", "budget_s": None,
-                         "time_s": None, "passes": None, **reference_floor(ref, mask)})
+            floor = reference_floor(ref, mask)
+            label = "reference's own noise"
+            if floor["rel_rmse"] is None:
+                floor = peer_floor(ref, [r for r in rows if r["scene"] == name and r["method"] == "mitsuba"])
+                label = "reference's own noise (est. from the Mitsuba renders' 1/N)"
+            rows.append({"scene": name, "label": label, "method": "reference", "budget_s": None,
+                         "time_s": None, "passes": ref.spp, **floor})
         tables, figures = {}, []
         from .runner import markdown_table, write_csv
         cols = ("label", "budget_s", "time_s", "passes", "caustic_rel_rmse", "rel_rmse", "caustic_block_err",
@@ -236,6 +274,12 @@ def summary(rows, budgets) -> str:
     """Which method has the lowest caustic relRMSE at each budget, and its ratio to Mitsuba's."""
     lines = []
     for scene in SCENES:
+        floor = [r for r in rows if r["scene"] == scene and r["method"] == "reference"
+                 and r.get("caustic_rel_rmse") is not None]
+        if floor:
+            f = floor[0]
+            lines.append(f"{scene}: {f['label']}: {f['caustic_rel_rmse']:.4f} on the caustic, {f['rel_rmse']:.4f} "
+                         f"on the whole image; every error below contains it in quadrature")
         for b in budgets:
             at = [r for r in rows if r["scene"] == scene and r.get("budget_s") == b
                   and r.get("caustic_rel_rmse") is not None]

@@ -128,18 +128,21 @@ def convergence_plot(rows, path: Path, scene: str):
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     labels = [r["label"] for r in rows if r.get("time_s") is not None]
-    for label in dict.fromkeys(labels):
+    palette = plt.get_cmap("tab20").colors   # more methods than the default cycle's 10 colours
+    for k, label in enumerate(dict.fromkeys(labels)):
         mine = sorted((r for r in rows if r["label"] == label and r.get("time_s")), key=lambda r: r["time_s"])
-        style = "--" if label.startswith("Mitsuba") else (":" if label.startswith("PM+C") else "-")
+        peer = label.startswith("Mitsuba")
+        style = "--" if peer else (":" if label.startswith("PM+C") else "-")
+        color = "black" if peer else palette[(2 * k) % 20 if k < 10 else (2 * k + 1) % 20]
         for ax, key in zip(axes, ("caustic_rel_rmse", "rel_rmse")):
             pts = [(r["time_s"], r[key]) for r in mine if r.get(key) is not None]
             if pts:
                 x, y = zip(*pts)
-                ax.plot(x, y, style, marker="o", ms=3, label=label)
-    floor = [r for r in rows if r["label"] == "reference's own noise"]
+                ax.plot(x, y, style, marker="o", ms=3, color=color, label=label)
+    floor = [r for r in rows if r.get("method") == "reference"]
     for ax, key, title in zip(axes, ("caustic_rel_rmse", "rel_rmse"), ("caustic mask", "whole image")):
         if floor and floor[0].get(key):
-            ax.axhline(floor[0][key], color="grey", lw=0.8, ls=":", label="reference's own noise")
+            ax.axhline(floor[0][key], color="grey", lw=0.8, ls=":", label=floor[0]["label"])
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("wall time (s)")

@@ -56,6 +56,8 @@ class Reference:
     half_a: np.ndarray | None = None
     half_b: np.ndarray | None = None
     render_s: float = 0.0            # time spent rendering it in this run (0 when cached)
+    spp: int | None = None           # its samples per pixel, when its JSON sidecar says
+    renderer: str = ""               # what rendered it, when its JSON sidecar says ("mitsuba 3.9.1 ...")
 
     def noise_line(self) -> str:
         n = self.noise
@@ -164,12 +166,15 @@ def user_reference(path, width: int, height: int, mask=None) -> Reference:
     if pa.is_file() and pb.is_file():
         ref.half_a, ref.half_b = read_exr(pa), read_exr(pb)
         ref.noise = noise_stats(ref.half_a, ref.half_b, mask)
-    elif p.with_suffix(".json").is_file():
+    if p.with_suffix(".json").is_file():
         try:
             side = json.loads(p.with_suffix(".json").read_text())
+            if isinstance(side.get("spp"), int) and side["spp"] > 0:
+                ref.spp = side["spp"]
+            ref.renderer = str(side.get("renderer", ""))
             est = side.get("noise", {}).get("est_rel_rmse_of_full")
-            if est is not None:
+            if est is not None and not ref.noise:
                 ref.noise = {"est_rel_rmse_of_full": float(est), "from": "the reference's JSON sidecar"}
-        except (OSError, ValueError, AttributeError):
+        except (OSError, ValueError, AttributeError, TypeError):
             pass
     return ref

@@ -31,12 +31,16 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
-from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..memory import check_budget
+from ..photons.grid import build_grid, grid_compiled, grid_range_sum
+from ..media import light_media
 from ..photons.beams import beam_gather, build_volume_grid, _fill as _volume_fill
+from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
+from ..photons.trace import trace_caustic_photons
+from ..photons.trace_media import trace_caustic_photons_media
 from ..photons.visible_points import visible_points
 from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, visible_points_media
-from ..sampling.rng import STREAM_CAMERA, STREAM_CAMERA_MEDIA, pass_stream
+from ..sampling.rng import STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
@@ -74,6 +78,45 @@ PROGRESSIVE_PARAMS = (
     _ESTIMATE["max_specular_depth"],
 )
 
+#: How aimed caustic photons are gathered (sppm and pspm with --caustic-photons).
+CAUSTIC_STATISTICS_PARAMS = (
+    Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
+                                                 "gathered into per-pixel statistics (N, R, tau) of their own, "
+                                                 "so the other events keep their wider radius (pixel schedule); "
+                                                 "shared: one set of statistics for all events",
+          choices=("separate", "shared")),
+    Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
+                                         f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
+          positive, "> 0"),
+)
+
+
+def trace_caustic_pass(scene, settings, pass_index, n_caustic, out: TraceBuffers) -> float:
+    """Trace the pass's ``n_caustic`` photons aimed at the mirrors and glass into ``out`` (one slot each).
+
+    They carry every light -> specular+ -> diffuse path (as PM's caustic map, their power divided
+    by the aiming pdf); the method's other photons or streams must then leave those paths out.
+    Returns the compile seconds.
+    """
+    check_budget(n_caustic * SLOT_BYTES, f"{n_caustic:,} caustic photons per pass", "lower --caustic-photons")
+    if scene.media is not None:
+        # through media (sppm): their first event after the mirrors and glass, on a surface or in a medium
+        return parallel_for(trace_caustic_photons_media, n_caustic,
+                            (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene),
+                             scene.specular_bounding_spheres(), settings["seed"],
+                             pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_caustic, *out),
+                            threads=settings["threads"])
+    return parallel_for(trace_caustic_photons, n_caustic,
+                        (scene.geometry, scene.materials, scene.lights, scene.specular_bounding_spheres(),
+                         settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_caustic, *out),
+                        threads=settings["threads"])
+
+
+def caustic_event_kind(kind: np.ndarray, out: np.ndarray) -> None:
+    """Event kinds of caustic photons' slots into ``out`` (int8): 2 where a caustic event was stored, else 0."""
+    np.equal(kind, CAUSTIC, out=out, casting="unsafe")
+    out *= 2
+
 
 class PixelStatistics(NamedTuple):
     """The per-pixel state of a progressive render after ``passes`` passes (flat, row-major)."""
@@ -98,24 +141,28 @@ class PixelStatistics(NamedTuple):
 CELL_PER_RADIUS = 2.0
 
 
+@kernel(inline=True)
+def _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i):
+    """Σ Φ and the number of the grid's events within radius[i] of visible point i into flux[i], count[i]."""
+    if not vp_found[i]:
+        count[i] = 0
+        for c in range(3):
+            flux[i, c] = 0.0
+        return
+    p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
+    n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
+    m, s = grid_range_sum(grid, p, n, radius[i])
+    count[i] = m
+    for c in range(3):
+        flux[i, c] = s[c]
+
+
 @kernel
 def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
     """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without one)."""
     grid = borrowed(grid)
     for i in range(i0, i1):
-        if not vp_found[i]:
-            count[i] = 0
-            flux[i, 0] = 0.0
-            flux[i, 1] = 0.0
-            flux[i, 2] = 0.0
-            continue
-        p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
-        n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-        m, s = grid_range_sum(grid, p, n, radius[i])
-        count[i] = m
-        flux[i, 0] = s[0]
-        flux[i, 1] = s[1]
-        flux[i, 2] = s[2]
+        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
 
 
 @kernel
@@ -124,25 +171,8 @@ def gather_flux_two(grid, grid_c, vp_pos, vp_nrm, vp_found, radius, radius_c, fl
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
     for i in range(i0, i1):
-        if not vp_found[i]:
-            count[i] = 0
-            count_c[i] = 0
-            for c in range(3):
-                flux[i, c] = 0.0
-                flux_c[i, c] = 0.0
-            continue
-        p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
-        n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-        m, s = grid_range_sum(grid, p, n, radius[i])
-        count[i] = m
-        flux[i, 0] = s[0]
-        flux[i, 1] = s[1]
-        flux[i, 2] = s[2]
-        m, s = grid_range_sum(grid_c, p, n, radius_c[i])
-        count_c[i] = m
-        flux_c[i, 0] = s[0]
-        flux_c[i, 1] = s[1]
-        flux_c[i, 2] = s[2]
+        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
+        _gather_at(grid_c, vp_pos, vp_nrm, vp_found, radius_c, flux_c, count_c, i)
 
 
 @kernel
@@ -278,9 +308,15 @@ class ProgressivePhotonMethod(IndependentPasses):
         return st
 
     @classmethod
+    def caustic_photons_per_pass(cls, scene, settings) -> int:
+        """Photons aimed at the mirrors and glass per pass (0: none, or no mirror or glass to aim at)."""
+        return 0
+
+    @classmethod
     def separate_caustics(cls, scene, settings) -> bool:
-        """Whether events of kind 2 are caustic events with their own statistics (SPPM's aimed caustic photons)."""
-        return False
+        """Whether events of kind 2 are caustic events with their own statistics (the aimed caustic photons)."""
+        return (settings.get("caustic_statistics") == "separate"
+                and cls.caustic_photons_per_pass(scene, settings) > 0)
 
     @classmethod
     def measure_pass(cls, scene, settings, pass_index, radius, progress, radius_caustic=None):

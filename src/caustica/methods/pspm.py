@@ -15,6 +15,11 @@ merge into the leading one, so every light → specular → diffuse event is one
 photon carrying the whole stream.  With ``--specular split`` each associated photon
 keeps its own path through the specular chain and is stored where it lands, so a
 stream keeps n_fa + 1 samples of the caustic.
+
+``--caustic-photons N`` (with ``merge``) is PSPM with a caustic map, as the paper sets SPM
+beside PM+C: N photons per pass aimed at the mirrors and glass carry every
+light → specular⁺ → diffuse path, in statistics of their own as sppm's, and the streams
+leave those records out and carry the rest of the light.
 """
 from __future__ import annotations
 
@@ -24,12 +29,15 @@ import numpy as np
 
 from ..jit import parallel_for
 from ..memory import check_budget
+from ..errors import ParameterError
+from ..photons.records import SLOT_BYTES, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_streams
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import PROGRESSIVE_PARAMS, ProgressivePhotonMethod, initial_radius
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, ProgressivePhotonMethod,
+                          caustic_event_kind, initial_radius, trace_caustic_pass)
 
 ESTIMATORS = ("stream", "photons")
 SPECULAR = ("merge", "split")
@@ -67,11 +75,36 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         Param("specular", str, "merge", "merge: associated photons merge into the leading one at mirrors "
                                         "and glass (the paper); split: each keeps its own specular path",
               choices=SPECULAR),
-    ) + PROGRESSIVE_PARAMS
+        Param("caustic_photons", int, 0, "photons per pass aimed at the specular objects for light -> "
+                                         "specular -> diffuse paths, which the streams then leave out "
+                                         "(as PM's caustic map; 0: none, the streams carry the caustic too; "
+                                         "needs --specular merge)", non_negative, ">= 0"),
+    ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
+
+    @classmethod
+    def check(cls, scene, settings):
+        super().check(scene, settings)
+        if settings["caustic_photons"] > 0 and settings["specular"] == "split":
+            raise ParameterError("--caustic-photons: pspm's aimed caustic photons need --specular merge "
+                                 "(with split, the streams carry their own caustic photons)")
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
-        return streams_per_pass(settings)
+        """Streams, plus the aimed caustic photons (counted as paths emitted, as sppm's photons)."""
+        return streams_per_pass(settings) + cls.caustic_photons_per_pass(scene, settings)
+
+    @classmethod
+    def pass_buffer_bytes(cls, scene, settings) -> int:
+        """A pass's stream buffers and caustic photons' records, and the grid's sorted copy of the events."""
+        n = streams_per_pass(settings)
+        streams = StreamBuffers.bytes_needed(n, settings["assoc"], settings["max_bounces"],
+                                             settings["specular"] == "split")
+        return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES)
+
+    @classmethod
+    def caustic_photons_per_pass(cls, scene, settings) -> int:
+        specular = scene.specular_bounding_spheres().shape[0] > 0
+        return settings["caustic_photons"] if specular else 0
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
@@ -91,13 +124,23 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                                     TERMINATIONS[settings["termination"]], split, *buf.kernel_args),
                                  threads=settings["threads"], progress=bar)
         bar.close()
+        n_c = cls.caustic_photons_per_pass(scene, settings)
+        if n_c > 0:   # the aimed caustic photons carry the light -> specular+ -> diffuse paths
+            cbuf = allocate_buffers(n_c, 1)
+            compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, cbuf)
         t1 = time.perf_counter()
-        pos, _, power, normal = buf.events(settings["estimator"])
+        pos, _, power, normal = buf.events(settings["estimator"], leave_caustics=n_c > 0)
         valid = np.ones(pos.shape[0], np.int8)
-        return (pos, power, normal, valid), n, {
+        if n_c > 0:   # kind 2: the caustic photons' events
+            kinds = np.empty(n_c, np.int8)
+            caustic_event_kind(cbuf.kind, kinds)
+            pos, power, normal = (np.concatenate([a, b]) for a, b in ((pos, cbuf.position), (power, cbuf.power),
+                                                                      (normal, cbuf.normal)))
+            valid = np.concatenate([valid, kinds])
+        return (pos, power, normal, valid), n + n_c, {
             "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
                         "map_build_s": time.perf_counter() - t1},
-            "streams_emitted": n, "photons_emitted": n * (n_fa + 1)}
+            "streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
 
     @classmethod
     def final_stats(cls, scene, settings, state):

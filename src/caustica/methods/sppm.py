@@ -20,13 +20,14 @@ from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
-from ..photons.trace import trace_caustic_photons, trace_photons
-from ..photons.trace_media import trace_caustic_photons_media, trace_photons_media
-from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON, pass_stream
+from ..photons.trace import trace_photons
+from ..photons.trace_media import trace_photons_media
+from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import CAUSTIC_RADIUS_SCALE, PROGRESSIVE_PARAMS, VOLUME_RADIUS_SCALE, ProgressivePhotonMethod
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_SCALE,
+                          ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
 
 
 def photon_counts(scene, settings) -> tuple[int, int]:
@@ -59,20 +60,12 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                             "(as PM's caustic map; 0: none, plain SPPM; default: half of the "
                                             "default photons in a scene with mirrors or glass, else 0)",
               non_negative, ">= 0"),
-        Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
-                                                     "gathered into per-pixel statistics (N, R, tau) of their own, "
-                                                     "so the other photons keep their wider radius (pixel schedule); "
-                                                     "shared: one set of statistics for all events",
-              choices=("separate", "shared")),
-        Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
-                                             f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
-              positive, "> 0"),
         Param("volume_radius", float, None, "scenes with media: initial radius of the volume photons' spheres in the "
                                             "beam radiance estimate; pass p uses it times sqrt(prod_{i=1..p} "
                                             f"(i + alpha) / (i + 1)) (default: {VOLUME_RADIUS_SCALE} x the initial "
                                             "--radius)",
               positive, "> 0"),
-    ) + PROGRESSIVE_PARAMS
+    ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
     renders_media = True
 
     @classmethod
@@ -86,8 +79,14 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         return sum(photon_counts(scene, settings))
 
     @classmethod
-    def separate_caustics(cls, scene, settings) -> bool:
-        return settings["caustic_statistics"] == "separate" and photon_counts(scene, settings)[1] > 0
+    def caustic_photons_per_pass(cls, scene, settings) -> int:
+        return photon_counts(scene, settings)[1]
+
+    @classmethod
+    def pass_buffer_bytes(cls, scene, settings) -> int:
+        """A pass's photon records (mr + 1 slots a photon, one a caustic photon), and the grid's sorted copy."""
+        n, n_c = photon_counts(scene, settings)
+        return 2 * (n * (settings["max_bounces"] + 1) + n_c) * SLOT_BYTES
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
@@ -96,9 +95,6 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
                      "lower --photons or --max-bounces")
         aimed = n_c > 0
-        spheres = scene.specular_bounding_spheres() if aimed else None
-        if aimed:
-            check_budget(n_c * SLOT_BYTES, f"{n_c:,} caustic photons per pass", "lower --caustic-photons")
         t0 = time.perf_counter()
         # one buffer: the photons' mr + 1 slots each, then the caustic photons' one slot each (the
         # caustic photons write into a view of its tail, so no copy joins the two)
@@ -124,25 +120,14 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
             return (buf.position, buf.power, buf.normal, buf.kind), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                 "photons_emitted": n}
+        valid = np.empty(buf.kind.shape[0], np.int8)
         if aimed:
             # caustic photons carry the light -> specular+ -> diffuse (or medium) paths; the others leave them out
             tail = TraceBuffers(*(a[slots:] for a in buf))
-            if media is None:
-                c_s = parallel_for(trace_caustic_photons, n_c, (scene.geometry, scene.materials, scene.lights, spheres,
-                                                                settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON,
-                                                                                              pass_index), n_c, *tail),
-                                   threads=settings["threads"])
-            else:
-                c_s = parallel_for(trace_caustic_photons_media, n_c,
-                                   (scene.geometry, scene.materials, scene.lights, media, lm, spheres, settings["seed"],
-                                    pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_c, *tail),
-                                   threads=settings["threads"])
-            compile_s += c_s
-        valid = np.empty(buf.kind.shape[0], np.int8)
-        if aimed:
+            compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, tail)
             np.equal(head.kind, INDIRECT, out=valid[:slots], casting="unsafe")
-            np.equal(tail.kind, CAUSTIC, out=valid[slots:], casting="unsafe")
-            valid[slots:] *= 2   # kind 2: the caustic events (their own statistics with --caustic-statistics separate)
+            # kind 2: the caustic events (their own statistics with --caustic-statistics separate)
+            caustic_event_kind(tail.kind, valid[slots:])
         else:
             valid[:] = (buf.kind == INDIRECT) | (buf.kind == CAUSTIC)   # the surface records, not the volume's
         stats = {"timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},

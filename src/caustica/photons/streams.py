@@ -263,7 +263,9 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
                     rec_assoc_power[rec, c] = p_assoc[c]
                     rec_energy[rec, c] = lead[c] + landed * p_assoc[c]
                 rec_count[rec] = landed
-                rec_valid[rec] = 1
+                # 2: a light -> specular+ -> diffuse record (no diffuse bounce before it), the caustic
+                # that aimed caustic photons may carry instead (pspm --caustic-photons); 1: the rest
+                rec_valid[rec] = 2 if diffuse_bounces == 0 else 1
                 stored += 1
             if diffuse_bounces >= max_bounces:
                 break
@@ -330,15 +332,18 @@ class StreamBuffers:
         s = n_streams * (max_bounces + 1)
         return s * (6 * 12 + 5) + s * n_assoc * (36 + (2 * 49 if split else 0))
 
-    def events(self, estimator: str):
+    def events(self, estimator: str, leave_caustics: bool = False):
         """This pass's photon events (position, direction, power, normal) for a progressive gather.
 
         ``stream``: each stream record's energy E_i at its leading position (eq. 2's reading);
         ``photons``: the leading and every associated photon at its own position.  Split
         photons (``--specular split``) are photons of their own under either estimator.
+        ``leave_caustics``: the light -> specular+ -> diffuse records are left out (aimed caustic
+        photons carry that light instead; only with ``--specular merge``, where such a record
+        holds its whole stream and no associated photon).
         """
         pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = self.rec
-        keep = valid == 1
+        keep = (valid == 1) if leave_caustics else (valid != 0)
         parts = []
         if estimator == "stream":
             parts.append((pos[keep], dirs[keep], energy[keep], nrm[keep]))
@@ -360,7 +365,7 @@ class StreamMap:
 
     def __init__(self, buf: StreamBuffers):
         pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = buf.rec
-        keep = valid == 1
+        keep = valid != 0   # every record, caustic (2) or not (1)
         self.count = count[keep]
         n_fa = buf.n_assoc
         if n_fa > 0:

@@ -95,8 +95,10 @@ IOR_TABLE = {
     "sodium chloride": 1.544, "amber": 1.55, "pet": 1.5750, "diamond": 2.419,
 }
 
-#: Mitsuba's default BSDF for a shape without one.
+#: Mitsuba's default BSDF for a shape without one: diffuse, reflectance 0.5, or 0 when the shape
+#: is an emitter (Mitsuba 3's Shape constructor), so a bare area light reflects nothing.
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
+DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
@@ -247,7 +249,7 @@ class _Loader:
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
-        self.default_material: int | None = None
+        self.default_materials: dict[bool, int] = {}   # emitter or not -> index of Mitsuba's default BSDF
         self.media: list[Medium] = []
         self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
@@ -451,11 +453,13 @@ class _Loader:
             self.materials.append(mat)
         return self.material_of_node[key]
 
-    def default_material_index(self) -> int:
-        if self.default_material is None:
-            self.default_material = len(self.materials)
-            self.materials.append(Material(DIFFUSE, DEFAULT_REFLECTANCE, name="default"))
-        return self.default_material
+    def default_material_index(self, emitter: bool) -> int:
+        """The default BSDF of a shape without one (created once): black for an emitter, as in Mitsuba 3."""
+        if emitter not in self.default_materials:
+            self.default_materials[emitter] = len(self.materials)
+            self.materials.append(Material(DIFFUSE, DEFAULT_EMITTER_REFLECTANCE if emitter else DEFAULT_REFLECTANCE,
+                                           name="default emitter" if emitter else "default"))
+        return self.default_materials[emitter]
 
     # -- media ------------------------------------------------------------------------
     def medium_index(self, node: Node) -> int:
@@ -529,7 +533,7 @@ class _Loader:
                 eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]})
                 radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0))
         if material is None:
-            material = self.default_material_index()
+            material = self.default_material_index(emitter=radiance is not None)
 
         src = f"{self.source}:{node.line}"
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
