@@ -411,7 +411,11 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
-    task_cap = max_task_passes(cluster, method_cls, settings, scene)
+    try:
+        task_cap = max_task_passes(cluster, method_cls, settings, scene)
+    except cluster_failures() as exc:
+        raise ClusterError(f"--dask {cluster.address}: the scheduler did not answer when asked for the workers' "
+                           f"memory ({type(exc).__name__})") from None
     clog.max_task_passes = task_cap
     t0 = time.perf_counter()
     scene_f = send_scene(client, scene)
@@ -485,7 +489,10 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 clog.late_tasks = len(flying)
                 clog.dropped_passes = (sum(stop - start for start, stop, _ in flying.values())
                                        + sum(len(part_log) for _, part_log in done.values()))
-                client.cancel(list(flying))
+                try:
+                    client.cancel(list(flying))
+                except cluster_failures() as exc:   # a scheduler gone by now: nothing left to cancel
+                    raise _ClusterFailed(exc) from exc
                 flying.clear()
                 done.clear()
                 break
