@@ -96,6 +96,15 @@ def medium_after(media, shape, ng, d, current):
 # ----------------------------------------------------------------------------- free flights
 
 @kernel(inline=True)
+def cross_null(media, shape, p, ng, d, medium, crossings):
+    """A ray passing a null boundary at p: (the medium beyond, the origin past it, crossings + 1, whether
+    that is still within NULL_CROSSINGS_CAP)."""
+    crossings += 1
+    return medium_after(media, shape, ng, d, medium), vec.offset_origin(p, ng, d), crossings, \
+        crossings <= NULL_CROSSINGS_CAP
+
+
+@kernel(inline=True)
 def sample_distance(media, m, u_channel, u):
     """A free-flight distance in medium m: channel chosen by u_channel, distance exp-distributed in it.
 

@@ -35,7 +35,7 @@ from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import NULL_CROSSINGS_CAP, direct_transmitted, flight_weight, medium_after, phase_pdf, \
+from ..media import cross_null, direct_transmitted, flight_weight, medium_after, phase_pdf, \
     phase_sample, phase_value, power_heuristic, sample_distance
 from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
@@ -119,10 +119,8 @@ def radiance_media(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             kind = mats.kind[m]
             shape = geom.prim_shape[prim]
             if kind == NULL:
-                medium = medium_after(media, shape, ng, d, medium)
-                o = vec.offset_origin(p, ng, d)
-                crossings += 1
-                if crossings > NULL_CROSSINGS_CAP:
+                medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
+                if not within:
                     break
                 continue
             depth += 1

@@ -34,7 +34,7 @@ from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import NULL_CROSSINGS_CAP, flight_weight, medium_after, phase_sample, sample_distance
+from ..media import cross_null, flight_weight, medium_after, phase_sample, sample_distance
 from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
 from .emission import emit_caustic_photon, emit_photon
@@ -46,7 +46,6 @@ from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_
 def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, termination, caustic_only,
                     slot0, slots, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
     """Follow one photon through media, storing surface and volume records in slots slot0 .. slot0 + slots - 1."""
-    zero = (0.0, 0.0, 0.0)
     dim = 8
     bounces = 0          # diffuse and medium scattering events
     specular_events = 0
@@ -104,10 +103,8 @@ def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, te
         kind = mats.kind[m]
         shape = geom.prim_shape[prim]
         if kind == NULL:
-            medium = medium_after(media, shape, ng, d, medium)
-            o = vec.offset_origin(p, ng, d)
-            crossings += 1
-            if crossings > NULL_CROSSINGS_CAP:
+            medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
+            if not within:
                 break
             continue
         crossings = 0

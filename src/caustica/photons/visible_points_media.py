@@ -42,7 +42,7 @@ from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import NULL_CROSSINGS_CAP, attenuation, direct_stratified_transmitted, direct_transmitted_u, \
+from ..media import NULL_CROSSINGS_CAP, cross_null, attenuation, direct_stratified_transmitted, direct_transmitted_u, \
     medium_after, phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE, NULL
@@ -60,38 +60,14 @@ SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
 
 
 @kernel
-def emitted_along_media(geom, mats, lights, media, o, d, medium):
-    """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries.
-
-    Emitters on null surfaces crossed count, as in the path tracer; the first other surface ends
-    the ray (its emission counts if it is an emitter's front).
-    """
-    L = (0.0, 0.0, 0.0)
-    T = (1.0, 1.0, 1.0)
-    for _ in range(NULL_CROSSINGS_CAP):
-        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
-        if prim < 0:
-            return L
-        if medium >= 0:
-            T = vec.hadamard(T, attenuation(media, medium, t))
-        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
-        e = geom.prim_emitter[prim]
-        if e >= 0 and vec.dot(d, ng) < 0.0:
-            L = vec.add(L, vec.hadamard(T, vec.row(lights.radiance, e)))
-        if mats.kind[geom.prim_material[prim]] != NULL:
-            return L
-        medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
-        o = vec.offset_origin(p, ng, d)
-    return L
-
-
-@kernel
 def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
     """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
 
     d was sampled with solid-angle density pdf_dir (the phase function); an area emitter met at
     distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
     select_pdf r² / (area cos_l), as :func:`caustica.media.direct_transmitted_u` samples it.
+    pdf_dir < 0: no MIS (weight 1).  Emitters on null surfaces crossed count, as in the path
+    tracer; the first other surface ends the ray (its emission counts if it is an emitter's front).
     """
     L = (0.0, 0.0, 0.0)
     T = (1.0, 1.0, 1.0)
@@ -107,13 +83,22 @@ def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
         e = geom.prim_emitter[prim]
         cos_l = -vec.dot(d, ng)
         if e >= 0 and cos_l > 0.0:
-            pdf_light = lights.select_pdf[e] * dist * dist / (lights.area[e] * cos_l)
-            L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), power_heuristic(pdf_dir, pdf_light))
+            w = 1.0
+            if pdf_dir >= 0.0:
+                pdf_light = lights.select_pdf[e] * dist * dist / (lights.area[e] * cos_l)
+                w = power_heuristic(pdf_dir, pdf_light)
+            L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), w)
         if mats.kind[geom.prim_material[prim]] != NULL:
             return L
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
     return L
+
+
+@kernel
+def emitted_along_media(geom, mats, lights, media, o, d, medium):
+    """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries."""
+    return emission_weighted(geom, mats, lights, media, o, d, medium, -1.0)
 
 
 @kernel
@@ -202,10 +187,8 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
         kind = mats.kind[m]
         shape = geom.prim_shape[prim]
         if kind == NULL:
-            medium = medium_after(media, shape, ng, d, medium)
-            o = vec.offset_origin(p, ng, d)
-            crossings += 1
-            if crossings > NULL_CROSSINGS_CAP:
+            medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
+            if not within:
                 return False, zero, zero, zero, L, n_seg
             continue
         crossings = 0
