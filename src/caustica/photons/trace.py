@@ -24,6 +24,17 @@ TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bou
 TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled by albedo / p
 
 
+@kernel(inline=True)
+def store_record(s, p, d, power, n, kind, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
+    """Write one photon record (position, direction of travel, power, normal, kind) into slot s."""
+    for c in range(3):
+        buf_pos[s, c] = p[c]
+        buf_dir[s, c] = d[c]
+        buf_pow[s, c] = power[c]
+        buf_nrm[s, c] = n[c]
+    buf_kind[s] = kind
+
+
 @kernel
 def diffuse_bounce(mats, m, ng, ns, power, key, dim, termination):
     """Continue a photon from a diffuse surface: (new direction, power, alive).
@@ -80,13 +91,8 @@ def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_on
             if not scatters:
                 break  # the black back of a one-sided surface absorbs
             if scattered:
-                s = slot0 + stored
-                for c in range(3):
-                    buf_pos[s, c] = p[c]
-                    buf_dir[s, c] = d[c]
-                    buf_pow[s, c] = power[c]
-                    buf_nrm[s, c] = ns[c]
-                buf_kind[s] = CAUSTIC if diffuse_bounces == 0 else INDIRECT
+                store_record(slot0 + stored, p, d, power, ns, CAUSTIC if diffuse_bounces == 0 else INDIRECT,
+                             buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break

@@ -39,7 +39,7 @@ from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter, store_record
 
 
 @kernel
@@ -69,13 +69,9 @@ def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, te
             # ---- a scattering event in the medium
             p = vec.madd(o, d, t)
             if scattered and stored < slots:
-                s = slot0 + stored
-                for c in range(3):
-                    buf_pos[s, c] = p[c]
-                    buf_dir[s, c] = d[c]
-                    buf_pow[s, c] = power[c]
-                    buf_nrm[s, c] = 0.0
-                buf_kind[s] = VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC
+                store_record(slot0 + stored, p, d, power, (0.0, 0.0, 0.0),   # a volume photon has no normal
+                             VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC,
+                             buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
                 stored += 1
             if caustic_only or bounces >= max_bounces:
                 break
@@ -114,13 +110,8 @@ def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, te
             if not scatters:
                 break
             if scattered and stored < slots:
-                s = slot0 + stored
-                for c in range(3):
-                    buf_pos[s, c] = p[c]
-                    buf_dir[s, c] = d[c]
-                    buf_pow[s, c] = power[c]
-                    buf_nrm[s, c] = ns[c]
-                buf_kind[s] = INDIRECT if diffuse_like else CAUSTIC
+                store_record(slot0 + stored, p, d, power, ns, INDIRECT if diffuse_like else CAUSTIC,
+                             buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
                 stored += 1
             if caustic_only or bounces >= max_bounces:
                 break
