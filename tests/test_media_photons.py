@@ -304,3 +304,14 @@ def test_in_scattering_samples_near_an_area_light_stay_bounded():
             total += c
     assert worst <= 1.5 * le * albedo * (1 + 1e-9), worst
     assert total.min() > 0    # the light is seen: the samples are not all zero
+
+
+def test_volume_radius_sets_the_beam_estimate_s_radius():
+    """--volume-radius is the radius of the pass-0 spheres: it shows in the sidecar and changes the image."""
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(passes=2, seed=3)
+    default = caustica.render(scene, "sppm", **kw)
+    small = caustica.render(scene, "sppm", volume_radius=0.1, **kw)
+    assert small.stats["initial_volume_radius"] == 0.1 != default.stats["initial_volume_radius"]
+    assert small.stats["volume_photons_gathered"] < default.stats["volume_photons_gathered"]
+    assert small.image.tobytes() != default.image.tobytes()
