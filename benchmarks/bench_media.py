@@ -1,6 +1,7 @@
-"""Issue 11's photon goal: sppm in the fog box against Mitsuba 3's volpath at equal wall time.
+"""Issue 11's photon goal: sppm and pspm in the fog box against Mitsuba 3's volpath at equal wall time.
 
-    python benchmarks/bench_media.py [--budget 30] [--seeds 0] [--res 256] [--threads N] [--only TEXT]
+    python benchmarks/bench_media.py [--budget 30] [--seeds 0] [--res 256] [--threads N] [--only TEXT,...]
+    python benchmarks/bench_media.py --passes 40 --seeds 0,1,2 --only pspm   # equal passes, no Mitsuba
     python benchmarks/bench_media.py --reference-only      # render (or finish) the reference, then stop
 
 The scene is the built-in ``cornell-diacaustic-fog`` at 256 x 256.  Each caustica configuration
@@ -54,17 +55,29 @@ MASK_RADIUS = 0.1
 MASK_LEVEL = 0.1
 MASK_SEED = 99_991
 
-#: (label, parameters of sppm).  Every configuration runs photons until roulette ends them (the
-#: reference is unbiased, with no depth limit).  Defaults in this scene: 32,768 + 32,768 aimed photons
-#: per pass, R_0 = 0.347 (1 % of the diagonal), R_v0 = R_0, separate caustic statistics.
+#: (label, method, parameters).  Every configuration runs photons until roulette ends them (the
+#: reference is unbiased, with no depth limit).  sppm's defaults in this scene: 32,768 + 32,768 aimed
+#: photons per pass, R_0 = 0.347 (1 % of the diagonal), R_v0 = R_0, separate caustic statistics.
+#: pspm's: 5,957 streams of 1 + 10 photons per pass (65,527 photons), r_s = 5 at the first pass; under
+#: ``--estimator stream`` a record counts at its leading photon whatever its associated photons do, so
+#: ``--medium-scattering`` spread and merge give the same image there (docs/media.md): one row.
 CONVERGED = {"max_bounces": 64, "termination": "roulette"}
+PHOTONS = {**CONVERGED, "estimator": "photons"}
+AIMED = {"streams": 2_979, "caustic_photons": 32_768}   # 32,769 stream photons + 32,768 aimed, as sppm
 CONFIGS = (
-    ("sppm defaults (R_v0 = R_0)", {**CONVERGED}),
-    ("sppm R_v0 2 R_0", {**CONVERGED, "volume_radius": 0.6935}),
-    ("sppm R_v0 0.2", {**CONVERGED, "volume_radius": 0.2}),
-    ("sppm 16k + 48k aimed", {**CONVERGED, "photons": 16_384, "caustic_photons": 49_152}),
-    ("sppm 8k + 56k aimed", {**CONVERGED, "photons": 8_192, "caustic_photons": 57_344}),
-    ("sppm global schedule", {**CONVERGED, "schedule": "global"}),
+    ("sppm defaults (R_v0 = R_0)", "sppm", {**CONVERGED}),
+    ("sppm R_v0 2 R_0", "sppm", {**CONVERGED, "volume_radius": 0.6935}),
+    ("sppm R_v0 0.2", "sppm", {**CONVERGED, "volume_radius": 0.2}),
+    ("sppm 16k + 48k aimed", "sppm", {**CONVERGED, "photons": 16_384, "caustic_photons": 49_152}),
+    ("sppm 8k + 56k aimed", "sppm", {**CONVERGED, "photons": 8_192, "caustic_photons": 57_344}),
+    ("sppm global schedule", "sppm", {**CONVERGED, "schedule": "global"}),
+    ("pspm stream estimator", "pspm", {**CONVERGED}),
+    ("pspm photons spread", "pspm", {**PHOTONS}),
+    ("pspm photons merge", "pspm", {**PHOTONS, "medium_scattering": "merge"}),
+    ("pspm photons spread r_s 1", "pspm", {**PHOTONS, "stream_radius": 1.0}),
+    ("pspm photons merge r_s 1", "pspm", {**PHOTONS, "stream_radius": 1.0, "medium_scattering": "merge"}),
+    ("pspm stream + 32k aimed", "pspm", {**CONVERGED, **AIMED}),
+    ("pspm photons spread + 32k aimed", "pspm", {**PHOTONS, **AIMED}),
 )
 
 
@@ -147,7 +160,7 @@ BEST = "sppm defaults (R_v0 = R_0)"
 
 def agreement(args, ref, ref_a, ref_b) -> None:
     """Image mean and 16-pixel block means (4 x 4 blocks of the image box-filtered to 32 x 32) against the reference."""
-    params = dict(CONFIGS)[BEST]
+    method, params = {label: (m, p) for label, m, p in CONFIGS}[BEST]
     seeds = [int(s) for s in args.seeds.split(",")]
     scene = caustica.load_scene(SCENE)
     f = args.res // 32
@@ -156,7 +169,7 @@ def agreement(args, ref, ref_a, ref_b) -> None:
         small = img.reshape(32, f, 32, f, 3).mean(axis=(1, 3))
         return small.reshape(8, 4, 8, 4, 3).mean(axis=(1, 3))
     t0 = time.perf_counter()
-    ours = [caustica.render(scene, "sppm", res=args.res, seed=s, passes=args.agreement, threads=args.threads,
+    ours = [caustica.render(scene, method, res=args.res, seed=s, passes=args.agreement, threads=args.threads,
                             **params).image.astype(np.float64) for s in seeds]
     wall = time.perf_counter() - t0
     b_ref = blocks(ref)
@@ -182,7 +195,10 @@ def main() -> None:
     ap.add_argument("--seeds", default="0", help="comma-separated seeds (default 0)")
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--threads", type=int)
-    ap.add_argument("--only", help="run only the configurations whose label contains this text")
+    ap.add_argument("--only", help="run only the configurations whose label contains any of these "
+                                   "comma-separated texts")
+    ap.add_argument("--passes", type=int, help="instead of the budget: this many passes each (an ablation at "
+                                               "equal work, free of the machine's load; Mitsuba is not run)")
     ap.add_argument("--reference-only", action="store_true", help="render the missing reference chunks and stop")
     ap.add_argument("--ref-chunks", type=int, default=REF_CHUNKS, help=f"reference chunks to use (default {REF_CHUNKS})")
     ap.add_argument("--save-mask", type=Path, help="write the volumetric caustic mask to this PNG")
@@ -205,10 +221,13 @@ def main() -> None:
         write_png(args.save_mask, np.repeat(mask[..., None], 3, axis=2).astype(np.float32))
     mi = mitsuba_module()
     seeds = [int(s) for s in args.seeds.split(",")]
-    configs = [c for c in CONFIGS if args.only is None or args.only in c[0]]
+    configs = [c for c in CONFIGS if args.only is None or any(t in c[0] for t in args.only.split(","))]
+    if args.passes:
+        mi = None
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, {SCENE} "
-          f"{args.res}x{args.res}, budget {args.budget:g} s, seeds {seeds}, "
-          f"Mitsuba {'yes' if mi is not None else 'not installed'}")
+          f"{args.res}x{args.res}, " + (f"{args.passes} passes" if args.passes else f"budget {args.budget:g} s")
+          + f", seeds {seeds}, "
+          f"Mitsuba {'yes' if mi is not None else 'not run' if args.passes else 'not installed'}")
     ref_mask, ref_whole = rel_rmse(ref_a, ref_b, mask) / 2, rel_rmse(ref_a, ref_b) / 2
     print(f"# reference: caustica pt, {args.ref_chunks} x {REF_SPP} spp; its own relRMSE (half vs half / 2): "
           f"mask {ref_mask:.4f}, whole {ref_whole:.4f}; 'net' columns: sqrt(measured^2 - reference's^2)")
@@ -220,20 +239,20 @@ def main() -> None:
     def net(e, floor):
         return float(np.sqrt(max(e * e - floor * floor, 0.0)))
     scene = caustica.load_scene(SCENE)
-    for label, params in configs:   # warm-up: compile or load the kernels
-        caustica.render(scene, "sppm", res=args.res, passes=2, threads=args.threads, **params)
+    for label, method, params in configs:   # warm-up: compile or load the kernels
+        caustica.render(scene, method, res=args.res, passes=2, threads=args.threads, **params)
     rows = []
     for seed in seeds:
         got = []
-        for label, params in configs:
+        for label, method, params in configs:
             before = load()
             t0 = time.perf_counter()
-            r = caustica.render(scene, "sppm", res=args.res, seed=seed, time_s=args.budget, threads=args.threads,
-                                **params)
+            budget = {"passes": args.passes} if args.passes else {"time_s": args.budget}
+            r = caustica.render(scene, method, res=args.res, seed=seed, threads=args.threads, **budget, **params)
             wall = time.perf_counter() - t0
             if args.save_images:
                 args.save_images.mkdir(parents=True, exist_ok=True)
-                np.save(args.save_images / f"sppm_{label.replace(' ', '_')}_{seed}.npy", r.image)
+                np.save(args.save_images / f"{label.replace(' ', '_')}_{seed}.npy", r.image)
             got.append({"seed": seed, "label": label, "passes": r.stats["passes"], "wall_s": wall,
                         "mask": rel_rmse(r.image, ref, mask), "whole": rel_rmse(r.image, ref), "load": before})
         if mi is not None:

@@ -202,10 +202,14 @@ def fog_sppm():
     return [caustica.render(scene, "sppm", passes=FOG_PASSES, seed=s, **FOG_KW).image for s in FOG_SEEDS]
 
 
-def test_fog_box_matches_the_volumetric_path_tracer(fog_sppm):
+@pytest.fixture(scope="module")
+def fog_pt():
     scene = caustica.load_scene("cornell-diacaustic-fog", res=FOG_RES)
-    pt = [caustica.render(scene, "pt", spp=FOG_PT_SPP, seed=100 + s).image for s in FOG_SEEDS]
-    assert_images_agree(fog_sppm, pt, label="sppm vs pt, fog box")
+    return [caustica.render(scene, "pt", spp=FOG_PT_SPP, seed=100 + s).image for s in FOG_SEEDS]
+
+
+def test_fog_box_matches_the_volumetric_path_tracer(fog_sppm, fog_pt):
+    assert_images_agree(fog_sppm, fog_pt, label="sppm vs pt, fog box")
 
 
 def test_media_glass_scene_matches_the_volumetric_path_tracer(test_scenes_dir):
@@ -315,3 +319,123 @@ def test_volume_radius_sets_the_beam_estimate_s_radius():
     assert small.stats["initial_volume_radius"] == 0.1 != default.stats["initial_volume_radius"]
     assert small.stats["volume_photons_gathered"] < default.stats["volume_photons_gathered"]
     assert small.image.tobytes() != default.image.tobytes()
+
+
+# --------------------------------------------------------------------------- 6. streams in media (pspm)
+
+#: pspm in the fog box: 2,000 photons a pass as 400 streams of 1 + 4, stream radius 1 at the first pass.
+FOG_PSPM_KW = dict(max_bounces=64, termination="roulette", streams=400, assoc=4, stream_radius=1.0)
+
+
+def trace_fog_streams(spread, n=20_000, n_assoc=4, r_s=0.5, termination=None):
+    """The fog box's stream buffers after tracing ``n`` streams through the fog (caustica.photons.streams_media)."""
+    from caustica.media import light_media
+    from caustica.photons.streams import StreamBuffers
+    from caustica.photons.streams_media import trace_streams_media
+    from caustica.photons.trace import TERMINATION_ROULETTE
+    s = caustica.load_scene("cornell-diacaustic-fog", res=8)
+    mr = 16
+    buf = StreamBuffers(n, n_assoc, mr)
+    parallel_for(trace_streams_media, n, (s.geometry, s.materials, s.lights, s.media, light_media(s), 7, 11, n,
+                                          n_assoc, r_s, mr, TERMINATION_ROULETTE if termination is None else termination,
+                                          spread, *buf.kernel_args))
+    return s, buf
+
+
+def test_spread_and_merge_streams_carry_the_same_records_in_media():
+    """With roulette every photon of a stream decays alike, so spreading or merging at a medium event
+    changes only where the associated photons are: the leading photons' records are the same (positions
+    exactly, energies to float32 rounding), merged streams hold no associated photon after a medium
+    event, and spread ones hold them on the disc of radius r_s about the event, across its direction."""
+    r_s = 0.5
+    _, spread = trace_fog_streams(True, r_s=r_s)
+    _, merge = trace_fog_streams(False, r_s=r_s)
+    pos, dirs, _, _, _, energy, count, valid = spread.rec
+    assert np.array_equal(valid, merge.rec[7]) and np.array_equal(pos, merge.rec[0])
+    np.testing.assert_allclose(energy, merge.rec[5], rtol=1e-5, atol=1e-12)
+    volume = (valid == 3) | (valid == 4)
+    assert volume.sum() > 1000 and (valid == 4).sum() > 0        # volume records, some after the glass only
+    assert merge.rec[6][volume].max() == 0 and count[volume].mean() > 2
+    rows = np.flatnonzero(volume & (count > 0))
+    slot = np.arange(spread.n_assoc)
+    used = slot[None, :] < count[rows, None]
+    a_pos = spread.assoc[0].reshape(-1, spread.n_assoc, 3)[rows]
+    off = (a_pos - pos[rows, None, :])[used]
+    across = np.einsum("ij,ij->i", off, np.repeat(dirs[rows], count[rows], axis=0))
+    assert np.all(np.linalg.norm(off, axis=1) <= r_s * (1 + 1e-5)) and np.all(np.abs(across) <= 1e-4)
+    assert np.all(spread.assoc[2].reshape(-1, spread.n_assoc, 3)[rows][used] == 0)   # no normal in a medium
+
+
+def test_the_streams_caustic_records_in_media_carry_the_aimed_photons_flux():
+    """What ``pspm --caustic-photons`` leaves out of the streams in a medium (records of kinds 2 and 4:
+    light -> glass+ -> wall or fog) and what the aimed photons carry instead estimate the same flux,
+    surface and volume apart: totals within 5 sigmas (per-path spreads)."""
+    from caustica.media import light_media
+    from caustica.photons.records import CAUSTIC, VOLUME_CAUSTIC, allocate_buffers
+    from caustica.photons.trace import TERMINATION_CAP
+    from caustica.photons.trace_media import trace_caustic_photons_media
+    n = 40_000
+    s, buf = trace_fog_streams(True, n=n, termination=TERMINATION_CAP)
+    cb = allocate_buffers(n, 1)
+    parallel_for(trace_caustic_photons_media, n, (s.geometry, s.materials, s.lights, s.media, light_media(s),
+                                                  s.specular_bounding_spheres(), 7, 12, n, *cb))
+    energy, valid = buf.rec[5].astype(np.float64), buf.rec[7]
+    for stream_kind, photon_kind in ((2, CAUSTIC), (4, VOLUME_CAUSTIC)):
+        per_stream = np.where((valid == stream_kind)[:, None], energy, 0.0).reshape(n, -1, 3).sum(axis=(1, 2))
+        per_photon = np.where((cb.kind == photon_kind)[:, None], cb.power.astype(np.float64), 0.0).sum(axis=1)
+        a, b = per_stream.sum(), per_photon.sum()
+        se = math.sqrt(n * per_stream.var() + n * per_photon.var())
+        assert a > 0 and abs(a - b) <= N_SIGMA * se, (stream_kind, a, b, se)
+    volume = buf.volume_events("photons", leave_caustics=True)[0].shape[0]
+    assert volume < buf.volume_events("photons")[0].shape[0]
+
+
+@pytest.mark.parametrize("params", [{"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"},
+                                    {"estimator": "stream"}])
+def test_pspm_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(params):
+    scene = furnace("0.6", "1", "0.3")
+    kw = {**FURNACE_KW, "streams": 100, "assoc": 4, "stream_radius": 0.3, **params}
+    means = np.array([caustica.render(scene, "pspm", seed=s, **kw).image.astype(np.float64).reshape(-1, 3).mean(0)
+                      for s in range(6)])
+    expected = FURNACE_LE / (1 - FURNACE_RHO)
+    se = means.std(axis=0, ddof=1) / math.sqrt(len(means))
+    assert np.all(se < 0.05 * expected)
+    assert np.all(np.abs(means.mean(0) - expected) <= N_SIGMA * se), (means.mean(0), expected, se)
+
+
+@pytest.mark.parametrize("params", [{"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"}])
+def test_pspm_fog_box_matches_the_volumetric_path_tracer(fog_pt, params):
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=FOG_RES)
+    ours = [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, **FOG_PSPM_KW, **params).image
+            for s in FOG_SEEDS]
+    assert_images_agree(ours, fog_pt, label=f"pspm {params} vs pt, fog box")
+
+
+@pytest.mark.parametrize("params", [{}, {"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"},
+                                    {"caustic_photons": 300}, {"schedule": "global"}])
+def test_pspm_same_bits_for_any_thread_count_in_media(params):
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(seed=5, passes=3, streams=100, assoc=3, **params)
+    one = caustica.render(scene, "pspm", threads=1, **kw)
+    two = caustica.render(scene, "pspm", threads=2, **kw)
+    assert one.image.tobytes() == two.image.tobytes() and one.stats["volume_photons"] > 0
+    assert one.image.tobytes() != caustica.render(scene, "pspm", threads=2, **{**kw, "seed": 6}).image.tobytes()
+
+
+def test_pspm_checkpoint_resume_gives_the_same_bits_in_media(tmp_path):
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=12)
+    kw = dict(seed=2, streams=100, estimator="photons")
+    whole = caustica.render(scene, "pspm", passes=5, **kw)
+    ck = tmp_path / "state.npz"
+    caustica.render(scene, "pspm", passes=2, checkpoint=ck, threads=1, **kw)
+    rest = caustica.render(scene, "pspm", passes=5, checkpoint=ck, threads=2, **kw)
+    assert rest.stats["resumed_from_pass"] == 2 and rest.image.tobytes() == whole.image.tobytes()
+
+
+def test_pspm_refuses_split_streams_in_media(cli, tmp_path):
+    code, out, err = cli("render", "cornell-diacaustic-fog", "--method", "pspm", "--specular", "split", "--res", "8",
+                         "--passes", "1", "-q", "-o", tmp_path / "x.exr")
+    lines = err.splitlines()
+    assert code == 2 and lines[-1] == ("caustica: error: --specular split: not supported in a scene with media "
+                                       "(docs/media.md)"), err
+    assert list(tmp_path.iterdir()) == []

@@ -178,7 +178,7 @@ FOG_SCENE = scene('<shape type="cube"><bsdf type="null"/><medium type="homogeneo
                   + LIGHT)
 
 
-@pytest.mark.parametrize("method", ["pm", "spm", "pspm"])
+@pytest.mark.parametrize("method", ["pm", "spm"])
 def test_photon_methods_refuse_media_in_one_line(tmp_path, cli, method):
     path = tmp_path / "fog.xml"
     path.write_text(FOG_SCENE)
@@ -186,18 +186,18 @@ def test_photon_methods_refuse_media_in_one_line(tmp_path, cli, method):
         caustica.render(str(path), method, res=8)
     msg = str(e.value)
     assert msg == (f"{path}:4: the scene has participating media or null-BSDF boundaries, which are rendered by "
-                   f"pt and sppm only so far, not by {method} (docs/media.md)"), msg
+                   f"pt, sppm and pspm only so far, not by {method} (docs/media.md)"), msg
     code, out, err = cli("render", path, "--method", method, "--res", "8", "-q", "-o", tmp_path / "x.exr")
     assert code == 2 and err == f"caustica: error: {msg}\n", err
     code, out, err = cli("photons", path, "--method", "pm", "--res", "8", "-q", "-o", tmp_path / "x.png")
-    assert code == 2 and "pt and sppm only so far" in err and err.count("\n") == 1, err
+    assert code == 2 and "pt, sppm and pspm only so far" in err and err.count("\n") == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fog.xml"]
 
 
 def test_a_null_boundary_alone_also_makes_photon_methods_refuse(tmp_path):
     path = tmp_path / "null.xml"
     path.write_text(scene('<shape type="sphere"><bsdf type="null"/></shape>\n' + LIGHT))
-    with pytest.raises(ParameterError, match=r"null.xml:4: .* pt and sppm only so far, not by pm"):
+    with pytest.raises(ParameterError, match=r"null.xml:4: .* pt, sppm and pspm only so far, not by pm"):
         caustica.render(str(path), "pm", res=8)
 
 

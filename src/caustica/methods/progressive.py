@@ -78,6 +78,12 @@ PROGRESSIVE_PARAMS = (
     _ESTIMATE["max_specular_depth"],
 )
 
+#: The volume estimate's radius (scenes with media; docs/media.md).
+VOLUME_RADIUS_PARAM = Param("volume_radius", float, None,
+                            "scenes with media: initial radius of the volume photons' spheres in the beam radiance "
+                            "estimate; pass p uses it times sqrt(prod_{i=1..p} (i + alpha) / (i + 1)) "
+                            f"(default: {VOLUME_RADIUS_SCALE} x the initial --radius)", positive, "> 0")
+
 #: How aimed caustic photons are gathered (sppm and pspm with --caustic-photons).
 CAUSTIC_STATISTICS_PARAMS = (
     Param("caustic_statistics", str, "separate", "separate: with --caustic-photons, the caustic photons are "
@@ -277,6 +283,8 @@ class ProgressivePhotonMethod(IndependentPasses):
         if settings["spp"] != 1:
             raise ParameterError(f"--spp: {cls.name} takes one camera sample per pixel per pass "
                                  f"(got {settings['spp']}); more passes give more samples")
+        if scene.has_media and settings["fixed_light_grid"]:
+            raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
 
     @classmethod
     def new_state(cls, scene, settings):

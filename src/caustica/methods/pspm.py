@@ -27,16 +27,19 @@ import time
 
 import numpy as np
 
-from ..jit import parallel_for
-from ..memory import check_budget
 from ..errors import ParameterError
-from ..photons.records import SLOT_BYTES, allocate_buffers
+from ..jit import parallel_for
+from ..media import light_media
+from ..memory import check_budget
+from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_streams
+from ..photons.streams_media import MEDIUM_SCATTERING, trace_streams_media
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, ProgressivePhotonMethod,
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
+                          ProgressivePhotonMethod,
                           caustic_event_kind, initial_radius, trace_caustic_pass)
 
 ESTIMATORS = ("stream", "photons")
@@ -79,7 +82,14 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                          "specular -> diffuse paths, which the streams then leave out "
                                          "(as PM's caustic map; 0: none, the streams carry the caustic too; "
                                          "needs --specular merge)", non_negative, ">= 0"),
+        Param("medium_scattering", str, "spread", "scenes with media: at a scattering event in a medium the "
+                                                  "associated photons spread over the disc of radius r_s about "
+                                                  "the leading photon and the stream goes on as a beam (spread, "
+                                                  "as at a diffuse surface) or merge into the leading photon "
+                                                  "(merge, as at a mirror or glass)", choices=MEDIUM_SCATTERING),
+        VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
+    renders_media = True
 
     @classmethod
     def check(cls, scene, settings):
@@ -87,6 +97,8 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         if settings["caustic_photons"] > 0 and settings["specular"] == "split":
             raise ParameterError("--caustic-photons: pspm's aimed caustic photons need --specular merge "
                                  "(with split, the streams carry their own caustic photons)")
+        if scene.has_media and settings["specular"] == "split":
+            raise ParameterError("--specular split: not supported in a scene with media (docs/media.md)")
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
@@ -118,14 +130,22 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         t0 = time.perf_counter()
         buf = StreamBuffers(n, n_fa, mr, split)
         bar = progress(total=n, desc="stream tracing", unit="stream")
-        compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
-                                                    pass_stream(STREAM_SPM, pass_index), n, n_fa,
-                                                    r_s, mr,
-                                                    TERMINATIONS[settings["termination"]], split, *buf.kernel_args),
-                                 threads=settings["threads"], progress=bar)
+        terminate = TERMINATIONS[settings["termination"]]
+        if scene.media is None:
+            compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
+                                                        settings["seed"], pass_stream(STREAM_SPM, pass_index), n,
+                                                        n_fa, r_s, mr, terminate, split, *buf.kernel_args),
+                                     threads=settings["threads"], progress=bar)
+        else:
+            spread = settings["medium_scattering"] == "spread"
+            compile_s = parallel_for(trace_streams_media, n, (scene.geometry, scene.materials, scene.lights,
+                                                              scene.media, light_media(scene), settings["seed"],
+                                                              pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s, mr,
+                                                              terminate, spread, *buf.kernel_args),
+                                     threads=settings["threads"], progress=bar)
         bar.close()
         n_c = cls.caustic_photons_per_pass(scene, settings)
-        if n_c > 0:   # the aimed caustic photons carry the light -> specular+ -> diffuse paths
+        if n_c > 0:   # the aimed caustic photons carry the light -> specular+ -> diffuse (or medium) paths
             cbuf = allocate_buffers(n_c, 1)
             compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, cbuf)
         t1 = time.perf_counter()
@@ -137,10 +157,19 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
             pos, power, normal = (np.concatenate([a, b]) for a, b in ((pos, cbuf.position), (power, cbuf.power),
                                                                       (normal, cbuf.normal)))
             valid = np.concatenate([valid, kinds])
-        return (pos, power, normal, valid), n + n_c, {
-            "timings": {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
-                        "map_build_s": time.perf_counter() - t1},
-            "streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
+        stats = {"streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
+        if scene.media is not None:
+            # volume photons: the streams' volume records (without light -> specular+ -> medium ones when the
+            # aimed caustic photons carry those), and the caustic photons' (docs/media.md)
+            volume = buf.volume_events(settings["estimator"], leave_caustics=n_c > 0)
+            if n_c > 0:
+                in_medium = cbuf.kind == VOLUME_CAUSTIC
+                volume = tuple(np.concatenate([a, b[in_medium]])
+                               for a, b in zip(volume, (cbuf.position, cbuf.direction, cbuf.power)))
+            stats["volume_photons"] = volume
+        stats["timings"] = {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
+                            "map_build_s": time.perf_counter() - t1}
+        return (pos, power, normal, valid), n + n_c, stats
 
     @classmethod
     def final_stats(cls, scene, settings, state):

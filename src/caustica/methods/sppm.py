@@ -14,7 +14,6 @@ import time
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..jit import parallel_for
 from ..media import light_media
 from ..memory import check_budget
@@ -26,7 +25,7 @@ from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_SCALE,
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
 
 
@@ -60,19 +59,9 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                             "(as PM's caustic map; 0: none, plain SPPM; default: half of the "
                                             "default photons in a scene with mirrors or glass, else 0)",
               non_negative, ">= 0"),
-        Param("volume_radius", float, None, "scenes with media: initial radius of the volume photons' spheres in the "
-                                            "beam radiance estimate; pass p uses it times sqrt(prod_{i=1..p} "
-                                            f"(i + alpha) / (i + 1)) (default: {VOLUME_RADIUS_SCALE} x the initial "
-                                            "--radius)",
-              positive, "> 0"),
+        VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
     renders_media = True
-
-    @classmethod
-    def check(cls, scene, settings):
-        super().check(scene, settings)
-        if scene.has_media and settings["fixed_light_grid"]:
-            raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:

@@ -47,7 +47,7 @@ from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE
 from .emission import emit_photon
-from .records import build_photon_map, build_photon_map_with_order
+from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT, build_photon_map, build_photon_map_with_order
 from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
 
 #: Sub-stream of a stream's key for its split associated photons (one key per chain and photon).
@@ -97,6 +97,43 @@ def split_off(geom, mats, key, o, d, power, scattered, slot, split_pos, split_di
             return False, False, power
         o = vec.offset_origin(p, ng_out, d_new)
         d = d_new
+
+
+@kernel(inline=True)
+def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
+    """The associated photons after a diffuse bounce on material m: (how many survive, their power).
+
+    Each survives with p = mean albedo, its power scaled by albedo / p (numbers key, dim + j).
+    With roulette the leading photon has already survived with probability p, and the stream
+    lives or dies with it: a second, per-photon roulette would leave the associated photons
+    alive with probability p^2 while compensating only 1 / p, so they all survive, scaled.
+    """
+    q = mats.albedo_mean[m]
+    if termination == TERMINATION_ROULETTE:
+        survivors = n_alive
+    else:
+        survivors = 0
+        for j in range(n_alive):
+            if uniform(key, dim + j) < q:
+                survivors += 1
+    if q > 0.0:
+        p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
+    return survivors, p_assoc
+
+
+@kernel(inline=True)
+def store_stream_record(rec, p, d, n, lead, p_assoc, landed, kind, rec_pos, rec_dir, rec_nrm, rec_lead_power,
+                        rec_assoc_power, rec_energy, rec_count, rec_valid):
+    """Write one stream record: leading photon (position, direction, normal, power), the associated photons' power."""
+    for c in range(3):
+        rec_pos[rec, c] = p[c]
+        rec_dir[rec, c] = d[c]
+        rec_nrm[rec, c] = n[c]
+        rec_lead_power[rec, c] = lead[c]
+        rec_assoc_power[rec, c] = p_assoc[c]
+        rec_energy[rec, c] = lead[c] + landed * p_assoc[c]
+    rec_count[rec] = landed
+    rec_valid[rec] = kind
 
 
 @kernel
@@ -255,17 +292,11 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             pending += surv
             pending_power = vec.add(pending_power, surv_power)
             if scattered:  # a stream record (direct light is not stored)
-                for c in range(3):
-                    rec_pos[rec, c] = p[c]
-                    rec_dir[rec, c] = d[c]
-                    rec_nrm[rec, c] = ns[c]
-                    rec_lead_power[rec, c] = lead[c]
-                    rec_assoc_power[rec, c] = p_assoc[c]
-                    rec_energy[rec, c] = lead[c] + landed * p_assoc[c]
-                rec_count[rec] = landed
-                # 2: a light -> specular+ -> diffuse record (no diffuse bounce before it), the caustic
-                # that aimed caustic photons may carry instead (pspm --caustic-photons); 1: the rest
-                rec_valid[rec] = 2 if diffuse_bounces == 0 else 1
+                # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
+                # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
+                store_stream_record(rec, p, d, ns, lead, p_assoc, landed,
+                                    CAUSTIC if diffuse_bounces == 0 else INDIRECT, rec_pos, rec_dir, rec_nrm,
+                                    rec_lead_power, rec_assoc_power, rec_energy, rec_count, rec_valid)
                 stored += 1
             if diffuse_bounces >= max_bounces:
                 break
@@ -275,21 +306,8 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             if not alive:
                 break
             q = mats.albedo_mean[m]
-            if termination == TERMINATION_ROULETTE:
-                # The leading photon has already survived roulette with probability q, and
-                # the stream lives or dies with it: a second, per-photon roulette would
-                # leave the associated photons alive with probability q^2 while
-                # compensating only 1 / q.  So they all survive, scaled by albedo / q.
-                survivors = n_alive
-            else:
-                survivors = 0
-                for j in range(n_alive):
-                    if uniform(key, dim + j) < q:
-                        survivors += 1
+            n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
             dim += n_assoc
-            if q > 0.0:
-                p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
-            n_alive = survivors
             if pending > 0:
                 # split photons that survived their own landing rejoin the stream, powers pooled;
                 # with roulette they rejoin only if the leading photon survived (probability q)
@@ -332,32 +350,52 @@ class StreamBuffers:
         s = n_streams * (max_bounces + 1)
         return s * (6 * 12 + 5) + s * n_assoc * (36 + (2 * 49 if split else 0))
 
-    def events(self, estimator: str, leave_caustics: bool = False):
-        """This pass's photon events (position, direction, power, normal) for a progressive gather.
+    def _records(self, estimator: str, keep: np.ndarray) -> list:
+        """(position, direction, power, normal) parts of the records ``keep`` under ``estimator``.
 
-        ``stream``: each stream record's energy E_i at its leading position (eq. 2's reading);
-        ``photons``: the leading and every associated photon at its own position.  Split
-        photons (``--specular split``) are photons of their own under either estimator.
-        ``leave_caustics``: the light -> specular+ -> diffuse records are left out (aimed caustic
-        photons carry that light instead; only with ``--specular merge``, where such a record
-        holds its whole stream and no associated photon).
+        ``stream``: each record's energy E_i at its leading position (eq. 2's reading);
+        ``photons``: the leading and every associated photon at its own position.
         """
-        pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = self.rec
-        keep = (valid == 1) if leave_caustics else (valid != 0)
-        parts = []
+        pos, dirs, nrm, lead_pow, assoc_pow, energy, count, _ = self.rec
         if estimator == "stream":
-            parts.append((pos[keep], dirs[keep], energy[keep], nrm[keep]))
-        else:
-            parts.append((pos[keep], dirs[keep], lead_pow[keep], nrm[keep]))
-            if self.n_assoc > 0:
-                used = ((np.arange(self.n_assoc)[None, :] < count[:, None]) & keep[:, None]).reshape(-1)
-                parts.append((self.assoc[0][used], self.assoc[1][used],
-                              np.repeat(assoc_pow[keep], count[keep], axis=0), self.assoc[2][used]))
+            return [(pos[keep], dirs[keep], energy[keep], nrm[keep])]
+        parts = [(pos[keep], dirs[keep], lead_pow[keep], nrm[keep])]
+        if self.n_assoc > 0:
+            used = ((np.arange(self.n_assoc)[None, :] < count[:, None]) & keep[:, None]).reshape(-1)
+            parts.append((self.assoc[0][used], self.assoc[1][used],
+                          np.repeat(assoc_pow[keep], count[keep], axis=0), self.assoc[2][used]))
+        return parts
+
+    def events(self, estimator: str, leave_caustics: bool = False):
+        """This pass's surface photon events (position, direction, power, normal) for a progressive gather.
+
+        The records under ``estimator`` (:meth:`_records`).  Split photons (``--specular split``)
+        are photons of their own under either estimator.  ``leave_caustics``: the
+        light -> specular+ -> diffuse records are left out (aimed caustic photons carry that light
+        instead; only with ``--specular merge``, where such a record holds its whole stream and no
+        associated photon).  Volume records (kinds 3 and 4, streams in media) are not events here:
+        :meth:`volume_events`.
+        """
+        valid = self.rec[7]
+        keep = (valid == INDIRECT) if leave_caustics else ((valid == INDIRECT) | (valid == CAUSTIC))
+        parts = self._records(estimator, keep)
         sp, sd, spow, sn, sv = self.split
         if sv.shape[0]:
             ok = sv == 1
             parts.append((sp[ok], sd[ok], spow[ok], sn[ok]))
         return tuple(np.concatenate([part[c] for part in parts]) for c in range(4))
+
+    def volume_events(self, estimator: str, leave_caustics: bool = False):
+        """This pass's volume photons (position, direction of travel, power), as :meth:`events` for surfaces.
+
+        ``leave_caustics``: the light -> specular+ -> medium records are left out (kind VOLUME_CAUSTIC),
+        as the aimed caustic photons carry them.
+        """
+        valid = self.rec[7]
+        keep = (valid == VOLUME_INDIRECT) if leave_caustics else ((valid == VOLUME_INDIRECT) |
+                                                                  (valid == VOLUME_CAUSTIC))
+        parts = self._records(estimator, keep)
+        return tuple(np.concatenate([part[c] for part in parts]) for c in range(3))
 
 
 class StreamMap:
