@@ -204,7 +204,7 @@ def test_the_mask_is_not_traced_with_pm_c_s_own_caustic_photons():
     n, w, seed = 20_000, 32, 4
     mask_img = caustic_density(scene, w, w, photons=n, seed=seed, threads=1)
     scene, _, settings = resolve_settings(scene, "pm", res=(w, w), seed=seed, threads=1, photons=1, caustic_photons=n)
-    _, cmap, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
+    _, cmap, _, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
     pmc = np.zeros((w, w, 3))
     splat_records(scene.geometry, scene.camera(w, w), np.ascontiguousarray(cmap.position),
                   np.ascontiguousarray(cmap.power), pmc)

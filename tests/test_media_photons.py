@@ -439,3 +439,58 @@ def test_pspm_refuses_split_streams_in_media(cli, tmp_path):
     assert code == 2 and lines[-1] == ("caustica: error: --specular split: not supported in a scene with media "
                                        "(docs/media.md)"), err
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- 7. the one-shot methods (pm, spm)
+
+#: pm and spm in the furnace: one shot, 4 camera samples a pixel, photons until roulette ends them.
+ONE_SHOT_FURNACE_KW = dict(spp=4, max_bounces=1024, termination="roulette", volume_radius=0.3)
+
+
+@pytest.mark.parametrize("method, params", [("pm", {"photons": 60_000, "k": 50}),
+                                            ("spm", {"streams": 8_000, "stream_radius": 0.3}),
+                                            ("spm", {"streams": 4_000, "stream_radius": 0.3, "estimator": "photons"})])
+def test_one_shot_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(method, params):
+    """pm's and spm's volume photons and beam estimate conserve the furnace's radiance (fails without them)."""
+    scene = furnace("0.6", "1", "0.3")
+    means = np.array([caustica.render(scene, method, seed=s, **ONE_SHOT_FURNACE_KW, **params).image
+                      .astype(np.float64).reshape(-1, 3).mean(0) for s in range(6)])
+    expected = FURNACE_LE / (1 - FURNACE_RHO)
+    se = means.std(axis=0, ddof=1) / math.sqrt(len(means))
+    assert np.all(se < 0.05 * expected)
+    assert np.all(np.abs(means.mean(0) - expected) <= N_SIGMA * se), (means.mean(0), expected, se)
+
+
+@pytest.mark.parametrize("method, params", [("pm", {"photons": 5_000}), ("pm", {"photons": 3_000,
+                                                                                "caustic_photons": 3_000}),
+                                            ("spm", {"streams": 500}), ("spm", {"streams": 500, "estimator": "photons"}),
+                                            ("spm", {"streams": 500, "estimator": "photons",
+                                                     "medium_scattering": "merge"})])
+def test_one_shot_same_bits_for_any_thread_count_in_media(method, params):
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(seed=5, spp=2, **params)
+    one = caustica.render(scene, method, threads=1, **kw)
+    two = caustica.render(scene, method, threads=2, **kw)
+    assert one.image.tobytes() == two.image.tobytes() and one.stats["volume_photons"] > 0
+    assert one.stats["volume_radius"] == pytest.approx(0.01 * np.linalg.norm(np.ptp(
+        scene.geometry.scene_box.reshape(2, 3), axis=0)))
+    assert one.image.tobytes() != caustica.render(scene, method, threads=2, **{**kw, "seed": 6}).image.tobytes()
+
+
+def test_one_shot_volume_radius_is_used():
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(seed=3, photons=5_000)
+    default = caustica.render(scene, "pm", **kw)
+    small = caustica.render(scene, "pm", volume_radius=0.1, **kw)
+    assert small.stats["volume_radius"] == 0.1
+    assert small.stats["volume_photons_gathered"] < default.stats["volume_photons_gathered"]
+
+
+@pytest.mark.parametrize("method", ["pm", "spm"])
+def test_one_shot_methods_refuse_the_fixed_light_grid_in_media(cli, tmp_path, method):
+    code, out, err = cli("render", "cornell-diacaustic-fog", "--method", method, "--fixed-light-grid", "true",
+                         "--res", "8", "-q", "-o", tmp_path / "x.exr")
+    lines = err.splitlines()
+    assert code == 2 and lines[-1] == ("caustica: error: --fixed-light-grid: not supported in a scene with media "
+                                       "(docs/media.md)"), err
+    assert list(tmp_path.iterdir()) == []

@@ -130,9 +130,6 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     common = check_common(spp=spp, width=width, height=height, seed=seed, threads=threads,
                           film_source=scene.description.camera.film_source if res is None else None,
                           bytes_per_pixel=per_pixel)
-    if scene.has_media and not getattr(cls, "renders_media", False):
-        raise ParameterError(f"{scene.media_source()}: the scene has participating media or null-BSDF boundaries, "
-                             f"which are rendered by pt, sppm and pspm only so far, not by {method} (docs/media.md)")
     settings = methods.params.resolve(method, cls.params, params)
     # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
     for p in cls.params:

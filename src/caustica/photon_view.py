@@ -66,7 +66,7 @@ def photon_picture(scene, method, settings, progress) -> tuple[np.ndarray, dict]
         right = _panel(scene, cam, smap.assoc_pos, assoc_power)
         stats["panels"] = ["leading photons (stream records)", "associated photons"]
     else:
-        gmap, cmap, stats = method.build_maps(scene, settings, progress)
+        gmap, cmap, _, stats = method.build_maps(scene, settings, progress)
         left = _panel(scene, cam, gmap.position, gmap.power)
         right = _panel(scene, cam, cmap.position, cmap.power)
         stats["panels"] = ["global map", "caustic map"]

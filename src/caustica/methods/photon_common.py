@@ -5,10 +5,13 @@ import time
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..jit import parallel_for
+from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.estimate import FILTERS
-from ..photons.gather import gather_pixels
+from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media
 from .params import Param, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
@@ -32,6 +35,30 @@ ESTIMATE_PARAMS = (
           max=1024),
 )
 
+#: The default radius of the one-shot methods' volume estimate, as a fraction of the scene's diagonal.
+VOLUME_RADIUS_FRACTION = 0.01
+
+#: pm's and spm's volume estimate (scenes with media; docs/media.md).
+ONE_SHOT_VOLUME_PARAMS = (
+    Param("volume_radius", float, None, "scenes with media: radius of the volume photons' spheres in the beam "
+                                        f"radiance estimate (default: {VOLUME_RADIUS_FRACTION} of the scene's "
+                                        "bounding-box diagonal)", positive, "> 0"),
+)
+
+
+def one_shot_volume_radius(scene, settings) -> float:
+    """The one-shot methods' volume radius: ``volume_radius``, else VOLUME_RADIUS_FRACTION of the diagonal."""
+    if settings["volume_radius"] is not None:
+        return settings["volume_radius"]
+    box = scene.geometry.scene_box
+    return VOLUME_RADIUS_FRACTION * float(np.linalg.norm(box[3:] - box[:3]))
+
+
+def check_media_settings(scene, settings) -> None:
+    """What the camera pass in media does not do: the fixed grid of light samples."""
+    if scene.media is not None and settings["fixed_light_grid"]:
+        raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
+
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):
     """Render the image from the maps; returns (image, timings, number of k-nearest searches)."""
@@ -52,6 +79,54 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     bar.close()
     return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}, \
         int(knn_queries.sum())
+
+
+def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_caustic, volume, progress):
+    """:func:`camera_pass` in a scene with media: (image, timings, k-nearest searches, stats of the volume estimate).
+
+    ``settings["spp"]`` samples per pixel, each the progressive camera pass in media
+    (:func:`caustica.photons.visible_points_media.camera_pass_media`, sample s keyed as pass s): a
+    visible point with its direct light, the direct light scattered along the path's medium
+    segments, then the maps' k-nearest estimates at the visible point and the beam radiance
+    estimate of ``volume`` (position, direction, power of the volume photons) along the segments,
+    within :func:`one_shot_volume_radius`.
+    """
+    w, h, spp = settings["width"], settings["height"], settings["spp"]
+    n = w * h
+    filt = FILTERS[settings["filter"]]
+    r_v = one_shot_volume_radius(scene, settings)
+    first_build = not volume_grid_compiled()
+    t0 = time.perf_counter()
+    vgrid = build_volume_grid(*volume, r_v)
+    grid_s = time.perf_counter() - t0
+    acc = np.zeros((n, 3))
+    knn_queries = np.zeros(n, np.int64)
+    gathered = 0
+    compile_s = 0.0
+    bar = progress(total=n * spp, desc="camera pass", unit="px")
+    t0 = time.perf_counter()
+    for s in range(spp):
+        (vp_pos, vp_nrm, vp_weight, vp_found, radiance), segments, c = camera_pass_media(scene, settings, s, bar)
+        c += parallel_for(gather_at_visible_points, n, (global_map, caustic_map, vp_pos, vp_nrm, vp_found, vp_weight,
+                                                        settings["k"], settings["radius"], k_caustic, r_caustic,
+                                                        filt, radiance, knn_queries), threads=settings["threads"])
+        vol = np.empty((n, 3))
+        found = np.empty(n, np.int64)
+        c += parallel_for(beam_gather, n, (vgrid, scene.media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol,
+                                           found), threads=settings["threads"])
+        gathered += int(found.sum())
+        acc += radiance
+        acc += vol
+        compile_s += c
+    bar.close()
+    image = (acc / spp).reshape(h, w, 3).astype(np.float32)
+    timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
+    if first_build:   # the grid's kernels compiled (or loaded) just now: compile time, not work
+        timings["compile_s"] += grid_s
+    else:
+        timings["volume_grid_s"] = grid_s
+    stats = {"volume_photons": vgrid.count, "volume_radius": r_v, "volume_photons_gathered": gathered}
+    return image, timings, int(knn_queries.sum()), stats
 
 
 class OneShotState:

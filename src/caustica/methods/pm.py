@@ -8,20 +8,30 @@
 3. Maps: a kd-tree over each map's positions.
 4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
    indirect light and caustics from the maps' k-nearest radiance estimates.
+
+In a scene with media the photons scatter in them (:mod:`caustica.photons.trace_media`), their
+volume photons (those of the aimed photons too) are gathered along the camera rays by the beam
+radiance estimate within ``--volume-radius``, and the camera pass is the progressive one in media
+(docs/media.md).
 """
 from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from ..jit import parallel_for
+from ..media import light_media
 from ..memory import check_budget
-from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, allocate_buffers, empty_photon_map, \
-    map_from_buffers
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers, \
+    empty_photon_map, map_from_buffers
 from ..photons.trace import trace_caustic_photons, trace_photons
+from ..photons.trace_media import trace_caustic_photons_media, trace_photons_media
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, OneShot, camera_pass
+from .photon_common import ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, camera_pass, \
+    camera_pass_in_media, check_media_settings
 
 
 def _map_stats(prefix, pmap, emitted):
@@ -41,11 +51,11 @@ class PhotonMapping(OneShot):
               non_negative, ">= 0"),
         Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1", scratch=16),
         Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", positive, "> 0"),
-    ) + ESTIMATE_PARAMS
+    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
 
     @staticmethod
     def build_maps(scene, settings, progress):
-        """Photon pass(es) and kd-trees: (global map, caustic map, stats with timings)."""
+        """Photon pass(es) and kd-trees: (global map, caustic map, volume photons or None, stats with timings)."""
         n = settings["photons"]
         n_c = settings["caustic_photons"]
         mr = settings["max_bounces"]
@@ -60,9 +70,15 @@ class PhotonMapping(OneShot):
         t0 = time.perf_counter()
         buf = allocate_buffers(n, mr + 1)
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        compile_s = parallel_for(trace_photons, n, (g, m, lt, seed, STREAM_PHOTON, n, mr,
-                                                    TERMINATIONS[settings["termination"]], *buf),
-                                 threads=threads, progress=bar)
+        terminate = TERMINATIONS[settings["termination"]]
+        media = scene.media
+        if media is None:
+            compile_s = parallel_for(trace_photons, n, (g, m, lt, seed, STREAM_PHOTON, n, mr, terminate, *buf),
+                                     threads=threads, progress=bar)
+        else:
+            compile_s = parallel_for(trace_photons_media, n, (g, m, lt, media, light_media(scene), seed,
+                                                              STREAM_PHOTON, n, mr, terminate, *buf),
+                                     threads=threads, progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["photon_trace_s"] = t1 - t0 - compile_s
@@ -70,8 +86,13 @@ class PhotonMapping(OneShot):
         if use_caustic:
             cbuf = allocate_buffers(n_c, 1)
             bar = progress(total=n_c, desc="caustic photons", unit="photon")
-            c_s = parallel_for(trace_caustic_photons, n_c, (g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON,
-                                                            n_c, *cbuf), threads=threads, progress=bar)
+            if media is None:
+                c_s = parallel_for(trace_caustic_photons, n_c, (g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON,
+                                                                n_c, *cbuf), threads=threads, progress=bar)
+            else:
+                c_s = parallel_for(trace_caustic_photons_media, n_c, (g, m, lt, media, light_media(scene), spheres,
+                                                                      seed, STREAM_CAUSTIC_PHOTON, n_c, *cbuf),
+                                   threads=threads, progress=bar)
             bar.close()
             compile_s += c_s
             timings["caustic_trace_s"] = time.perf_counter() - t1 - c_s
@@ -79,6 +100,16 @@ class PhotonMapping(OneShot):
         t2 = time.perf_counter()
         global_map = map_from_buffers(buf, (INDIRECT,) if use_caustic else (INDIRECT, CAUSTIC))
         caustic_map = map_from_buffers(cbuf, (CAUSTIC,)) if use_caustic else empty_photon_map()
+        volume = None
+        if media is not None:
+            # volume photons: as at surfaces, the aimed photons' light -> S+ -> medium ones replace the others'
+            keep = buf.kind == VOLUME_INDIRECT if use_caustic else (buf.kind == VOLUME_INDIRECT) | \
+                (buf.kind == VOLUME_CAUSTIC)
+            volume = (buf.position[keep], buf.direction[keep], buf.power[keep])
+            if use_caustic:
+                ck = cbuf.kind == VOLUME_CAUSTIC
+                volume = tuple(np.concatenate([a, b[ck]]) for a, b in zip(volume, (cbuf.position, cbuf.direction,
+                                                                                   cbuf.power)))
         timings["map_build_s"] = time.perf_counter() - t2
         del buf, cbuf
         timings["compile_s"] = compile_s
@@ -92,14 +123,20 @@ class PhotonMapping(OneShot):
         stats["map_mb"] = stats["map_bytes"] / 1e6
         if n_c > 0 and not use_caustic:
             stats["note"] = "no specular objects in the scene: the caustic map was not built"
-        return global_map, caustic_map, stats
+        return global_map, caustic_map, volume, stats
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        global_map, caustic_map, stats = cls.build_maps(scene, settings, progress)
+        check_media_settings(scene, settings)
+        global_map, caustic_map, volume, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]
-        image, cam_t, queries = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        if volume is None:
+            image, cam_t, queries = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
+        else:
+            image, cam_t, queries, vstats = camera_pass_in_media(scene, settings, global_map, caustic_map, k_c, r_c,
+                                                                  volume, progress)
+            stats.update(vstats)
         cam_t["compile_s"] += stats["timings"].pop("compile_s")
         stats["timings"].update(cam_t)
         stats["knn_queries"] = queries

@@ -34,13 +34,13 @@ from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..media import light_media
-from ..photons.beams import beam_gather, build_volume_grid, _fill as _volume_fill
+from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photons
 from ..photons.trace_media import trace_caustic_photons_media
 from ..photons.visible_points import visible_points
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, visible_points_media
-from ..sampling.rng import STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAUSTIC_PHOTON, pass_stream
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media
+from ..sampling.rng import STREAM_CAMERA, STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
@@ -218,10 +218,6 @@ def initial_volume_radius(scene, settings) -> float:
     return VOLUME_RADIUS_SCALE * initial_radius(scene, settings) if r is None else r
 
 
-def _fill_compiled() -> bool:
-    return _volume_fill.compiled_for_python()
-
-
 def initial_caustic_radius(scene, settings) -> float:
     """R_0 of the separate caustic statistics: ``caustic_radius`` when set, else CAUSTIC_RADIUS_SCALE R_0."""
     r = settings.get("caustic_radius")
@@ -339,15 +335,16 @@ class ProgressivePhotonMethod(IndependentPasses):
         threads = settings["threads"]
         # 1. camera pass: visible points and direct light
         # every entry is written by the kernels (the camera pass for every pixel, the gather too)
-        vp_pos = np.empty((n, 3))
-        vp_nrm = np.empty((n, 3))
-        vp_weight = np.empty((n, 3))
-        vp_found = np.empty(n, np.bool_)
-        direct = np.empty((n, 3))
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         media = scene.media
         if media is None:
+            # every entry is written by the kernels (the camera pass for every pixel, the gather too)
+            vp_pos = np.empty((n, 3))
+            vp_nrm = np.empty((n, 3))
+            vp_weight = np.empty((n, 3))
+            vp_found = np.empty(n, np.bool_)
+            direct = np.empty((n, 3))
             c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
                                                   pass_stream(STREAM_CAMERA, pass_index), pass_index,
                                                   settings["light_samples"], settings["fixed_light_grid"],
@@ -356,17 +353,8 @@ class ProgressivePhotonMethod(IndependentPasses):
                               threads=threads, progress=bar)
         else:
             # the camera path's medium segments, for the volume estimate (docs/media.md)
-            check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
-                         "lower the resolution")
-            k = n * MEDIUM_SEGMENTS
-            segments = (np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
-                        np.empty(n, np.int32))
-            c0 = parallel_for(visible_points_media, n, (scene.geometry, scene.materials, scene.lights, media, cam,
-                                                        settings["seed"], pass_stream(STREAM_CAMERA, pass_index),
-                                                        pass_stream(STREAM_CAMERA_MEDIA, pass_index), pass_index,
-                                                        settings["light_samples"], settings["max_specular_depth"],
-                                                        vp_pos, vp_nrm, vp_weight, vp_found, direct, *segments),
-                              threads=threads, progress=bar)
+            (vp_pos, vp_nrm, vp_weight, vp_found, direct), segments, c0 = camera_pass_media(scene, settings,
+                                                                                           pass_index, bar)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
         seen = radius[vp_found]
@@ -413,7 +401,7 @@ class ProgressivePhotonMethod(IndependentPasses):
             # 4. the volume: the beam radiance estimate along the camera segments, within this pass's radius
             r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
             t1 = time.perf_counter()
-            first_build = not _fill_compiled()
+            first_build = not volume_grid_compiled()
             vgrid = build_volume_grid(*volume, r_v)
             if first_build:
                 c3 += time.perf_counter() - t1

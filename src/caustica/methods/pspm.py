@@ -89,7 +89,6 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                                   "(merge, as at a mirror or glass)", choices=MEDIUM_SCATTERING),
         VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
-    renders_media = True
 
     @classmethod
     def check(cls, scene, settings):

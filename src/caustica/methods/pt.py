@@ -133,7 +133,6 @@ class PathTracer(IndependentPasses):
     name = "pt"
     summary = "path tracing with next-event estimation and MIS (the unbiased reference), through media too"
     progressive = True
-    renders_media = True
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),

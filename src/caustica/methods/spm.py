@@ -7,19 +7,27 @@ pass (:mod:`caustica.methods.photon_common`).  The radiance estimate (eq. 2) tak
 the k nearest stream records within R: L = f_r Σ W E_i (the ``stream`` estimator,
 the paper's).  The ``photons`` estimator instead counts every photon at its own
 position (an option, never the default).
+
+In a scene with media the streams go through them (:mod:`caustica.photons.streams_media`,
+``--medium-scattering``); their volume records are gathered along the camera rays by the beam
+radiance estimate within ``--volume-radius`` (under either estimator, as at surfaces), and the
+camera pass is the progressive one in media (docs/media.md).
 """
 from __future__ import annotations
 
 import time
 
 from ..jit import parallel_for
+from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import empty_photon_map
 from ..photons.streams import StreamBuffers, StreamMap, trace_streams
+from ..photons.streams_media import MEDIUM_SCATTERING, trace_streams_media
 from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, TERMINATIONS, OneShot, camera_pass
+from .photon_common import ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, camera_pass, \
+    camera_pass_in_media, check_media_settings
 
 ESTIMATORS = ("stream", "photons")
 
@@ -35,7 +43,12 @@ class StreamedPhotonMapping(OneShot):
         Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
-    ) + ESTIMATE_PARAMS
+        Param("medium_scattering", str, "spread", "scenes with media: at a scattering event in a medium the "
+                                                  "associated photons spread over the disc of radius r_s about "
+                                                  "the leading photon (spread, as at a diffuse surface) or merge "
+                                                  "into it (merge, as at a mirror or glass)",
+              choices=MEDIUM_SCATTERING),
+    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
 
     @staticmethod
     def build_stream_map(scene, settings, progress):
@@ -47,16 +60,26 @@ class StreamedPhotonMapping(OneShot):
         t0 = time.perf_counter()
         buf = StreamBuffers(n, n_fa, mr)
         bar = progress(total=n, desc="stream tracing", unit="stream")
-        compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
-                                                    settings["seed"], STREAM_SPM, n, n_fa,
-                                                    settings["stream_radius"], mr,
-                                                    TERMINATIONS[settings["termination"]], False, *buf.kernel_args),
-                                 threads=settings["threads"], progress=bar)
+        terminate = TERMINATIONS[settings["termination"]]
+        if scene.media is None:
+            compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
+                                                        settings["seed"], STREAM_SPM, n, n_fa,
+                                                        settings["stream_radius"], mr, terminate, False,
+                                                        *buf.kernel_args),
+                                     threads=settings["threads"], progress=bar)
+        else:
+            compile_s = parallel_for(trace_streams_media, n, (scene.geometry, scene.materials, scene.lights,
+                                                              scene.media, light_media(scene), settings["seed"],
+                                                              STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
+                                                              terminate, settings["medium_scattering"] == "spread",
+                                                              *buf.kernel_args),
+                                     threads=settings["threads"], progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["compile_s"] = compile_s
         timings["photon_trace_s"] = t1 - t0 - compile_s
         smap = StreamMap(buf)
+        smap.volume = buf.volume_events(settings["estimator"]) if scene.media is not None else None
         timings["map_build_s"] = time.perf_counter() - t1
         stats = {"timings": timings,
                  "streams_emitted": n,
@@ -70,11 +93,17 @@ class StreamedPhotonMapping(OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
+        check_media_settings(scene, settings)
         smap, stats = cls.build_stream_map(scene, settings, progress)
         t0 = time.perf_counter()
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
         stats["timings"]["map_build_s"] += time.perf_counter() - t0
-        image, cam_t, queries = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
+        if smap.volume is None:
+            image, cam_t, queries = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)
+        else:
+            image, cam_t, queries, vstats = camera_pass_in_media(scene, settings, pmap, empty_photon_map(), 0, 1.0,
+                                                                  smap.volume, progress)
+            stats.update(vstats)
         cam_t["compile_s"] += stats["timings"].pop("compile_s")
         stats["timings"].update(cam_t)
         stats["knn_queries"] = queries

@@ -61,7 +61,6 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
               non_negative, ">= 0"),
         VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
-    renders_media = True
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:

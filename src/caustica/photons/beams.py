@@ -111,6 +111,11 @@ def _fill(position, r, lo, inv, dims, start, out_key, out_photon):
     start[n_buckets] = out_key.shape[0]
 
 
+def volume_grid_compiled() -> bool:
+    """Whether the grid's kernels are compiled (or loaded) in this process: the first build's time is compile time."""
+    return _fill.compiled_for_python()
+
+
 def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
     """The grid over these volume photons (float32 arrays, already compacted) as spheres of ``radius``."""
     position = np.ascontiguousarray(position, np.float32)

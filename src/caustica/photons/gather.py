@@ -166,3 +166,28 @@ def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c,
         image[y, x, 0] = acc[0] * inv
         image[y, x, 1] = acc[1] * inv
         image[y, x, 2] = acc[2] * inv
+
+
+@kernel
+def gather_at_visible_points(gmap, cmap, vp_pos, vp_nrm, vp_found, vp_weight, k_g, r_g, k_c, r_c, filt, out,
+                             knn_queries, i0, i1):
+    """out[i] += W_i (E_global + E_caustic) at visible point i, for i in [i0, i1): the maps' k-nearest estimates.
+
+    The one-shot methods' surface estimate at visible points found by the camera pass in media
+    (:func:`caustica.photons.visible_points_media.camera_pass_media`); W_i = β ρ / π.
+    knn_queries[i] counts the searches made.
+    """
+    gmap, cmap = borrowed(gmap), borrowed(cmap)
+    kmax = max(k_g, k_c, 1)
+    idx = np.empty(kmax, np.int64)
+    d2 = np.empty(kmax)
+    for i in range(i0, i1):
+        if not vp_found[i]:
+            continue
+        p = vec.row(vp_pos, i)
+        n = vec.row(vp_nrm, i)
+        Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2)
+        Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2)
+        knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
+        for c in range(3):
+            out[i, c] += vp_weight[i, c] * (Eg[c] + Ec[c])

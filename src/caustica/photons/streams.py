@@ -402,8 +402,9 @@ class StreamMap:
     """The stored stream records, compacted, with the kd-tree over leading photons."""
 
     def __init__(self, buf: StreamBuffers):
+        self.volume = None   # (position, direction, power) of the volume photons, in a scene with media
         pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = buf.rec
-        keep = valid != 0   # every record, caustic (2) or not (1)
+        keep = (valid == INDIRECT) | (valid == CAUSTIC)   # every surface record (volume ones: volume_events)
         self.count = count[keep]
         n_fa = buf.n_assoc
         if n_fa > 0:

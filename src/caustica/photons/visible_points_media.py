@@ -41,10 +41,12 @@ from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel
+from ..jit import borrowed, kernel, parallel_for
 from ..media import NULL_CROSSINGS_CAP, cross_null, attenuation, direct_stratified_transmitted, direct_transmitted_u, \
     medium_after, phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
-from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
+from ..memory import check_budget
+from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
+    pass_stream, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE, NULL
 
 INV_PI = 1.0 / math.pi
@@ -266,3 +268,28 @@ def visible_points_media(geom, mats, lights, media, cam, seed, stream, vstream, 
             direct[i, c] = L[c]
         vp_found[i] = found
         seg_count[i] = n_seg
+
+
+def camera_pass_media(scene, settings, pass_index, bar=None):
+    """Run :func:`visible_points_media` over every pixel for pass (or sample) ``pass_index``.
+
+    Returns ((vp_pos, vp_nrm, vp_weight, vp_found, direct), segments, compile seconds), the segments
+    as beam_gather takes them: (origin, direction, length, β, medium, count per pixel).  The camera
+    keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
+    """
+    n = settings["width"] * settings["height"]
+    check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
+                 "lower the resolution")
+    # every entry is written by the kernel
+    points = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_), np.empty((n, 3)))
+    k = n * MEDIUM_SEGMENTS
+    segments = (np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
+                np.empty(n, np.int32))
+    cam = scene.camera(settings["width"], settings["height"])
+    compile_s = parallel_for(visible_points_media, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
+                                                       settings["seed"], pass_stream(STREAM_CAMERA, pass_index),
+                                                       pass_stream(STREAM_CAMERA_MEDIA, pass_index), pass_index,
+                                                       settings["light_samples"], settings["max_specular_depth"],
+                                                       *points, *segments),
+                             threads=settings["threads"], progress=bar)
+    return points, segments, compile_s

@@ -20,7 +20,7 @@ from ..errors import SceneError
 from ..geometry.bounds import shape_bounding_sphere
 from ..geometry.scene_geometry import Geometry, build_geometry
 from ..media import MediumTable, build_medium_table
-from .description import NULL, SceneDescription
+from .description import SceneDescription
 from .transforms import MAX_ABS_FLOAT
 
 
@@ -40,18 +40,8 @@ class Scene:
 
     @property
     def has_media(self) -> bool:
-        """Whether the scene has media or null-BSDF boundaries (then only ``pt`` renders it so far)."""
+        """Whether the scene has media or null-BSDF boundaries (then it has a medium table and the media kernels run)."""
         return self.media is not None
-
-    def media_source(self) -> str:
-        """"file:line" of the first thing that makes the scene one with media (for messages)."""
-        d = self.description
-        if d.camera.medium >= 0:
-            return d.media[d.camera.medium].source
-        for s in d.shapes:
-            if s.interior >= 0 or s.exterior >= 0 or d.materials[s.material].kind == NULL:
-                return s.source
-        return d.source
 
     @property
     def width(self) -> int:
