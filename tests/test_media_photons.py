@@ -194,6 +194,8 @@ FOG_MITSUBA_SPP = 1024
 #: is left by then in this fog, 0.75^64 at its walls), as pt and volpath do (max_depth -1).  The pixels are
 #: few, so the pass gets more photons than its default of one per pixel.
 FOG_KW = dict(max_bounces=64, termination="roulette", photons=2000, caustic_photons=2000)
+#: pspm in the fog box: 2,000 photons a pass as 400 streams of 1 + 4, stream radius 1 at the first pass.
+FOG_PSPM_KW = dict(max_bounces=64, termination="roulette", streams=400, assoc=4, stream_radius=1.0)
 
 
 @pytest.fixture(scope="module")
@@ -212,19 +214,32 @@ def test_fog_box_matches_the_volumetric_path_tracer(fog_sppm, fog_pt):
     assert_images_agree(fog_sppm, fog_pt, label="sppm vs pt, fog box")
 
 
-def test_media_glass_scene_matches_the_volumetric_path_tracer(test_scenes_dir):
+@pytest.fixture(scope="module")
+def media_glass_pt(test_scenes_dir):
+    scene = caustica.load_scene(test_scenes_dir / "media-glass.xml", res=FOG_RES)
+    return scene, [caustica.render(scene, "pt", spp=1024, seed=100 + s).image for s in FOG_SEEDS]
+
+
+@pytest.mark.parametrize("method, params", [("sppm", FOG_KW), ("pspm", {**FOG_PSPM_KW, "estimator": "photons"})])
+def test_media_glass_scene_matches_the_volumetric_path_tracer(media_glass_pt, method, params):
     """Haze as the camera's medium, RGB fog with forward HG behind null faces, a glass sphere holding a
     back-scattering liquid: the phase function's sign convention in the beam estimate matters here (with it
-    reversed, 6 of the 108 block values leave 5 sigmas; the segments' next-event estimate is checked by
-    the closed form above)."""
-    scene = caustica.load_scene(test_scenes_dir / "media-glass.xml", res=FOG_RES)
-    ours = [caustica.render(scene, "sppm", passes=128, seed=s, **FOG_KW).image for s in FOG_SEEDS]
-    pt = [caustica.render(scene, "pt", spp=1024, seed=100 + s).image for s in FOG_SEEDS]
-    assert_images_agree(ours, pt, label="sppm vs pt, media-glass")
+    reversed, 6 of the 108 block values of sppm leave 5 sigmas; the segments' next-event estimate is checked
+    by the closed form above)."""
+    scene, pt = media_glass_pt
+    ours = [caustica.render(scene, method, passes=128, seed=s, **params).image for s in FOG_SEEDS]
+    assert_images_agree(ours, pt, label=f"{method} vs pt, media-glass")
 
 
-@pytest.mark.mitsuba
-def test_fog_box_matches_mitsuba_volpath(fog_sppm):
+@pytest.fixture(scope="module")
+def fog_pspm():
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=FOG_RES)
+    return [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, estimator="photons", **FOG_PSPM_KW).image
+            for s in FOG_SEEDS]
+
+
+@pytest.fixture(scope="module")
+def fog_mitsuba():
     mi = pytest.importorskip("mitsuba")
     try:
         mi.set_variant("scalar_rgb")
@@ -232,8 +247,14 @@ def test_fog_box_matches_mitsuba_volpath(fog_sppm):
         pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
     scene = mi.load_file(str(builtin_scene_path("cornell-diacaustic-fog")), res=FOG_RES, spp=FOG_MITSUBA_SPP)
     assert "Volumetric" in str(scene.integrator())
-    theirs = [np.array(mi.render(scene, spp=FOG_MITSUBA_SPP, seed=s), dtype=np.float32)[..., :3] for s in FOG_SEEDS]
-    assert_images_agree(fog_sppm, theirs, label="sppm vs Mitsuba volpath, fog box")
+    return [np.array(mi.render(scene, spp=FOG_MITSUBA_SPP, seed=s), dtype=np.float32)[..., :3] for s in FOG_SEEDS]
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("method", ["sppm", "pspm"])
+def test_fog_box_matches_mitsuba_volpath(request, fog_mitsuba, method):
+    ours = request.getfixturevalue(f"fog_{method}")
+    assert_images_agree(ours, fog_mitsuba, label=f"{method} vs Mitsuba volpath, fog box")
 
 
 def test_the_sidecar_reports_the_volume_photons():
@@ -323,8 +344,6 @@ def test_volume_radius_sets_the_beam_estimate_s_radius():
 
 # --------------------------------------------------------------------------- 6. streams in media (pspm)
 
-#: pspm in the fog box: 2,000 photons a pass as 400 streams of 1 + 4, stream radius 1 at the first pass.
-FOG_PSPM_KW = dict(max_bounces=64, termination="roulette", streams=400, assoc=4, stream_radius=1.0)
 
 
 def trace_fog_streams(spread, n=20_000, n_assoc=4, r_s=0.5, termination=None):
@@ -403,12 +422,15 @@ def test_pspm_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(params
     assert np.all(np.abs(means.mean(0) - expected) <= N_SIGMA * se), (means.mean(0), expected, se)
 
 
-@pytest.mark.parametrize("params", [{"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"}])
-def test_pspm_fog_box_matches_the_volumetric_path_tracer(fog_pt, params):
+def test_pspm_fog_box_matches_the_volumetric_path_tracer(fog_pspm, fog_pt):
+    assert_images_agree(fog_pspm, fog_pt, label="pspm (spread) vs pt, fog box")
+
+
+def test_pspm_merging_at_medium_events_matches_the_volumetric_path_tracer(fog_pt):
     scene = caustica.load_scene("cornell-diacaustic-fog", res=FOG_RES)
-    ours = [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, **FOG_PSPM_KW, **params).image
-            for s in FOG_SEEDS]
-    assert_images_agree(ours, fog_pt, label=f"pspm {params} vs pt, fog box")
+    ours = [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, estimator="photons", medium_scattering="merge",
+                            **FOG_PSPM_KW).image for s in FOG_SEEDS]
+    assert_images_agree(ours, fog_pt, label="pspm (merge) vs pt, fog box")
 
 
 @pytest.mark.parametrize("params", [{}, {"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"},
