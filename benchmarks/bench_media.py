@@ -154,13 +154,21 @@ def volumetric_caustic_mask(comp: np.ndarray) -> np.ndarray:
     return _dilate(smooth >= level, 1)
 
 
-#: The configuration --agreement renders (the best of the 30-second table, docs/media.md).
+#: The configuration --agreement renders by default (the best of the 30-second table, docs/media.md).
 BEST = "sppm defaults (R_v0 = R_0)"
+#: One-shot configurations, for --agreement only (they take no time budget): their bias does not fall with time.
+ONE_SHOT = (
+    ("pm 1M photons, 16 spp", "pm", {**CONVERGED, "photons": 1_000_000, "spp": 16}),
+    ("pm 1M + 1M aimed, 16 spp", "pm", {**CONVERGED, "photons": 1_000_000, "caustic_photons": 1_000_000, "spp": 16}),
+    ("spm 100k streams, 16 spp", "spm", {**CONVERGED, "streams": 100_000, "spp": 16}),
+)
 
 
 def agreement(args, ref, ref_a, ref_b) -> None:
     """Image mean and 16-pixel block means (4 x 4 blocks of the image box-filtered to 32 x 32) against the reference."""
-    method, params = {label: (m, p) for label, m, p in CONFIGS}[BEST]
+    label = args.agreement_config or BEST
+    method, params = {name: (m, p) for name, m, p in CONFIGS + ONE_SHOT}[label]
+    budget = {} if method in ("pm", "spm") else {"passes": args.agreement}
     seeds = [int(s) for s in args.seeds.split(",")]
     scene = caustica.load_scene(SCENE)
     f = args.res // 32
@@ -169,7 +177,7 @@ def agreement(args, ref, ref_a, ref_b) -> None:
         small = img.reshape(32, f, 32, f, 3).mean(axis=(1, 3))
         return small.reshape(8, 4, 8, 4, 3).mean(axis=(1, 3))
     t0 = time.perf_counter()
-    ours = [caustica.render(scene, method, res=args.res, seed=s, passes=args.agreement, threads=args.threads,
+    ours = [caustica.render(scene, method, res=args.res, seed=s, **budget, threads=args.threads,
                             **params).image.astype(np.float64) for s in seeds]
     wall = time.perf_counter() - t0
     b_ref = blocks(ref)
@@ -180,8 +188,8 @@ def agreement(args, ref, ref_a, ref_b) -> None:
                else np.zeros_like(b_ref))
     rel = (b_ours - b_ref) / b_ref
     z = (b_ours - b_ref) / np.sqrt(se_ref ** 2 + se_ours ** 2)
-    print(f"# {platform.machine()}, {time.strftime('%Y-%m-%d %H:%M')}, load {load():.2f}: {BEST}, "
-          f"{args.agreement} passes x seeds {seeds} ({wall:.0f} s) vs the reference ({args.ref_chunks} x {REF_SPP} spp)")
+    print(f"# {platform.machine()}, {time.strftime('%Y-%m-%d %H:%M')}, load {load():.2f}: {label}, "
+          f"{args.agreement if budget else 1} passes x seeds {seeds} ({wall:.0f} s) vs the reference ({args.ref_chunks} x {REF_SPP} spp)")
     print(f"image mean: {np.mean(ours) / ref.mean() - 1:+.2%}; 16-pixel block means (192 values) within 5 %: "
           f"{np.mean(np.abs(rel) <= 0.05):.1%}; largest difference {np.abs(rel).max():.1%}; "
           f"|z| > 3 (noise of both sides, rough): {int(np.sum(np.abs(z) > 3))}")
@@ -207,6 +215,9 @@ def main() -> None:
     ap.add_argument("--agreement", type=int, metavar="PASSES",
                     help="instead: the best configuration's image mean and 16-pixel block means at 32 x 32 against "
                          "the reference's, after PASSES passes (seeds as --seeds)")
+    ap.add_argument("--agreement-config", metavar="LABEL",
+                    help=f"the configuration --agreement renders (default: {BEST!r}; also one-shot ones: "
+                         + ", ".join(repr(c[0]) for c in ONE_SHOT) + ")")
     args = ap.parse_args()
     ref, ref_a, ref_b = reference(args.res, args.ref_chunks)
     if args.reference_only:

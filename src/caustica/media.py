@@ -118,6 +118,26 @@ def sample_distance(media, m, u_channel, u):
     return -math.log(1.0 - u) / s
 
 
+@kernel(inline=True)
+def free_flight(geom, media, medium, o, d, key, dim):
+    """A photon's next event along o + t d: (prim, t, b1, b2, weight, dim, escaped).
+
+    In a medium (``medium`` >= 0) a free-flight distance is sampled (numbers dim and dim + 1 of
+    ``key``; dim comes back advanced by 2) and the flight ends at the nearer of it and the next
+    surface: ``prim`` >= 0 a surface at t, ``prim`` < 0 a scattering event in the medium at t,
+    ``weight`` the flight's :func:`flight_weight`.  In vacuum only the surface, weight (1, 1, 1).
+    ``escaped``: nothing ahead (vacuum, or a channel that does not attenuate, and no surface).
+    """
+    t_flight = np.inf
+    if medium >= 0:
+        t_flight = sample_distance(media, medium, uniform(key, dim), uniform(key, dim + 1))
+        dim += 2
+    prim, t, b1, b2 = intersect(geom, o, d, t_flight)
+    if medium < 0 or (prim < 0 and t_flight == np.inf):
+        return prim, t, b1, b2, (1.0, 1.0, 1.0), dim, prim < 0
+    return prim, t, b1, b2, flight_weight(media, medium, t, prim < 0), dim, False
+
+
 @kernel
 def flight_weight(media, m, t, scattered):
     """Per channel: the path throughput's factor for a flight of length t sampled by :func:`sample_distance`.

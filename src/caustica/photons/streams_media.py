@@ -33,14 +33,12 @@ transmittance at the scale r_s that vanishes with r_s as the passes shrink it.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..bsdf import scattering_side
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import cross_null, flight_weight, medium_after, phase_sample, sample_distance
+from ..media import cross_null, free_flight, medium_after, phase_sample
 from ..sampling.rng import uniform, path_key
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE, NULL
@@ -116,15 +114,10 @@ def trace_streams_media(geom, mats, lights, media, light_medium, seed, stream, n
         crossings = 0
         stored = 0
         while True:
-            t_flight = np.inf
-            if medium >= 0:
-                t_flight = sample_distance(media, medium, uniform(key, dim), uniform(key, dim + 1))
-                dim += 2
-            prim, t, b1, b2 = intersect(geom, o, d, t_flight)
-            if prim < 0 and t_flight == np.inf:
+            prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+            if escaped:
                 break
             if medium >= 0:
-                w = flight_weight(media, medium, t, prim < 0)
                 if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
                     break
                 lead = vec.hadamard(lead, w)

@@ -27,14 +27,12 @@ light -> S+ -> event paths the aimed caustic photons carry), INDIRECT / VOLUME_I
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..bsdf import scattering_side
 from ..emitters import choose_light
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
+from ..geometry.scene_geometry import surface_at
 from ..jit import borrowed, kernel
-from ..media import cross_null, flight_weight, medium_after, phase_sample, sample_distance
+from ..media import cross_null, free_flight, medium_after, phase_sample
 from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
 from .emission import emit_caustic_photon, emit_photon
@@ -54,15 +52,11 @@ def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, te
     crossings = 0
     stored = 0
     while True:
-        t_flight = np.inf
-        if medium >= 0:
-            t_flight = sample_distance(media, medium, uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-        prim, t, b1, b2 = intersect(geom, o, d, t_flight)
-        if prim < 0 and t_flight == np.inf:
+        prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+        if escaped:
             break
         if medium >= 0:
-            power = vec.hadamard(power, flight_weight(media, medium, t, prim < 0))
+            power = vec.hadamard(power, w)
             if power[0] == 0.0 and power[1] == 0.0 and power[2] == 0.0:
                 break
         if prim < 0:
