@@ -72,12 +72,12 @@ CONFIGS = (
     ("sppm 8k + 56k aimed", "sppm", {**CONVERGED, "photons": 8_192, "caustic_photons": 57_344}),
     ("sppm global schedule", "sppm", {**CONVERGED, "schedule": "global"}),
     ("pspm stream estimator", "pspm", {**CONVERGED}),
-    ("pspm photons spread", "pspm", {**PHOTONS}),
+    ("pspm photons spread", "pspm", {**PHOTONS, "medium_scattering": "spread"}),
     ("pspm photons merge", "pspm", {**PHOTONS, "medium_scattering": "merge"}),
-    ("pspm photons spread r_s 1", "pspm", {**PHOTONS, "stream_radius": 1.0}),
+    ("pspm photons spread r_s 1", "pspm", {**PHOTONS, "stream_radius": 1.0, "medium_scattering": "spread"}),
     ("pspm photons merge r_s 1", "pspm", {**PHOTONS, "stream_radius": 1.0, "medium_scattering": "merge"}),
     ("pspm stream + 32k aimed", "pspm", {**CONVERGED, **AIMED}),
-    ("pspm photons spread + 32k aimed", "pspm", {**PHOTONS, **AIMED}),
+    ("pspm photons spread + 32k aimed", "pspm", {**PHOTONS, **AIMED, "medium_scattering": "spread"}),
 )
 
 

@@ -2,7 +2,7 @@
 
 A local cluster of two worker processes stands in for a real one: the same tasks, the
 same serialisation and the same scheduler.  Checked: images bit-identical to local
-rendering for pt and the global schedule of sppm (also in fog) and pspm; a worker that dies during a
+rendering for pt and the global schedule of sppm and pspm (also in fog); a worker that dies during a
 render (a test hook, not a race) changes nothing; Ctrl-C cancels the cluster's tasks and
 keeps the finished passes; a checkpoint written on the cluster resumes locally; bad
 addresses and renders that cannot be taken apart fail in one line before any work.
@@ -54,12 +54,14 @@ def test_cluster_render_has_the_bits_of_a_local_render(diacaustic, two_workers, 
     assert far.stats["passes"] == 11 and len(far.stats["pass_seconds"]) == 11
 
 
-def test_cluster_render_in_media_has_the_bits_of_a_local_render(two_workers):
-    """sppm's global schedule in fog: the volume estimate's radius is a function of the pass alone."""
+@pytest.mark.parametrize("method, params", [("sppm", {}), ("pspm", {"estimator": "photons", "medium_scattering": "spread",
+                                                               "streams": 60})])
+def test_cluster_render_in_media_has_the_bits_of_a_local_render(two_workers, method, params):
+    """sppm's and pspm's global schedule in fog: the volume estimate's radius is a function of the pass alone."""
     fog = caustica.load_scene(builtin_scene_path("cornell-diacaustic-fog"))
-    kw = dict(res=16, seed=4, passes=5, schedule="global")
-    local = caustica.render(fog, "sppm", **kw)
-    far = caustica.render(fog, "sppm", dask=two_workers.client, **kw)
+    kw = dict(res=16, seed=4, passes=5, schedule="global", **params)
+    local = caustica.render(fog, method, **kw)
+    far = caustica.render(fog, method, dask=two_workers.client, **kw)
     assert far.image.tobytes() == local.image.tobytes()
     assert far.stats["volume_photons_gathered"] == local.stats["volume_photons_gathered"] > 0
 

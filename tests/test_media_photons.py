@@ -234,8 +234,8 @@ def test_media_glass_scene_matches_the_volumetric_path_tracer(media_glass_pt, me
 @pytest.fixture(scope="module")
 def fog_pspm():
     scene = caustica.load_scene("cornell-diacaustic-fog", res=FOG_RES)
-    return [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, estimator="photons", **FOG_PSPM_KW).image
-            for s in FOG_SEEDS]
+    return [caustica.render(scene, "pspm", passes=FOG_PASSES, seed=s, estimator="photons", medium_scattering="spread",
+                            **FOG_PSPM_KW).image for s in FOG_SEEDS]
 
 
 @pytest.fixture(scope="module")
@@ -409,8 +409,8 @@ def test_the_streams_caustic_records_in_media_carry_the_aimed_photons_flux():
     assert volume < buf.volume_events("photons")[0].shape[0]
 
 
-@pytest.mark.parametrize("params", [{"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"},
-                                    {"estimator": "stream"}])
+@pytest.mark.parametrize("params", [{"estimator": "photons", "medium_scattering": "spread"},
+                                    {"estimator": "photons", "medium_scattering": "merge"}, {"estimator": "stream"}])
 def test_pspm_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(params):
     scene = furnace("0.6", "1", "0.3")
     kw = {**FURNACE_KW, "streams": 100, "assoc": 4, "stream_radius": 0.3, **params}
@@ -433,8 +433,9 @@ def test_pspm_merging_at_medium_events_matches_the_volumetric_path_tracer(fog_pt
     assert_images_agree(ours, fog_pt, label="pspm (merge) vs pt, fog box")
 
 
-@pytest.mark.parametrize("params", [{}, {"estimator": "photons"}, {"estimator": "photons", "medium_scattering": "merge"},
-                                    {"caustic_photons": 300}, {"schedule": "global"}])
+@pytest.mark.parametrize("params", [{}, {"estimator": "photons", "medium_scattering": "spread"},
+                                    {"estimator": "photons", "medium_scattering": "merge"}, {"caustic_photons": 300},
+                                    {"schedule": "global"}])
 def test_pspm_same_bits_for_any_thread_count_in_media(params):
     scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
     kw = dict(seed=5, passes=3, streams=100, assoc=3, **params)
@@ -446,7 +447,7 @@ def test_pspm_same_bits_for_any_thread_count_in_media(params):
 
 def test_pspm_checkpoint_resume_gives_the_same_bits_in_media(tmp_path):
     scene = caustica.load_scene("cornell-diacaustic-fog", res=12)
-    kw = dict(seed=2, streams=100, estimator="photons")
+    kw = dict(seed=2, streams=100, estimator="photons", medium_scattering="spread")
     whole = caustica.render(scene, "pspm", passes=5, **kw)
     ck = tmp_path / "state.npz"
     caustica.render(scene, "pspm", passes=2, checkpoint=ck, threads=1, **kw)
@@ -471,7 +472,8 @@ ONE_SHOT_FURNACE_KW = dict(spp=4, max_bounces=1024, termination="roulette", volu
 
 @pytest.mark.parametrize("method, params", [("pm", {"photons": 60_000, "k": 50}),
                                             ("spm", {"streams": 8_000, "stream_radius": 0.3}),
-                                            ("spm", {"streams": 4_000, "stream_radius": 0.3, "estimator": "photons"})])
+                                            ("spm", {"streams": 4_000, "stream_radius": 0.3, "estimator": "photons",
+                                                     "medium_scattering": "spread"})])
 def test_one_shot_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(method, params):
     """pm's and spm's volume photons and beam estimate conserve the furnace's radiance (fails without them)."""
     scene = furnace("0.6", "1", "0.3")
@@ -485,7 +487,9 @@ def test_one_shot_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(me
 
 @pytest.mark.parametrize("method, params", [("pm", {"photons": 5_000}), ("pm", {"photons": 3_000,
                                                                                 "caustic_photons": 3_000}),
-                                            ("spm", {"streams": 500}), ("spm", {"streams": 500, "estimator": "photons"}),
+                                            ("spm", {"streams": 500}),
+                                            ("spm", {"streams": 500, "estimator": "photons",
+                                                     "medium_scattering": "spread"}),
                                             ("spm", {"streams": 500, "estimator": "photons",
                                                      "medium_scattering": "merge"})])
 def test_one_shot_same_bits_for_any_thread_count_in_media(method, params):

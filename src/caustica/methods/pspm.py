@@ -82,11 +82,13 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                          "specular -> diffuse paths, which the streams then leave out "
                                          "(as PM's caustic map; 0: none, the streams carry the caustic too; "
                                          "needs --specular merge)", non_negative, ">= 0"),
-        Param("medium_scattering", str, "spread", "scenes with media: at a scattering event in a medium the "
-                                                  "associated photons spread over the disc of radius r_s about "
-                                                  "the leading photon and the stream goes on as a beam (spread, "
-                                                  "as at a diffuse surface) or merge into the leading photon "
-                                                  "(merge, as at a mirror or glass)", choices=MEDIUM_SCATTERING),
+        Param("medium_scattering", str, "merge", "scenes with media: at a scattering event in a medium the "
+                                                 "associated photons merge into the leading photon (merge, as at "
+                                                 "a mirror or glass; the lower error at equal time in the fog "
+                                                 "box) or spread over the disc of radius r_s about it and go on "
+                                                 "with it as a beam (spread, as at a diffuse surface); equivalent "
+                                                 "under --estimator stream (docs/media.md)",
+              choices=MEDIUM_SCATTERING),
         VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 

@@ -43,10 +43,12 @@ class StreamedPhotonMapping(OneShot):
         Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
-        Param("medium_scattering", str, "spread", "scenes with media: at a scattering event in a medium the "
-                                                  "associated photons spread over the disc of radius r_s about "
-                                                  "the leading photon (spread, as at a diffuse surface) or merge "
-                                                  "into it (merge, as at a mirror or glass)",
+        Param("medium_scattering", str, "merge", "scenes with media: at a scattering event in a medium the "
+                                                 "associated photons merge into the leading photon (merge, as at "
+                                                 "a mirror or glass; the lower error at equal time in the fog "
+                                                 "box) or spread over the disc of radius r_s about it and go on "
+                                                 "with it as a beam (spread, as at a diffuse surface); equivalent "
+                                                 "under --estimator stream (docs/media.md)",
               choices=MEDIUM_SCATTERING),
     ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
 

@@ -48,7 +48,7 @@ from .streams import associated_decay, place_associated, store_stream_record
 from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
 
 #: What a stream does at a scattering event in a medium (``pspm --medium-scattering``).
-MEDIUM_SCATTERING = ("spread", "merge")
+MEDIUM_SCATTERING = ("merge", "spread")
 
 
 @kernel
