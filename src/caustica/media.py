@@ -249,6 +249,26 @@ def phase_sample(media, m, d, u1, u2):
     return wo, phase_value(media, m, d, wo) / pdf, pdf
 
 
+@kernel(inline=True)
+def photon_scatter(media, m, d, key, dim, roulette):
+    """A photon (or stream) scattering in medium m: (alive, 1 / q, wo, phase weight); numbers dim .. dim + 2.
+
+    With ``roulette`` it survives with q = the medium's mean albedo, to be scaled by 1 / q (else 1 / q
+    is 1; the flight's weight already holds the albedo); then wo from the phase function, with its
+    value / pdf.  Not alive when roulette ends it or the pdf is 0.
+    """
+    inv_q = 1.0
+    if roulette:
+        q = (media.albedo[m, 0] + media.albedo[m, 1] + media.albedo[m, 2]) / 3.0
+        if uniform(key, dim) >= q:
+            return False, 1.0, d, 0.0
+        inv_q = 1.0 / q
+    wo, weight, pdf = phase_sample(media, m, d, uniform(key, dim + 1), uniform(key, dim + 2))
+    if not pdf > 0.0:
+        return False, inv_q, wo, 0.0
+    return True, inv_q, wo, weight
+
+
 # ----------------------------------------------------------------------------- direct light
 
 @kernel(inline=True)

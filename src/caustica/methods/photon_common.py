@@ -11,6 +11,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.estimate import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
+from ..photons.streams_media import MEDIUM_SCATTERING
 from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media
 from .params import Param, non_negative, positive
 
@@ -34,6 +35,14 @@ ESTIMATE_PARAMS = (
     Param("max_specular_depth", int, 16, "mirror/glass bounces of a camera ray", non_negative, ">= 0",
           max=1024),
 )
+
+#: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
+MEDIUM_SCATTERING_PARAM = Param(
+    "medium_scattering", str, "merge",
+    "scenes with media: at a scattering event in a medium the associated photons merge into the leading photon "
+    "(merge, as at a mirror or glass; the lower error at equal time in the fog box) or spread over the disc of "
+    "radius r_s about it and go on with it as a beam (spread, as at a diffuse surface); equivalent under "
+    "--estimator stream (docs/media.md)", choices=MEDIUM_SCATTERING)
 
 #: The default radius of the one-shot methods' volume estimate, as a fraction of the scene's diagonal.
 VOLUME_RADIUS_FRACTION = 0.01

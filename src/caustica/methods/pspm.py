@@ -33,11 +33,11 @@ from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_streams
-from ..photons.streams_media import MEDIUM_SCATTERING, trace_streams_media
+from ..photons.streams_media import trace_streams_media
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import TERMINATIONS
+from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS
 from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod,
                           caustic_event_kind, initial_radius, trace_caustic_pass)
@@ -82,13 +82,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                          "specular -> diffuse paths, which the streams then leave out "
                                          "(as PM's caustic map; 0: none, the streams carry the caustic too; "
                                          "needs --specular merge)", non_negative, ">= 0"),
-        Param("medium_scattering", str, "merge", "scenes with media: at a scattering event in a medium the "
-                                                 "associated photons merge into the leading photon (merge, as at "
-                                                 "a mirror or glass; the lower error at equal time in the fog "
-                                                 "box) or spread over the disc of radius r_s about it and go on "
-                                                 "with it as a beam (spread, as at a diffuse surface); equivalent "
-                                                 "under --estimator stream (docs/media.md)",
-              choices=MEDIUM_SCATTERING),
+        MEDIUM_SCATTERING_PARAM,
         VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 

@@ -22,12 +22,12 @@ from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import empty_photon_map
 from ..photons.streams import StreamBuffers, StreamMap, trace_streams
-from ..photons.streams_media import MEDIUM_SCATTERING, trace_streams_media
+from ..photons.streams_media import trace_streams_media
 from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, camera_pass, \
-    camera_pass_in_media, check_media_settings
+from .photon_common import ESTIMATE_PARAMS, MEDIUM_SCATTERING_PARAM, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, \
+    OneShot, camera_pass, camera_pass_in_media, check_media_settings
 
 ESTIMATORS = ("stream", "photons")
 
@@ -43,13 +43,7 @@ class StreamedPhotonMapping(OneShot):
         Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
-        Param("medium_scattering", str, "merge", "scenes with media: at a scattering event in a medium the "
-                                                 "associated photons merge into the leading photon (merge, as at "
-                                                 "a mirror or glass; the lower error at equal time in the fog "
-                                                 "box) or spread over the disc of radius r_s about it and go on "
-                                                 "with it as a beam (spread, as at a diffuse surface); equivalent "
-                                                 "under --estimator stream (docs/media.md)",
-              choices=MEDIUM_SCATTERING),
+        MEDIUM_SCATTERING_PARAM,
     ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
 
     @staticmethod

@@ -38,7 +38,7 @@ from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
-from ..media import cross_null, free_flight, medium_after, phase_sample
+from ..media import cross_null, free_flight, medium_after, photon_scatter
 from ..sampling.rng import uniform, path_key
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE, NULL
@@ -141,16 +141,14 @@ def trace_streams_media(geom, mats, lights, media, light_medium, seed, stream, n
                     stored += 1
                 if bounces >= max_bounces:
                     break
-                if termination == TERMINATION_ROULETTE:
-                    q = (media.albedo[medium, 0] + media.albedo[medium, 1] + media.albedo[medium, 2]) / 3.0
-                    if uniform(key, dim) >= q:
-                        break
-                    lead = vec.mul(lead, 1.0 / q)
-                    p_assoc = vec.mul(p_assoc, 1.0 / q)
-                wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim + 1), uniform(key, dim + 2))
+                alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim,
+                                                          termination == TERMINATION_ROULETTE)
                 dim += 3
-                if not pdf > 0.0:
+                if not alive:
                     break
+                if termination == TERMINATION_ROULETTE:
+                    lead = vec.mul(lead, inv_q)
+                    p_assoc = vec.mul(p_assoc, inv_q)
                 lead = vec.mul(lead, weight)
                 p_assoc = vec.mul(p_assoc, weight)
                 o = x

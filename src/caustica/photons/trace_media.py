@@ -32,7 +32,7 @@ from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import surface_at
 from ..jit import borrowed, kernel
-from ..media import cross_null, free_flight, medium_after, phase_sample
+from ..media import cross_null, free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import DIFFUSE, NULL
 from .emission import emit_caustic_photon, emit_photon
@@ -69,15 +69,12 @@ def trace_one_media(geom, mats, media, key, o, d, power, medium, max_bounces, te
                 stored += 1
             if caustic_only or bounces >= max_bounces:
                 break
-            if termination == TERMINATION_ROULETTE:
-                q = (media.albedo[medium, 0] + media.albedo[medium, 1] + media.albedo[medium, 2]) / 3.0
-                if uniform(key, dim) >= q:
-                    break
-                power = vec.mul(power, 1.0 / q)
-            wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim + 1), uniform(key, dim + 2))
+            alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
             dim += 3
-            if not pdf > 0.0:
+            if not alive:
                 break
+            if termination == TERMINATION_ROULETTE:
+                power = vec.mul(power, inv_q)
             power = vec.mul(power, weight)
             o = p
             d = wo
