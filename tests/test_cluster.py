@@ -284,3 +284,15 @@ def test_the_memory_cap_counts_a_pass_s_photon_buffers(diacaustic):
     assert cluster.max_task_passes(_Share(share), cls, settings) == cluster.MAX_TASK_PASSES   # without the scene
     with pytest.raises(ParameterError, match="would need about"):
         cluster.max_task_passes(_Share(share), cls, settings, scene)
+
+
+@pytest.mark.parametrize("method", ["sppm", "pspm"])
+def test_the_memory_cap_counts_the_camera_segments_in_media(diacaustic, method):
+    """In a scene with media a pass also holds the camera's medium segments (MEDIUM_SEGMENTS a pixel)."""
+    from caustica.photons.visible_points_media import SEGMENT_BYTES
+    fog = caustica.load_scene(builtin_scene_path("cornell-diacaustic-fog"))
+    kw = dict(res=16, multi_pass=True, schedule="global")
+    plain = caustica.api.resolve_settings(diacaustic, method, **kw)
+    media = caustica.api.resolve_settings(fog, method, **kw)
+    extra = media[1].pass_buffer_bytes(media[0], media[2]) - plain[1].pass_buffer_bytes(plain[0], plain[2])
+    assert extra == 16 * 16 * SEGMENT_BYTES

@@ -39,7 +39,7 @@ from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photons
 from ..photons.trace_media import trace_caustic_photons_media
 from ..photons.visible_points import visible_points
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, camera_pass_media
 from ..sampling.rng import STREAM_CAMERA, STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
@@ -315,6 +315,11 @@ class ProgressivePhotonMethod(IndependentPasses):
     def caustic_photons_per_pass(cls, scene, settings) -> int:
         """Photons aimed at the mirrors and glass per pass (0: none, or no mirror or glass to aim at)."""
         return 0
+
+    @staticmethod
+    def camera_segment_bytes(scene, settings) -> int:
+        """The camera pass's medium segments (scenes with media; photons/visible_points_media.py), else 0."""
+        return settings["width"] * settings["height"] * SEGMENT_BYTES if scene.media is not None else 0
 
     @classmethod
     def separate_caustics(cls, scene, settings) -> bool:

@@ -102,11 +102,13 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
 
     @classmethod
     def pass_buffer_bytes(cls, scene, settings) -> int:
-        """A pass's stream buffers and caustic photons' records, and the grid's sorted copy of the events."""
+        """A pass's stream buffers and caustic photons' records, the grid's sorted copy of the events, and in a
+        scene with media the camera's medium segments."""
         n = streams_per_pass(settings)
         streams = StreamBuffers.bytes_needed(n, settings["assoc"], settings["max_bounces"],
                                              settings["specular"] == "split")
-        return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES)
+        return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES) + \
+            cls.camera_segment_bytes(scene, settings)
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:

@@ -72,9 +72,10 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
 
     @classmethod
     def pass_buffer_bytes(cls, scene, settings) -> int:
-        """A pass's photon records (mr + 1 slots a photon, one a caustic photon), and the grid's sorted copy."""
+        """A pass's photon records (mr + 1 slots a photon, one a caustic photon), the grid's sorted copy, and
+        in a scene with media the camera's medium segments."""
         n, n_c = photon_counts(scene, settings)
-        return 2 * (n * (settings["max_bounces"] + 1) + n_c) * SLOT_BYTES
+        return 2 * (n * (settings["max_bounces"] + 1) + n_c) * SLOT_BYTES + cls.camera_segment_bytes(scene, settings)
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
