@@ -60,7 +60,7 @@ MASK_SEED = 99_991
 #: photons per pass, R_0 = 0.347 (1 % of the diagonal), R_v0 = R_0, separate caustic statistics.
 #: pspm's: 5,957 streams of 1 + 10 photons per pass (65,527 photons), r_s = 5 at the first pass; under
 #: ``--estimator stream`` a record counts at its leading photon whatever its associated photons do, so
-#: ``--medium-scattering`` spread and merge give the same image there (docs/media.md): one row.
+#: ``--medium-scattering`` spread and merge give the same image there with roulette (docs/media.md): one row.
 CONVERGED = {"max_bounces": 64, "termination": "roulette"}
 PHOTONS = {**CONVERGED, "estimator": "photons"}
 AIMED = {"streams": 2_979, "caustic_photons": 32_768}   # 32,769 stream photons + 32,768 aimed, as sppm

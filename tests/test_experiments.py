@@ -206,7 +206,7 @@ def test_the_mask_is_not_traced_with_pm_c_s_own_caustic_photons():
     scene, _, settings = resolve_settings(scene, "pm", res=(w, w), seed=seed, threads=1, photons=1, caustic_photons=n)
     _, cmap, _, _ = PhotonMapping.build_maps(scene, settings, progress_factory(False))
     pmc = np.zeros((w, w, 3))
-    splat_records(scene.geometry, scene.camera(w, w), np.ascontiguousarray(cmap.position),
+    splat_records(scene.geometry, scene.materials, scene.camera(w, w), np.ascontiguousarray(cmap.position),
                   np.ascontiguousarray(cmap.power), pmc)
     pmc = pmc.sum(axis=2)
     assert mask_img.sum() > 0 and pmc.sum() > 0

@@ -467,21 +467,28 @@ def test_pspm_refuses_split_streams_in_media(cli, tmp_path):
 # --------------------------------------------------------------------------- 7. the one-shot methods (pm, spm)
 
 #: pm and spm in the furnace: one shot, 4 camera samples a pixel, photons until roulette ends them.
-ONE_SHOT_FURNACE_KW = dict(spp=4, max_bounces=1024, termination="roulette", volume_radius=0.3)
+ONE_SHOT_FURNACE_KW = dict(spp=4, max_bounces=128, termination="roulette", volume_radius=0.3)
 
 
 @pytest.mark.parametrize("method, params", [("pm", {"photons": 60_000, "k": 50}),
                                             ("spm", {"streams": 8_000, "stream_radius": 0.3}),
-                                            ("spm", {"streams": 4_000, "stream_radius": 0.3, "estimator": "photons",
+                                            ("spm", {"streams": 16_000, "stream_radius": 0.3, "estimator": "photons",
                                                      "medium_scattering": "spread"})])
 def test_one_shot_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(method, params):
-    """pm's and spm's volume photons and beam estimate conserve the furnace's radiance (fails without them)."""
+    """pm's and spm's volume photons and beam estimate conserve the furnace's radiance (fails without them).
+
+    One shot: each photon's slots are kept at once, so 128 bounces rather than 1024 (a few hundred MB, not
+    GB); the cap leaves out about 0.15 % of the light at 64 bounces (measured), roughly its square at 128.  The noise gate (3 % of the expected value) means
+    a bias above about 15 % fails for certain; 16 seeds measured pm within 0.7 % and spm within 2.8 %
+    per channel (|z| < 2.7), so smaller biases are not excluded.  Flight weights and roulette are 1 in
+    this grey albedo-1 medium: they are checked through the same tracers by the fog-box tests of sppm and
+    pspm against pt."""
     scene = furnace("0.6", "1", "0.3")
     means = np.array([caustica.render(scene, method, seed=s, **ONE_SHOT_FURNACE_KW, **params).image
                       .astype(np.float64).reshape(-1, 3).mean(0) for s in range(6)])
     expected = FURNACE_LE / (1 - FURNACE_RHO)
     se = means.std(axis=0, ddof=1) / math.sqrt(len(means))
-    assert np.all(se < 0.05 * expected)
+    assert np.all(se < 0.03 * expected)
     assert np.all(np.abs(means.mean(0) - expected) <= N_SIGMA * se), (means.mean(0), expected, se)
 
 
@@ -498,8 +505,7 @@ def test_one_shot_same_bits_for_any_thread_count_in_media(method, params):
     one = caustica.render(scene, method, threads=1, **kw)
     two = caustica.render(scene, method, threads=2, **kw)
     assert one.image.tobytes() == two.image.tobytes() and one.stats["volume_photons"] > 0
-    assert one.stats["volume_radius"] == pytest.approx(0.01 * np.linalg.norm(np.ptp(
-        scene.geometry.scene_box.reshape(2, 3), axis=0)))
+    assert one.stats["volume_radius"] == pytest.approx(0.3468, abs=1e-4)   # 1 % of the fog box's diagonal
     assert one.image.tobytes() != caustica.render(scene, method, threads=2, **{**kw, "seed": 6}).image.tobytes()
 
 
@@ -520,3 +526,43 @@ def test_one_shot_methods_refuse_the_fixed_light_grid_in_media(cli, tmp_path, me
     assert code == 2 and lines[-1] == ("caustica: error: --fixed-light-grid: not supported in a scene with media "
                                        "(docs/media.md)"), err
     assert list(tmp_path.iterdir()) == []
+
+
+def _volume_power(method, seed, **params):
+    """Total power of the volume photons pm's maps (one shot) or pspm's first pass hand to the beam estimate."""
+    from caustica.api import progress_factory, resolve_settings
+    from caustica.methods.progressive import initial_radius
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=8)
+    scene, cls, settings = resolve_settings(scene, method, seed=seed, multi_pass=method == "pspm", **params)
+    if method == "pm":
+        _, _, volume, _ = cls.build_maps(scene, settings, progress_factory(False))
+    else:
+        n = settings["width"] * settings["height"]
+        _, _, stats = cls.photon_events(scene, settings, 0, np.full(n, initial_radius(scene, settings)),
+                                        progress_factory(False))
+        volume = stats["volume_photons"]
+    return float(volume[2].astype(np.float64).sum())
+
+
+@pytest.mark.parametrize("method, params", [("pm", {"photons": 40_000}), ("pspm", {"streams": 4_000, "assoc": 4})])
+def test_aimed_photons_replace_the_volume_caustic_without_double_counting(method, params):
+    """PM+C and pspm --caustic-photons in media: the volume photons handed to the beam estimate carry the same
+    power with aimed photons as without.  Paired by seed (the same unaimed photons or streams either way), the
+    difference is the aimed photons' light -> glass+ -> fog share minus the one the others leave out: 0 in
+    expectation, within 5 sigmas of its spread over 8 seeds.  Keeping both (or neither) would be off by the
+    whole share, which is checked to be more than 7 of those sigmas (measured: 34 for pm, 7.8 for pspm), so
+    the test can fail."""
+    from caustica.media import light_media
+    from caustica.photons.records import VOLUME_CAUSTIC, allocate_buffers
+    from caustica.photons.trace_media import trace_caustic_photons_media
+    n_c = 40_000
+    diff = np.array([_volume_power(method, s, caustic_photons=n_c, **params) - _volume_power(method, s, **params)
+                     for s in range(8)])
+    se = diff.std(ddof=1) / math.sqrt(len(diff))
+    assert abs(diff.mean()) <= N_SIGMA * se, (diff.mean(), se)
+    s = caustica.load_scene("cornell-diacaustic-fog", res=8)
+    cb = allocate_buffers(n_c, 1)
+    parallel_for(trace_caustic_photons_media, n_c, (s.geometry, s.materials, s.lights, s.media, light_media(s),
+                                                    s.specular_bounding_spheres(), 7, 12, n_c, *cb))
+    share = float(cb.power[cb.kind == VOLUME_CAUSTIC].astype(np.float64).sum())
+    assert share > (N_SIGMA + 2) * se, (share, se)

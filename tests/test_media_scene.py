@@ -181,7 +181,8 @@ FOG_SCENE = scene('<shape type="cube"><bsdf type="null"/><medium type="homogeneo
 
 @pytest.mark.parametrize("method", ["pt", "pm", "spm", "sppm", "pspm"])
 def test_every_method_renders_a_scene_with_media(tmp_path, cli, method):
-    """Every method takes media now (none refuses them): the command line writes a finite, lit image."""
+    """Every method takes media now (none refuses them): the command line writes a finite, lit image (a smoke
+    test; accuracy is tests/test_media_photons.py's)."""
     path = tmp_path / "fog.xml"
     path.write_text(FOG_SCENE)
     out = tmp_path / "x.exr"
@@ -192,10 +193,15 @@ def test_every_method_renders_a_scene_with_media(tmp_path, cli, method):
 
 
 def test_the_photon_picture_of_a_scene_with_media_shows_its_surface_records(tmp_path, cli):
-    path = tmp_path / "null.xml"
-    path.write_text(scene('<shape type="sphere"><bsdf type="null"/></shape>\n' + LIGHT))
+    from caustica.api import progress_factory, resolve_settings
+    from caustica.photon_view import photon_picture
+    path = tmp_path / "fog.xml"
+    path.write_text(FOG_SCENE)
     code, _, err = cli("photons", path, "--method", "pm", "--res", "8", "-q", "-o", tmp_path / "x.png")
     assert code == 0 and (tmp_path / "x.png").exists(), err
+    sc, cls, settings = resolve_settings("cornell-diacaustic-fog", "pm", res=16, photons=20_000)
+    picture, stats = photon_picture(sc, cls, settings, progress_factory(False))
+    assert stats["global_photons_stored"] > 0 and picture[:, :16].max() > 0   # the global map's panel
 
 
 def test_integrator_note_for_media_scenes(tmp_path):

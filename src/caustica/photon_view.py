@@ -2,7 +2,8 @@
 
 ``caustica photons SCENE --method pm|spm`` traces the maps exactly as a render
 would and splats every stored record's power into the pixel it projects to
-(records hidden from the camera are left out).  Two panels side by side:
+(records hidden from the camera are left out; null surfaces hide nothing).
+In a scene with media only the surface records are drawn, not the volume photons.  Two panels side by side:
 
 * pm: the global map | the caustic map (empty without --caustic-photons);
 * spm: the leading photons (stream records, their own power) | the associated photons.
@@ -15,13 +16,34 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import vec
-from .geometry.scene_geometry import occluded
+from .geometry.scene_geometry import intersect, surface_at
 from .jit import kernel
+from .media import NULL_CROSSINGS_CAP
+from .scene.description import NULL
 
 
 @kernel
-def splat_records(geom, cam, position, power, image):
-    """Add each record's power to the pixel it projects to, if the camera sees it."""
+def seen(geom, mats, o, p):
+    """Whether the point p is seen from o: nothing but null surfaces (a medium's invisible boundary) between."""
+    for _ in range(NULL_CROSSINGS_CAP):
+        rel = vec.sub(p, o)
+        dist = vec.length(rel)
+        if not dist > 0.0:
+            return True
+        d = vec.mul(rel, 1.0 / dist)
+        prim, t, b1, b2 = intersect(geom, o, d, dist * (1.0 - 1e-4))
+        if prim < 0:
+            return True
+        if mats.kind[geom.prim_material[prim]] != NULL:
+            return False
+        q, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        o = vec.offset_origin(q, ng, d)
+    return False
+
+
+@kernel
+def splat_records(geom, mats, cam, position, power, image):
+    """Add each record's power to the pixel it projects to, if the camera sees it (past null surfaces)."""
     b = cam.basis
     o = (cam.origin[0], cam.origin[1], cam.origin[2])
     for i in range(position.shape[0]):
@@ -36,8 +58,7 @@ def splat_records(geom, cam, position, power, image):
         sy = 0.5 * (1.0 - vy / (vz * cam.tan_half_y))
         if sx < 0.0 or sx >= 1.0 or sy < 0.0 or sy >= 1.0:
             continue
-        dist = vec.length(rel)
-        if occluded(geom, o, vec.mul(rel, 1.0 / dist), dist * (1.0 - 1e-4)):
+        if not seen(geom, mats, o, p):
             continue
         px = int(sx * cam.width)
         py = int(sy * cam.height)
@@ -48,7 +69,8 @@ def splat_records(geom, cam, position, power, image):
 def _panel(scene, cam, position, power) -> np.ndarray:
     img = np.zeros((cam.height, cam.width, 3), np.float64)
     if position.shape[0]:
-        splat_records(scene.geometry, cam, np.ascontiguousarray(position), np.ascontiguousarray(power), img)
+        splat_records(scene.geometry, scene.materials, cam, np.ascontiguousarray(position),
+                      np.ascontiguousarray(power), img)
     lum = img.sum(axis=2)
     nz = lum[lum > 0]
     if nz.size:

@@ -66,7 +66,8 @@ def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, s
                  threads=settings["threads"])
     keep = buf.kind == CAUSTIC
     if keep.any():
-        splat_records(scene.geometry, scene.camera(width, height), np.ascontiguousarray(buf.position[keep]),
+        splat_records(scene.geometry, scene.materials, scene.camera(width, height),
+                      np.ascontiguousarray(buf.position[keep]),
                       np.ascontiguousarray(buf.power[keep]), img)
     return img.sum(axis=2)
 

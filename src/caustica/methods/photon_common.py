@@ -12,14 +12,16 @@ from ..photons.estimate import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams_media import MEDIUM_SCATTERING
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media
+from ..memory import check_budget
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, camera_pass_media
 from .params import Param, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
 
 #: Parameters of the radiance estimate and the camera pass (SPEC §2-3), the paper's defaults.
 ESTIMATE_PARAMS = (
-    Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr)",
+    Param("max_bounces", int, 4, "diffuse bounces of a photon / leading photon (the paper's mr; in media, "
+                                 "scattering events in a medium count too)",
           positive, ">= 1", max=1024),
     Param("k", int, 100, "photons (stream records) per radiance estimate", positive, ">= 1",
           scratch=16),  # the k-nearest search's index + distance arrays, per thread
@@ -41,8 +43,9 @@ MEDIUM_SCATTERING_PARAM = Param(
     "medium_scattering", str, "merge",
     "scenes with media: at a scattering event in a medium the associated photons merge into the leading photon "
     "(merge, as at a mirror or glass; the lower error at equal time in the fog box) or spread over the disc of "
-    "radius r_s about it and go on with it as a beam (spread, as at a diffuse surface); equivalent under "
-    "--estimator stream (docs/media.md)", choices=MEDIUM_SCATTERING)
+    "radius r_s about it and go on with it as a beam (spread, as at a diffuse surface); under --estimator "
+    "stream the two have the same expectation (the same image with --termination roulette; docs/media.md)",
+    choices=MEDIUM_SCATTERING)
 
 #: The default radius of the one-shot methods' volume estimate, as a fraction of the scene's diagonal.
 VOLUME_RADIUS_FRACTION = 0.01
@@ -64,9 +67,15 @@ def one_shot_volume_radius(scene, settings) -> float:
 
 
 def check_media_settings(scene, settings) -> None:
-    """What the camera pass in media does not do: the fixed grid of light samples."""
-    if scene.media is not None and settings["fixed_light_grid"]:
+    """Before any photon is traced: what the camera pass in media does not do (the fixed grid of light
+    samples), and the memory of its segments."""
+    if scene.media is None:
+        return
+    if settings["fixed_light_grid"]:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
+    n = settings["width"] * settings["height"]
+    check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
+                 "lower the resolution")
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):

@@ -55,8 +55,9 @@ INV_PI = 1.0 / math.pi
 #: would need more ends, as at the specular depth cap.
 MEDIUM_SEGMENTS = 8
 #: The per-pixel shifts (numbers of the camera pass's scramble key) of the Kronecker points that stratify the
-#: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n².
-QMC_SEGMENT_DIM = 1000
+#: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n²,
+#: with n = --light-samples at most 64 (ESTIMATE_PARAMS), so these start past 3 + 2 * 64².
+QMC_SEGMENT_DIM = 3 + 2 * 64 * 64 + 1
 #: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; count).
 SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
 
