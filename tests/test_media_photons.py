@@ -97,6 +97,18 @@ def test_beam_gather_finds_each_pierced_sphere_once_and_matches_a_uniform_densit
         assert np.all(np.abs(want - expected) <= N_SIGMA * se), (j, want, expected, se)
 
 
+def test_the_volume_grid_refuses_what_would_exhaust_memory(monkeypatch):
+    """The grid's entries are counted before they are allocated: too many for the budget is one error."""
+    from caustica import memory
+    rng = np.random.default_rng(0)
+    pos = rng.random((100_000, 3)).astype(np.float32)
+    build_volume_grid(pos, pos, pos, 0.01)   # fits this machine
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 1_000_000)
+    with pytest.raises(ParameterError, match=r"the volume photons' grid \(100,000 photons, [\d,]+ cell entries\) "
+                                             r"would need about"):
+        build_volume_grid(pos, pos, pos, 0.01)
+
+
 def test_beam_gather_of_no_photons_is_zero():
     z = np.zeros((0, 3), np.float32)
     vg = build_volume_grid(z, z, z, 0.5)

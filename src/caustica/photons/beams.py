@@ -34,6 +34,7 @@ import numpy as np
 
 from ..jit import borrowed, kernel
 from ..media import phase_value
+from ..memory import check_budget
 from .grid import MAX_DIM, bucket_count
 
 #: Cells are this many photon radii across (>= 2, so a sphere overlaps at most 2 cells a side).
@@ -131,6 +132,10 @@ def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
     dims = np.minimum(MAX_DIM, np.maximum(1, np.ceil(ext / cell).astype(np.int64)))
     inv = 1.0 / cell
     entries = _count_entries(position, r, lo, inv, dims) if n else 0
+    # each photon is in the cells its sphere overlaps (at most 8: cells are >= 2 r); its key and index
+    check_budget(entries * 12 + 8 * bucket_count(entries, int(np.prod(dims))),
+                 f"the volume photons' grid ({n:,} photons, {entries:,} cell entries)",
+                 "lower the photons (or streams) per pass")
     start = np.zeros(bucket_count(entries, int(np.prod(dims))) + 1, np.int64)
     key = np.empty(entries, np.int64)
     photon = np.empty(entries, np.int32)
