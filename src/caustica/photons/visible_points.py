@@ -66,6 +66,34 @@ def emitted_along(geom, lights, o, d):
     return vec.row(lights.radiance, e)
 
 
+@kernel(inline=True)
+def glass_branch_number(first_glass, pass_index, qkey, key, dim):
+    """The number that picks a glass branch: at the path's first glass point ``pass`` of a shifted
+    Kronecker sequence (the branches stratified over the passes), later uniform(key, dim)."""
+    if first_glass:
+        return kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2))
+    return uniform(key, dim)
+
+
+@kernel(inline=True)
+def glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt):
+    """At glass: the emitters seen along both branches added with their expected weights, then the branch u picks.
+
+    Lr, Lt: the emission first met along the reflected and the refracted direction (Lt unused when
+    F = 1).  An emitter seen along either branch is added with weight F or (1 - F) / η² rather than
+    when the choice happens to take that branch: a light's reflection in the glass is a smooth term,
+    not a rare spike; the branch taken must then leave its first hit's emission out.  Returns
+    (L, the new direction, β for it).
+    """
+    L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
+    inv_eta2 = 1.0 / (eta * eta)
+    if F < 1.0:
+        L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
+    if u < F:
+        return L, wr, beta
+    return L, wt, vec.mul(beta, inv_eta2)
+
+
 @kernel
 def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fixed_grid, max_specular):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct)."""
@@ -107,29 +135,15 @@ def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fix
             wi = mirror_reflect(d, ng, ns)
             beta = vec.hadamard(beta, rgb)
         else:
-            if first_glass:
-                u = kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2))
-                first_glass = False
-            else:
-                u = uniform(key, dim)
+            u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
+            first_glass = False
             wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
             beta = vec.hadamard(beta, rgb)
-            # an emitter seen along either branch is added with its expected weight (F, 1 - F) rather
-            # than when the choice happens to take that branch: a light's reflection in the glass is
-            # a smooth term, not a rare spike; the branch taken then leaves its first hit's emission out
             Lr = emitted_along(geom, lights, vec.offset_origin(p, ng, wr), wr)
-            L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
-            inv_eta2 = 1.0 / (eta * eta)
-            if F < 1.0:
-                Lt = emitted_along(geom, lights, vec.offset_origin(p, ng, wt), wt)
-                L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
-            counted = True
-            if u < F:
-                wi = wr
-            else:
-                wi = wt
-                beta = vec.mul(beta, inv_eta2)
+            Lt = emitted_along(geom, lights, vec.offset_origin(p, ng, wt), wt) if F < 1.0 else zero
+            L, wi, beta = glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt)
+            counted = True   # the branch taken leaves its first hit's emission out
         o = vec.offset_origin(p, ng, wi)
         d = wi
 

@@ -48,6 +48,7 @@ from ..memory import check_budget
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE, NULL
+from .visible_points import glass_branch_number, glass_step
 
 INV_PI = 1.0 / math.pi
 
@@ -214,29 +215,20 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
             wi = mirror_reflect(d, ng, ns)
             beta = vec.hadamard(beta, rgb)
         else:
-            if first_glass:
-                u = kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2))
-                first_glass = False
-            else:
-                u = uniform(key, dim)
+            u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
+            first_glass = False
             wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
             beta = vec.hadamard(beta, rgb)
-            # emitters seen along either branch, with their expected weights (visible_points.py)
+            # emitters seen along either branch, with their expected weights (visible_points.glass_step)
             Lr = emitted_along_media(geom, mats, lights, media, vec.offset_origin(p, ng, wr), wr,
                                      medium_after(media, shape, ng_front, wr, medium))
-            L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
-            inv_eta2 = 1.0 / (eta * eta)
+            Lt = zero
             if F < 1.0:
                 Lt = emitted_along_media(geom, mats, lights, media, vec.offset_origin(p, ng, wt), wt,
                                          medium_after(media, shape, ng_front, wt, medium))
-                L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
+            L, wi, beta = glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt)
             counted = True
-            if u < F:
-                wi = wr
-            else:
-                wi = wt
-                beta = vec.mul(beta, inv_eta2)
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, wi)
         d = wi
