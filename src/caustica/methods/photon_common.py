@@ -12,8 +12,7 @@ from ..photons.estimate import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams_media import MEDIUM_SCATTERING
-from ..memory import check_budget
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, camera_pass_media
+from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media, check_segment_memory
 from .params import Param, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
@@ -73,9 +72,7 @@ def check_media_settings(scene, settings) -> None:
         return
     if settings["fixed_light_grid"]:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
-    n = settings["width"] * settings["height"]
-    check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
-                 "lower the resolution")
+    check_segment_memory(settings["width"] * settings["height"])
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):

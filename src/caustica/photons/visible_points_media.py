@@ -263,6 +263,12 @@ def visible_points_media(geom, mats, lights, media, cam, seed, stream, vstream, 
         seg_count[i] = n_seg
 
 
+def check_segment_memory(pixels: int) -> None:
+    """Refuse, with the estimate, a camera pass whose medium segments (SEGMENT_BYTES a pixel) would not fit."""
+    check_budget(pixels * SEGMENT_BYTES, f"{pixels:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
+                 "lower the resolution")
+
+
 def camera_pass_media(scene, settings, pass_index, bar=None):
     """Run :func:`visible_points_media` over every pixel for pass (or sample) ``pass_index``.
 
@@ -271,8 +277,7 @@ def camera_pass_media(scene, settings, pass_index, bar=None):
     keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
     """
     n = settings["width"] * settings["height"]
-    check_budget(n * SEGMENT_BYTES, f"{n:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
-                 "lower the resolution")
+    check_segment_memory(n)
     # every entry is written by the kernel
     points = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_), np.empty((n, 3)))
     k = n * MEDIUM_SEGMENTS
