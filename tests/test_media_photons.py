@@ -578,3 +578,24 @@ def test_aimed_photons_replace_the_volume_caustic_without_double_counting(method
                                                     s.specular_bounding_spheres(), 7, 12, n_c, *cb))
     share = float(cb.power[cb.kind == VOLUME_CAUSTIC].astype(np.float64).sum())
     assert share > (N_SIGMA + 2) * se, (share, se)
+
+
+@pytest.mark.parametrize("method, params", [("pspm", {"passes": 2, "streams": 200}), ("spm", {"streams": 1_000})])
+def test_medium_scattering_is_used(method, params):
+    """--medium-scattering reaches the tracer: spread keeps the associated photons as volume photons of their
+    own (more of them under --estimator photons), merge folds them into the leading photon."""
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(seed=3, estimator="photons", assoc=4, **params)
+    merge = caustica.render(scene, method, medium_scattering="merge", **kw)
+    spread = caustica.render(scene, method, medium_scattering="spread", **kw)
+    assert spread.stats["volume_photons"] > 2 * merge.stats["volume_photons"] > 0
+    assert caustica.render(scene, method, **kw).image.tobytes() == merge.image.tobytes()   # the default
+
+
+def test_pspm_volume_radius_is_used():
+    scene = caustica.load_scene("cornell-diacaustic-fog", res=16)
+    kw = dict(passes=2, seed=3, streams=200)
+    default = caustica.render(scene, "pspm", **kw)
+    small = caustica.render(scene, "pspm", volume_radius=0.1, **kw)
+    assert small.stats["initial_volume_radius"] == 0.1 != default.stats["initial_volume_radius"]
+    assert small.stats["volume_photons_gathered"] < default.stats["volume_photons_gathered"]
