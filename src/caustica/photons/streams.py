@@ -47,56 +47,30 @@ from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE
 from .emission import emit_photon
-from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT, build_photon_map, build_photon_map_with_order
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter
+from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
+                      build_photon_map, build_photon_map_with_order)
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter, trace_one
 
-#: Sub-stream of a stream's key for its split associated photons (one key per chain and photon).
+#: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
+#: points its associated photons are aimed through at a specular split.
 SPLIT_TAG = 1
+SPLIT_DISC_TAG = 2
 
 
 @kernel
-def split_off(geom, mats, key, o, d, power, scattered, slot, split_pos, split_dir, split_pow, split_nrm,
-              split_valid):
-    """An associated photon that keeps its own path through mirrors and glass (``--specular split``).
+def split_off(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, slot0, split_pos, split_dir,
+              split_pow, split_nrm, split_kind):
+    """An associated photon that leaves its stream at a mirror or glass (``--specular split``).
 
-    It follows its own specular chain (Fresnel per photon, numbers from its own key) to
-    the diffuse surface it lands on, is stored there in split slot ``slot`` (unless it is
-    direct light), and decays there like an associated photon: it survives with
-    p = mean albedo, its power scaled by albedo / p.
-    Returns (kept, survived, power): not kept when it escapes or is absorbed (the
-    caller merges it into the leading photon, as SPEC §4 does with a miss).
+    From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`): its own
+    specular chain (Fresnel per photon, numbers from its own key), stored where it lands (unless
+    that is direct light) and at every later diffuse hit, in its own slots slot0 .. slot0 + mr.
+    It decays as an associated photon does (survives a diffuse bounce with p = mean albedo, power
+    scaled by albedo / p) and ends after the stream's ``max_bounces`` diffuse bounces in all.  What
+    escapes or is absorbed on its way is lost, as any photon's power is.
     """
-    n_spec = 0
-    while True:
-        prim, t, b1, b2 = intersect(geom, o, d, 1e30)
-        if prim < 0:
-            return False, False, power
-        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        front = vec.dot(d, ng) < 0.0
-        m = geom.prim_material[prim]
-        if mats.kind[m] == DIFFUSE:
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                return False, False, power
-            if scattered or n_spec > 0:
-                for c in range(3):
-                    split_pos[slot, c] = p[c]
-                    split_dir[slot, c] = d[c]
-                    split_pow[slot, c] = power[c]
-                    split_nrm[slot, c] = ns[c]
-                split_valid[slot] = 1
-            q = mats.albedo_mean[m]
-            if q > 0.0 and uniform(key, 2) < q:
-                return True, True, vec.mul(vec.hadamard(power, vec.row(mats.rgb, m)), 1.0 / q)
-            return True, False, power
-        n_spec += 1
-        if n_spec > SPECULAR_CAP:
-            return False, False, power
-        d_new, power, alive, ng_out = specular_scatter(mats, m, d, ng, ns, power, front, uniform(key, 2 + n_spec))
-        if not alive:
-            return False, False, power
-        o = vec.offset_origin(p, ng_out, d_new)
-        d = d_new
+    trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, TERMINATION_ROULETTE, False,
+              slot0, split_pos, split_dir, split_pow, split_nrm, split_kind)
 
 
 @kernel(inline=True)
@@ -138,25 +112,24 @@ def store_stream_record(rec, p, d, n, lead, p_assoc, landed, kind, rec_pos, rec_
 
 @kernel
 def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, p_assoc, store, rec,
-                     assoc_pos, assoc_dir, assoc_nrm, n_assoc, split, split_row, scattered,
-                     split_pos, split_dir, split_pow, split_nrm, split_valid):
+                     assoc_pos, assoc_dir, assoc_nrm, n_assoc, split, split_path, split_pos, split_dir, split_pow,
+                     split_nrm, split_kind):
     """Trace the stream's associated photons from o towards the disc about x_lead.
 
-    Returns (landed, split off, split survivors, their power): ``landed`` photons met a
-    diffuse surface and are written to assoc slots [rec * n_assoc, ...) when ``store``;
-    the rest merge into the leading photon — except, with ``split``, those whose ray
-    meets a mirror or glass, which follow their own path (:func:`split_off`, split slot
-    row ``split_row``).  ``n_from`` is the normal of the surface o lies on, facing the
-    side the stream leaves by (zero for a point light): a photon whose direction q - o
-    points into that surface cannot leave it and is merged (before this check such rays
-    met the surface again at t ~ 1e-4 and landed where the stream left from).
+    Returns (landed, split off): ``landed`` photons met a diffuse surface and are written to
+    assoc slots [rec * n_assoc, ...) when ``store``; the rest merge into the leading photon —
+    except, with ``split``, those whose ray meets a mirror or glass, which leave the stream as
+    photons of their own (:func:`split_off`; ``split_path`` = (the stream's first split slot
+    path, split photons so far, diffuse bounces, scattered, max_bounces)).  ``n_from`` is the
+    normal of the surface o lies on, facing the side the stream leaves by (zero for a point
+    light): a photon whose direction q - o points into that surface cannot leave it and is
+    merged (before this check such rays met the surface again at t ~ 1e-4 and landed where the
+    stream left from).
     """
     s, t = vec.orthonormal_basis(d_lead)
     check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
     n_split = 0
-    survivors = 0
-    survivor_power = (0.0, 0.0, 0.0)
     for j in range(n_alive):
         u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
         q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
@@ -169,14 +142,9 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
         m = geom.prim_material[prim]
         if mats.kind[m] != DIFFUSE:
             if split:
-                kj = path_key(key, SPLIT_TAG, split_row * n_assoc + j)
-                kept, alive, pw = split_off(geom, mats, kj, o, d, p_assoc, scattered, split_row * n_assoc + j,
-                                            split_pos, split_dir, split_pow, split_nrm, split_valid)
-                if kept:
-                    n_split += 1
-                    if alive:
-                        survivors += 1
-                        survivor_power = vec.add(survivor_power, pw)
+                split_off_at(geom, mats, key, o, d, p_assoc, split_path, n_split, split_pos, split_dir, split_pow,
+                             split_nrm, split_kind)
+                n_split += 1
             continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
         if vec.dot(d, ng) >= 0.0:
@@ -190,31 +158,38 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
                 assoc_dir[a, c] = d[c]
                 assoc_nrm[a, c] = ns[c]
         landed += 1
-    return landed, n_split, survivors, survivor_power
+    return landed, n_split
+
+
+@kernel(inline=True)
+def split_off_at(geom, mats, key, o, d, power, split_path, k, split_pos, split_dir, split_pow, split_nrm,
+                 split_kind):
+    """:func:`split_off` for the stream's split photon number split_path[1] + k: its key and its slots."""
+    first_path, before, diffuse_bounces, scattered, max_bounces = split_path
+    index = before + k
+    split_off(geom, mats, path_key(key, SPLIT_TAG, index), o, d, power, diffuse_bounces, scattered, max_bounces,
+              (first_path + index) * (max_bounces + 1), split_pos, split_dir, split_pow, split_nrm, split_kind)
 
 
 @kernel
 def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, split,
                   rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
                   rec_valid, assoc_pos, assoc_dir, assoc_nrm, split_pos, split_dir, split_pow, split_nrm,
-                  split_valid, i0, i1):
+                  split_kind, i0, i1):
     """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
 
     ``split`` (``--specular split``): associated photons do not merge at mirrors and
     glass.  At the leading photon's first mirror or glass of a specular chain each
     associated photon is aimed from o through a point of the disc of radius r_s about
     the hit (as at a diffuse hit); at a diffuse hit, those whose ray meets a mirror or
-    glass go on too.  Each follows its own specular path and is stored where it lands
-    as a photon of its own (:func:`split_off`; the stream's split slot rows
-    [i * SPLIT_ROWS(mr), ...)), decays there, and the survivors rejoin the stream after
-    the leading photon's next diffuse bounce, their powers pooled (the stream's
-    associated photons share one power).  What the split photons deposit where they land
-    is kept in expectation; their later bounces start from the leading photon's path
-    and end with it (when the leading photon escapes or is absorbed first, they are lost).
+    glass go on too.  Each leaves the stream as a photon of its own (:func:`split_off`),
+    stored where it lands and at its later diffuse hits, in the stream's split paths
+    [i * n_assoc, (i + 1) * n_assoc) of mr + 1 slots each (an associated photon splits
+    off at most once: it never rejoins).  One whose ray escapes or meets the black back
+    of a one-sided surface before any mirror or glass merges, as SPEC §4 says of a miss.
     """
     geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
     slots = max_bounces + 1
-    rows = 2 * slots
     share = 1.0 / (n_assoc + 1)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
@@ -227,9 +202,7 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
         specular_events = 0
         scattered = False
         stored = 0
-        split_rows = 0
-        pending = 0
-        pending_power = (0.0, 0.0, 0.0)
+        n_split = 0      # associated photons split off so far (their paths: i * n_assoc + 0, 1, ...)
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, 1e30)
             if prim < 0:
@@ -238,28 +211,26 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             front = vec.dot(d, ng) < 0.0
             m = geom.prim_material[prim]
             if mats.kind[m] != DIFFUSE:
-                if split and n_alive > 0 and split_rows < rows:
-                    # each associated photon takes its own path through the specular chain
-                    row = i * rows + split_rows
+                if split and n_alive > 0:
+                    # each associated photon takes its own path through the specular chain (this happens
+                    # once per stream at most: the stream has no associated photon after it)
+                    split_path = (i * n_assoc, n_split, diffuse_bounces, scattered, max_bounces)
                     s_ax, t_ax = vec.orthonormal_basis(d)
                     check_side = vec.dot(n_from, n_from) > 0.5
+                    k = 0
                     for j in range(n_alive):
-                        kj = path_key(key, SPLIT_TAG, row * n_assoc + j)
-                        u, v = square_to_uniform_disk(uniform(kj, 0), uniform(kj, 1))
+                        kd = path_key(key, SPLIT_DISC_TAG, j)
+                        u, v = square_to_uniform_disk(uniform(kd, 0), uniform(kd, 1))
                         q = vec.madd(vec.madd(p, s_ax, u * r_s), t_ax, v * r_s)
                         dj = vec.normalize(vec.sub(q, o))
-                        kept = False
-                        if not check_side or vec.dot(dj, n_from) > 0.0:
-                            kept, alive_j, pw = split_off(geom, mats, kj, o, dj, p_assoc, scattered,
-                                                          row * n_assoc + j, split_pos, split_dir, split_pow,
-                                                          split_nrm, split_valid)
-                            if kept and alive_j:
-                                pending += 1
-                                pending_power = vec.add(pending_power, pw)
-                        if not kept:
-                            lead = vec.add(lead, p_assoc)  # aimed into its surface, escaped or absorbed: merged
+                        if leaves_by(geom, mats, o, dj, n_from, check_side):
+                            split_off_at(geom, mats, key, o, dj, p_assoc, split_path, k,
+                                         split_pos, split_dir, split_pow, split_nrm, split_kind)
+                            k += 1
+                        else:
+                            lead = vec.add(lead, p_assoc)  # into its surface, escaped or a black back: merged
+                    n_split += k
                     n_alive = 0
-                    split_rows += 1
                 # mirror or glass: merge every associated photon (left) into the leading one
                 lead = vec.madd(lead, p_assoc, float(n_alive))
                 n_alive = 0
@@ -279,18 +250,15 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             if not scatters:
                 break  # absorbed by the black back of a one-sided surface
             rec = i * slots + stored
-            use_row = split and n_alive > 0 and split_rows < rows
-            landed, n_split, surv, surv_power = place_associated(
+            landed, split_now = place_associated(
                 geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc, scattered, rec,
-                assoc_pos, assoc_dir, assoc_nrm, n_assoc, use_row, i * rows + split_rows, scattered,
-                split_pos, split_dir, split_pow, split_nrm, split_valid)
-            if use_row:
-                split_rows += 1
+                assoc_pos, assoc_dir, assoc_nrm, n_assoc, split,
+                (i * n_assoc, n_split, diffuse_bounces, scattered, max_bounces),
+                split_pos, split_dir, split_pow, split_nrm, split_kind)
+            n_split += split_now
             dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed - n_split))   # the ones that did not land merge
+            lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
             n_alive = landed
-            pending += surv
-            pending_power = vec.add(pending_power, surv_power)
             if scattered:  # a stream record (direct light is not stored)
                 # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
                 # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
@@ -305,24 +273,29 @@ def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max
             dim += 3
             if not alive:
                 break
-            q = mats.albedo_mean[m]
             n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
             dim += n_assoc
-            if pending > 0:
-                # split photons that survived their own landing rejoin the stream, powers pooled;
-                # with roulette they rejoin only if the leading photon survived (probability q)
-                if termination == TERMINATION_ROULETTE and q > 0.0:
-                    pending_power = vec.mul(pending_power, 1.0 / q)
-                total = vec.add(vec.mul(p_assoc, float(n_alive)), pending_power)
-                n_alive += pending
-                p_assoc = vec.mul(total, 1.0 / n_alive)
-                pending = 0
-                pending_power = (0.0, 0.0, 0.0)
             diffuse_bounces += 1
             o = vec.offset_origin(p, ng, d_new)
             n_from = ng
             d = d_new
             scattered = True
+
+
+@kernel(inline=True)
+def leaves_by(geom, mats, o, d, n_from, check_side):
+    """Whether an associated photon aimed from o along d leaves its stream at a specular split: its ray must
+    leave the surface o lies on and meet something other than the black back of a one-sided surface."""
+    if check_side and vec.dot(d, n_from) <= 0.0:
+        return False
+    prim, t, b1, b2 = intersect(geom, o, d, 1e30)
+    if prim < 0:
+        return False
+    m = geom.prim_material[prim]
+    if mats.kind[m] != DIFFUSE or mats.twosided[m] != 0:
+        return True
+    _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+    return vec.dot(d, ng) < 0.0
 
 
 class StreamBuffers:
@@ -335,9 +308,8 @@ class StreamBuffers:
         self.rec = (np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f),
                     np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros(s, np.int32), np.zeros(s, np.int8))
         self.assoc = (np.zeros((a, 3), f), np.zeros((a, 3), f), np.zeros((a, 3), f))
-        b = 2 * a if split else 0   # split slot rows: two per bounce (a specular chain and a diffuse hit)
-        self.split = (np.zeros((b, 3), f), np.zeros((b, 3), f), np.zeros((b, 3), f), np.zeros((b, 3), f),
-                      np.zeros(b, np.int8))
+        # split photons: at most n_assoc per stream, mr + 1 slots each
+        self.split = allocate_buffers(n_streams * n_assoc if split else 0, max_bounces + 1)
         self.n_assoc = n_assoc
 
     @property
@@ -348,7 +320,7 @@ class StreamBuffers:
     @staticmethod
     def bytes_needed(n_streams, n_assoc, max_bounces, split=False):
         s = n_streams * (max_bounces + 1)
-        return s * (6 * 12 + 5) + s * n_assoc * (36 + (2 * 49 if split else 0))
+        return s * (6 * 12 + 5) + s * n_assoc * (36 + (SLOT_BYTES if split else 0))
 
     def _records(self, estimator: str, keep: np.ndarray) -> list:
         """(position, direction, power, normal) parts of the records ``keep`` under ``estimator``.
@@ -379,9 +351,9 @@ class StreamBuffers:
         valid = self.rec[7]
         keep = (valid == INDIRECT) if leave_caustics else ((valid == INDIRECT) | (valid == CAUSTIC))
         parts = self._records(estimator, keep)
-        sp, sd, spow, sn, sv = self.split
-        if sv.shape[0]:
-            ok = sv == 1
+        sp, sd, spow, sn, kind = self.split
+        if kind.shape[0]:
+            ok = kind != EMPTY
             parts.append((sp[ok], sd[ok], spow[ok], sn[ok]))
         return tuple(np.concatenate([part[c] for part in parts]) for c in range(4))
 

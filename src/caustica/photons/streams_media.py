@@ -88,7 +88,7 @@ def spread_in_medium(geom, o, x_lead, d_lead, r_s, key, dim, n_alive, store, rec
 def trace_streams_media(geom, mats, lights, media, light_medium, seed, stream, n_streams, n_assoc, r_s, max_bounces,
                         termination, spread, rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy,
                         rec_count, rec_valid, assoc_pos, assoc_dir, assoc_nrm, split_pos, split_dir, split_pow,
-                        split_nrm, split_valid, i0, i1):
+                        split_nrm, split_kind, i0, i1):
     """Emit and trace streams [i0, i1) through media; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
 
     ``spread``: associated photons spread about a medium scattering event (else they merge).
@@ -195,10 +195,10 @@ def trace_streams_media(geom, mats, lights, media, light_medium, seed, stream, n
                 break  # absorbed by the black back of a one-sided surface
             rec = i * slots + stored
             store = scattered and stored < slots
-            landed, _, _, _ = place_associated(
+            landed, _ = place_associated(
                 geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc, store, rec,
-                assoc_pos, assoc_dir, assoc_nrm, n_assoc, False, 0, scattered,
-                split_pos, split_dir, split_pow, split_nrm, split_valid)
+                assoc_pos, assoc_dir, assoc_nrm, n_assoc, False, (0, 0, 0, False, 0),
+                split_pos, split_dir, split_pow, split_nrm, split_kind)
             dim += 2 * n_assoc
             lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones that did not land merge
             n_alive = landed

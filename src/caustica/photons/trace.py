@@ -71,13 +71,15 @@ def specular_scatter(mats, m, d, ng, ns, power, front, u):
 
 
 @kernel
-def trace_one(geom, mats, key, o, d, power, max_bounces, termination, caustic_only,
+def trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, termination, caustic_only,
               slot0, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
-    """Follow one photon, storing records in slots slot0, slot0 + 1, ...; returns records stored."""
+    """Follow one photon, storing records in slots slot0, slot0 + 1, ...; returns records stored.
+
+    A photon from a light starts with no diffuse bounce and not ``scattered``; a split photon of a
+    stream (:mod:`caustica.photons.streams`) starts with its stream's.  Random numbers from 8 on.
+    """
     dim = 8
-    diffuse_bounces = 0
     specular_events = 0
-    scattered = False
     stored = 0
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, 1e30)
@@ -125,7 +127,7 @@ def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termin
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, _ = emit_photon(geom, lights, key, n_paths)
-        trace_one(geom, mats, key, o, d, power, max_bounces, termination, False,
+        trace_one(geom, mats, key, o, d, power, 0, False, max_bounces, termination, False,
                   i * slots, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
 
 
@@ -138,5 +140,5 @@ def trace_caustic_photons(geom, mats, lights, spheres, seed, stream, n_paths,
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
-            trace_one(geom, mats, key, o, d, power, 0, TERMINATION_CAP, True,
+            trace_one(geom, mats, key, o, d, power, 0, False, 0, TERMINATION_CAP, True,
                       i, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
