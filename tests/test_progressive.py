@@ -497,10 +497,26 @@ def test_global_schedule_sidecar_and_aovs(diacaustic):
 
 
 def test_pspm_stream_radius_shrinks_with_the_gather_radii(diacaustic):
-    r = caustica.render(diacaustic, "pspm", res=16, seed=1, passes=6, streams=2000, stream_radius=2.0)
-    r0, med = r.stats["initial_radius"], r.stats["radius_final"]["median"]
-    assert med < r0
-    assert r.stats["stream_radius_next_pass"] == pytest.approx(2.0 * med / r0)
+    r = caustica.render(diacaustic, "pspm", res=16, seed=1, passes=6, streams=2000, stream_radius=2.0,
+                        aov=("radius",))
+    r0 = r.stats["initial_radius"]
+    rad = r.aovs["radius"].astype(np.float64)
+    gathered = rad[rad < np.float32(r0)]
+    assert 0 < gathered.size < rad.size      # some pixels (the light) never gather
+    assert r.stats["stream_radius_next_pass"] == pytest.approx(2.0 * np.median(gathered) / r0, rel=1e-6)
+
+
+def test_pspm_stream_radius_follows_only_the_pixels_that_gather(diacaustic):
+    """Pixels that never gather keep R_0; the median of every pixel followed them (S4: r_s stayed at
+    0.5 of its start while the gathering pixels were at 0.225).  Six pixels in ten never gathered here."""
+    from caustica.methods.pspm import stream_radius
+    from caustica.methods.progressive import initial_radius
+
+    settings = {"stream_radius": 5.0, "radius": None}
+    r0 = initial_radius(diacaustic, settings)
+    radius = np.concatenate([np.full(60, r0), np.full(40, 0.2 * r0)])
+    assert stream_radius(diacaustic, settings, radius) == pytest.approx(5.0 * 0.2)
+    assert stream_radius(diacaustic, settings, np.full(10, r0)) == 5.0    # the first pass
 
 
 def test_time_budget_stops_between_passes(diacaustic):

@@ -58,9 +58,14 @@ def stream_radius(scene, settings, radius) -> float:
     would have put them (and split photons leave through a disc of radius r_s), which
     blurs the light they carry at the scale r_s whatever the number of passes; shrinking
     r_s with the radii makes that blur vanish as the passes grow, as SPPM's own does.
+    The median is over the pixels that have gathered (their R_i < R_0): a pixel that never
+    gathers an event (it sees an emitter, the sky, or a black back) keeps R_0, and counting
+    those held r_s at half its start while the gathering pixels' radii were at a fifth.
     The factor depends only on the state, so it is the same for any thread count.
     """
-    return settings["stream_radius"] * float(np.median(radius)) / initial_radius(scene, settings)
+    r0 = initial_radius(scene, settings)
+    shrunk = radius[radius < r0]
+    return settings["stream_radius"] * (float(np.median(shrunk)) / r0 if shrunk.size else 1.0)
 
 
 @register
