@@ -135,6 +135,16 @@ def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_
     return L
 
 
+@kernel(inline=True)
+def first_segment_numbers(pass_index, qkey):
+    """(distance, light u1, u2) numbers of a camera path's first medium segment: pass ``pass_index`` of
+    Kronecker sequences with generators of their own (KRONECKER_ALPHA[3:6]), jointly uniform with the
+    glass branch's and the light strata's over the passes."""
+    return (kronecker(pass_index, KRONECKER_ALPHA[3], uniform(qkey, QMC_SEGMENT_DIM)),
+            kronecker(pass_index, KRONECKER_ALPHA[4], uniform(qkey, QMC_SEGMENT_DIM + 1)),
+            kronecker(pass_index, KRONECKER_ALPHA[5], uniform(qkey, QMC_SEGMENT_DIM + 2)))
+
+
 @kernel
 def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, n_strata, max_specular,
                         seg_o, seg_d, seg_len, seg_beta, seg_medium, slot0):
@@ -170,9 +180,7 @@ def visible_point_media(geom, mats, lights, media, o, d, key, qkey, vkey, pass_i
             u1 = uniform(vkey, vd + 3)
             u2 = uniform(vkey, vd + 4)
             if n_seg == 0:   # the first segment's distance and light point: stratified over the passes
-                u_dist = kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, QMC_SEGMENT_DIM))
-                u1 = kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, QMC_SEGMENT_DIM + 1))
-                u2 = kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, QMC_SEGMENT_DIM + 2))
+                u_dist, u1, u2 = first_segment_numbers(pass_index, qkey)
             L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
                                              uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2,
                                              uniform(vkey, vd + 5), uniform(vkey, vd + 6)))

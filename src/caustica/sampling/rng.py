@@ -121,11 +121,22 @@ def sobol02(index, key):
     return float(x ^ sx) * _INV32, float(y ^ sy) * _INV32
 
 
-#: Kronecker (rank-1) generators for the progressive camera pass's other dimensions: the
-#: fractional powers 1/g, 1/g^2, 1/g^3 of the root g of x^4 = x + 1 (Roberts' R_3 sequence),
-#: rationally independent, so frac(s + k alpha) is uniformly distributed in 3-D.
+#: Kronecker (rank-1) generators for the progressive camera pass's other dimensions, one per
+#: dimension, so that the pass-indexed points frac(s + p alpha) are uniformly distributed jointly:
+#:
+#: * 0 .. 2: 1/g, 1/g^2, 1/g^3 for the root g of x^4 = x + 1 (Roberts' R_3 sequence): the first
+#:   glass branch and the visible point's light strata (u1, u2);
+#: * 3 .. 5: 1/h, 1/h^2, 1/h^3 for the root h of x^6 = x + 1 (R_5's): the first medium segment's
+#:   distance and light point.
+#:
+#: 1, the g powers and the h powers are linearly independent over the rationals (x^n - x - 1 is
+#: irreducible, Selmer; the two fields meet only in Q), which is what joint uniformity needs.  Two
+#: dimensions that shared a generator (they did until 2026-12-03: the segment's distance and the
+#: glass branch) differ by a constant shift, so their points lie on one line of the torus and a
+#: path through glass into a medium never sees most distances with the branch it took.
 _G3 = 1.2207440846057596
-KRONECKER_ALPHA = (1.0 / _G3, 1.0 / _G3 ** 2, 1.0 / _G3 ** 3)
+_G5 = 1.1347241384015194
+KRONECKER_ALPHA = (1.0 / _G3, 1.0 / _G3 ** 2, 1.0 / _G3 ** 3, 1.0 / _G5, 1.0 / _G5 ** 2, 1.0 / _G5 ** 3)
 
 
 @kernel(inline=True)
