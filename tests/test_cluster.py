@@ -217,7 +217,7 @@ def test_task_size_is_capped_by_the_workers_memory():
     cls = caustica.methods.get("pt")
     settings = {"width": 1000, "height": 1000}
     px = 10 ** 6
-    per_pass = getattr(cls, "bytes_per_pixel", caustica.api.IMAGE_BYTES_PER_PIXEL)
+    per_pass = getattr(cls, "bytes_per_pixel", caustica.film.IMAGE_BYTES_PER_PIXEL)
     need = px * per_pass + px * cluster.part_bytes_per_pixel(1)
     assert cluster.max_task_passes(_Share(None), cls, settings) == cluster.MAX_TASK_PASSES
     assert cluster.max_task_passes(_Share(10 ** 15), cls, settings) == cluster.MAX_TASK_PASSES
@@ -289,7 +289,7 @@ def test_the_memory_cap_counts_a_pass_s_photon_buffers(diacaustic):
 @pytest.mark.parametrize("method", ["sppm", "pspm"])
 def test_the_memory_cap_counts_the_camera_segments_in_media(diacaustic, method):
     """In a scene with media a pass also holds the camera's medium segments (MEDIUM_SEGMENTS a pixel)."""
-    from caustica.photons.visible_points_media import SEGMENT_BYTES
+    from caustica.photons.segments import SEGMENT_BYTES
     fog = caustica.load_scene(builtin_scene_path("cornell-diacaustic-fog"))
     kw = dict(res=16, multi_pass=True, schedule="global")
     plain = caustica.api.resolve_settings(diacaustic, method, **kw)

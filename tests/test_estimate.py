@@ -28,13 +28,12 @@ import math
 import numpy as np
 import pytest
 
-from caustica.jit import parallel_for
 from caustica.photons.estimate import FILTERS, filter_weight, flux_density
 from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, allocate_buffers, build_photon_map, \
     map_from_buffers
-from caustica.photons.trace import TERMINATION_CAP, trace_photons
+from caustica.photons.trace import TERMINATION_CAP, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 from caustica.scene.xml_loader import parse_scene_string
 
 FILTER_NAMES = ("none", "cone", "gaussian", "epanechnikov")
@@ -239,8 +238,7 @@ def sphere_photons():
     scene = compile_scene(parse_scene_string(SPHERE_XML, ".", None, "sphere.xml"))
     n, mr = 200_000, 3
     buf = allocate_buffers(n, mr + 1)
-    parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, 11, STREAM_PHOTON, n, mr,
-                                    TERMINATION_CAP, *buf))
+    trace_photon_pass(scene, buf, 11, STREAM_PHOTON, n, mr, TERMINATION_CAP)
     return buf, n, mr
 
 

@@ -12,7 +12,7 @@ from numba import njit, typeof
 from caustica.geometry.bvh import _stable_sort
 from caustica.jit import BorrowedTuple
 from caustica.scene import load_scene_description
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 
 
 # Which specialisations a kernel gets is only visible when it is compiled in this process: with
@@ -22,7 +22,7 @@ from caustica.scene.compiled import compile_scene
 _SPECIALISATION_CHECKS = """
 from caustica.jit import BorrowedTuple, borrowed, kernel
 from caustica.scene import load_scene_description
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 
 
 @kernel

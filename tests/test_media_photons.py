@@ -30,10 +30,8 @@ import pytest
 import caustica
 from caustica.errors import ParameterError
 from caustica.media import MediumTable
-from caustica.jit import parallel_for
 from caustica.photons.beams import beam_gather, build_volume_grid
-from caustica.photons.visible_points_media import MEDIUM_SEGMENTS, visible_points_media
-from caustica.sampling.rng import STREAM_CAMERA, STREAM_CAMERA_MEDIA, pass_stream
+from caustica.photons.visible_points import camera_pass
 from caustica.scene import builtin_scene_path
 from imagestats import N_SIGMA, assert_images_agree
 from test_media_pt import SHELL_A, SHELL_B, SHELL_I, rgb, scene_from_xml, sensor_xml, shell_scene, \
@@ -46,7 +44,7 @@ def medium_table(sigma, albedo, g):
     hg = g is not None
     return MediumTable(np.array([sigma], float), np.array([albedo], float), np.array([1 if hg else 0], np.int32),
                        np.array([g or 0.0]), np.full(1, -1, np.int32), np.full(1, -1, np.int32),
-                       np.zeros(1, np.int32))
+                       np.zeros(1, np.int32), np.zeros(1, np.int8))
 
 
 def hg(g, mu):
@@ -133,18 +131,14 @@ def test_single_scattering_along_camera_segments_has_the_closed_form(sigma, albe
     phase = '<phase type="isotropic"/>' if g is None else f'<phase type="hg"><float name="g" value="{g}"/></phase>'
     scene = shell_scene(f'<rgb name="sigma_t" value="{rgb(sigma)}"/><rgb name="albedo" value="{rgb(albedo)}"/>{phase}')
     n = 16 * 16
-    k = n * MEDIUM_SEGMENTS
-    vp = [np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_), np.empty((n, 3))]
-    seg = (np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
-           np.empty(n, np.int32))
     direct = np.zeros((n, 3))
     passes = 16
+    settings = {"width": 16, "height": 16, "seed": 2, "threads": None, "light_samples": 1, "fixed_light_grid": False,
+                "max_specular_depth": 16}
     for p in range(passes):
-        parallel_for(visible_points_media, n, (scene.geometry, scene.materials, scene.lights, scene.media,
-                                               scene.camera(16, 16), 2, pass_stream(STREAM_CAMERA, p),
-                                               pass_stream(STREAM_CAMERA_MEDIA, p), p, 1, 16, *vp, *seg))
-        assert not vp[3].any() and np.all(seg[5] == 1)   # no surface to stop at; one segment, a to b
-        direct += vp[4]
+        vp, seg, _ = camera_pass(scene, settings, p)
+        assert not vp.found.any() and np.all(seg.count == 1)   # no surface to stop at; one segment, a to b
+        direct += vp.direct
     pix = direct / passes
     expected = single_scattering_shell(sigma, albedo, 0.0 if g is None else g, SHELL_I, SHELL_A, SHELL_B)
     # every pixel has the same expectation and its own random numbers: 256 independent samples
@@ -324,7 +318,7 @@ def test_in_scattering_samples_near_an_area_light_stay_bounded():
     sample and the phase sample, each is at most 1.5 L_e times the distance weight (<= the albedo in a grey
     medium).  Light sampling alone grows as 1 / h² for a segment at height h under the light (before MIS, one
     such sample made a 256 x 256 fog-box pixel 161 after 277 passes, against 25)."""
-    from caustica.photons.visible_points_media import segment_inscatter
+    from caustica.photons.segments import segment_inscatter
     scene = caustica.load_scene("cornell-diacaustic-fog", res=8)
     rng = np.random.default_rng(1)
     le = float(scene.lights.radiance[0].max())
@@ -359,17 +353,14 @@ def test_volume_radius_sets_the_beam_estimate_s_radius():
 
 
 def trace_fog_streams(spread, n=20_000, n_assoc=4, r_s=0.5, termination=None):
-    """The fog box's stream buffers after tracing ``n`` streams through the fog (caustica.photons.streams_media)."""
-    from caustica.media import light_media
-    from caustica.photons.streams import StreamBuffers
-    from caustica.photons.streams_media import trace_streams_media
+    """The fog box's stream buffers after tracing ``n`` streams through the fog (caustica.photons.streams)."""
+    from caustica.photons.streams import StreamBuffers, trace_stream_pass
     from caustica.photons.trace import TERMINATION_ROULETTE
     s = caustica.load_scene("cornell-diacaustic-fog", res=8)
     mr = 16
     buf = StreamBuffers(n, n_assoc, mr)
-    parallel_for(trace_streams_media, n, (s.geometry, s.materials, s.lights, s.media, light_media(s), 7, 11, n,
-                                          n_assoc, r_s, mr, TERMINATION_ROULETTE if termination is None else termination,
-                                          spread, *buf.kernel_args))
+    trace_stream_pass(s, buf, 7, 11, n, n_assoc, r_s, mr, TERMINATION_ROULETTE if termination is None else termination,
+                      spread=spread)
     return s, buf
 
 
@@ -401,15 +392,12 @@ def test_the_streams_caustic_records_in_media_carry_the_aimed_photons_flux():
     """What ``pspm --caustic-photons`` leaves out of the streams in a medium (records of kinds 2 and 4:
     light -> glass+ -> wall or fog) and what the aimed photons carry instead estimate the same flux,
     surface and volume apart: totals within 5 sigmas (per-path spreads)."""
-    from caustica.media import light_media
     from caustica.photons.records import CAUSTIC, VOLUME_CAUSTIC, allocate_buffers
-    from caustica.photons.trace import TERMINATION_CAP
-    from caustica.photons.trace_media import trace_caustic_photons_media
+    from caustica.photons.trace import TERMINATION_CAP, trace_caustic_photon_pass
     n = 40_000
     s, buf = trace_fog_streams(True, n=n, termination=TERMINATION_CAP)
     cb = allocate_buffers(n, 1)
-    parallel_for(trace_caustic_photons_media, n, (s.geometry, s.materials, s.lights, s.media, light_media(s),
-                                                  s.specular_bounding_spheres(), 7, 12, n, *cb))
+    trace_caustic_photon_pass(s, cb, 7, 12, n)
     energy, valid = buf.rec[5].astype(np.float64), buf.rec[7]
     for stream_kind, photon_kind in ((2, CAUSTIC), (4, VOLUME_CAUSTIC)):
         per_stream = np.where((valid == stream_kind)[:, None], energy, 0.0).reshape(n, -1, 3).sum(axis=(1, 2))
@@ -564,9 +552,8 @@ def test_aimed_photons_replace_the_volume_caustic_without_double_counting(method
     expectation, within 5 sigmas of its spread over 8 seeds.  Keeping both (or neither) would be off by the
     whole share, which is checked to be more than 7 of those sigmas (measured: 34 for pm, 7.8 for pspm), so
     the test can fail."""
-    from caustica.media import light_media
     from caustica.photons.records import VOLUME_CAUSTIC, allocate_buffers
-    from caustica.photons.trace_media import trace_caustic_photons_media
+    from caustica.photons.trace import trace_caustic_photon_pass
     n_c = 40_000
     diff = np.array([_volume_power(method, s, caustic_photons=n_c, **params) - _volume_power(method, s, **params)
                      for s in range(8)])
@@ -574,8 +561,7 @@ def test_aimed_photons_replace_the_volume_caustic_without_double_counting(method
     assert abs(diff.mean()) <= N_SIGMA * se, (diff.mean(), se)
     s = caustica.load_scene("cornell-diacaustic-fog", res=8)
     cb = allocate_buffers(n_c, 1)
-    parallel_for(trace_caustic_photons_media, n_c, (s.geometry, s.materials, s.lights, s.media, light_media(s),
-                                                    s.specular_bounding_spheres(), 7, 12, n_c, *cb))
+    trace_caustic_photon_pass(s, cb, 7, 12, n_c)
     share = float(cb.power[cb.kind == VOLUME_CAUSTIC].astype(np.float64).sum())
     assert share > (N_SIGMA + 2) * se, (share, se)
 
@@ -610,7 +596,7 @@ def test_camera_pass_numbers_are_jointly_uniform_over_passes():
     sampled at the distances of one branch only.  Now every pair's cells hold 41 to 84 of the 64 each is
     due (a rank-1 lattice's 2-D projections are not perfect nets); the bound is half to 1.5 times."""
     from caustica.photons.visible_points import glass_branch_number
-    from caustica.photons.visible_points_media import first_segment_numbers
+    from caustica.photons.segments import first_segment_numbers
     from caustica.sampling.rng import KRONECKER_ALPHA, kronecker, path_key, uniform
 
     passes = 4096

@@ -29,7 +29,7 @@ from scipy.special import exp1
 import caustica
 from caustica.media import transmittance
 from caustica.scene import parse_scene_string
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 from imagestats import N_SIGMA, assert_images_agree
 
 
@@ -287,15 +287,20 @@ def test_media_renders_have_the_same_bits_for_any_thread_count():
     assert not np.array_equal(one, caustica.render(scene, "pt", spp=4, seed=8, threads=2).image)
 
 
-def test_scenes_without_media_compile_without_a_medium_table():
+def test_scenes_without_media_compile_to_a_medium_table_of_vacuum():
+    """Every scene has a medium table (one loop per role renders both); without media it says vacuum everywhere."""
     scene = caustica.load_scene("cornell-diacaustic", res=16)
-    assert scene.media is None and not scene.has_media
+    assert not scene.has_media
+    assert np.all(scene.media.interior == -1) and np.all(scene.media.exterior == -1)
+    assert scene.media.camera[0] == -1 and scene.media.null_surfaces[0] == 0
     # a medium defined but used by nothing changes nothing either
     text = scene.description.files[0].read_text().replace(
         "<sensor ", '<medium type="homogeneous" id="unused"/>\n    <sensor ')
     other = compile_scene(parse_scene_string(text, base_dir=scene.description.files[0].parent))
-    assert other.media is None
-    for a, b in zip((scene.geometry, scene.materials, scene.lights), (other.geometry, other.materials, other.lights)):
+    assert not other.has_media
+    vacuum = ("interior", "exterior", "camera", "null_surfaces")   # where media are (the unused one is listed)
+    for a, b in zip((scene.geometry, scene.materials, scene.lights, [getattr(scene.media, f) for f in vacuum]),
+                    (other.geometry, other.materials, other.lights, [getattr(other.media, f) for f in vacuum])):
         for x, y in zip(a, b):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
     r1 = caustica.render(scene, "pt", spp=2, res=16, seed=4, threads=2).image

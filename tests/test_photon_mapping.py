@@ -16,11 +16,10 @@ import pytest
 
 import caustica
 from caustica.errors import ParameterError
-from caustica.jit import parallel_for
 from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, allocate_buffers
-from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_caustic_photons, trace_photons
+from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_caustic_photon_pass, trace_photon_pass
 from caustica.sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 from caustica.scene.xml_loader import parse_scene_string
 
 RHO = np.array([0.6, 0.5, 0.4])
@@ -51,8 +50,7 @@ def xml_scene(text, name="test.xml"):
 
 def trace(scene, n, mr, termination=TERMINATION_CAP, seed=5, threads=None):
     buf = allocate_buffers(n, mr + 1)
-    parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_PHOTON, n, mr,
-                                    termination, *buf), threads=threads)
+    trace_photon_pass(scene, buf, seed, STREAM_PHOTON, n, mr, termination, threads=threads)
     return buf
 
 
@@ -159,8 +157,7 @@ def test_caustic_map_holds_only_lsd_records_on_diffuse_surfaces(diacaustic):
     np.testing.assert_allclose(spheres[0], [4, 4, 2, 4], rtol=1e-8)   # the glass sphere itself
     n_c = 40_000
     buf = allocate_buffers(n_c, 1)
-    parallel_for(trace_caustic_photons, n_c, (s.geometry, s.materials, s.lights, spheres, 3, STREAM_CAUSTIC_PHOTON,
-                                              n_c, *buf))
+    trace_caustic_photon_pass(s, buf, 3, STREAM_CAUSTIC_PHOTON, n_c, spheres=spheres)
     keep = buf.kind != EMPTY
     assert keep.sum() > 0.1 * n_c
     assert np.all(buf.kind[keep] == CAUSTIC)
@@ -188,8 +185,7 @@ def box_spheres(s):
 
 def stored_fraction(s, spheres, n, seed=3):
     buf = allocate_buffers(n, 1)
-    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, spheres, seed, STREAM_CAUSTIC_PHOTON,
-                                            n, *buf))
+    trace_caustic_photon_pass(s, buf, seed, STREAM_CAUSTIC_PHOTON, n, spheres=spheres)
     return float((buf.kind != EMPTY).mean())
 
 
@@ -233,8 +229,7 @@ def test_caustic_photons_carry_the_same_power_as_lsd_paths_of_the_global_pass(sc
     gpow[g.kind.reshape(n, 2) != CAUSTIC] = 0.0
     x_g = gpow.sum(axis=1)
     c = allocate_buffers(n, 1)
-    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, s.specular_bounding_spheres(), 9,
-                                            STREAM_CAUSTIC_PHOTON, n, *c))
+    trace_caustic_photon_pass(s, c, 9, STREAM_CAUSTIC_PHOTON, n)
     x_c = c.power.astype(np.float64) * (c.kind != EMPTY)[:, None]
     tg, tc = x_g.sum(axis=0), x_c.sum(axis=0)
     se = np.sqrt(x_g.var(axis=0, ddof=1) * n + x_c.var(axis=0, ddof=1) * n)

@@ -26,8 +26,8 @@ from caustica.errors import ParameterError
 from caustica.film import Film
 from caustica.photons.grid import build_grid, grid_range_sum
 from caustica.photons.kdtree import FACING_COS
-from caustica.photons.visible_points import visible_points
-from caustica.sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, kronecker, pass_stream, sobol02
+from caustica.photons.visible_points import camera_pass
+from caustica.sampling.rng import KRONECKER_ALPHA, kronecker, sobol02
 from caustica.scene import builtin_scene_path
 from imagestats import N_SIGMA, assert_images_agree, downsample, load_reference
 from test_pt import FURNACE_LE, FURNACE_RHO, PLANE_RHO, AH, AW, CAM_H, FOV_X, LIGHT_H, furnace_scene, \
@@ -80,6 +80,12 @@ def test_sobol02_prefixes_are_nets_whatever_the_shift(key):
             cx = np.floor(pts[:2 ** m, 0] * 2 ** a).astype(int)
             cy = np.floor(pts[:2 ** m, 1] * 2 ** (m - a)).astype(int)
             assert len(set(zip(cx, cy))) == 2 ** m, (m, a)
+
+
+def camera_settings(width, height, seed, light_samples=1, max_specular_depth=64):
+    """What :func:`caustica.photons.visible_points.camera_pass` reads of a render's settings."""
+    return {"width": width, "height": height, "seed": seed, "threads": 1, "light_samples": light_samples,
+            "fixed_light_grid": False, "max_specular_depth": max_specular_depth}
 
 
 def test_sobol02_and_kronecker_points_are_uniform_over_shifts():
@@ -200,16 +206,12 @@ def test_camera_pass_stratifies_each_pixel_over_the_passes():
     4 x 4 (and 2 x 8, 8 x 2, 1 x 16) sub-pixel cells: the jitter is a (0, 4, 2)-net over the passes."""
     scene = plane_scene(f"""<emitter type="point"><point name="position" x="0" y="0" z="{LIGHT_H}"/>
         <rgb name="intensity" value="1, 1, 1"/></emitter>""")
-    cam = scene.camera(AW, AH)
     n = AW * AH
     tan_x = math.tan(math.radians(FOV_X) / 2)
     tan_y = tan_x * AH / AW
     offsets = []
     for p in range(16):
-        pos, nrm, w, found, direct = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.bool_), \
-            np.zeros((n, 3))
-        visible_points(scene.geometry, scene.materials, scene.lights, cam, 11, pass_stream(STREAM_CAMERA, p), p, 1,
-                       False, 64, pos, nrm, w, found, direct, 0, n)
+        (pos, nrm, w, found, direct), _, _ = camera_pass(scene, camera_settings(AW, AH, 11), p)
         assert found.all()
         # film coordinates of the visible point (the inverse of tests/test_pt.py's pixel_footprints)
         fx = (1 - pos[:, 0] / (CAM_H * tan_x)) / 2 * AW
@@ -262,13 +264,10 @@ def test_camera_pass_adds_a_light_seen_in_glass_with_its_fresnel_weight():
             <emitter type="area"><rgb name="radiance" value="{', '.join(map(str, le))}"/></emitter>
         </shape>
     </scene>""")
-    cam = scene.camera(1, 1)
     F, _ = fresnel_dielectric(math.cos(math.pi / 4), 1.5)
     assert 0.05 < F < 0.2
     for p in range(24):
-        out = [np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1, np.bool_), np.zeros((1, 3))]
-        visible_points(scene.geometry, scene.materials, scene.lights, cam, 7, pass_stream(STREAM_CAMERA, p), p, 1,
-                       False, 64, *out, 0, 1)
+        out, _, _ = camera_pass(scene, camera_settings(1, 1, 7), p)
         # (the refracted ray escapes; the reflected one, when chosen, ends on the light's own diffuse
         # surface, which the light does not light: either way the light's share is all there is)
         np.testing.assert_allclose(out[4][0], F * le, rtol=1e-3)   # the 0.01 degree pixel moves F a little
@@ -327,19 +326,16 @@ def test_the_stream_records_pspm_leaves_out_carry_the_caustic_photons_flux(diaca
     """The records marked 2 (light -> specular+ -> diffuse, which --caustic-photons leaves to the aimed
     photons) and the aimed photons' events estimate the same caustic flux: totals agree within 5 sigma
     (per-path spreads), and no other record of a stream is left out."""
-    from caustica.jit import parallel_for
     from caustica.photons.records import CAUSTIC, allocate_buffers
-    from caustica.photons.streams import StreamBuffers, trace_streams
-    from caustica.photons.trace import TERMINATION_CAP, trace_caustic_photons
+    from caustica.photons.streams import StreamBuffers, trace_stream_pass
+    from caustica.photons.trace import TERMINATION_CAP, trace_caustic_photon_pass
     s, n, mr = diacaustic, 40_000, 4
     buf = StreamBuffers(n, 10, mr)
-    parallel_for(trace_streams, n, (s.geometry, s.materials, s.lights, 3, 11, n, 10, 5.0, mr, TERMINATION_CAP,
-                                    False, *buf.kernel_args))
+    trace_stream_pass(s, buf, 3, 11, n, 10, 5.0, mr, TERMINATION_CAP)
     energy, valid = buf.rec[5].astype(np.float64), buf.rec[7]
     per_stream = np.where((valid == 2)[:, None], energy, 0.0).reshape(n, mr + 1, 3).sum(axis=(1, 2))
     cb = allocate_buffers(n, 1)
-    parallel_for(trace_caustic_photons, n, (s.geometry, s.materials, s.lights, s.specular_bounding_spheres(), 3, 12,
-                                            n, *cb))
+    trace_caustic_photon_pass(s, cb, 3, 12, n)
     per_photon = np.where((cb.kind == CAUSTIC)[:, None], cb.power.astype(np.float64), 0.0).sum(axis=1)
     a, b = per_stream.sum(), per_photon.sum()
     se = math.sqrt(n * per_stream.var() + n * per_photon.var())

@@ -24,7 +24,7 @@ import pytest
 import caustica
 from caustica.imageio import read_png_mask
 from caustica.scene import builtin_scene_path, parse_scene_string
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 from imagestats import BLOCK, N_SIGMA, assert_images_agree, block_means, downsample, load_reference, \
     pixel_var_of_mean
 

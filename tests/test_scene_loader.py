@@ -842,7 +842,7 @@ def test_film_too_large_for_memory_names_the_film(tmp_path, monkeypatch):
 
 def test_emitted_power_beyond_float32_is_an_error(tmp_path):
     """Radiance and size each within float32, their product not: photon powers would be infinite."""
-    from caustica.scene.compiled import compile_scene
+    from caustica.tables import compile_scene
     d = load_strict(tmp_path, RECT.format('<emitter type="area"/>') + "\n"
                     + '<shape type="sphere"><float name="radius" value="1e10"/>\n'
                       '<emitter type="area"><rgb name="radiance" value="1e20"/></emitter></shape>')

@@ -17,12 +17,11 @@ import pytest
 
 import caustica
 from caustica.errors import ParameterError
-from caustica.jit import parallel_for
-from caustica.photons.streams import StreamBuffers, StreamMap, trace_streams
+from caustica.photons.streams import StreamBuffers, StreamMap, trace_stream_pass
 from caustica.photons.records import CAUSTIC, EMPTY, allocate_buffers
-from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photons
+from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON, STREAM_SPM
-from caustica.scene.compiled import compile_scene
+from caustica.tables import compile_scene
 from caustica.scene.xml_loader import parse_scene_string
 
 SENSOR = """<sensor type="perspective"><float name="fov" value="60"/>
@@ -41,8 +40,7 @@ def rgb(v):
 
 def trace_spm(scene, n, n_fa, r_s, mr, termination=TERMINATION_CAP, seed=5, threads=None):
     buf = StreamBuffers(n, n_fa, mr)
-    parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_SPM, n, n_fa, r_s, mr,
-                                    termination, False, *buf.kernel_args), threads=threads)
+    trace_stream_pass(scene, buf, seed, STREAM_SPM, n, n_fa, r_s, mr, termination, threads=threads)
     return buf
 
 
@@ -99,8 +97,7 @@ def test_stream_energy_per_bounce_matches_pm_expectation(box, termination):
     # against an actual PM run with the same number of photons as well
     n_pm = N_S * (N_FA + 1)
     pm = allocate_buffers(n_pm, MR + 1)
-    parallel_for(trace_photons, n_pm, (box.geometry, box.materials, box.lights, 5, STREAM_PHOTON, n_pm, MR,
-                                       termination, *pm))
+    trace_photon_pass(box, pm, 5, STREAM_PHOTON, n_pm, MR, termination)
     x_pm = (pm.power.astype(np.float64) * (pm.kind != EMPTY)[:, None]).reshape(n_pm, MR + 1, 3).sum(axis=1)
     se2 = math.sqrt(1) * np.sqrt(total.var(axis=0, ddof=1) * N_S + x_pm.var(axis=0, ddof=1) * n_pm)
     assert np.all(np.abs(total.sum(axis=0) - x_pm.sum(axis=0)) <= 5 * se2 + 1e-6 * expected)
@@ -243,14 +240,12 @@ def test_split_photons_deposit_what_independent_photons_do():
     split, pm = [], []
     for seed in range(batches):
         buf = StreamBuffers(n, n_fa, mr, True)
-        parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights, seed, STREAM_SPM, n, n_fa,
-                                        1e-4, mr, TERMINATION_CAP, True, *buf.kernel_args))
+        trace_stream_pass(scene, buf, seed, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_CAP, split=True)
         pos, _, power, _ = buf.events("photons")
         split.append(_flux_by_region(pos, power))
         n_pm = n * (n_fa + 1)
         pb = allocate_buffers(n_pm, mr + 1)
-        parallel_for(trace_photons, n_pm, (scene.geometry, scene.materials, scene.lights, seed, STREAM_PHOTON, n_pm,
-                                           mr, TERMINATION_CAP, *pb))
+        trace_photon_pass(scene, pb, seed, STREAM_PHOTON, n_pm, mr, TERMINATION_CAP)
         ok = pb.kind != EMPTY
         pm.append(_flux_by_region(pb.position[ok], pb.power[ok]))
     split, pm = np.array(split), np.array(pm)
@@ -277,7 +272,7 @@ def test_rs0_assoc0_is_pm_bit_for_bit(diacaustic, termination):
     n, mr = 20_000, 4
     sb = trace_spm(s, n, 0, 0.0, mr, termination, seed=7)
     pb = allocate_buffers(n, mr + 1)
-    parallel_for(trace_photons, n, (s.geometry, s.materials, s.lights, 7, STREAM_SPM, n, mr, termination, *pb))
+    trace_photon_pass(s, pb, 7, STREAM_SPM, n, mr, termination)
     pos, dirs, nrm, lead, assoc, energy, count, valid = sb.rec
     np.testing.assert_array_equal(valid != 0, pb.kind != EMPTY)
     # a record marked 2 is a light -> specular+ -> diffuse one: PM's CAUSTIC kind
@@ -355,8 +350,7 @@ def test_caustic_spot_power_matches_pm(dia_streams, diacaustic):
     n_pm = 200_000
     pb = allocate_buffers(n_pm, 2)
     s = diacaustic
-    parallel_for(trace_photons, n_pm, (s.geometry, s.materials, s.lights, 3, STREAM_PHOTON, n_pm, 1,
-                                       TERMINATION_CAP, *pb))
+    trace_photon_pass(s, pb, 3, STREAM_PHOTON, n_pm, 1, TERMINATION_CAP)
     pp = pb.position.astype(np.float64)
     pspot = (pb.kind == CAUSTIC) & (np.abs(pp[:, 1]) < 1e-3) & (np.hypot(pp[:, 0] - 5, pp[:, 2] - 2.5) < 2.5)
     x_p = (pb.power[:, 1].astype(np.float64) * pspot).reshape(n_pm, 2).sum(axis=1)

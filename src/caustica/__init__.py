@@ -6,8 +6,7 @@
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
+from .version import __version__  # noqa: E402
 from .api import load_scene, render  # noqa: E402
 from .errors import CausticaError, ParameterError, SceneError  # noqa: E402
 from .result import RenderResult  # noqa: E402

@@ -10,16 +10,17 @@ from __future__ import annotations
 import sys
 import time
 
-from . import __version__, driver, methods
+from . import driver, methods
+from .version import __version__
 from .errors import ParameterError, quoted
-from .film import FILM_BYTES_PER_PIXEL
+from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .jit import default_threads
 from .limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
 from .memory import check_budget
 from .methods.params import Param, non_negative, positive
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.compiled import Scene, compile_scene
+from .tables import Scene, compile_scene
 
 #: Settings every method takes, next to its own parameters, with the bounds of caustica.limits.
 COMMON_PARAMS = (
@@ -73,13 +74,6 @@ def _parse_res(res):
         return int(text), int(text)
     except ValueError:
         raise ParameterError(f"--res: {quoted(res)} is not W or WxH (e.g. 512 or 640x480)") from None
-
-
-#: Memory per pixel of a render and its save, unless the method says otherwise (its
-#: ``bytes_per_pixel``): the image, the camera pass's bookkeeping, the pass film's float64
-#: sums and the EXR/PNG conversions.  Measured: the peak memory of a 1536 x 1536 render
-#: less that of a 64 x 64 one is about 109 bytes per pixel for pt, pm and spm.
-IMAGE_BYTES_PER_PIXEL = 112
 
 
 def check_common(*, spp, width, height, seed, threads, film_source: str | None = None,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from .version import __version__
 from .errors import ParameterError
 from .jit import source_hash
 
@@ -28,7 +28,7 @@ FORMAT = 1
 def scene_fingerprint(scene) -> str:
     """A hash of what the renderer sees of the scene: geometry, materials, lights, media (if any), camera."""
     h = hashlib.sha1()
-    tables = (scene.geometry, scene.materials, scene.lights) + ((scene.media,) if scene.media is not None else ())
+    tables = (scene.geometry, scene.materials, scene.lights) + ((scene.media,) if scene.has_media else ())
     for table in tables:
         for a in table:
             a = np.ascontiguousarray(a)

@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from . import __version__
+from .version import __version__
 from .errors import CausticaError, ClusterError, InterruptedAfterSaving, ParameterError
 
 EXIT_USAGE = 2

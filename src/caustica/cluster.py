@@ -388,7 +388,7 @@ def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
         return MAX_TASK_PASSES
     budget = int(budget * TASK_MEMORY_FRACTION)
     pixels = settings["width"] * settings["height"]
-    from .api import IMAGE_BYTES_PER_PIXEL
+    from .film import IMAGE_BYTES_PER_PIXEL
     per_pass = pixels * getattr(method_cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
     if scene is not None and hasattr(method_cls, "pass_buffer_bytes"):
         per_pass += method_cls.pass_buffer_bytes(scene, settings)

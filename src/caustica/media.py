@@ -2,9 +2,9 @@
 
 A scene's media live in a :class:`MediumTable` (structure of arrays, indexed by the
 medium's position in :attr:`SceneDescription.media`), with each shape's interior and
-exterior medium and the camera's.  -1 means no medium (vacuum).  The table exists only
-for a scene that uses media (:attr:`SceneDescription.has_media`); every other scene
-compiles and renders exactly as before.
+exterior medium and the camera's.  -1 means no medium (vacuum).  Every scene has one: in a
+scene without media it says "vacuum" everywhere, and the kernels' medium branches are never
+taken, so the same loops render it with the vacuum arithmetic.
 
 Conventions (Mitsuba 3's):
 
@@ -35,9 +35,9 @@ import numpy as np
 
 from .emitters import AREA, choose_light, sample_area_emitter
 from .geometry import vec
-from .geometry.scene_geometry import intersect, surface_at
+from .geometry.scene_geometry import intersect, occluded, surface_at
 from .jit import kernel
-from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
+from .sampling.rng import uniform
 from .scene.description import HENYEY_GREENSTEIN, NULL, SceneDescription
 
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -60,6 +60,7 @@ class MediumTable(NamedTuple):
     interior: np.ndarray   # int32[S]: each shape's interior medium, -1 for none
     exterior: np.ndarray   # int32[S]: each shape's exterior medium, -1 for none
     camera: np.ndarray     # int32[1]: the medium the camera is in, -1 for none
+    null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF (shadow rays may cross surfaces)
 
 
 def build_medium_table(desc: SceneDescription) -> MediumTable:
@@ -75,8 +76,9 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
         g[i] = m.g
     interior = np.array([s.interior for s in desc.shapes], np.int32).reshape(-1)
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
+    null = any(desc.materials[s.material].kind == NULL for s in desc.shapes)
     return MediumTable(sigma_t, albedo, phase, g, interior, exterior,
-                       np.array([desc.camera.medium], np.int32))
+                       np.array([desc.camera.medium], np.int32), np.array([1 if null else 0], np.int8))
 
 
 # ----------------------------------------------------------------------------- boundaries
@@ -189,6 +191,10 @@ def transmittance(geom, mats, media, o, target, medium):
     if dist <= 0.0:
         return T, 0
     d = vec.mul(seg, 1.0 / dist)
+    if medium < 0 and media.null_surfaces[0] == 0:   # vacuum and no surface to cross: visible or not
+        if occluded(geom, o, d, dist):
+            return (0.0, 0.0, 0.0), 1
+        return T, 1
     rays = 0
     for _ in range(NULL_CROSSINGS_CAP):
         rays += 1
@@ -278,27 +284,21 @@ def power_heuristic(a, b):
 
 
 @kernel(hot=True)
-def direct_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim):
+def light_sample(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, u0, u1, u2):
     """One light sample seen from p through media and null boundaries (next-event estimation).
 
     p is a surface point of ``shape`` (ng, ns its normals on the scattering side, ng_front its
-    front normal) or, with shape < 0, a point in ``medium``.  Uses dimensions dim .. dim + 2.
-    Returns (L_e T / pdf, wi, pdf, is_area, ok, shadow rays): wi the unit direction to the
-    light; pdf the solid-angle density of choosing that direction (light choice included;
-    0 for a point light, a delta); ok False when the sample cannot light p (behind the light
-    or the surface, or blocked), in which case the radiance is 0.  The caller multiplies by
-    the BSDF and cosine, or the phase function, and weights area lights by MIS.
+    front normal) or, with shape < 0, a point in ``medium``.  u0 chooses the light (by power),
+    (u1, u2) the point on an area light.  Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
+    contrib = L_e T cos_s / pdf at a surface (the caller multiplies by f_r), L_e T / pdf in a medium
+    (the caller multiplies by the phase function); wi the unit direction to the light; pdf the
+    solid-angle density of choosing it (light choice included; 0 for a point light, a delta); ok
+    False when the sample cannot light p (behind the light or the surface, or blocked: contrib 0).
+    In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
-    return direct_transmitted_u(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
-                                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
-
-
-@kernel(hot=True)
-def direct_transmitted_u(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, u0, u1, u2):
-    """:func:`direct_transmitted` with its three numbers given: u0 chooses the light, (u1, u2) the point on it."""
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
-        return zero, zero, 0.0, False, False, 0
+        return zero, zero, 0.0, 0.0, False, False, 0
     li, sel_pdf, _ = choose_light(lights, u0)
     is_area = lights.kind[li] == AREA
     if is_area:
@@ -309,26 +309,29 @@ def direct_transmitted_u(geom, mats, lights, media, p, ng, ns, ng_front, shape, 
     to_l = vec.sub(q, p)
     dist2 = vec.dot(to_l, to_l)
     if not dist2 > 0.0:
-        return zero, zero, 0.0, is_area, False, 0
+        return zero, zero, 0.0, 0.0, is_area, False, 0
     wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
     pdf = sel_pdf * dist2
     if is_area:
         cos_l = -vec.dot(nq, wi)
         if cos_l <= 0.0:
-            return zero, wi, 0.0, True, False, 0
+            return zero, wi, 0.0, 0.0, True, False, 0
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
     o = p
+    cos_s = 1.0
     if shape >= 0:
-        if vec.dot(ns, wi) <= 0.0 or vec.dot(ng, wi) <= 0.0:
-            return zero, wi, 0.0, is_area, False, 0
+        cos_s = vec.dot(ns, wi)
+        if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+            return zero, wi, 0.0, 0.0, is_area, False, 0
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, to_l)
     target = vec.offset_origin(q, nq, vec.neg(to_l))
     T, rays = transmittance(geom, mats, media, o, target, medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
-        return zero, wi, 0.0, is_area, False, rays
+        return zero, wi, 0.0, 0.0, is_area, False, rays
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
-    return vec.mul(Le, 1.0 / pdf), wi, pdf if is_area else 0.0, is_area, True, rays
+    return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \
+        rays
 
 
 # ----------------------------------------------------------------------------- distances within a segment
@@ -432,57 +435,7 @@ def light_media(scene) -> np.ndarray:
     A light is taken to sit wholly in one medium (docs/media.md).
     """
     lights = scene.lights
+    if not scene.has_media:
+        return np.full(lights.kind.shape[0], -1, np.int32)
     return np.array([light_medium(scene.geometry, lights, scene.media, e) for e in range(lights.kind.shape[0])],
                     np.int32)
-
-
-# ----------------------------------------------------------------------------- direct light at a surface
-
-@kernel
-def direct_stratified_transmitted(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, qkey, qdim,
-                                  pass_index, n_strata):
-    """:func:`caustica.lighting.direct_stratified_qmc` through media and null boundaries.
-
-    The same strata and Kronecker jitter; each shadow ray's visibility is replaced by its
-    transmittance (:func:`transmittance`, starting in the medium on the light's side of the
-    surface).  Returns the irradiance-like E (the caller multiplies by ρ / π).
-    """
-    E = (0.0, 0.0, 0.0)
-    n_total = n_strata * n_strata
-    for li in range(lights.kind.shape[0]):
-        if lights.kind[li] == AREA:
-            acc = (0.0, 0.0, 0.0)
-            for s in range(n_total):
-                i = s % n_strata
-                j = s // n_strata
-                u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(qkey, qdim + 2 * s))) / n_strata
-                u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(qkey, qdim + 2 * s + 1))) / n_strata
-                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
-                to_l = vec.sub(q, p)
-                dist2 = vec.dot(to_l, to_l)
-                if not dist2 > 0.0:
-                    continue
-                wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-                cos_l = -vec.dot(nq, wi)
-                cos_s = vec.dot(ns, wi)
-                if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                    continue
-                T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
-                                     vec.offset_origin(q, nq, vec.neg(to_l)),
-                                     medium_after(media, shape, ng_front, wi, medium))
-                acc = vec.madd(acc, T, cos_s * cos_l / dist2)
-            E = vec.add(E, vec.mul(vec.hadamard(vec.row(lights.radiance, li), acc), lights.area[li] / n_total))
-        else:
-            q = vec.row(lights.position, li)
-            to_l = vec.sub(q, p)
-            dist2 = vec.dot(to_l, to_l)
-            if not dist2 > 0.0:
-                continue
-            wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-            cos_s = vec.dot(ns, wi)
-            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                continue
-            T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
-                                 medium_after(media, shape, ng_front, wi, medium))
-            E = vec.add(E, vec.mul(vec.hadamard(vec.row(lights.radiance, li), T), cos_s / dist2))
-    return E

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from caustica import imageio
+from . import imageio
 
 __all__ = ["RenderResult", "peak_memory_bytes"]
 
@@ -40,7 +40,7 @@ class RenderResult:
     inputs: tuple[Path, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
-        from caustica import __version__
+        from .version import __version__
 
         img = np.asarray(self.image)
         if img.ndim != 3 or img.shape[2] != 3:

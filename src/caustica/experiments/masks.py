@@ -47,13 +47,12 @@ def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, s
                     threads: int | None = None) -> np.ndarray:
     """Caustic-map power splatted into the camera's pixels (H x W, summed over RGB).
 
-    The photons are ``pm``'s caustic photons (``trace_caustic_photons``) keyed by
+    The photons are ``pm``'s caustic photons (``trace_caustic_photon_pass``) keyed by
     (seed, ``STREAM_CAUSTIC_MASK``, index), never by PM+C's ``STREAM_CAUSTIC_PHOTON``.
     """
-    from ..jit import parallel_for
     from ..photon_view import splat_records
     from ..photons.records import CAUSTIC, allocate_buffers
-    from ..photons.trace import trace_caustic_photons
+    from ..photons.trace import trace_caustic_photon_pass
     scene, _cls, settings = resolve_settings(scene, "pm", res=(width, height), seed=seed, threads=threads,
                                             photons=1, caustic_photons=photons)
     img = np.zeros((height, width, 3), np.float64)
@@ -61,9 +60,8 @@ def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, s
     if photons <= 0 or spheres.shape[0] == 0:
         return img.sum(axis=2)
     buf = allocate_buffers(photons, 1)
-    parallel_for(trace_caustic_photons, photons,
-                 (scene.geometry, scene.materials, scene.lights, spheres, seed, STREAM_CAUSTIC_MASK, photons, *buf),
-                 threads=settings["threads"])
+    trace_caustic_photon_pass(scene, buf, seed, STREAM_CAUSTIC_MASK, photons, spheres=spheres,
+                              threads=settings["threads"])
     keep = buf.kind == CAUSTIC
     if keep.any():
         splat_records(scene.geometry, scene.materials, scene.camera(width, height),

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ..version import __version__
 from ..errors import CausticaError
 from ..imageio import read_exr, write_exr, write_json
 from . import metrics

@@ -13,17 +13,20 @@ passes) and the pass as its unit of work:
   and may offer ``aovs`` (names) with ``aov(scene, settings, state, name)``.
 
 :mod:`caustica.driver` runs the passes (count, time budget, progress, checkpoints,
-Ctrl-C); one-shot methods (pm, spm) are the one-pass case.  Modules register
-themselves with :func:`register`.
+Ctrl-C); one-shot methods (pm, spm) are the one-pass case.  Every module of this
+package except the shared ones (:data:`_SHARED`) is imported on first use and registers
+its method with :func:`register`: adding a method is adding a file.
 """
 from __future__ import annotations
 
 import importlib
+import pkgutil
 
 from ..errors import ParameterError
 
 _REGISTRY: dict[str, type] = {}
-_MODULES = ("pt", "pm", "spm", "sppm", "pspm")
+#: Modules of this package that hold shared machinery, not a method.
+_SHARED = frozenset({"independent", "params", "photon_common", "progressive"})
 
 
 def register(cls):
@@ -32,12 +35,10 @@ def register(cls):
 
 
 def _load_all():
-    for mod in _MODULES:
-        try:
-            importlib.import_module(f"{__name__}.{mod}")
-        except ModuleNotFoundError as exc:  # a method not written yet
-            if exc.name != f"{__name__}.{mod}":
-                raise
+    """Import every method module of this package (discovery: a new file is a new method)."""
+    for info in pkgutil.iter_modules(__path__):
+        if info.name not in _SHARED:
+            importlib.import_module(f"{__name__}.{info.name}")
 
 
 def available() -> dict[str, type]:

@@ -11,8 +11,9 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.estimate import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
-from ..photons.streams_media import MEDIUM_SCATTERING
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, camera_pass_media, check_segment_memory
+from ..photons.streams import MEDIUM_SCATTERING
+from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
+from ..photons.visible_points import camera_pass as progressive_camera_pass
 from .params import Param, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
@@ -68,7 +69,7 @@ def one_shot_volume_radius(scene, settings) -> float:
 def check_media_settings(scene, settings) -> None:
     """Before any photon is traced: what the camera pass in media does not do (the fixed grid of light
     samples), and the memory of its segments."""
-    if scene.media is None:
+    if not scene.has_media:
         return
     if settings["fixed_light_grid"]:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
@@ -85,7 +86,8 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     knn_queries = np.zeros(n, np.int32)
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
-    compile_s = parallel_for(gather_pixels, n, (scene.geometry, scene.materials, scene.lights, cam, global_map,
+    compile_s = parallel_for(gather_pixels, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
+                                                global_map,
                                                 caustic_map, settings["seed"], settings["spp"], settings["k"],
                                                 settings["radius"], k_caustic, r_caustic, filt,
                                                 settings["light_samples"], settings["fixed_light_grid"],
@@ -100,7 +102,7 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     """:func:`camera_pass` in a scene with media: (image, timings, k-nearest searches, stats of the volume estimate).
 
     ``settings["spp"]`` samples per pixel, each the progressive camera pass in media
-    (:func:`caustica.photons.visible_points_media.camera_pass_media`, sample s keyed as pass s): a
+    (:func:`caustica.photons.visible_points.camera_pass`, sample s keyed as pass s): a
     visible point with its direct light, the direct light scattered along the path's medium
     segments, then the maps' k-nearest estimates at the visible point and the beam radiance
     estimate of ``volume`` (position, direction, power of the volume photons) along the segments,
@@ -121,7 +123,7 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     bar = progress(total=n * spp, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     for s in range(spp):
-        (vp_pos, vp_nrm, vp_weight, vp_found, radiance), segments, c = camera_pass_media(scene, settings, s, bar)
+        (vp_pos, vp_nrm, vp_weight, vp_found, radiance), segments, c = progressive_camera_pass(scene, settings, s, bar)
         c += parallel_for(gather_at_visible_points, n, (global_map, caustic_map, vp_pos, vp_nrm, vp_found, vp_weight,
                                                         settings["k"], settings["radius"], k_caustic, r_caustic,
                                                         filt, radiance, knn_queries), threads=settings["threads"])

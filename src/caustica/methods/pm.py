@@ -9,7 +9,7 @@
 4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
    indirect light and caustics from the maps' k-nearest radiance estimates.
 
-In a scene with media the photons scatter in them (:mod:`caustica.photons.trace_media`), their
+In a scene with media the photons scatter in them (:mod:`caustica.photons.trace`), their
 volume photons (those of the aimed photons too) are gathered along the camera rays by the beam
 radiance estimate within ``--volume-radius``, and the camera pass is the progressive one in media
 (docs/media.md).
@@ -20,13 +20,10 @@ import time
 
 import numpy as np
 
-from ..jit import parallel_for
-from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers, \
     empty_photon_map, map_from_buffers
-from ..photons.trace import trace_caustic_photons, trace_photons
-from ..photons.trace_media import trace_caustic_photons_media, trace_photons_media
+from ..photons.trace import trace_caustic_photon_pass, trace_photon_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
 from .params import Param, non_negative, positive
@@ -63,7 +60,7 @@ class PhotonMapping(OneShot):
                      "lower --photons or --max-bounces")
         spheres = scene.specular_bounding_spheres()
         use_caustic = n_c > 0 and spheres.shape[0] > 0
-        g, m, lt, seed = scene.geometry, scene.materials, scene.lights, settings["seed"]
+        seed = settings["seed"]
         timings = {}
 
         threads = settings["threads"]
@@ -71,14 +68,8 @@ class PhotonMapping(OneShot):
         buf = allocate_buffers(n, mr + 1)
         bar = progress(total=n, desc="photon tracing", unit="photon")
         terminate = TERMINATIONS[settings["termination"]]
-        media = scene.media
-        if media is None:
-            compile_s = parallel_for(trace_photons, n, (g, m, lt, seed, STREAM_PHOTON, n, mr, terminate, *buf),
-                                     threads=threads, progress=bar)
-        else:
-            compile_s = parallel_for(trace_photons_media, n, (g, m, lt, media, light_media(scene), seed,
-                                                              STREAM_PHOTON, n, mr, terminate, *buf),
-                                     threads=threads, progress=bar)
+        compile_s = trace_photon_pass(scene, buf, seed, STREAM_PHOTON, n, mr, terminate, threads=threads,
+                                      progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["photon_trace_s"] = t1 - t0 - compile_s
@@ -86,13 +77,8 @@ class PhotonMapping(OneShot):
         if use_caustic:
             cbuf = allocate_buffers(n_c, 1)
             bar = progress(total=n_c, desc="caustic photons", unit="photon")
-            if media is None:
-                c_s = parallel_for(trace_caustic_photons, n_c, (g, m, lt, spheres, seed, STREAM_CAUSTIC_PHOTON,
-                                                                n_c, *cbuf), threads=threads, progress=bar)
-            else:
-                c_s = parallel_for(trace_caustic_photons_media, n_c, (g, m, lt, media, light_media(scene), spheres,
-                                                                      seed, STREAM_CAUSTIC_PHOTON, n_c, *cbuf),
-                                   threads=threads, progress=bar)
+            c_s = trace_caustic_photon_pass(scene, cbuf, seed, STREAM_CAUSTIC_PHOTON, n_c, threads=threads,
+                                            progress=bar)
             bar.close()
             compile_s += c_s
             timings["caustic_trace_s"] = time.perf_counter() - t1 - c_s
@@ -101,7 +87,7 @@ class PhotonMapping(OneShot):
         global_map = map_from_buffers(buf, (INDIRECT,) if use_caustic else (INDIRECT, CAUSTIC))
         caustic_map = map_from_buffers(cbuf, (CAUSTIC,)) if use_caustic else empty_photon_map()
         volume = None
-        if media is not None:
+        if scene.has_media:
             # volume photons: as at surfaces, the aimed photons' light -> S+ -> medium ones replace the others'
             keep = buf.kind == VOLUME_INDIRECT if use_caustic else (buf.kind == VOLUME_INDIRECT) | \
                 (buf.kind == VOLUME_CAUSTIC)

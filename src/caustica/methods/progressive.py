@@ -33,14 +33,12 @@ from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
-from ..media import light_media
 from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
-from ..photons.trace import trace_caustic_photons
-from ..photons.trace_media import trace_caustic_photons_media
-from ..photons.visible_points import visible_points
-from ..photons.visible_points_media import MEDIUM_SEGMENTS, SEGMENT_BYTES, camera_pass_media
-from ..sampling.rng import STREAM_CAMERA, STREAM_CAUSTIC_PHOTON, pass_stream
+from ..photons.trace import trace_caustic_photon_pass
+from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
+from ..photons.visible_points import camera_pass
+from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import Param, positive
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
@@ -105,17 +103,8 @@ def trace_caustic_pass(scene, settings, pass_index, n_caustic, out: TraceBuffers
     Returns the compile seconds.
     """
     check_budget(n_caustic * SLOT_BYTES, f"{n_caustic:,} caustic photons per pass", "lower --caustic-photons")
-    if scene.media is not None:
-        # through media (sppm): their first event after the mirrors and glass, on a surface or in a medium
-        return parallel_for(trace_caustic_photons_media, n_caustic,
-                            (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene),
-                             scene.specular_bounding_spheres(), settings["seed"],
-                             pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_caustic, *out),
-                            threads=settings["threads"])
-    return parallel_for(trace_caustic_photons, n_caustic,
-                        (scene.geometry, scene.materials, scene.lights, scene.specular_bounding_spheres(),
-                         settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON, pass_index), n_caustic, *out),
-                        threads=settings["threads"])
+    return trace_caustic_photon_pass(scene, out, settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON, pass_index),
+                                     n_caustic, threads=settings["threads"])
 
 
 def caustic_event_kind(kind: np.ndarray, out: np.ndarray) -> None:
@@ -318,8 +307,8 @@ class ProgressivePhotonMethod(IndependentPasses):
 
     @staticmethod
     def camera_segment_bytes(scene, settings) -> int:
-        """The camera pass's medium segments (scenes with media; photons/visible_points_media.py), else 0."""
-        return settings["width"] * settings["height"] * SEGMENT_BYTES if scene.media is not None else 0
+        """The camera pass's medium segments (scenes with media; photons/segments.py), else 0."""
+        return settings["width"] * settings["height"] * SEGMENT_BYTES if scene.has_media else 0
 
     @classmethod
     def separate_caustics(cls, scene, settings) -> bool:
@@ -336,30 +325,13 @@ class ProgressivePhotonMethod(IndependentPasses):
         """
         timings = {}
         n = settings["width"] * settings["height"]
-        cam = scene.camera(settings["width"], settings["height"])
         threads = settings["threads"]
         # 1. camera pass: visible points and direct light
         # every entry is written by the kernels (the camera pass for every pixel, the gather too)
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
-        media = scene.media
-        if media is None:
-            # every entry is written by the kernels (the camera pass for every pixel, the gather too)
-            vp_pos = np.empty((n, 3))
-            vp_nrm = np.empty((n, 3))
-            vp_weight = np.empty((n, 3))
-            vp_found = np.empty(n, np.bool_)
-            direct = np.empty((n, 3))
-            c0 = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, cam, settings["seed"],
-                                                  pass_stream(STREAM_CAMERA, pass_index), pass_index,
-                                                  settings["light_samples"], settings["fixed_light_grid"],
-                                                  settings["max_specular_depth"], vp_pos, vp_nrm, vp_weight, vp_found,
-                                                  direct),
-                              threads=threads, progress=bar)
-        else:
-            # the camera path's medium segments, for the volume estimate (docs/media.md)
-            (vp_pos, vp_nrm, vp_weight, vp_found, direct), segments, c0 = camera_pass_media(scene, settings,
-                                                                                           pass_index, bar)
+        # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
+        (vp_pos, vp_nrm, vp_weight, vp_found, direct), segments, c0 = camera_pass(scene, settings, pass_index, bar)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
         seen = radius[vp_found]
@@ -402,7 +374,7 @@ class ProgressivePhotonMethod(IndependentPasses):
                                                    flux, count, flux_c, count_c), threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0
-        if media is not None:
+        if scene.has_media:
             # 4. the volume: the beam radiance estimate along the camera segments, within this pass's radius
             r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
             t1 = time.perf_counter()
@@ -415,7 +387,7 @@ class ProgressivePhotonMethod(IndependentPasses):
             vol = np.empty((n, 3))
             vfound = np.empty(n, np.int64)
             t1 = time.perf_counter()
-            c4 = parallel_for(beam_gather, n, (vgrid, media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol, vfound),
+            c4 = parallel_for(beam_gather, n, (vgrid, scene.media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol, vfound),
                               threads=threads)
             timings["volume_gather_s"] = time.perf_counter() - t1 - c4
             c3 += c4
@@ -510,7 +482,7 @@ class ProgressivePhotonMethod(IndependentPasses):
         out = {"samples_per_pixel": state.passes, "emitted_all_passes": state.passes * cls.emitted_per_pass(scene, settings),
                "initial_radius": initial_radius(scene, settings), "schedule": settings["schedule"],
                "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())}}
-        if scene.media is not None:
+        if scene.has_media:
             out["initial_volume_radius"] = initial_volume_radius(scene, settings)
             out["volume_radius_final"] = global_radius(out["initial_volume_radius"], settings["alpha"], state.passes)
         if not cls.independent(settings):

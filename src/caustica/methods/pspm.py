@@ -28,12 +28,9 @@ import time
 import numpy as np
 
 from ..errors import ParameterError
-from ..jit import parallel_for
-from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
-from ..photons.streams import StreamBuffers, trace_streams
-from ..photons.streams_media import trace_streams_media
+from ..photons.streams import StreamBuffers, trace_stream_pass
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import Param, non_negative, positive
@@ -133,18 +130,9 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         buf = StreamBuffers(n, n_fa, mr, split)
         bar = progress(total=n, desc="stream tracing", unit="stream")
         terminate = TERMINATIONS[settings["termination"]]
-        if scene.media is None:
-            compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
-                                                        settings["seed"], pass_stream(STREAM_SPM, pass_index), n,
-                                                        n_fa, r_s, mr, terminate, split, *buf.kernel_args),
-                                     threads=settings["threads"], progress=bar)
-        else:
-            spread = settings["medium_scattering"] == "spread"
-            compile_s = parallel_for(trace_streams_media, n, (scene.geometry, scene.materials, scene.lights,
-                                                              scene.media, light_media(scene), settings["seed"],
-                                                              pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s, mr,
-                                                              terminate, spread, *buf.kernel_args),
-                                     threads=settings["threads"], progress=bar)
+        compile_s = trace_stream_pass(scene, buf, settings["seed"], pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s,
+                                      mr, terminate, split=split, spread=settings["medium_scattering"] == "spread",
+                                      threads=settings["threads"], progress=bar)
         bar.close()
         n_c = cls.caustic_photons_per_pass(scene, settings)
         if n_c > 0:   # the aimed caustic photons carry the light -> specular+ -> diffuse (or medium) paths
@@ -160,7 +148,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
                                                                       (normal, cbuf.normal)))
             valid = np.concatenate([valid, kinds])
         stats = {"streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
-        if scene.media is not None:
+        if scene.has_media:
             # volume photons: the streams' volume records (without light -> specular+ -> medium ones when the
             # aimed caustic photons carry those), and the caustic photons' (docs/media.md)
             volume = buf.volume_events(settings["estimator"], leave_caustics=n_c > 0)

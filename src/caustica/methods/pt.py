@@ -7,9 +7,22 @@ probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
 ``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
 only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
 
-A scene with participating media or null-BSDF boundaries is rendered by the volumetric
-kernel of :mod:`caustica.methods.pt_volume` instead (the same samples, keys and depth
-convention; docs/media.md); every other scene by :func:`radiance` below, as before.
+Through participating media it is a volumetric path tracer after Mitsuba 3's ``volpath``
+(docs/media.md), in the same loop (vacuum is the case of no medium, with the same arithmetic):
+
+* the current medium is tracked from the camera's through every boundary (a ray leaving a
+  surface towards its front enters the shape's exterior medium, towards its back its interior;
+  shapes without media leave it unchanged, :func:`caustica.media.medium_after`);
+* in a medium a free-flight distance is sampled (:func:`caustica.media.free_flight`); if it ends
+  before the next surface the path scatters there: next-event estimation with the phase function
+  (MIS against phase sampling for area lights), then a phase-sampled direction;
+* null-BSDF surfaces are crossed without scattering and without counting as a bounce (Mitsuba's
+  depth), so a medium's boundary is invisible;
+* next-event estimation from surfaces and medium points traces its shadow ray through null
+  boundaries and media (exact transmittance, :func:`caustica.media.light_sample`); glass blocks
+  it, as in Mitsuba.
+
+``max_depth`` counts scattering events (surface and medium) as Mitsuba does.
 """
 from __future__ import annotations
 
@@ -21,77 +34,113 @@ import numpy as np
 from ..bsdf import sample_surface, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel, parallel_for
-from ..lighting import direct_one_sample
+from ..media import free_flight, light_sample, medium_after, phase_pdf, phase_sample, phase_value, \
+    power_heuristic
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..scene.description import DIFFUSE
+from ..transport import CROSSED, TRAPPED, surface_interaction
 from . import register
 from .independent import IndependentPasses
 from .params import Param
-from .pt_volume import render_pixels_media
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
 
 
 @kernel(hot=True)
-def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
-    """Radiance arriving at o from direction -d, estimated along one random path.
+def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
+    """Radiance arriving at o from direction -d, estimated along one random path (from the camera's medium).
 
     Returns (L, extension rays, shadow rays): the rays traced, counted where they are traced.
     """
+    zero = (0.0, 0.0, 0.0)
     n_ext = 0
     n_shadow = 0
-    L = (0.0, 0.0, 0.0)
+    L = zero
     beta = (1.0, 1.0, 1.0)
     eta_scale = 1.0
-    specular = True
-    pdf_bsdf = 0.0
+    specular = True      # no scattering yet, or the last one was a delta: emission counts in full
+    pdf_last = 0.0       # solid-angle density of the last scattering's sampled direction
+    p_last = o           # where that scattering happened
+    medium = media.camera[0]
     dim = 2
-    depth = 0
+    depth = 0            # scattering events so far (Mitsuba's depth: null surfaces do not count)
+    crossings = 0        # null surfaces crossed since the last scattering event
     while True:
         n_ext += 1
-        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+        if escaped:
+            break
+        if medium >= 0:
+            beta = vec.hadamard(beta, w)
+            if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
+                break    # absorbed (albedo 0), or a flight no channel can take
         if prim < 0:
-            break
-        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        front = vec.dot(d, ng) < 0.0
-        e = geom.prim_emitter[prim]
-        if e >= 0 and front:
-            w = 1.0
-            if not specular:
-                cos_l = -vec.dot(d, ng)
-                pdf_light = lights.select_pdf[e] * t * t / (lights.area[e] * cos_l)
-                w = pdf_bsdf * pdf_bsdf / (pdf_bsdf * pdf_bsdf + pdf_light * pdf_light)
-            L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)), w)
-        depth += 1
-        if depth >= max_depth:
-            break
-        m = geom.prim_material[prim]
-        kind = mats.kind[m]
-        rgb = vec.row(mats.rgb, m)
-        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-        if not scatters:
-            break
-        if kind == DIFFUSE:
-            contrib, pdf_light, cos_s, is_area, shadow = direct_one_sample(geom, lights, p, ng, ns, key, dim)
+            # ---- a scattering event in the medium, at t = the flight's distance
+            p = vec.madd(o, d, t)
+            depth += 1
+            if depth >= max_depth:
+                break
+            contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(
+                geom, mats, lights, media, p, zero, zero, zero, -1, medium,
+                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
             n_shadow += shadow
             dim += 3
-            if cos_s > 0.0:
-                w = 1.0
-                if is_area:
-                    pdf_b = cos_s * INV_PI
-                    w = pdf_light * pdf_light / (pdf_light * pdf_light + pdf_b * pdf_b)
-                L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w * INV_PI)
-        alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns, key,
-                                                                        dim, beta, eta_scale)
-        if not alive:
-            break
-        if not specular:
-            pdf_bsdf = pdf
-        o = vec.offset_origin(p, ng, wi)
-        d = wi
+            if ok:
+                w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
+                L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
+            wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
+            dim += 2
+            if not pdf > 0.0:
+                break
+            beta = vec.mul(beta, weight)
+            o = p
+            d = wo
+            p_last = p
+            pdf_last = pdf
+            specular = False
+            crossings = 0
+        else:
+            # ---- a surface (an emitter on a null boundary shines too)
+            crossed = crossings
+            p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+                geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+            e = geom.prim_emitter[prim]
+            if e >= 0 and front:
+                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+                             emission_mis(lights, e, specular, pdf_last, -vec.dot(d, ng), t, crossed, p, p_last))
+            if nxt == CROSSED:
+                continue
+            if nxt == TRAPPED:
+                break
+            depth += 1
+            if depth >= max_depth:
+                break
+            ng_front = ng
+            rgb = vec.row(mats.rgb, m)
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                break
+            if kind == DIFFUSE:
+                contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
+                    geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
+                    uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+                n_shadow += shadow
+                dim += 3
+                if ok:
+                    w_l = power_heuristic(pdf_light, cos_s * INV_PI) if is_area else 1.0
+                    L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w_l * INV_PI)
+            alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns,
+                                                                            key, dim, beta, eta_scale)
+            if not alive:
+                break
+            if not specular:
+                pdf_last = pdf
+            medium = medium_after(media, shape, ng_front, wi, medium)
+            p_last = p
+            o = vec.offset_origin(p, ng, wi)
+            d = wi
         if depth >= rr_depth:
             q = min(vec.max_component(beta) * eta_scale, 0.95)
             if uniform(key, dim) >= q:
@@ -101,14 +150,29 @@ def radiance(geom, mats, lights, o, d, key, max_depth, rr_depth):
     return L, n_ext, n_shadow
 
 
+@kernel(inline=True)
+def emission_mis(lights, e, specular, pdf_last, cos_l, t, crossings, p, p_last):
+    """The MIS weight of emitter e's radiance reached by BSDF or phase sampling (density pdf_last) against
+    light sampling from the last scattering point: 1 after a delta bounce or from the camera.  The
+    distance is the ray's t, or |p - p_last| when null surfaces were crossed since that point."""
+    if specular:
+        return 1.0
+    if crossings == 0:
+        pdf_light = lights.select_pdf[e] * t * t / (lights.area[e] * cos_l)
+    else:
+        to_p = vec.sub(p, p_last)
+        pdf_light = lights.select_pdf[e] * vec.dot(to_p, to_p) / (lights.area[e] * cos_l)
+    return power_heuristic(pdf_last, pdf_light)
+
+
 @kernel
-def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_depth, image, rays, i0, i1):
+def render_pixels(geom, mats, lights, media, cam, seed, stream, spp, max_depth, rr_depth, image, rays, i0, i1):
     """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order.
 
     Sample s of pixel i is random path (i * spp + s) of ``stream`` (the pass's camera stream).
     rays[i] receives pixel i's (extension, shadow) ray counts.
     """
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
     width = cam.width
     for i in range(i0, i1):
         y = i // width
@@ -117,7 +181,7 @@ def render_pixels(geom, mats, lights, cam, seed, stream, spp, max_depth, rr_dept
         for s in range(spp):
             key = path_key(seed, stream, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L, n_ext, n_shadow = radiance(geom, mats, lights, o, d, key, max_depth, rr_depth)
+            L, n_ext, n_shadow = radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth)
             rays[i, 0] += n_ext
             rays[i, 1] += n_shadow
             if math.isfinite(L[0] + L[1] + L[2]):
@@ -152,13 +216,10 @@ class PathTracer(IndependentPasses):
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        tables = (scene.geometry, scene.materials, scene.lights)
-        kernel_args = (cam, settings["seed"], stream, settings["spp"], max_depth, settings["rr_depth"], image, rays)
-        if scene.media is None:
-            compile_s = parallel_for(render_pixels, n, tables + kernel_args, threads=settings["threads"], progress=bar)
-        else:   # a volumetric path tracer (methods/pt_volume.py, docs/media.md)
-            compile_s = parallel_for(render_pixels_media, n, tables + (scene.media,) + kernel_args,
-                                     threads=settings["threads"], progress=bar)
+        compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
+                                                    settings["seed"], stream, settings["spp"], max_depth,
+                                                    settings["rr_depth"], image, rays),
+                                 threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, None, {

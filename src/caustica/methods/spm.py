@@ -8,7 +8,7 @@ the k nearest stream records within R: L = f_r Σ W E_i (the ``stream`` estimato
 the paper's).  The ``photons`` estimator instead counts every photon at its own
 position (an option, never the default).
 
-In a scene with media the streams go through them (:mod:`caustica.photons.streams_media`,
+In a scene with media the streams go through them (:mod:`caustica.photons.streams`,
 ``--medium-scattering``); their volume records are gathered along the camera rays by the beam
 radiance estimate within ``--volume-radius`` (under either estimator, as at surfaces), and the
 camera pass is the progressive one in media (docs/media.md).
@@ -17,12 +17,9 @@ from __future__ import annotations
 
 import time
 
-from ..jit import parallel_for
-from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import empty_photon_map
-from ..photons.streams import StreamBuffers, StreamMap, trace_streams
-from ..photons.streams_media import trace_streams_media
+from ..photons.streams import StreamBuffers, StreamMap, trace_stream_pass
 from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import Param, non_negative, positive
@@ -57,25 +54,15 @@ class StreamedPhotonMapping(OneShot):
         buf = StreamBuffers(n, n_fa, mr)
         bar = progress(total=n, desc="stream tracing", unit="stream")
         terminate = TERMINATIONS[settings["termination"]]
-        if scene.media is None:
-            compile_s = parallel_for(trace_streams, n, (scene.geometry, scene.materials, scene.lights,
-                                                        settings["seed"], STREAM_SPM, n, n_fa,
-                                                        settings["stream_radius"], mr, terminate, False,
-                                                        *buf.kernel_args),
-                                     threads=settings["threads"], progress=bar)
-        else:
-            compile_s = parallel_for(trace_streams_media, n, (scene.geometry, scene.materials, scene.lights,
-                                                              scene.media, light_media(scene), settings["seed"],
-                                                              STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
-                                                              terminate, settings["medium_scattering"] == "spread",
-                                                              *buf.kernel_args),
-                                     threads=settings["threads"], progress=bar)
+        compile_s = trace_stream_pass(scene, buf, settings["seed"], STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
+                                      terminate, spread=settings["medium_scattering"] == "spread",
+                                      threads=settings["threads"], progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["compile_s"] = compile_s
         timings["photon_trace_s"] = t1 - t0 - compile_s
         smap = StreamMap(buf)
-        smap.volume = buf.volume_events(settings["estimator"]) if scene.media is not None else None
+        smap.volume = buf.volume_events(settings["estimator"]) if scene.has_media else None
         timings["map_build_s"] = time.perf_counter() - t1
         stats = {"timings": timings,
                  "streams_emitted": n,

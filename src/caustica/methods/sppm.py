@@ -14,13 +14,10 @@ import time
 
 import numpy as np
 
-from ..jit import parallel_for
-from ..media import light_media
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
-from ..photons.trace import trace_photons
-from ..photons.trace_media import trace_photons_media
+from ..photons.trace import trace_photon_pass
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
@@ -91,20 +88,10 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         buf = allocate_buffers(slots + (n_c if aimed else 0), 1)
         head = TraceBuffers(*(a[:slots] for a in buf))
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        media = scene.media
-        if media is None:
-            compile_s = parallel_for(trace_photons, n, (scene.geometry, scene.materials, scene.lights, settings["seed"],
-                                                        pass_stream(STREAM_PHOTON, pass_index), n, mr,
-                                                        TERMINATIONS[settings["termination"]], *head),
-                                     threads=settings["threads"], progress=bar)
-        else:
-            lm = light_media(scene)
-            compile_s = parallel_for(trace_photons_media, n, (scene.geometry, scene.materials, scene.lights, media, lm,
-                                                              settings["seed"], pass_stream(STREAM_PHOTON, pass_index),
-                                                              n, mr, TERMINATIONS[settings["termination"]], *head),
-                                     threads=settings["threads"], progress=bar)
+        compile_s = trace_photon_pass(scene, head, settings["seed"], pass_stream(STREAM_PHOTON, pass_index), n, mr,
+                                      TERMINATIONS[settings["termination"]], threads=settings["threads"], progress=bar)
         bar.close()
-        if not aimed and media is None:
+        if not aimed and not scene.has_media:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
             return (buf.position, buf.power, buf.normal, buf.kind), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
@@ -121,7 +108,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
             valid[:] = (buf.kind == INDIRECT) | (buf.kind == CAUSTIC)   # the surface records, not the volume's
         stats = {"timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                  "photons_emitted": n + n_c}
-        if media is not None:
+        if scene.has_media:
             # volume photons: all of the unaimed ones', or, with caustic photons, the unaimed photons'
             # VOLUME_INDIRECT and the aimed ones' VOLUME_CAUSTIC (the same split as at surfaces)
             if aimed:

@@ -40,7 +40,7 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel
-def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
+def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
                     n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth,
                     idx, d2):
     L = (0.0, 0.0, 0.0)
@@ -69,12 +69,14 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
                 L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
             m = geom.prim_material[prim]
             kind = mats.kind[m]
+            ng_front = ng
             scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
             if not scatters:
                 break
             if kind == DIFFUSE:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
-                E = direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid)
+                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, geom.prim_shape[prim], -1,
+                                      key, dim, n_strata, fixed_grid, -1)
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
                 Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)
@@ -132,13 +134,13 @@ def gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_
 
 
 @kernel
-def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
+def gather_pixels(geom, mats, lights, media, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
                   n_strata, fixed_grid, max_specular, image, knn_queries, i0, i1):
     """The camera pass over pixels [i0, i1) in row-major order: spp jittered rays per pixel.
 
     knn_queries[i] receives the number of k-nearest searches pixel i made.
     """
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
     gmap, cmap = borrowed(gmap), borrowed(cmap)
     width = cam.width
     kmax = max(k_g, k_c, 1)
@@ -156,7 +158,7 @@ def gather_pixels(geom, mats, lights, cam, gmap, cmap, seed, spp, k_g, r_g, k_c,
         for s in range(spp):
             key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L, q = gather_radiance(geom, mats, lights, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
+            L, q = gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
                                 n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth, idx, d2)
             nq += q
             if math.isfinite(L[0] + L[1] + L[2]):
@@ -174,7 +176,7 @@ def gather_at_visible_points(gmap, cmap, vp_pos, vp_nrm, vp_found, vp_weight, k_
     """out[i] += W_i (E_global + E_caustic) at visible point i, for i in [i0, i1): the maps' k-nearest estimates.
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
-    (:func:`caustica.photons.visible_points_media.camera_pass_media`); W_i = β ρ / π.
+    (:func:`caustica.photons.visible_points.camera_pass`); W_i = β ρ / π.
     knn_queries[i] counts the searches made.
     """
     gmap, cmap = borrowed(gmap), borrowed(cmap)

@@ -39,13 +39,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from typing import NamedTuple
+
 from ..bsdf import scattering_side
+from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel
+from ..jit import borrowed, kernel, parallel_for
+from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import DIFFUSE
+from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
                       build_photon_map, build_photon_map_with_order)
@@ -56,21 +61,36 @@ from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_
 SPLIT_TAG = 1
 SPLIT_DISC_TAG = 2
 
+#: What a stream does at a scattering event in a medium (``--medium-scattering``).
+MEDIUM_SCATTERING = ("merge", "spread")
+
 
 @kernel
-def split_off(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, slot0, split_pos, split_dir,
-              split_pow, split_nrm, split_kind):
+def split_off(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces, slot0, split):
     """An associated photon that leaves its stream at a mirror or glass (``--specular split``).
 
-    From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`): its own
-    specular chain (Fresnel per photon, numbers from its own key), stored where it lands (unless
-    that is direct light) and at every later diffuse hit, in its own slots slot0 .. slot0 + mr.
-    It decays as an associated photon does (survives a diffuse bounce with p = mean albedo, power
-    scaled by albedo / p) and ends after the stream's ``max_bounces`` diffuse bounces in all.  What
+    From o along d (in ``medium``) it is a photon of its own (:func:`caustica.photons.trace.trace_one`):
+    its own specular chain (Fresnel per photon, numbers from its own key), stored where it lands
+    (unless that is direct light) and at every later diffuse hit, in its own slots slot0 .. slot0 + mr
+    of ``split``.  It decays as an associated photon does (survives a diffuse bounce with p = mean
+    albedo, power scaled by albedo / p) and ends after the stream's ``max_bounces`` in all.  What
     escapes or is absorbed on its way is lost, as any photon's power is.
     """
-    trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, TERMINATION_ROULETTE, False,
-              slot0, split_pos, split_dir, split_pow, split_nrm, split_kind)
+    trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces,
+              TERMINATION_ROULETTE, False, slot0, max_bounces + 1, split)
+
+
+@kernel(inline=True)
+def split_off_at(geom, mats, media, key, o, d, power, split_path, k, split):
+    """:func:`split_off` for the stream's split photon number split_path[1] + k: its key and its slots.
+
+    ``split_path``: (the stream's first split path, its split photons so far, its medium, diffuse
+    bounces, whether it has scattered, max_bounces).
+    """
+    first_path, before, medium, diffuse_bounces, scattered, max_bounces = split_path
+    index = before + k
+    split_off(geom, mats, media, path_key(key, SPLIT_TAG, index), o, d, power, medium, diffuse_bounces, scattered,
+              max_bounces, (first_path + index) * (max_bounces + 1), split)
 
 
 @kernel(inline=True)
@@ -96,35 +116,40 @@ def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
 
 
 @kernel(inline=True)
-def store_stream_record(rec, p, d, n, lead, p_assoc, landed, kind, rec_pos, rec_dir, rec_nrm, rec_lead_power,
-                        rec_assoc_power, rec_energy, rec_count, rec_valid):
-    """Write one stream record: leading photon (position, direction, normal, power), the associated photons' power."""
+def store_stream_record(r, p, d, n, lead, p_assoc, landed, kind, rec):
+    """Write stream record r: leading photon (position, direction, normal, power), the associated photons' power."""
     for c in range(3):
-        rec_pos[rec, c] = p[c]
-        rec_dir[rec, c] = d[c]
-        rec_nrm[rec, c] = n[c]
-        rec_lead_power[rec, c] = lead[c]
-        rec_assoc_power[rec, c] = p_assoc[c]
-        rec_energy[rec, c] = lead[c] + landed * p_assoc[c]
-    rec_count[rec] = landed
-    rec_valid[rec] = kind
+        rec.position[r, c] = p[c]
+        rec.direction[r, c] = d[c]
+        rec.normal[r, c] = n[c]
+        rec.lead_power[r, c] = lead[c]
+        rec.assoc_power[r, c] = p_assoc[c]
+        rec.energy[r, c] = lead[c] + landed * p_assoc[c]
+    rec.count[r] = landed
+    rec.kind[r] = kind
+
+
+@kernel(inline=True)
+def store_associated(a, p, d, n, assoc):
+    """Write associated photon slot a (position, direction of travel, normal: zero in a medium)."""
+    for c in range(3):
+        assoc.position[a, c] = p[c]
+        assoc.direction[a, c] = d[c]
+        assoc.normal[a, c] = n[c]
 
 
 @kernel
-def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, p_assoc, store, rec,
-                     assoc_pos, assoc_dir, assoc_nrm, n_assoc, split, split_path, split_pos, split_dir, split_pow,
-                     split_nrm, split_kind):
+def place_associated(geom, mats, media, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, p_assoc, store, r,
+                     assoc, n_assoc, split, split_path, split_buf):
     """Trace the stream's associated photons from o towards the disc about x_lead.
 
     Returns (landed, split off): ``landed`` photons met a diffuse surface and are written to
-    assoc slots [rec * n_assoc, ...) when ``store``; the rest merge into the leading photon —
+    assoc slots [r * n_assoc, ...) when ``store``; the rest merge into the leading photon —
     except, with ``split``, those whose ray meets a mirror or glass, which leave the stream as
-    photons of their own (:func:`split_off`; ``split_path`` = (the stream's first split slot
-    path, split photons so far, diffuse bounces, scattered, max_bounces)).  ``n_from`` is the
-    normal of the surface o lies on, facing the side the stream leaves by (zero for a point
-    light): a photon whose direction q - o points into that surface cannot leave it and is
-    merged (before this check such rays met the surface again at t ~ 1e-4 and landed where the
-    stream left from).
+    photons of their own (:func:`split_off_at`).  ``n_from`` is the normal of the surface o lies
+    on, facing the side the stream leaves by (zero for a point light or a point in a medium): a
+    photon whose direction q - o points into that surface cannot leave it and is merged (before
+    this check such rays met the surface again at t ~ 1e-4 and landed where the stream left from).
     """
     s, t = vec.orthonormal_basis(d_lead)
     check_side = vec.dot(n_from, n_from) > 0.5
@@ -142,8 +167,7 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
         m = geom.prim_material[prim]
         if mats.kind[m] != DIFFUSE:
             if split:
-                split_off_at(geom, mats, key, o, d, p_assoc, split_path, n_split, split_pos, split_dir, split_pow,
-                             split_nrm, split_kind)
+                split_off_at(geom, mats, media, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
@@ -152,134 +176,61 @@ def place_associated(geom, mats, o, n_from, x_lead, d_lead, r_s, key, dim, n_ali
                 continue  # the black back of a one-sided surface: merged
             ns = vec.neg(ns)
         if store:
-            a = rec * n_assoc + landed
-            for c in range(3):
-                assoc_pos[a, c] = p[c]
-                assoc_dir[a, c] = d[c]
-                assoc_nrm[a, c] = ns[c]
+            store_associated(r * n_assoc + landed, p, d, ns, assoc)
         landed += 1
     return landed, n_split
 
 
-@kernel(inline=True)
-def split_off_at(geom, mats, key, o, d, power, split_path, k, split_pos, split_dir, split_pow, split_nrm,
-                 split_kind):
-    """:func:`split_off` for the stream's split photon number split_path[1] + k: its key and its slots."""
-    first_path, before, diffuse_bounces, scattered, max_bounces = split_path
-    index = before + k
-    split_off(geom, mats, path_key(key, SPLIT_TAG, index), o, d, power, diffuse_bounces, scattered, max_bounces,
-              (first_path + index) * (max_bounces + 1), split_pos, split_dir, split_pow, split_nrm, split_kind)
+@kernel
+def spread_in_medium(geom, o, x_lead, d_lead, r_s, key, dim, n_alive, store, r, assoc, n_assoc):
+    """Place the stream's associated photons about a medium event at x_lead (``--medium-scattering spread``);
+    returns how many were placed.
+
+    Photon j takes a point q of the disc of radius r_s about x_lead across d_lead (numbers
+    key, dim + 2j and dim + 2j + 1); it is placed there, travelling along q - o, when the segment
+    from o to q meets no surface (null boundaries included: beyond one is another medium), and
+    written to assoc slot r * n_assoc + (its rank) when ``store``.  The others merge.
+    """
+    s, t = vec.orthonormal_basis(d_lead)
+    placed = 0
+    for j in range(n_alive):
+        u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
+        q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
+        to_q = vec.sub(q, o)
+        dist = vec.length(to_q)
+        if not dist > 0.0:
+            continue
+        d = vec.mul(to_q, 1.0 / dist)
+        prim, _, _, _ = intersect(geom, o, d, dist)
+        if prim >= 0:
+            continue  # a surface between: merged into the leading photon
+        if store:
+            store_associated(r * n_assoc + placed, q, d, (0.0, 0.0, 0.0), assoc)
+        placed += 1
+    return placed
 
 
 @kernel
-def trace_streams(geom, mats, lights, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, split,
-                  rec_pos, rec_dir, rec_nrm, rec_lead_power, rec_assoc_power, rec_energy, rec_count,
-                  rec_valid, assoc_pos, assoc_dir, assoc_nrm, split_pos, split_dir, split_pow, split_nrm,
-                  split_kind, i0, i1):
-    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
-
-    ``split`` (``--specular split``): associated photons do not merge at mirrors and
-    glass.  At the leading photon's first mirror or glass of a specular chain each
-    associated photon is aimed from o through a point of the disc of radius r_s about
-    the hit (as at a diffuse hit); at a diffuse hit, those whose ray meets a mirror or
-    glass go on too.  Each leaves the stream as a photon of its own (:func:`split_off`),
-    stored where it lands and at its later diffuse hits, in the stream's split paths
-    [i * n_assoc, (i + 1) * n_assoc) of mr + 1 slots each (an associated photon splits
-    off at most once: it never rejoins).  One whose ray escapes or meets the black back
-    of a one-sided surface before any mirror or glass merges, as SPEC §4 says of a miss.
+def split_at_specular(geom, mats, media, key, o, n_from, x, d, r_s, n_alive, p_assoc, lead, split_path, split_buf):
+    """At the leading photon's mirror or glass hit x (``--specular split``): each associated photon is aimed
+    from o through a point of the disc of radius r_s about x (numbers of its own disc key) and leaves the
+    stream (:func:`split_off_at`), unless its ray goes into the surface o lies on, escapes or meets a black
+    back first (then it merges).  Returns (the leading photon's power, split photons added).
     """
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
-    slots = max_bounces + 1
-    share = 1.0 / (n_assoc + 1)
-    for i in range(i0, i1):
-        key = path_key(seed, stream, i)
-        o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
-        lead = vec.mul(e_s, share)
-        p_assoc = vec.mul(e_s, share)
-        n_alive = n_assoc
-        dim = 8
-        diffuse_bounces = 0
-        specular_events = 0
-        scattered = False
-        stored = 0
-        n_split = 0      # associated photons split off so far (their paths: i * n_assoc + 0, 1, ...)
-        while True:
-            prim, t, b1, b2 = intersect(geom, o, d, 1e30)
-            if prim < 0:
-                break
-            p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-            front = vec.dot(d, ng) < 0.0
-            m = geom.prim_material[prim]
-            if mats.kind[m] != DIFFUSE:
-                if split and n_alive > 0:
-                    # each associated photon takes its own path through the specular chain (this happens
-                    # once per stream at most: the stream has no associated photon after it)
-                    split_path = (i * n_assoc, n_split, diffuse_bounces, scattered, max_bounces)
-                    s_ax, t_ax = vec.orthonormal_basis(d)
-                    check_side = vec.dot(n_from, n_from) > 0.5
-                    k = 0
-                    for j in range(n_alive):
-                        kd = path_key(key, SPLIT_DISC_TAG, j)
-                        u, v = square_to_uniform_disk(uniform(kd, 0), uniform(kd, 1))
-                        q = vec.madd(vec.madd(p, s_ax, u * r_s), t_ax, v * r_s)
-                        dj = vec.normalize(vec.sub(q, o))
-                        if leaves_by(geom, mats, o, dj, n_from, check_side):
-                            split_off_at(geom, mats, key, o, dj, p_assoc, split_path, k,
-                                         split_pos, split_dir, split_pow, split_nrm, split_kind)
-                            k += 1
-                        else:
-                            lead = vec.add(lead, p_assoc)  # into its surface, escaped or a black back: merged
-                    n_split += k
-                    n_alive = 0
-                # mirror or glass: merge every associated photon (left) into the leading one
-                lead = vec.madd(lead, p_assoc, float(n_alive))
-                n_alive = 0
-                specular_events += 1
-                if specular_events > SPECULAR_CAP:
-                    break
-                d_new, lead, alive, ng_out = specular_scatter(mats, m, d, ng, ns, lead, front, uniform(key, dim))
-                dim += 1
-                if not alive:
-                    break
-                o = vec.offset_origin(p, ng_out, d_new)
-                n_from = (0.0, 0.0, 0.0)  # associated photons are placed from here only after a split
-                d = d_new
-                scattered = True
-                continue
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # absorbed by the black back of a one-sided surface
-            rec = i * slots + stored
-            landed, split_now = place_associated(
-                geom, mats, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc, scattered, rec,
-                assoc_pos, assoc_dir, assoc_nrm, n_assoc, split,
-                (i * n_assoc, n_split, diffuse_bounces, scattered, max_bounces),
-                split_pos, split_dir, split_pow, split_nrm, split_kind)
-            n_split += split_now
-            dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
-            n_alive = landed
-            if scattered:  # a stream record (direct light is not stored)
-                # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
-                # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-                store_stream_record(rec, p, d, ns, lead, p_assoc, landed,
-                                    CAUSTIC if diffuse_bounces == 0 else INDIRECT, rec_pos, rec_dir, rec_nrm,
-                                    rec_lead_power, rec_assoc_power, rec_energy, rec_count, rec_valid)
-                stored += 1
-            if diffuse_bounces >= max_bounces:
-                break
-            # stream decay
-            d_new, lead, alive = diffuse_bounce(mats, m, ng, ns, lead, key, dim, termination)
-            dim += 3
-            if not alive:
-                break
-            n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
-            dim += n_assoc
-            diffuse_bounces += 1
-            o = vec.offset_origin(p, ng, d_new)
-            n_from = ng
-            d = d_new
-            scattered = True
+    s_ax, t_ax = vec.orthonormal_basis(d)
+    check_side = vec.dot(n_from, n_from) > 0.5
+    k = 0
+    for j in range(n_alive):
+        kd = path_key(key, SPLIT_DISC_TAG, j)
+        u, v = square_to_uniform_disk(uniform(kd, 0), uniform(kd, 1))
+        q = vec.madd(vec.madd(x, s_ax, u * r_s), t_ax, v * r_s)
+        dj = vec.normalize(vec.sub(q, o))
+        if leaves_by(geom, mats, o, dj, n_from, check_side):
+            split_off_at(geom, mats, media, key, o, dj, p_assoc, split_path, k, split_buf)
+            k += 1
+        else:
+            lead = vec.add(lead, p_assoc)  # into its surface, escaped or a black back: merged
+    return lead, k
 
 
 @kernel(inline=True)
@@ -298,6 +249,176 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
     return vec.dot(d, ng) < 0.0
 
 
+@kernel
+def trace_streams(geom, mats, lights, media, light_medium, seed, stream, n_streams, rules, rec, assoc, split_buf,
+                  i0, i1):
+    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
+
+    ``rules`` = (n_assoc, r_s, max_bounces, termination, split, spread).  In a medium the leading
+    photon samples the free flights and every photon of the stream takes the flight's weight, so the
+    stream moves and is attenuated as one; null boundaries are crossed.  At a scattering event in a
+    medium the associated photons spread over the disc of radius r_s about it (``spread``) or merge;
+    a volume stream record is stored there.  ``split`` (``--specular split``): associated photons do
+    not merge at mirrors and glass but leave the stream as photons of their own
+    (:func:`split_at_specular` at the leading photon's mirror or glass, :func:`place_associated` at a
+    diffuse hit), in the stream's split paths [i * n_assoc, (i + 1) * n_assoc) of mr + 1 slots each
+    (an associated photon splits off at most once: it never rejoins).
+    """
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+    n_assoc, r_s, max_bounces, termination, split, spread = rules
+    slots = max_bounces + 1
+    share = 1.0 / (n_assoc + 1)
+    zero = (0.0, 0.0, 0.0)
+    for i in range(i0, i1):
+        key = path_key(seed, stream, i)
+        o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
+        li, _, _ = choose_light(lights, uniform(key, 0))                   # the light emit_photon chose
+        medium = light_medium[li]
+        lead = vec.mul(e_s, share)
+        p_assoc = vec.mul(e_s, share)
+        n_alive = n_assoc
+        dim = 8
+        bounces = 0           # diffuse and medium scattering events
+        specular_events = 0
+        scattered = False     # any event so far: what is stored from now on is not direct light
+        diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
+        crossings = 0
+        stored = 0
+        n_split = 0           # associated photons split off so far
+        while True:
+            prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+            if escaped:
+                break
+            if medium >= 0:
+                if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
+                    break
+                lead = vec.hadamard(lead, w)
+                p_assoc = vec.hadamard(p_assoc, w)
+            store = scattered and stored < slots
+            r = i * slots + stored
+            if prim < 0:
+                # ---- a scattering event in the medium
+                x = vec.madd(o, d, t)
+                landed = 0
+                if spread and n_alive > 0:
+                    landed = spread_in_medium(geom, o, x, d, r_s, key, dim, n_alive, store, r, assoc, n_assoc)
+                dim += 2 * n_assoc
+                lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
+                n_alive = landed
+                if store:
+                    store_stream_record(r, x, d, zero, lead, p_assoc, landed,
+                                        VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec)
+                    stored += 1
+                if bounces >= max_bounces:
+                    break
+                alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim,
+                                                          termination == TERMINATION_ROULETTE)
+                dim += 3
+                if not alive:
+                    break
+                lead = vec.mul(vec.mul(lead, inv_q), weight)
+                p_assoc = vec.mul(vec.mul(p_assoc, inv_q), weight)
+                o = x
+                d = wo
+                n_from = zero     # a point in a medium: no surface the associated photons could aim into
+                bounces += 1
+                scattered = True
+                diffuse_like = True
+                crossings = 0
+                continue
+            # ---- a surface
+            p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+                geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+            if nxt == CROSSED:
+                n_from = zero
+                continue
+            if nxt == TRAPPED:
+                break
+            ng_front = ng
+            split_path = (i * n_assoc, n_split, medium, bounces, scattered, max_bounces)
+            if kind != DIFFUSE:
+                if split and n_alive > 0:   # once per stream at most: no associated photon is left after it
+                    lead, k = split_at_specular(geom, mats, media, key, o, n_from, p, d, r_s, n_alive, p_assoc,
+                                                lead, split_path, split_buf)
+                    n_split += k
+                    n_alive = 0
+                # mirror or glass: merge every associated photon (left) into the leading one
+                lead = vec.madd(lead, p_assoc, float(n_alive))
+                n_alive = 0
+                specular_events += 1
+                if specular_events > SPECULAR_CAP:
+                    break
+                d_new, lead, alive, ng_out = specular_scatter(mats, m, d, ng, ns, lead, front, uniform(key, dim))
+                dim += 1
+                if not alive:
+                    break
+                medium = medium_after(media, shape, ng_front, d_new, medium)
+                o = vec.offset_origin(p, ng_out, d_new)
+                n_from = zero     # associated photons are placed from here only after a split
+                d = d_new
+                scattered = True
+                continue
+            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            if not scatters:
+                break  # absorbed by the black back of a one-sided surface
+            landed, split_now = place_associated(geom, mats, media, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc,
+                                                 store, r, assoc, n_assoc, split, split_path, split_buf)
+            n_split += split_now
+            dim += 2 * n_assoc
+            lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
+            n_alive = landed
+            if store:
+                # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
+                # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
+                store_stream_record(r, p, d, ns, lead, p_assoc, landed, INDIRECT if diffuse_like else CAUSTIC, rec)
+                stored += 1
+            if bounces >= max_bounces:
+                break
+            # stream decay
+            d_new, lead, alive = diffuse_bounce(mats, m, ng, ns, lead, key, dim, termination)
+            dim += 3
+            if not alive:
+                break
+            n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
+            dim += n_assoc
+            bounces += 1
+            diffuse_like = True
+            medium = medium_after(media, shape, ng_front, d_new, medium)
+            o = vec.offset_origin(p, ng, d_new)
+            n_from = ng
+            d = d_new
+            scattered = True
+
+
+def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, *,
+                      split=False, spread=False, threads=None, progress=None) -> float:
+    """Trace ``n_streams`` streams of (seed, stream) into ``buf`` (a :class:`StreamBuffers`) on the thread
+    pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE."""
+    rules = (n_assoc, float(r_s), max_bounces, termination, bool(split), bool(spread))
+    return parallel_for(trace_streams, n_streams,
+                        (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene), seed, stream,
+                         n_streams, rules, *buf.kernel_args), threads=threads, progress=progress)
+
+
+class StreamRecords(NamedTuple):
+    """Stream records, one slot per stream and bounce (float32 vectors)."""
+    position: np.ndarray      # leading photon
+    direction: np.ndarray     # its direction of travel
+    normal: np.ndarray        # its surface normal (zero for a volume record)
+    lead_power: np.ndarray
+    assoc_power: np.ndarray   # the power of each associated photon (they share one)
+    energy: np.ndarray        # E_i: the record's photons' powers summed
+    count: np.ndarray         # int32: associated photons that landed
+    kind: np.ndarray          # int8: EMPTY, INDIRECT, CAUSTIC, VOLUME_INDIRECT or VOLUME_CAUSTIC
+
+
+class AssociatedPhotons(NamedTuple):
+    """The associated photons of the stream records, n_fa slots per record (float32)."""
+    position: np.ndarray
+    direction: np.ndarray
+    normal: np.ndarray
+
+
 class StreamBuffers:
     """Fixed record and associated-photon slots of the stream tracer (float32)."""
 
@@ -305,9 +426,9 @@ class StreamBuffers:
         s = n_streams * (max_bounces + 1)
         a = s * n_assoc
         f = np.float32
-        self.rec = (np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros((s, 3), f),
-                    np.zeros((s, 3), f), np.zeros((s, 3), f), np.zeros(s, np.int32), np.zeros(s, np.int8))
-        self.assoc = (np.zeros((a, 3), f), np.zeros((a, 3), f), np.zeros((a, 3), f))
+        self.rec = StreamRecords(*(np.zeros((s, 3), f) for _ in range(6)), np.zeros(s, np.int32),
+                                 np.zeros(s, np.int8))
+        self.assoc = AssociatedPhotons(*(np.zeros((a, 3), f) for _ in range(3)))
         # split photons: at most n_assoc per stream, mr + 1 slots each
         self.split = allocate_buffers(n_streams * n_assoc if split else 0, max_bounces + 1)
         self.n_assoc = n_assoc
@@ -315,7 +436,7 @@ class StreamBuffers:
     @property
     def kernel_args(self) -> tuple:
         """The buffers in trace_streams' argument order."""
-        return (*self.rec, *self.assoc, *self.split)
+        return self.rec, self.assoc, self.split
 
     @staticmethod
     def bytes_needed(n_streams, n_assoc, max_bounces, split=False):

@@ -1,23 +1,40 @@
-"""Tracing photons through the scene for photon mapping (PM and its caustic map).
+"""Tracing photons through the scene: PM's global and caustic maps, SPPM's photons, split stream photons.
 
-Each photon i is a pure function of (seed, pass, i): parallel tracing writes into
-its own fixed slots, so the maps are identical for any thread count.  At every
-diffuse hit after the first scattering event a record is stored (SPEC §2: no
-direct-light photons), tagged CAUSTIC when every earlier scattering was specular
-(light -> S+ -> D) and INDIRECT otherwise.  ``max_bounces`` (mr) counts diffuse
-bounces; mirrors and glass have their own cap (:data:`SPECULAR_CAP`).
+One path loop, :func:`trace_one`, for every scene: with media or without (vacuum is the case of
+no medium, ``medium`` = -1, with the same arithmetic; a scene without media has a trivial medium
+table).  Each photon i is a pure function of (seed, pass, i): parallel tracing writes into its
+own fixed slots, so the maps are identical for any thread count.
+
+* A photon starts in the medium of its light (:func:`caustica.media.light_media`) and keeps
+  track of the medium it is in across every surface it leaves (``medium_after``); null
+  boundaries are crossed without scattering.
+* In a medium it samples a free flight (:func:`caustica.media.free_flight`); the flight ends in
+  a **medium scattering event** or at the next surface, and its power is multiplied by the
+  flight's weight (T / P at a surface, T σs / p at a scattering event).  At a scattering event
+  it is stored as a **volume photon** (no normal), then continues in a direction sampled from
+  the phase function; the event counts as a bounce towards ``max_bounces``, as a diffuse one
+  does.
+* At every diffuse hit a surface record is stored; mirrors and glass reflect or refract, up to
+  their own cap (:data:`SPECULAR_CAP`).  ``max_bounces`` (mr) counts diffuse and medium bounces.
+
+What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
+scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
+event was a mirror or glass (light -> S+ -> event: what aimed caustic photons carry),
+INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
 from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..emitters import choose_light
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel
+from ..jit import borrowed, kernel, parallel_for
+from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import CONDUCTOR, DIFFUSE
+from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
-from .records import CAUSTIC, INDIRECT
+from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
 SPECULAR_CAP = 64
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
@@ -25,14 +42,14 @@ TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled b
 
 
 @kernel(inline=True)
-def store_record(s, p, d, power, n, kind, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
-    """Write one photon record (position, direction of travel, power, normal, kind) into slot s."""
+def store_record(s, p, d, power, n, kind, buf):
+    """Write one photon record (position, direction of travel, power, normal, kind) into slot s of ``buf``."""
     for c in range(3):
-        buf_pos[s, c] = p[c]
-        buf_dir[s, c] = d[c]
-        buf_pow[s, c] = power[c]
-        buf_nrm[s, c] = n[c]
-    buf_kind[s] = kind
+        buf.position[s, c] = p[c]
+        buf.direction[s, c] = d[c]
+        buf.power[s, c] = power[c]
+        buf.normal[s, c] = n[c]
+    buf.kind[s] = kind
 
 
 @kernel
@@ -71,30 +88,63 @@ def specular_scatter(mats, m, d, ng, ns, power, front, u):
 
 
 @kernel
-def trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_bounces, termination, caustic_only,
-              slot0, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind):
-    """Follow one photon, storing records in slots slot0, slot0 + 1, ...; returns records stored.
+def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces, termination,
+              caustic_only, slot0, slots, buf):
+    """Follow one photon from o along d in ``medium``; records go to slots slot0 .. slot0 + slots - 1 of
+    ``buf`` (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
 
-    A photon from a light starts with no diffuse bounce and not ``scattered``; a split photon of a
-    stream (:mod:`caustica.photons.streams`) starts with its stream's.  Random numbers from 8 on.
+    A photon from a light starts with no bounce and not ``scattered``; a split photon of a stream
+    (:mod:`caustica.photons.streams`) starts with its stream's.  ``caustic_only``: stop at the
+    first diffuse or medium event (the aimed caustic photons).  Random numbers from 8 on.
     """
     dim = 8
     specular_events = 0
+    diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
+    crossings = 0
     stored = 0
     while True:
-        prim, t, b1, b2 = intersect(geom, o, d, 1e30)
-        if prim < 0:
+        prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+        if escaped:
             break
-        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        front = vec.dot(d, ng) < 0.0
-        m = geom.prim_material[prim]
-        if mats.kind[m] == DIFFUSE:
+        if medium >= 0:
+            power = vec.hadamard(power, w)
+            if power[0] == 0.0 and power[1] == 0.0 and power[2] == 0.0:
+                break
+        if prim < 0:
+            # ---- a scattering event in the medium
+            p = vec.madd(o, d, t)
+            if scattered and stored < slots:
+                store_record(slot0 + stored, p, d, power, (0.0, 0.0, 0.0),   # a volume photon has no normal
+                             VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, buf)
+                stored += 1
+            if caustic_only or diffuse_bounces >= max_bounces:
+                break
+            alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
+            dim += 3
+            if not alive:
+                break
+            power = vec.mul(vec.mul(power, inv_q), weight)
+            o = p
+            d = wo
+            diffuse_bounces += 1
+            scattered = True
+            diffuse_like = True
+            crossings = 0
+            continue
+        # ---- a surface
+        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+            geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+        if nxt == CROSSED:
+            continue
+        if nxt == TRAPPED:
+            break
+        ng_front = ng
+        if kind == DIFFUSE:
             scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
             if not scatters:
                 break  # the black back of a one-sided surface absorbs
-            if scattered:
-                store_record(slot0 + stored, p, d, power, ns, CAUSTIC if diffuse_bounces == 0 else INDIRECT,
-                             buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
+            if scattered and stored < slots:
+                store_record(slot0 + stored, p, d, power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
@@ -103,6 +153,8 @@ def trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_boun
             if not alive:
                 break
             diffuse_bounces += 1
+            diffuse_like = True
+            medium = medium_after(media, shape, ng_front, d, medium)
             o = vec.offset_origin(p, ng, d)
         else:
             specular_events += 1
@@ -112,6 +164,7 @@ def trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_boun
             dim += 1
             if not alive:
                 break
+            medium = medium_after(media, shape, ng_front, d_new, medium)
             o = vec.offset_origin(p, ng_out, d_new)
             d = d_new
         scattered = True
@@ -119,26 +172,49 @@ def trace_one(geom, mats, key, o, d, power, diffuse_bounces, scattered, max_boun
 
 
 @kernel
-def trace_photons(geom, mats, lights, seed, stream, n_paths, max_bounces, termination,
-                  buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
+def trace_photons(geom, mats, lights, media, light_medium, seed, stream, n_paths, max_bounces, termination, buf,
+                  i0, i1):
     """Emit and trace photons [i0, i1) of n_paths; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
     slots = max_bounces + 1
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, _ = emit_photon(geom, lights, key, n_paths)
-        trace_one(geom, mats, key, o, d, power, 0, False, max_bounces, termination, False,
-                  i * slots, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
+        li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
+        trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, max_bounces, termination, False,
+                  i * slots, slots, buf)
 
 
 @kernel
-def trace_caustic_photons(geom, mats, lights, spheres, seed, stream, n_paths,
-                          buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind, i0, i1):
-    """Caustic photons [i0, i1) aimed at the specular objects; only light -> S+ -> D records (one slot each)."""
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+def trace_caustic_photons(geom, mats, lights, media, light_medium, spheres, seed, stream, n_paths, buf, i0, i1):
+    """Caustic photons [i0, i1) aimed at the specular objects: the first event after a mirror or glass only
+    (one slot each).  A photon that scatters in a medium or meets a diffuse surface before any mirror or
+    glass stores nothing (that light is the other photons' and the direct light's)."""
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
-            trace_one(geom, mats, key, o, d, power, 0, False, 0, TERMINATION_CAP, True,
-                      i, buf_pos, buf_dir, buf_pow, buf_nrm, buf_kind)
+            li, _, _ = choose_light(lights, uniform(key, 0))
+            trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, 0, TERMINATION_CAP, True,
+                      i, 1, buf)
+
+
+def trace_photon_pass(scene, buf, seed, stream, n_paths, max_bounces, termination, *, threads=None,
+                      progress=None) -> float:
+    """Trace ``n_paths`` photons of (seed, stream) into ``buf`` (mr + 1 slots each) on the thread pool;
+    returns the compile seconds."""
+    return parallel_for(trace_photons, n_paths, (scene.geometry, scene.materials, scene.lights, scene.media,
+                                                 light_media(scene), seed, stream, n_paths, max_bounces, termination,
+                                                 buf), threads=threads, progress=progress)
+
+
+def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None, threads=None,
+                              progress=None) -> float:
+    """Trace ``n_paths`` photons aimed at the scene's mirrors and glass (or at ``spheres``, (n, 4) centre and
+    radius) into ``buf`` (one slot each); returns the compile seconds."""
+    spheres = scene.specular_bounding_spheres() if spheres is None else spheres
+    return parallel_for(trace_caustic_photons, n_paths,
+                        (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene), spheres,
+                         seed, stream, n_paths, buf),
+                        threads=threads, progress=progress)

@@ -32,38 +32,38 @@ image's error at equal passes (docs/progressive.md).  Later glass choices use th
 pass's own random numbers (path i of the pass's camera stream), as does the
 ``--fixed-light-grid`` variant.  Everything is a function of (seed, pass, pixel), so
 the bits do not depend on threads or on how passes are grouped.
+
+**Media** (the same loop; a scene without media takes none of these branches).  The camera path
+tracks the medium it is in (the camera's, then :func:`caustica.media.medium_after` at every surface
+it leaves) and crosses null boundaries without scattering.  It samples no free flights: over each
+medium segment its throughput β is multiplied by the exact transmittance exp(−σt s), so the visible
+point's weight and every emitter the path sees are attenuated exactly.  Each medium segment is
+written out for the volume estimate, with the direct light scattered along it
+(:mod:`caustica.photons.segments`); the direct light at the visible point weights each shadow ray by
+its transmittance (:func:`caustica.lighting.direct_stratified`).
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
 from ..camera import generate_ray
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel
-from ..lighting import direct_stratified, direct_stratified_qmc
-from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA_SCRAMBLE, kronecker, path_key, sobol02, uniform
+from ..geometry.scene_geometry import intersect
+from ..jit import borrowed, kernel, parallel_for
+from ..lighting import direct_stratified
+from ..media import attenuation, medium_after
+from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
+    pass_stream, path_key, sobol02, uniform
 from ..scene.description import CONDUCTOR, DIFFUSE
+from ..transport import CROSSED, TRAPPED, surface_interaction
+from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, \
+    first_segment_numbers, segment_inscatter, store_segment
 
 INV_PI = 1.0 / math.pi
-
-
-@kernel
-def emitted_along(geom, lights, o, d):
-    """The radiance of the emitter a ray from o along d meets first, front side (0 if none)."""
-    prim, t, b1, b2 = intersect(geom, o, d, np.inf)
-    if prim < 0:
-        return (0.0, 0.0, 0.0)
-    e = geom.prim_emitter[prim]
-    if e < 0:
-        return (0.0, 0.0, 0.0)
-    _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
-    if vec.dot(d, ng) >= 0.0:
-        return (0.0, 0.0, 0.0)
-    return vec.row(lights.radiance, e)
 
 
 @kernel(inline=True)
@@ -95,42 +95,81 @@ def glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt):
 
 
 @kernel
-def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fixed_grid, max_specular):
-    """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct)."""
+def medium_segment(geom, mats, lights, media, o, d, t, hit, medium, beta, L, n_seg, slot0, pass_index, qkey, vkey,
+                   segments):
+    """A camera path's flight from o along d through ``medium`` (to a surface at t when ``hit``): the segment is
+    stored in slot slot0 + n_seg, the direct light scattered along it added to L.  Returns (L, β past it)."""
+    s = t if hit else np.inf
+    store_segment(slot0 + n_seg, o, d, s, beta, medium, segments)
+    vd = 7 * n_seg
+    u_dist = uniform(vkey, vd + 1)
+    u1 = uniform(vkey, vd + 3)
+    u2 = uniform(vkey, vd + 4)
+    if n_seg == 0:   # the first segment's distance and light point: stratified over the passes
+        u_dist, u1, u2 = first_segment_numbers(pass_index, qkey)
+    L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
+                                     uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2,
+                                     uniform(vkey, vd + 5), uniform(vkey, vd + 6)))
+    if hit:
+        beta = vec.hadamard(beta, attenuation(media, medium, t))
+    return L, beta
+
+
+@kernel
+def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, n_strata, fixed_grid, max_specular,
+                  segments, slot0):
+    """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
+
+    The path's medium segments are written to slots slot0, slot0 + 1, ... of ``segments``.
+    """
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     zero = (0.0, 0.0, 0.0)
     dim = 2
     depth = 0
     first_glass = True
-    counted = False   # this hit's emission was already added, in expectation, at the glass before it
+    counted = False   # the next surface's emission was already added, in expectation, at the glass before it
+    medium = media.camera[0]
+    n_seg = 0
+    crossings = 0
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if medium >= 0:
+            if n_seg >= MEDIUM_SEGMENTS:
+                return False, zero, zero, zero, L, n_seg
+            L, beta = medium_segment(geom, mats, lights, media, o, d, t, prim >= 0, medium, beta, L, n_seg, slot0,
+                                     pass_index, qkey, vkey, segments)
+            n_seg += 1
         if prim < 0:
-            return False, zero, zero, zero, L
-        p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        front = vec.dot(d, ng) < 0.0
+            return False, zero, zero, zero, L, n_seg
+        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+            geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
             L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+        if nxt == CROSSED:
+            continue
+        if nxt == TRAPPED:
+            return False, zero, zero, zero, L, n_seg
         counted = False
-        m = geom.prim_material[prim]
-        kind = mats.kind[m]
+        ng_front = ng
         scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
         if not scatters:
-            return False, zero, zero, zero, L
+            return False, zero, zero, zero, L, n_seg
         rgb = vec.row(mats.rgb, m)
         if kind == DIFFUSE:
             w = vec.mul(vec.hadamard(beta, rgb), INV_PI)
             if fixed_grid:
-                E = direct_stratified(geom, lights, p, ng, ns, key, dim, n_strata, fixed_grid)
+                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim,
+                                      n_strata, True, -1)
             else:
-                E = direct_stratified_qmc(geom, lights, p, ng, ns, qkey, 3, pass_index, n_strata)
+                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, qkey, 3,
+                                      n_strata, False, pass_index)
             L = vec.add(L, vec.hadamard(w, E))
-            return True, p, ns, w, L
+            return True, p, ns, w, L, n_seg
         depth += 1
         if depth > max_specular:
-            return False, zero, zero, zero, L
+            return False, zero, zero, zero, L, n_seg
         if kind == CONDUCTOR:
             wi = mirror_reflect(d, ng, ns)
             beta = vec.hadamard(beta, rgb)
@@ -140,34 +179,74 @@ def visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fix
             wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
             beta = vec.hadamard(beta, rgb)
-            Lr = emitted_along(geom, lights, vec.offset_origin(p, ng, wr), wr)
-            Lt = emitted_along(geom, lights, vec.offset_origin(p, ng, wt), wt) if F < 1.0 else zero
+            # emitters seen along either branch, with their expected weights (glass_step)
+            Lr = emitted_along(geom, mats, lights, media, vec.offset_origin(p, ng, wr), wr,
+                               medium_after(media, shape, ng_front, wr, medium))
+            Lt = zero
+            if F < 1.0:
+                Lt = emitted_along(geom, mats, lights, media, vec.offset_origin(p, ng, wt), wt,
+                                   medium_after(media, shape, ng_front, wt, medium))
             L, wi, beta = glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt)
             counted = True   # the branch taken leaves its first hit's emission out
+        medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, wi)
         d = wi
 
 
 @kernel
-def visible_points(geom, mats, lights, cam, seed, stream, pass_index, n_strata, fixed_grid, max_specular,
-                   vp_pos, vp_nrm, vp_weight, vp_found, direct, i0, i1):
-    """The visible points of pixels [i0, i1) (row-major), and the radiance each pixel saw directly."""
-    geom, mats, lights = borrowed(geom), borrowed(mats), borrowed(lights)
+def visible_points(geom, mats, lights, media, cam, seed, stream, vstream, pass_index, n_strata, fixed_grid,
+                   max_specular, points, segments, i0, i1):
+    """The visible points of pixels [i0, i1) (row-major) into ``points`` (:class:`VisiblePoints`), the radiance
+    each pixel saw directly, and each pixel's medium segments."""
+    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
     width = cam.width
     for i in range(i0, i1):
         y = i // width
         x = i % width
         key = path_key(seed, stream, i)
         qkey = path_key(seed, STREAM_CAMERA_SCRAMBLE, i)
+        vkey = path_key(seed, vstream, i)
         u1, u2 = sobol02(pass_index, qkey)
         o, d = generate_ray(cam, x, y, u1, u2)
-        found, p, n, w, L = visible_point(geom, mats, lights, o, d, key, qkey, pass_index, n_strata, fixed_grid,
-                                          max_specular)
+        found, p, n, w, L, n_seg = visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index,
+                                                 n_strata, fixed_grid, max_specular, segments, i * MEDIUM_SEGMENTS)
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
         for c in range(3):
-            vp_pos[i, c] = p[c]
-            vp_nrm[i, c] = n[c]
-            vp_weight[i, c] = w[c]
-            direct[i, c] = L[c]
-        vp_found[i] = found
+            points.position[i, c] = p[c]
+            points.normal[i, c] = n[c]
+            points.weight[i, c] = w[c]
+            points.direct[i, c] = L[c]
+        points.found[i] = found
+        segments.count[i] = n_seg
+
+
+class VisiblePoints(NamedTuple):
+    """One pass's visible point of each pixel (every entry written by the camera pass)."""
+    position: np.ndarray   # float64[n, 3]
+    normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side
+    weight: np.ndarray     # float64[n, 3]: W = β ρ / π
+    found: np.ndarray      # bool[n]
+    direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
+
+
+def camera_pass(scene, settings, pass_index, bar=None):
+    """Run :func:`visible_points` over every pixel for pass (or sample) ``pass_index``.
+
+    Returns (:class:`VisiblePoints`, :class:`~caustica.photons.segments.CameraSegments` or None without media,
+    compile seconds).  The camera keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
+    """
+    n = settings["width"] * settings["height"]
+    if scene.has_media:
+        check_segment_memory(n)
+    points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
+                           np.empty((n, 3)))
+    segments = allocate_segments(n, scene.has_media)
+    cam = scene.camera(settings["width"], settings["height"])
+    compile_s = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
+                                                 settings["seed"], pass_stream(STREAM_CAMERA, pass_index),
+                                                 pass_stream(STREAM_CAMERA_MEDIA, pass_index), pass_index,
+                                                 settings["light_samples"], settings["fixed_light_grid"],
+                                                 settings["max_specular_depth"], points, segments),
+                             threads=settings["threads"], progress=bar)
+    return points, (segments if scene.has_media else None), compile_s

@@ -25,7 +25,7 @@ STREAM_SPM = 4
 STREAM_DIRECT = 5
 # Per-pixel scrambles of the camera pass's low-discrepancy sequence over passes (never a pass's own numbers).
 STREAM_CAMERA_SCRAMBLE = 6
-# The progressive camera pass's next-event estimates along its medium segments (photons/visible_points_media.py).
+# The progressive camera pass's next-event estimates along its medium segments (photons/segments.py).
 STREAM_CAMERA_MEDIA = 7
 # Tags from 100 up belong to measurement tools, not to any method's image: the caustic
 # mask of the experiments (experiments/masks.py) traces its own photons, so the region an

@@ -1,7 +1,7 @@
 """The parsed scene: plain Python objects between the XML file and the kernels' arrays.
 
 The XML loader (:mod:`caustica.scene.xml_loader`) produces a :class:`SceneDescription`;
-:mod:`caustica.scene.compiled` flattens it into the structure-of-arrays form the
+:mod:`caustica.tables` flattens it into the structure-of-arrays form the
 kernels read.  Everything here is in world space and in Mitsuba's units: radiance in
 W/(m^2 sr) per RGB channel, intensity in W/sr, lengths in scene units.
 """

@@ -1,9 +1,9 @@
-"""A scene ready for the kernels: the description flattened into arrays.
+"""The tables stage: a scene description flattened into the arrays the kernels read.
 
 :func:`compile_scene` turns a :class:`SceneDescription` into a :class:`Scene`
 holding the geometry (primitives + BVH), the material table, the light table and
-the camera, and the medium table when the scene uses media (None otherwise: a scene
-without media compiles to exactly the tables it always did).  It is what
+the camera, and the medium table (trivial for a scene without media: no shape bounds a
+medium and the camera is in none, so every kernel runs the vacuum case).  It is what
 :func:`caustica.load_scene` returns.
 """
 from __future__ import annotations
@@ -13,15 +13,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..bsdf import MaterialTable, build_material_table
-from ..camera import CameraParams, camera_params
-from ..emitters import LightTable, build_light_table
-from ..errors import SceneError
-from ..geometry.bounds import shape_bounding_sphere
-from ..geometry.scene_geometry import Geometry, build_geometry
-from ..media import MediumTable, build_medium_table
-from .description import SceneDescription
-from .transforms import MAX_ABS_FLOAT
+from .bsdf import MaterialTable, build_material_table
+from .camera import CameraParams, camera_params
+from .emitters import LightTable, build_light_table
+from .errors import SceneError
+from .geometry.bounds import shape_bounding_sphere
+from .geometry.scene_geometry import Geometry, build_geometry
+from .media import MediumTable, build_medium_table
+from .scene.description import SceneDescription
+from .scene.transforms import MAX_ABS_FLOAT
 
 
 @dataclass
@@ -31,7 +31,7 @@ class Scene:
     materials: MaterialTable
     lights: LightTable
     timings: dict = field(default_factory=dict)
-    media: MediumTable | None = None
+    media: MediumTable | None = None   # always built by compile_scene: trivial (no medium anywhere) without media
     _specular_spheres: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -40,8 +40,8 @@ class Scene:
 
     @property
     def has_media(self) -> bool:
-        """Whether the scene has media or null-BSDF boundaries (then it has a medium table and the media kernels run)."""
-        return self.media is not None
+        """Whether the scene has media or null-BSDF boundaries (the volume estimates and media outputs run)."""
+        return self.description.has_media
 
     @property
     def width(self) -> int:
@@ -94,7 +94,7 @@ def compile_scene(desc: SceneDescription) -> Scene:
                          f"inside a shape or an <emitter type=\"point\">")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
-    media = build_medium_table(desc) if desc.has_media else None
+    media = build_medium_table(desc)
     return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0}, media)
 
 

@@ -1,0 +1,159 @@
+"""The progressive camera pass's medium segments: what a camera path crosses in a medium, and the
+direct light scattered towards it along them (scenes with media; docs/media.md).
+
+Each medium segment of a camera path (origin, direction, length, medium, β at its origin) is
+written out for the volume radiance estimate (:mod:`caustica.photons.beams`); a path has room for
+:data:`MEDIUM_SEGMENTS` of them.  The direct light scattered along a segment (single scattering of
+the lights' own light) is estimated here, not by photons — as direct light at surfaces is (SPEC §2):
+one distance per segment per pass, drawn within the segment
+(:func:`caustica.media.sample_distance_within`, weight T σs / pdf); from it one light sample
+through media and null boundaries (:func:`caustica.media.light_sample`, exact transmittance) and
+one phase-function sample that counts the emitter it sees, combined by MIS
+(:func:`segment_inscatter`).  Unbiased, two rays per segment.  On the first segment (the camera's
+own ray, usually the longest) the distance and the point on the light are points ``pass`` of
+randomly shifted Kronecker sequences with generators of their own (:func:`first_segment_numbers`).
+Random numbers: the segments draw from a stream of their own (``STREAM_CAMERA_MEDIA``, seven
+numbers per segment), so a scene's media never shift the numbers of anything else.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..geometry import vec
+from ..geometry.scene_geometry import intersect, surface_at
+from ..jit import kernel
+from ..media import NULL_CROSSINGS_CAP, attenuation, light_sample, medium_after, phase_pdf, phase_sample, \
+    phase_value, power_heuristic, sample_distance_within, within_weight
+from ..memory import check_budget
+from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
+from ..scene.description import NULL
+
+#: Medium segments a camera path may have (room for them is allocated per pixel); a path that
+#: would need more ends, as at the specular depth cap.
+MEDIUM_SEGMENTS = 8
+#: The per-pixel shifts (numbers of the camera pass's scramble key) of the Kronecker points that stratify the
+#: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n²,
+#: with n = --light-samples at most 64 (ESTIMATE_PARAMS), so these start past 3 + 2 * 64².
+QMC_SEGMENT_DIM = 3 + 2 * 64 * 64 + 1
+#: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; count).
+SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
+
+
+
+
+class CameraSegments(NamedTuple):
+    """Each pixel's medium segments, MEDIUM_SEGMENTS slots a pixel (none in a scene without media)."""
+    origin: np.ndarray      # float64[k, 3]
+    direction: np.ndarray   # float64[k, 3]
+    length: np.ndarray      # float64[k] (inf: the segment escapes)
+    beta: np.ndarray        # float64[k, 3]: the path's throughput at the segment's origin
+    medium: np.ndarray      # int32[k]
+    count: np.ndarray       # int32[pixels]: segments of each pixel's path
+
+
+def allocate_segments(pixels: int, media: bool) -> CameraSegments:
+    """Room for ``pixels`` paths' segments (every entry is written by the camera pass); empty without media."""
+    k = pixels * MEDIUM_SEGMENTS if media else 0
+    return CameraSegments(np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
+                          np.zeros(pixels, np.int32))
+
+
+@kernel(inline=True)
+def store_segment(k, o, d, s, beta, medium, segments):
+    """Write segment slot k."""
+    for c in range(3):
+        segments.origin[k, c] = o[c]
+        segments.direction[k, c] = d[c]
+        segments.beta[k, c] = beta[c]
+    segments.length[k] = s
+    segments.medium[k] = medium
+
+
+@kernel
+def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
+    """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
+
+    d was sampled with solid-angle density pdf_dir (the phase function); an area emitter met at
+    distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
+    select_pdf r² / (area cos_l), as :func:`caustica.media.light_sample` samples it.
+    pdf_dir < 0: no MIS (weight 1).  Emitters on null surfaces crossed count, as in the path
+    tracer; the first other surface ends the ray (its emission counts if it is an emitter's front).
+    """
+    L = (0.0, 0.0, 0.0)
+    T = (1.0, 1.0, 1.0)
+    dist = 0.0
+    for _ in range(NULL_CROSSINGS_CAP):
+        prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+        if prim < 0:
+            return L
+        if medium >= 0:
+            T = vec.hadamard(T, attenuation(media, medium, t))
+        dist += t
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        e = geom.prim_emitter[prim]
+        cos_l = -vec.dot(d, ng)
+        if e >= 0 and cos_l > 0.0:
+            w = 1.0
+            if pdf_dir >= 0.0:
+                pdf_light = lights.select_pdf[e] * dist * dist / (lights.area[e] * cos_l)
+                w = power_heuristic(pdf_dir, pdf_light)
+            L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), w)
+        if mats.kind[geom.prim_material[prim]] != NULL:
+            return L
+        medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
+        o = vec.offset_origin(p, ng, d)
+    return L
+
+
+@kernel
+def emitted_along(geom, mats, lights, media, o, d, medium):
+    """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries."""
+    return emission_weighted(geom, mats, lights, media, o, d, medium, -1.0)
+
+
+@kernel
+def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2):
+    """β times one estimate of the direct light scattered towards o along the segment (o, d, s) in m.
+
+    One distance (u_channel, u_dist: :func:`caustica.media.sample_distance_within`); from there one
+    light sample (u_light chooses the light, (u1, u2) the point on it) and one phase-function sample
+    (u_ph1, u_ph2) that counts the emitter it sees, combined by MIS (power heuristic) for area
+    lights.  Light sampling alone has unbounded variance where a segment passes close to an area
+    light (its value grows as 1 / distance²); the phase sample takes over there.
+    """
+    zero = (0.0, 0.0, 0.0)
+    t = sample_distance_within(media, m, s, u_channel, u_dist)
+    w = within_weight(media, m, s, t)
+    if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
+        return zero
+    p = vec.madd(o, d, t)
+    bw = vec.hadamard(beta, w)
+    L = zero
+    contrib, wi, pdf_light, _, is_area, ok, _ = light_sample(geom, mats, lights, media, p, zero, zero, zero, -1, m,
+                                                             u_light, u1, u2)
+    if ok:
+        mis = power_heuristic(pdf_light, phase_pdf(media, m, d, wi)) if is_area else 1.0
+        L = vec.mul(vec.hadamard(bw, contrib), mis * phase_value(media, m, d, wi))
+    wo, weight, pdf = phase_sample(media, m, d, u_ph1, u_ph2)
+    if pdf > 0.0:
+        Le = emission_weighted(geom, mats, lights, media, p, wo, m, pdf)
+        L = vec.add(L, vec.mul(vec.hadamard(bw, Le), weight))
+    return L
+
+
+@kernel(inline=True)
+def first_segment_numbers(pass_index, qkey):
+    """(distance, light u1, u2) numbers of a camera path's first medium segment: pass ``pass_index`` of
+    Kronecker sequences with generators of their own (KRONECKER_ALPHA[3:6]), jointly uniform with the
+    glass branch's and the light strata's over the passes."""
+    return (kronecker(pass_index, KRONECKER_ALPHA[3], uniform(qkey, QMC_SEGMENT_DIM)),
+            kronecker(pass_index, KRONECKER_ALPHA[4], uniform(qkey, QMC_SEGMENT_DIM + 1)),
+            kronecker(pass_index, KRONECKER_ALPHA[5], uniform(qkey, QMC_SEGMENT_DIM + 2)))
+
+
+def check_segment_memory(pixels: int) -> None:
+    """Refuse, with the estimate, a camera pass whose medium segments (SEGMENT_BYTES a pixel) would not fit."""
+    check_budget(pixels * SEGMENT_BYTES, f"{pixels:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
+                 "lower the resolution")
