@@ -109,31 +109,28 @@ def reference(res: int, n_chunks: int = REF_CHUNKS, threads: int | None = 1):
 def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     """H x W x 3: the light -> glass+ -> fog component alone, by the beam estimate (see the module's docstring)."""
     from caustica.jit import parallel_for
-    from caustica.media import light_media
     from caustica.photons.beams import beam_gather, build_volume_grid
     from caustica.photons.records import VOLUME_CAUSTIC, allocate_buffers
-    from caustica.photons.trace_media import trace_caustic_photons_media
-    from caustica.photons.visible_points_media import MEDIUM_SEGMENTS, visible_points_media
+    from caustica.photons.trace import trace_caustic_photon_pass
+    from caustica.photons.segments import MEDIUM_SEGMENTS, allocate_segments
+    from caustica.photons.visible_points import VisiblePoints, visible_points
     from caustica.sampling.rng import STREAM_CAUSTIC_MASK, pass_stream
     scene = caustica.load_scene(SCENE, res=res)
     n = res * res
     cam = scene.camera(res, res)
     spheres = scene.specular_bounding_spheres()
-    lm = light_media(scene)
     out = np.zeros((n, 3))
     for p in range(MASK_PASSES):
-        vp = [np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_), np.empty((n, 3))]
-        k = n * MEDIUM_SEGMENTS
-        seg = (np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
-               np.empty(n, np.int32))
-        parallel_for(visible_points_media, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam, MASK_SEED,
-                                               pass_stream(STREAM_CAUSTIC_MASK, 2 * p),
-                                               pass_stream(STREAM_CAUSTIC_MASK, 2 * p + 1), p, 1, 16, *vp, *seg),
+        vp = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
+                           np.empty((n, 3)))
+        seg = allocate_segments(n, True)
+        parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam, MASK_SEED,
+                                         pass_stream(STREAM_CAUSTIC_MASK, 2 * p),
+                                         pass_stream(STREAM_CAUSTIC_MASK, 2 * p + 1), p, 1, False, 16, vp, seg),
                      threads=threads)
         buf = allocate_buffers(MASK_PHOTONS, 1)
-        parallel_for(trace_caustic_photons_media, MASK_PHOTONS,
-                     (scene.geometry, scene.materials, scene.lights, scene.media, lm, spheres, MASK_SEED,
-                      pass_stream(STREAM_CAUSTIC_MASK, 2 * MASK_PASSES + p), MASK_PHOTONS, *buf), threads=threads)
+        trace_caustic_photon_pass(scene, buf, MASK_SEED, pass_stream(STREAM_CAUSTIC_MASK, 2 * MASK_PASSES + p),
+                                  MASK_PHOTONS, spheres=spheres, threads=threads)
         keep = buf.kind == VOLUME_CAUSTIC
         vg = build_volume_grid(buf.position[keep], buf.direction[keep], buf.power[keep], MASK_RADIUS)
         vol = np.empty((n, 3))

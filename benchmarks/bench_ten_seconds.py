@@ -41,6 +41,9 @@ CONFIGS = (
     # pspm with a caustic map: streams for the rest of the light, aimed photons for the caustic
     ("pspm + 32k caustic", "pspm", {"caustic_photons": 32_768}),
     ("pspm 2979 streams + 32k caustic", "pspm", {"streams": 2_979, "caustic_photons": 32_768}),
+    # pspm as the paper's method (streams carry everything): merge at mirrors and glass, or split there
+    ("pspm merge", "pspm", {}),
+    ("pspm split", "pspm", {"specular": "split"}),
 )
 
 def load() -> float:
