@@ -12,7 +12,7 @@ import math
 from .emitters import AREA, sample_area_emitter
 from .geometry import vec
 from .jit import kernel
-from .media import medium_after, transmittance
+from .media import medium_after, shadow_transmittance
 from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 
 
@@ -26,7 +26,7 @@ def direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, med
     dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
     fill it evenly).  Point lights exactly.  Each shadow ray's visibility is its transmittance
-    (:func:`caustica.media.transmittance`, from the medium on the light's side of the surface; 0 or 1
+    (:func:`caustica.media.shadow_transmittance`, from the medium on the light's side of the surface; 0 or 1
     in vacuum, with the vacuum arithmetic).  ng, ns: normals on the lit side; ng_front: the front.
     Returns E per channel, before the diffuse BRDF ρ / π.
     """
@@ -58,7 +58,7 @@ def direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, med
                 cos_s = vec.dot(ns, wi)
                 if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                     continue
-                T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
+                T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
                                      vec.offset_origin(q, nq, vec.neg(to_l)),
                                      medium_after(media, shape, ng_front, wi, medium))
                 acc = vec.madd(acc, T, cos_s * cos_l / dist2)
@@ -75,7 +75,7 @@ def direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, med
             cos_s = vec.dot(ns, wi)
             if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                 continue
-            T, _ = transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
+            T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                  medium_after(media, shape, ng_front, wi, medium))
             E = vec.madd(E, vec.hadamard(rad, T), cos_s / dist2)
     return E

@@ -176,6 +176,22 @@ def attenuation(media, m, t):
             math.exp(-media.sigma_t[m, 2] * t))
 
 
+@kernel(inline=True)
+def shadow_transmittance(geom, mats, media, o, target, medium):
+    """:func:`transmittance`, with the case of every vacuum scene inlined into the caller: no medium and no
+    null surface to cross, so the shadow ray is an any-hit test (visible: 1, blocked: 0).  Shadow rays are
+    the bulk of the rays traced; a call that is not inlined passes the scene tables field by field."""
+    if medium < 0 and media.null_surfaces[0] == 0:
+        seg = vec.sub(target, o)
+        dist = vec.length(seg)
+        if dist <= 0.0:
+            return (1.0, 1.0, 1.0), 0
+        if occluded(geom, o, vec.mul(seg, 1.0 / dist), dist):
+            return (0.0, 0.0, 0.0), 1
+        return (1.0, 1.0, 1.0), 1
+    return transmittance(geom, mats, media, o, target, medium)
+
+
 @kernel
 def transmittance(geom, mats, media, o, target, medium):
     """(T per channel, rays traced) along the segment from o to target, starting in ``medium``.
@@ -191,10 +207,6 @@ def transmittance(geom, mats, media, o, target, medium):
     if dist <= 0.0:
         return T, 0
     d = vec.mul(seg, 1.0 / dist)
-    if medium < 0 and media.null_surfaces[0] == 0:   # vacuum and no surface to cross: visible or not
-        if occluded(geom, o, d, dist):
-            return (0.0, 0.0, 0.0), 1
-        return T, 1
     rays = 0
     for _ in range(NULL_CROSSINGS_CAP):
         rays += 1
@@ -326,7 +338,7 @@ def light_sample(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, 
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, to_l)
     target = vec.offset_origin(q, nq, vec.neg(to_l))
-    T, rays = transmittance(geom, mats, media, o, target, medium)
+    T, rays = shadow_transmittance(geom, mats, media, o, target, medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, is_area, False, rays
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
