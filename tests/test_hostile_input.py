@@ -175,13 +175,15 @@ def test_a_name_that_only_its_temporary_makes_too_long_is_refused_before_renderi
 # --------------------------------------------------------------------------- C10: the Python API's types
 
 @pytest.mark.parametrize("kw, words", [
-    (dict(res=(16, "a")), "--res"), (dict(res=True), "--res"), (dict(res=16.5), "--res"), (dict(res=(8, 8, 8)), "--res"),
+    (dict(res=(16, "a")), "--res"), (dict(res=True), "--res"), (dict(res=16.5), "--res"),
+    (dict(res=(8, 8, 8)), "--res"),
     (dict(seed=True), "--seed"), (dict(threads=True), "--threads"), (dict(spp=np.True_), "--spp"),
     (dict(passes=True), "--passes"), (dict(time_s=True), "--time"), (dict(time_s="soon"), "--time"),
     (dict(radius=True, passes=2), "--radius"), (dict(photons=True, passes=2), "--photons"),
     (dict(fixed_light_grid=5, passes=2), "--fixed-light-grid"),
     (dict(aov=5, passes=2), "--aov"), (dict(aov=["radius", 5], passes=2), "--aov"),
-    (dict(checkpoint=123, passes=2), "--checkpoint: a file name"), (dict(checkpoint=b"x.npz", passes=2), "--checkpoint"),
+    (dict(checkpoint=123, passes=2), "--checkpoint: a file name"),
+    (dict(checkpoint=b"x.npz", passes=2), "--checkpoint"),
     (dict(checkpoint="", passes=2), "--checkpoint: the file name is empty"),
 ])
 def test_the_api_refuses_wrong_types_in_one_line(diacaustic, tmp_path, monkeypatch, kw, words):

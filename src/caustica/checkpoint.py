@@ -239,7 +239,8 @@ def _scene_difference(header, want) -> str:
                    else "missing now" if new == "missing" else "changed since")
             files.append(f"{f} {how}")
     what = f"its {', '.join(parts) or 'description'} {'differs' if len(parts) == 1 else 'differ'}"
-    where = f" ({'; '.join(files)})" if files else " (no scene file changed: a -D value or caustica's built-in scene did)"
+    where = (f" ({'; '.join(files)})" if files
+             else " (no scene file changed: a -D value or caustica's built-in scene did)")
     return f"written for scene {shorten(header['scene'], 60)}, but {what} from this render's{where}"
 
 

@@ -145,8 +145,11 @@ def _build_parser():
                       help="time budget: passes run until the next would end past it (with --passes: "
                            "whichever comes first)")
     prog.add_argument("--checkpoint", metavar="FILE",
-                      help="save the state to FILE (.npz) every 5 s, after the last pass and on Ctrl-C; "
-                           "if FILE exists, resume from it (same scene and settings) up to --passes")
+                      help="save the state to FILE (.npz) every 5 s, after the last pass and on Ctrl-C or "
+                           "SIGTERM (exit 130 / 143, the checkpoint and outputs of the passes finished written); "
+                           "if FILE exists, resume from it (same scene and settings; it is checked: its hash, "
+                           "dtypes, shapes and values) up to --passes; a lock on .FILE.lock refuses a second "
+                           "render with the same FILE")
     prog.add_argument("--aov", metavar="NAMES",
                       help="also write per-pixel images NAME.<aov>.exr: radius (final gather radius) and/or "
                            "count (photon events gathered), comma-separated (sppm, pspm)")

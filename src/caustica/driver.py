@@ -2,8 +2,8 @@
 
 Every method is parameters + ``new_state`` + ``run_pass`` + ``image`` (see
 :mod:`caustica.methods`).  This module runs the passes, times them, drives the
-progress bar, writes checkpoints and turns Ctrl-C into a result of the passes
-finished so far.  ``run_pass`` returns a *new* state rather than changing the old
+progress bar, writes checkpoints and turns Ctrl-C (or SIGTERM, :mod:`caustica.interrupts`)
+into a result of the passes finished so far.  ``run_pass`` returns a *new* state rather than changing the old
 one, so an interrupt in the middle of a pass leaves the last finished state whole.
 
 Time budget: passes run while the next one, predicted to take as long as the
@@ -13,7 +13,9 @@ includes compile time.
 
 Checkpoints are written after a pass when CHECKPOINT_INTERVAL_S have passed since the
 last one, after the last pass and when interrupted (a save costs an fsync: for passes
-of milliseconds, saving each would cost more than rendering).
+of milliseconds, saving each would cost more than rendering).  An interrupt during a
+save is held until the checkpoint is complete (:func:`save_checkpoint`), so it never
+costs the passes being saved.
 """
 from __future__ import annotations
 

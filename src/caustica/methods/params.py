@@ -52,7 +52,8 @@ class Param:
         parts = [self.allowed] if self.allowed else []
         if self.upper is not None:
             parts.append(f"<= {self.upper:,}")
-        elif self.type is float:
+        elif self.type is float and not self.allowed.startswith(("between", "at least", "0 or between")):
+            # (a range with two ends says so already)
             parts.append("finite")
         return " and ".join(parts)
 
@@ -66,8 +67,7 @@ def positive(x) -> bool:
 #: underflow to 0 (an image of NaN) or overflow to infinity.
 RADIUS_MIN = 1e-100
 RADIUS_MAX = 1e100
-RADIUS_ALLOWED = (f"between {RADIUS_MIN:g} and {RADIUS_MAX:g} scene units (its square and cube must be normal "
-                  f"float64 numbers)")
+RADIUS_ALLOWED = f"between {RADIUS_MIN:g} and {RADIUS_MAX:g} (square and cube stay normal float64 numbers)"
 
 
 def in_radius_range(x) -> bool:

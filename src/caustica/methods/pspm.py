@@ -73,7 +73,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
         Param("stream_radius", float, 5.0, "stream radius r_s of the first pass (scene units); later passes "
                                            "scale it as the gather radii shrink", zero_or_in_radius_range,
-              "0, or " + RADIUS_ALLOWED),
+              "0 or " + RADIUS_ALLOWED),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         Param("specular", str, "merge", "merge: associated photons merge into the leading one at mirrors "

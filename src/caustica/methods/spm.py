@@ -41,7 +41,7 @@ class StreamedPhotonMapping(OneShot):
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
         Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", zero_or_in_radius_range,
-              "0, or " + RADIUS_ALLOWED),
+              "0 or " + RADIUS_ALLOWED),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         MEDIUM_SCATTERING_PARAM,
