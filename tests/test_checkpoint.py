@@ -22,7 +22,7 @@ import pytest
 
 import caustica
 from caustica import checkpoint, driver, interrupts
-from caustica.errors import InterruptedAfterSaving, ParameterError
+from caustica.errors import CausticaError, InterruptedAfterSaving, ParameterError
 from caustica.scene import builtin_scene_path
 
 SCENE = "cornell-diacaustic"
@@ -351,3 +351,44 @@ def test_interrupts_held_hands_on_what_arrived(python_handles_ctrl_c):
         interrupts.raise_held(pending, "the checkpoint x")
     assert info.value.signum == signal.SIGINT and info.value.saved == "the checkpoint x"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# --------------------------------------------------------------------------- further hostile paths
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_checkpoint_that_is_a_fifo_or_a_device_is_refused_before_anything_opens_it(diacaustic, tmp_path):
+    """From Python a FIFO used to reach np.load, which blocked forever waiting for a writer."""
+    fifo = tmp_path / "state.npz"
+    os.mkfifo(fifo)
+    with pytest.raises(CausticaError, match="not a regular file"):
+        caustica.render(diacaustic, "sppm", passes=2, checkpoint=fifo, **KW)
+    (tmp_path / "null.npz").symlink_to(os.devnull)
+    with pytest.raises(CausticaError, match="not a regular file"):
+        caustica.render(diacaustic, "sppm", passes=2, checkpoint=tmp_path / "null.npz", **KW)
+
+
+def test_a_checkpoint_that_is_a_dangling_link_says_so(diacaustic, tmp_path):
+    (tmp_path / "state.npz").symlink_to(tmp_path / "gone" / "state.npz")
+    with pytest.raises(ParameterError, match="symbolic link to .*gone.*which does not exist"):
+        caustica.render(diacaustic, "sppm", passes=2, checkpoint=tmp_path / "state.npz", **KW)
+
+
+def test_a_lock_file_that_cannot_be_opened_is_one_line(diacaustic, tmp_path):
+    (tmp_path / ".state.npz.lock").mkdir()
+    with pytest.raises(ParameterError, match="cannot create its lock file"):
+        caustica.render(diacaustic, "sppm", passes=2, checkpoint=tmp_path / "state.npz", **KW)
+
+
+def test_a_checkpoint_that_is_also_an_aov_output_is_refused(cli, tmp_path):
+    code, line = _cli_one_line(cli, "render", SCENE, "--method", "sppm", "--res", "8", "--passes", "2", "--aov",
+                               "radius", "-o", tmp_path / "x.exr", "--checkpoint", tmp_path / "x.radius.exr", "-q")
+    assert code == 2 and "is also an output of this render" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_resuming_a_complete_checkpoint_does_not_rewrite_it(diacaustic, saved, tmp_path):
+    ck = tmp_path / "state.npz"
+    ck.write_bytes(saved["sppm"].read_bytes())
+    os.utime(ck, (0, 0))
+    r = caustica.render(diacaustic, "sppm", passes=3, checkpoint=ck, **KW)
+    assert r.stats["passes_this_run"] == 0 and ck.stat().st_mtime == 0

@@ -239,3 +239,8 @@ def test_cli_json_records_the_interrupt_signal_only_when_interrupted(cli, tmp_pa
     assert cli("render", SCENE, "--method", "sppm", "--res", "8", "--passes", "2", "-q", "-o", out)[0] == 0
     meta = json.loads(out.with_suffix(".json").read_text())
     assert meta["interrupted"] is False and "interrupted_by" not in meta
+
+
+def test_an_aov_named_twice_is_written_once(diacaustic):
+    r = caustica.render(diacaustic, "sppm", res=8, passes=1, aov="radius, radius,count")
+    assert list(r.aovs) == ["radius", "count"]

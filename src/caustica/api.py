@@ -279,7 +279,7 @@ def check_aovs(cls, aov) -> tuple:
         aov = ()
     elif not isinstance(aov, (list, tuple)) or not all(isinstance(a, str) for a in aov):
         raise ParameterError(f"--aov: {quoted(aov)} is not a comma-separated string or a list of names")
-    aov = tuple(aov)
+    aov = tuple(dict.fromkeys(aov))   # each once, in the order given
     offered = getattr(cls, "aovs", ())
     for name in aov:
         if name not in offered:

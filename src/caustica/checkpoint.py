@@ -137,6 +137,9 @@ def _read(path):
     p = Path(path)
     if p.is_dir():
         raise ParameterError(f"--checkpoint {path}: is a folder, not a checkpoint file")
+    if p.is_symlink() and not p.exists():
+        raise ParameterError(f"--checkpoint {path}: is a symbolic link to {os.readlink(p)}, which does not exist; "
+                             f"remove the link or give the file it should point to")
     try:
         size = p.stat().st_size
     except OSError as exc:
