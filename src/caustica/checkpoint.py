@@ -281,6 +281,8 @@ def load(path, method_cls, scene, settings):
     try:
         state = method_cls.state_from_arrays(scene, settings, arrays)
     except ParameterError as exc:
+        if not str(exc).startswith("checkpoint: "):
+            raise   # about this render's settings (its memory, say), not the file
         raise _refuse(path, str(exc).removeprefix("checkpoint: ")) from None
     if state.passes != header["passes"]:
         raise _refuse(path, f"damaged (its header says {header['passes']} passes, its state {state.passes})")
