@@ -294,7 +294,7 @@ def test_checkpoint_resume_gives_the_same_bits_in_media(params, tmp_path):
     rest = caustica.render(scene, "sppm", passes=5, checkpoint=ck, threads=2, **kw)
     assert rest.stats["resumed_from_pass"] == 2
     assert rest.image.tobytes() == whole.image.tobytes()
-    with pytest.raises(ParameterError, match="volume_radius"):
+    with pytest.raises(ParameterError, match="written with --volume-radius auto"):
         caustica.render(scene, "sppm", passes=6, checkpoint=ck, volume_radius=0.5, **kw)
 
 

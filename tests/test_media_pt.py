@@ -1,4 +1,4 @@
-"""The path tracer through participating media (``pt`` on a scene with media; methods/pt_volume.py).
+"""The path tracer through participating media (``pt`` on a scene with media; methods/pt.py).
 
 1. Beer-Lambert: the transmittance kernel against exp(-sigma_t d) through null boundaries
    (and 0 through glass); an emitter seen through an absorbing slab, whose free flights make

@@ -7,13 +7,18 @@
 """
 from __future__ import annotations
 
+import os
+import signal
 import sys
 import time
 
+import numpy as np
+
+from . import checkpoint as ckpt
 from . import driver, methods
-from .version import __version__
-from .errors import ParameterError, quoted
+from .errors import ParameterError, RenderError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
+from .version import __version__
 from .jit import default_threads
 from .limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
 from .memory import check_budget
@@ -38,6 +43,9 @@ def load_scene(path_or_name, **defaults) -> Scene:
 
     Keyword arguments are Mitsuba-style ``-D name=value`` defaults, e.g. ``res=256``.
     """
+    if not isinstance(path_or_name, (str, os.PathLike)) or isinstance(os.fspath(path_or_name), bytes):
+        raise ParameterError(f"load_scene: {quoted(path_or_name)} is not a scene file name or a built-in scene "
+                             f"name (a str or os.PathLike)")
     t0 = time.perf_counter()
     desc = load_scene_description(path_or_name, **defaults)
     t1 = time.perf_counter()
@@ -60,20 +68,23 @@ def progress_factory(show: bool):
 
 
 def _parse_res(res):
+    """(width, height) of ``res``: W, (W, H) or "WxH" with W and H integers (not True, not 16.5)."""
     if res is None:
         return None, None
-    if isinstance(res, int):
-        return res, res
     if isinstance(res, (tuple, list)) and len(res) == 2:
-        return int(res[0]), int(res[1])
-    text = str(res).lower()
+        sizes = list(res)
+    elif isinstance(res, str):
+        sizes = res.lower().split("x") if "x" in res.lower() else [res, res]
+    else:
+        sizes = [res, res]
     try:
-        if "x" in text:
-            w, h = text.split("x")
-            return int(w), int(h)
-        return int(text), int(text)
+        if len(sizes) != 2 or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, str))
+                                  for v in sizes):
+            raise ValueError
+        return int(sizes[0]), int(sizes[1])
     except ValueError:
-        raise ParameterError(f"--res: {quoted(res)} is not W or WxH (e.g. 512 or 640x480)") from None
+        raise ParameterError(f"--res: {quoted(res)} is not W or WxH with whole numbers (e.g. 512, (640, 480) or "
+                             f"'640x480')") from None
 
 
 def check_common(*, spp, width, height, seed, threads, film_source: str | None = None,
@@ -161,23 +172,27 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     preloaded = isinstance(scene, Scene)
     cls = methods.get(method)
     plan = driver.check_plan(cls, passes, time_s, checkpoint)
-    aov = _check_aovs(cls, aov)
+    aov = check_aovs(cls, aov)
     scene, cls, settings = resolve_settings(scene, method, spp=spp, res=res, seed=seed, threads=threads,
                                             multi_pass=plan.multi, **params)
     cluster_log = None
-    if dask is None and workers is None:
-        state, log = driver.run(cls, scene, settings, plan, progress_factory(progress))
-    else:
-        from . import cluster
-        cluster.check_args(dask, workers)
-        if threads is not None:
-            raise ParameterError("--threads sizes the local thread pool; on a cluster each task runs on one "
-                                 "worker thread (start workers with 'dask worker --nthreads T' to run T at once)")
-        check_distributable(cls, settings, plan)
-        with cluster.connect(dask, workers) as cl:
-            state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))
-            cluster_log = cluster_log.to_json(cl.address)
+    if plan.checkpoint is not None:
+        ckpt.check_path(plan.checkpoint, inputs=scene.description.files)
+    with ckpt.locked(plan.checkpoint):
+        if dask is None and workers is None:
+            state, log = driver.run(cls, scene, settings, plan, progress_factory(progress))
+        else:
+            from . import cluster
+            cluster.check_args(dask, workers)
+            if threads is not None:
+                raise ParameterError("--threads sizes the local thread pool; on a cluster each task runs on one "
+                                     "worker thread (start workers with 'dask worker --nthreads T' to run T at once)")
+            check_distributable(cls, settings, plan)
+            with cluster.connect(dask, workers) as cl:
+                state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))
+                cluster_log = cluster_log.to_json(cl.address)
     image = cls.image(scene, settings, state)
+    require_finite(image, method, state.passes if plan.multi else None)
     stats = dict(log.counters)
     stats.update(cls.final_stats(scene, settings, state))
     width, height, spp, threads = settings["width"], settings["height"], settings["spp"], settings["threads"]
@@ -205,6 +220,8 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         out["pass_seconds"] = log.pass_seconds
         out["time_budget_s"] = plan.time_s
         out["interrupted"] = log.interrupted
+        if log.interrupted:
+            out["interrupted_by"] = signal.Signals(log.interrupt_signal or signal.SIGINT).name
         if plan.checkpoint is not None:
             out["checkpoint"] = plan.checkpoint
             out["resumed_from_pass"] = log.resumed_from
@@ -215,6 +232,22 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     out["peak_memory_mb"] = out["peak_memory_bytes"] / 1e6
     aovs = {name: cls.aov(scene, settings, state, name) for name in aov}
     return RenderResult(image, out, aovs, inputs=tuple(scene.description.files))
+
+
+def require_finite(image, method: str, passes: int | None) -> None:
+    """Refuse an image with NaN or infinite pixels: no render returns (or writes) one as a success.
+
+    The one check every render's image passes through, whatever the method, the schedule or the
+    cluster; it names the method, the passes and how many pixels are wrong.
+    """
+    finite = np.isfinite(image).all(axis=-1)
+    bad = int(finite.size - np.count_nonzero(finite))
+    if bad:
+        nan = int(np.isnan(image).any(axis=-1).sum())
+        when = f" after {passes} pass{'es' if passes != 1 else ''}" if passes is not None else ""
+        raise RenderError(f"{method}: the image{when} has {bad:,} of {finite.size:,} pixels that are not finite "
+                          f"({nan:,} NaN, {bad - nan:,} infinite), so no image was written; unless a parameter is "
+                          f"extreme this is a bug: please report it with the command")
 
 
 def check_distributable(cls, settings, plan) -> None:
@@ -231,13 +264,19 @@ def check_distributable(cls, settings, plan) -> None:
                              "(a cluster renders passes)")
 
 
-def _check_aovs(cls, aov):
+def check_aovs(cls, aov) -> tuple:
+    """The names of the extra images asked for (a comma-separated string or a list of names), each one of
+    the method's ``aovs``: an AOV is a name, never a path."""
     if isinstance(aov, str):
         aov = [a.strip() for a in aov.split(",") if a.strip()]
-    aov = tuple(aov or ())
+    elif aov is None:
+        aov = ()
+    elif not isinstance(aov, (list, tuple)) or not all(isinstance(a, str) for a in aov):
+        raise ParameterError(f"--aov: {quoted(aov)} is not a comma-separated string or a list of names")
+    aov = tuple(dict.fromkeys(aov))   # each once, in the order given
     offered = getattr(cls, "aovs", ())
     for name in aov:
         if name not in offered:
             what = ", ".join(offered) if offered else "none"
-            raise ParameterError(f"--aov: '{name}' is not an image method '{cls.name}' makes (it makes: {what})")
+            raise ParameterError(f"--aov: {quoted(name)} is not an image method '{cls.name}' makes (it makes: {what})")
     return aov

@@ -7,14 +7,15 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from pathlib import Path
 
+from .errors import CausticaError, ClusterError, InterruptedAfterSaving, ParameterError, shorten
+from .interrupts import exit_status, sigterm_as_interrupt, signal_of
 from .version import __version__
-from .errors import CausticaError, ClusterError, InterruptedAfterSaving, ParameterError
 
 EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
 
 
 def _method_param_specs():
@@ -106,7 +107,7 @@ def _output_path(given, default_name: str, quiet: bool) -> str:
         return f"out/{default_name}"
     if not given:
         raise ParameterError("-o: the output path is empty; give e.g. -o out/render.exr")
-    if given.endswith(os.sep) or (os.altsep and given.endswith(os.altsep)) or Path(given).is_dir():
+    if given.endswith(os.sep) or (os.altsep and given.endswith(os.altsep)) or os.path.isdir(given):
         path = str(Path(given) / default_name)
         if not quiet:
             print(f"caustica: -o {given} is a folder: writing {path} there", file=sys.stderr)
@@ -117,7 +118,7 @@ def _output_path(given, default_name: str, quiet: bool) -> str:
 def _check_outputs(paths, given, inputs=()) -> None:
     """Refuse, before rendering, outputs that could not be written (see imageio.check_outputs)."""
     from .imageio import check_outputs
-    check_outputs(paths, inputs, label=f"-o {given}")
+    check_outputs(paths, inputs, label=f"-o {shorten(given, 60)}")
 
 
 def _build_parser():
@@ -144,8 +145,11 @@ def _build_parser():
                       help="time budget: passes run until the next would end past it (with --passes: "
                            "whichever comes first)")
     prog.add_argument("--checkpoint", metavar="FILE",
-                      help="save the state to FILE (.npz) every 5 s, after the last pass and on Ctrl-C; "
-                           "if FILE exists, resume from it (same scene and settings) up to --passes")
+                      help="save the state to FILE (.npz) every 5 s, after the last pass and on Ctrl-C or "
+                           "SIGTERM (exit 130 / 143, the checkpoint and outputs of the passes finished written); "
+                           "if FILE exists, resume from it (same scene and settings; it is checked: its hash, "
+                           "dtypes, shapes and values) up to --passes; a lock on .FILE.lock refuses a second "
+                           "render with the same FILE")
     prog.add_argument("--aov", metavar="NAMES",
                       help="also write per-pixel images NAME.<aov>.exr: radius (final gather radius) and/or "
                            "count (photon events gathered), comma-separated (sppm, pspm)")
@@ -218,11 +222,12 @@ def _note_integrator(scene, method: str, params: dict) -> None:
 
 
 def _default_stem(scene: str) -> str:
-    return Path(scene).stem if scene.endswith(".xml") or Path(scene).is_file() else scene
+    return Path(scene).stem if scene.endswith(".xml") or os.path.isfile(scene) else scene
 
 
 def _cmd_render(args) -> int:
-    from .api import load_scene, render
+    from . import methods
+    from .api import check_aovs, load_scene, render
     from .imageio import check_exposure, output_paths
     from .result import RenderResult
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
@@ -235,12 +240,13 @@ def _cmd_render(args) -> int:
     given = args.output
     args.output = _output_path(given, f"{_default_stem(args.scene)}_{args.method}.exr", args.quiet)
     outputs = list(output_paths(args.output))
-    outputs += [RenderResult.aov_path(outputs[0], a.strip()) for a in (args.aov or "").split(",") if a.strip()]
+    outputs += [RenderResult.aov_path(outputs[0], a) for a in check_aovs(methods.get(args.method), args.aov)]
     _check_outputs(outputs, args.output)  # refuse before spending time loading and rendering
     scene = load_scene(args.scene, **defines)
     _check_outputs(outputs, args.output, scene.description.files)  # never write over an input
     if args.checkpoint is not None:
-        _check_checkpoint(args.checkpoint, outputs, scene.description.files)
+        from .checkpoint import check_path
+        check_path(args.checkpoint, outputs, scene.description.files)
     _note_integrator(scene, args.method, params)
     result = render(scene, args.method, spp=args.spp, res=args.res, seed=args.seed,
                     threads=args.threads, progress=not args.quiet, passes=args.passes, time_s=args.time_s,
@@ -257,21 +263,11 @@ def _cmd_render(args) -> int:
               f"grace and were given up (docs/cluster.md); the image has the {result.stats['passes']} passes merged in "
               f"order before them", file=sys.stderr)
     if result.stats.get("interrupted"):
-        print(f"caustica: interrupted: wrote the image of the {result.stats['passes']} passes finished",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
+        by = result.stats.get("interrupted_by", "SIGINT")
+        print(f"caustica: interrupted ({by}): wrote the image of the {result.stats['passes']} passes finished"
+              + (f" and the checkpoint {args.checkpoint}" if args.checkpoint else ""), file=sys.stderr)
+        return exit_status(signal.Signals[by])
     return 0
-
-
-def _check_checkpoint(path, outputs, inputs) -> None:
-    """The checkpoint file must be neither an output nor an input, nor anything but a file."""
-    from .imageio import check_outputs
-    p = Path(path)
-    for other in list(outputs) + list(inputs):
-        if p.resolve() == Path(other).resolve():
-            raise ParameterError(f"--checkpoint {path}: is also {'an output' if other in outputs else 'an input'} "
-                                 f"of this render; give it a file of its own (e.g. {Path(outputs[0]).stem}.npz)")
-    check_outputs([p], inputs, label=f"--checkpoint {path}")
 
 
 def _cmd_photons(args) -> int:
@@ -379,6 +375,12 @@ def _cmd_methods() -> int:
 
 
 def main(argv=None) -> int:
+    """The command line; SIGTERM is handled as Ctrl-C while it runs (exit 143, 130 for Ctrl-C)."""
+    with sigterm_as_interrupt():
+        return _main(argv)
+
+
+def _main(argv) -> int:
     try:
         parser = _build_parser()
         args = parser.parse_args(argv)
@@ -399,12 +401,14 @@ def main(argv=None) -> int:
     except CausticaError as exc:
         print(f"caustica: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except InterruptedAfterSaving:
-        print("caustica: interrupted; the outputs had been written in full", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except KeyboardInterrupt:
-        print("caustica: interrupted; no output file was replaced", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except InterruptedAfterSaving as exc:
+        print(f"caustica: interrupted ({signal.Signals(exc.signum).name}); {exc.saved} had been written in full",
+              file=sys.stderr)
+        return exit_status(exc.signum)
+    except KeyboardInterrupt as exc:   # Ctrl-C, or SIGTERM (Terminated), before a render had a pass to save
+        print(f"caustica: interrupted ({signal.Signals(signal_of(exc)).name}); no output file was replaced",
+              file=sys.stderr)
+        return exit_status(signal_of(exc))
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
-from .driver import CHECKPOINT_INTERVAL_S, load_checkpoint
+from .driver import CHECKPOINT_INTERVAL_S, final_checkpoint, load_checkpoint, save_checkpoint
 from .errors import CausticaError, ClusterError, ParameterError
 from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
@@ -429,7 +429,7 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     next_pass = state.end
     per_pass = []              # measured work seconds per pass of finished tasks
     t_start = time.perf_counter()
-    last_save, saved = t_start, state.passes
+    last_save = t_start
     arrived = queue.SimpleQueue()   # tasks that ended (done, failed or cancelled), in the order they did
     try:
         while True:
@@ -523,15 +523,15 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
                 for seconds, stats in part_log:
                     log.add(seconds, stats)
             if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
-                ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
-                saved, last_save = state.passes, time.perf_counter()
+                save_checkpoint(plan, method_cls, scene, settings, state, log)
+                last_save = time.perf_counter()
     except BaseException as exc:
         try:
             client.cancel(list(flying))
         except Exception:   # a scheduler that is gone has nothing left to cancel
             pass
         if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
-            log.interrupted = True
+            log.interrupt(exc)
         elif isinstance(exc, _ClusterFailed):
             raise ClusterError(_failure_message(cluster, exc.cause, method_cls, scene, settings, plan,
                                                 state)) from None
@@ -543,6 +543,5 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
         raise ClusterError(f"--time {plan.time_s:g}: no pass could be merged within the budget and its grace of "
                            f"{clog.late_grace_s:g} s ({clog.late_tasks} task(s) still out, given up): are the "
                            f"workers hung?")
-    if plan.checkpoint is not None and state.passes > saved:
-        ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
+    final_checkpoint(plan, method_cls, scene, settings, state, log)
     return state, log, clog

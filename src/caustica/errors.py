@@ -17,6 +17,10 @@ class ParameterError(CausticaError):
     """A render parameter out of range, misspelt, or asking for more memory than the machine has."""
 
 
+class RenderError(CausticaError):
+    """A render whose image cannot be right (NaN or infinite pixels): refused rather than written as a success."""
+
+
 class ClusterError(CausticaError):
     """A Dask cluster that failed during a render (a task that kills every worker, a lost scheduler).
 
@@ -60,4 +64,10 @@ class OutputError(CausticaError, OSError):
 
 
 class InterruptedAfterSaving(KeyboardInterrupt):
-    """Ctrl-C arrived while a set of outputs was being renamed into place: the set was completed first."""
+    """Ctrl-C (or SIGTERM) arrived while a save was under way (a set of outputs being renamed into place, a
+    checkpoint being written): the save was completed first.  ``signum`` is the signal that arrived."""
+
+    def __init__(self, signum: int = 2, saved: str = "the outputs"):
+        super().__init__(signum, saved)
+        self.signum = int(signum)
+        self.saved = saved

@@ -13,17 +13,16 @@ import math
 import os
 import re
 import shutil
-import signal
 import socket
 import sys
 import tempfile
-import threading
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from caustica.errors import CausticaError, InterruptedAfterSaving, OutputError, ParameterError
+from caustica import interrupts
+from caustica.errors import CausticaError, OutputError, ParameterError, quoted
 
 __all__ = [
     "atomic_write",
@@ -142,6 +141,45 @@ def _same_file(a: Path, b: Path) -> bool:
             return False
 
 
+def _nearest_folder(folder: Path) -> Path:
+    """``folder``, or the nearest of its parents that exists (where missing folders would be created)."""
+    folder = Path(os.path.abspath(folder if str(folder) else "."))
+    while not os.path.isdir(folder) and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def _limit(folder: Path, name: str, default: int) -> int:
+    try:
+        return int(os.pathconf(_nearest_folder(folder), name))
+    except (OSError, ValueError, AttributeError):
+        return default
+
+
+def check_name_length(path: str | os.PathLike[str], label: str | None = None) -> None:
+    """Refuse an output whose name the file system cannot hold, counting the temporary written beside it first
+    (``.NAME.caustica-HOST-PID-XXXXXXXX.tmp``, the longest name a save creates), and whose folders or whole
+    path are too long: one OutputError saying how long each may be, before any work."""
+    head = f"{label}: " if label else ""
+    p = Path(path)
+    name_max = _limit(p.parent, "PC_NAME_MAX", 255)
+    for part in p.parent.parts:
+        if len(os.fsencode(part)) > name_max:
+            raise OutputError(f"{head}the folder name {quoted(part)} is {len(os.fsencode(part))} bytes long; this "
+                              f"file system allows {name_max}")
+    n = len(os.fsencode(p.name))
+    extra = len(os.fsencode(_temp_prefix(p))) - n + 8 + len(".tmp")
+    if n + extra > name_max:
+        raise OutputError(f"{head}the file name {quoted(p.name)} is {n} bytes long; this file system allows "
+                          f"{name_max} and the temporary written beside it first adds {extra}, so at most "
+                          f"{name_max - extra}")
+    path_max = _limit(p.parent, "PC_PATH_MAX", 4096)
+    whole = len(os.fsencode(os.path.abspath(p))) + extra
+    if whole >= path_max:
+        raise OutputError(f"{head}the path {quoted(os.path.abspath(p))} is {whole - extra} bytes long; this file "
+                          f"system allows {path_max - 1} and the temporary written beside it first adds {extra}")
+
+
 def check_outputs(paths, inputs=(), label: str | None = None) -> None:
     """Refuse, before anything is rendered or written, outputs that could not be written whole.
 
@@ -153,6 +191,7 @@ def check_outputs(paths, inputs=(), label: str | None = None) -> None:
     head = f"{label}: " if label else ""
     inputs = [Path(p) for p in inputs]
     for given in (Path(p) for p in paths):
+        check_name_length(given, label)
         # where the entry really is: "new/../x" is "x" once "new" is created, and a symlinked
         # folder is its target (the last component is kept: a symlink there is replaced, not followed)
         path = Path(os.path.realpath(given.parent if str(given.parent) else ".")) / given.name
@@ -173,25 +212,6 @@ def check_outputs(paths, inputs=(), label: str | None = None) -> None:
             raise OutputError(f"{head}cannot create the folder {folder}: {existing} is a file")
         if not os.access(existing, os.W_OK | os.X_OK):
             raise OutputError(f"{head}the folder {existing} is not writable")
-
-
-@contextlib.contextmanager
-def _interrupts_deferred():
-    """Hold Ctrl-C while outputs are renamed into place (a few microseconds): yields a list that
-    records a deferred SIGINT. Only the main thread can do so; elsewhere SIGINT is not delivered."""
-    pending: list[int] = []
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or previous is None:
-        yield pending  # not ours to hold (another thread, or a handler installed outside Python)
-        return
-    signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
-    try:
-        yield pending
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if pending and previous is not signal.default_int_handler:
-        signal.raise_signal(signal.SIGINT)  # what the previous handler would have done (ignore, exit, ...)
-        pending.clear()
 
 
 def _backup(dest: Path, tmp: Path) -> Path | None:
@@ -286,7 +306,7 @@ def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], 
     into place; if any rename fails, the ones already done are undone, so the previous set stays
     whole. On any failure, KeyboardInterrupt included, no temporary is left and the exception
     propagates; an OSError (a full disk, a permission) becomes an OutputError naming the file.
-    Ctrl-C during the renames is held until the set is complete and then raised as
+    Ctrl-C or SIGTERM during the renames is held until the set is complete and then raised as
     InterruptedAfterSaving. Only a process killed during the renames (SIGKILL, a power cut) can
     leave a set mixing two saves, each file whole. Parent folders are created.
     """
@@ -309,7 +329,7 @@ def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], 
                 fh.flush()
                 os.fsync(fh.fileno())
             os.chmod(tmp, 0o666 & ~_current_umask())
-        with _interrupts_deferred() as interrupted:
+        with interrupts.held() as interrupted:
             _commit(temps)
     except OSError as exc:
         for t, _ in temps:
@@ -323,8 +343,7 @@ def atomic_write_all(files: list[tuple[str | os.PathLike[str], Callable[[Path], 
         raise
     for parent in {dest.parent for dest in dests}:
         _fsync_dir(parent if str(parent) else Path("."))
-    if interrupted:
-        raise InterruptedAfterSaving()
+    interrupts.raise_held(interrupted, "the outputs")
     return dests
 
 
@@ -584,11 +603,17 @@ def output_paths(path: str | os.PathLike[str]) -> tuple[Path, Path, Path]:
     it) or an existing device such as /dev/null. The CLI turns a folder into
     folder/<scene>_<method>.exr before calling this.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise ParameterError(f"output path {quoted(path)}: a file name (str or os.PathLike), not a "
+                             f"{type(path).__name__}")
     text = os.fspath(path)
+    if not isinstance(text, str):
+        raise ParameterError(f"output path {quoted(text)}: a file name as text, not bytes")
     p = Path(text)
     if not text or not p.name or p.name in (".", "..") or text.endswith(os.sep) or (
             os.altsep and text.endswith(os.altsep)):
         raise ParameterError(f"output path '{path}' has no file name; give e.g. out/render.exr")
+    check_name_length(p, f"output path {quoted(text)}")
     if p.is_dir():
         raise ParameterError(f"output path '{path}' is a folder; give a file name in it, e.g. {p / 'render.exr'}")
     if p.exists() and not p.is_file():

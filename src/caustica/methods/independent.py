@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
+from ..checkpoint import require_array
 from ..errors import ParameterError
 from ..film import PassSums
 
@@ -51,12 +54,22 @@ class IndependentPasses:
 
     @classmethod
     def state_from_arrays(cls, scene, settings, arrays):
+        """The film a checkpoint holds, every array's dtype, shape and range checked first."""
+        h, w = settings["height"], settings["width"]
+        shape = require_array(arrays, "film_shape", np.int64, (3,))
+        if tuple(int(v) for v in shape) != (h, w, 3):
+            raise ParameterError(f"checkpoint: its film is {shape[1]}x{shape[0]}, this render is {w}x{h}")
+        require_array(arrays, "film_range", np.int64, (2,), low=0)
+        blocks = arrays.get("film_blocks")
+        require_array(arrays, "film_blocks", np.int64, (0 if blocks is None or blocks.ndim != 2 else len(blocks), 2),
+                      low=0)
+        for i in range(len(blocks)):
+            require_array(arrays, f"film_block_{i}", np.float64, (h, w, 3))
+        if "film_trunk" in arrays:
+            require_array(arrays, "film_trunk", np.float64, (h, w, 3))
+        if "pixel_counts" in arrays:
+            require_array(arrays, "pixel_counts", np.int64, (h * w,), low=0)
         try:
-            state = PassSums.from_arrays(arrays)
+            return PassSums.from_arrays(arrays)
         except (KeyError, ValueError, TypeError) as exc:
             raise ParameterError(f"checkpoint: not a film of this method's passes ({exc})") from None
-        want = (settings["height"], settings["width"], 3)
-        if state.film.shape != want:
-            raise ParameterError(f"checkpoint: its film is {state.film.shape[1]}x{state.film.shape[0]}, "
-                                 f"this render is {settings['width']}x{settings['height']}")
-        return state

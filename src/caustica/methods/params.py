@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import numpy as np
+
 from ..errors import ParameterError, quoted, shorten
 from ..limits import INT_MAX
 
@@ -50,13 +52,31 @@ class Param:
         parts = [self.allowed] if self.allowed else []
         if self.upper is not None:
             parts.append(f"<= {self.upper:,}")
-        elif self.type is float:
+        elif self.type is float and not self.allowed.startswith(("between", "at least", "0 or between")):
+            # (a range with two ends says so already)
             parts.append("finite")
         return " and ".join(parts)
 
 
 def positive(x) -> bool:
     return x > 0
+
+
+#: Radii in scene units: the estimates divide by a radius's square (an area) and cube (a volume), which
+#: must stay normal float64 numbers: (1e-100)^3 = 1e-300 and (1e100)^3 = 1e300.  A radius outside would
+#: underflow to 0 (an image of NaN) or overflow to infinity.
+RADIUS_MIN = 1e-100
+RADIUS_MAX = 1e100
+RADIUS_ALLOWED = f"between {RADIUS_MIN:g} and {RADIUS_MAX:g} (square and cube stay normal float64 numbers)"
+
+
+def in_radius_range(x) -> bool:
+    """A radius whose square and cube are normal float64 numbers (see RADIUS_MIN, RADIUS_MAX)."""
+    return RADIUS_MIN <= x <= RADIUS_MAX
+
+
+def zero_or_in_radius_range(x) -> bool:
+    return x == 0 or in_radius_range(x)
 
 
 def non_negative(x) -> bool:
@@ -78,6 +98,8 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
                 f"method '{method}' has no parameter '{name}'{hint}; "
                 f"its parameters: {', '.join(sorted(by_name))}")
         try:
+            if isinstance(value, (bool, np.bool_)) != (spec.type is bool) and not isinstance(value, str):
+                raise TypeError   # True is an int to Python, not a count or a radius to a user; 5 is not a bool
             if spec.type is bool and isinstance(value, str):
                 words = {"1": True, "true": True, "yes": True, "on": True,
                          "0": False, "false": False, "no": False, "off": False}

@@ -14,7 +14,7 @@ from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams import MEDIUM_SCATTERING
 from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
 from ..photons.visible_points import camera_pass as progressive_camera_pass
-from .params import Param, non_negative, positive
+from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
 
@@ -25,7 +25,7 @@ ESTIMATE_PARAMS = (
           positive, ">= 1", max=1024),
     Param("k", int, 100, "photons (stream records) per radiance estimate", positive, ">= 1",
           scratch=16),  # the k-nearest search's index + distance arrays, per thread
-    Param("radius", float, 3.0, "maximum search radius R (scene units)", positive, "> 0"),
+    Param("radius", float, 3.0, "maximum search radius R (scene units)", in_radius_range, RADIUS_ALLOWED),
     Param("filter", str, "none", "radiance-estimate filter kernel", choices=tuple(FILTERS)),
     Param("termination", str, "cap",
           "cap: scale power by the albedo and stop after max_bounces (the paper); "
@@ -54,7 +54,7 @@ VOLUME_RADIUS_FRACTION = 0.01
 ONE_SHOT_VOLUME_PARAMS = (
     Param("volume_radius", float, None, "scenes with media: radius of the volume photons' spheres in the beam "
                                         f"radiance estimate (default: {VOLUME_RADIUS_FRACTION} of the scene's "
-                                        "bounding-box diagonal)", positive, "> 0"),
+                                        "bounding-box diagonal)", in_radius_range, RADIUS_ALLOWED),
 )
 
 

@@ -26,7 +26,7 @@ from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOL
 from ..photons.trace import trace_caustic_photon_pass, trace_photon_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
-from .params import Param, non_negative, positive
+from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
 from .photon_common import ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, camera_pass, \
     camera_pass_in_media, check_media_settings
 
@@ -47,7 +47,8 @@ class PhotonMapping(OneShot):
                                          "(0: no caustic map; the paper's PM+C uses 100,000)",
               non_negative, ">= 0"),
         Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1", scratch=16),
-        Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", positive, "> 0"),
+        Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", in_radius_range,
+              RADIUS_ALLOWED),
     ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
 
     @staticmethod

@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..checkpoint import require_array
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
@@ -39,7 +40,7 @@ from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
 from ..photons.visible_points import camera_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
-from .params import Param, positive
+from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS
 
@@ -49,6 +50,12 @@ RADIUS_FRACTION = 0.01
 CAUSTIC_RADIUS_SCALE = 0.6
 #: The default initial radius of the volume estimate (scenes with media), as a fraction of R_0.
 VOLUME_RADIUS_SCALE = 1.0
+#: The least --alpha.  After a pixel's first photons its radius is R sqrt(alpha) while pixels without
+#: photons keep R_0; the grid's cells follow the median radius, so a gather scans about alpha^-3/2
+#: cells.  Measured (sppm, diacaustic 64x64, 100 passes): 0.03-0.1 s a pass for alpha 0.5 to 0.01,
+#: 0.3-0.8 s at 1e-3, 2-6 s at 1e-4, and the second pass never ended at 1e-6 (issue 19, B2); radii
+#: shrinking by sqrt(alpha) a pass also underflow to 0 (an image of NaN).
+ALPHA_MIN = 0.01
 #: Radius schedules: per pixel (SPPM's α update, sequential) or one per pass (independent passes).
 SCHEDULES = ("pixel", "global")
 
@@ -58,9 +65,10 @@ _ESTIMATE = {p.name: p for p in ESTIMATE_PARAMS}
 PROGRESSIVE_PARAMS = (
     Param("radius", float, None, "initial gather radius R_0 in scene units "
                                  f"(default: {RADIUS_FRACTION} of the scene's bounding-box diagonal)",
-          positive, "> 0"),
+          in_radius_range, RADIUS_ALLOWED),
     Param("alpha", float, 2.0 / 3.0, "fraction of new photons kept per pass (SPPM's α)",
-          lambda a: 0.0 < a < 1.0, "between 0 and 1, exclusive"),
+          lambda a: ALPHA_MIN <= a < 1.0, f"at least {ALPHA_MIN:g} and below 1 (a smaller alpha makes a pass's "
+                                          f"gather unbounded)"),
     Param("schedule", str, "pixel", "pixel: each pixel's radius shrinks with the photons it gathered "
                                     "(Hachisuka & Jensen 2009; passes run in order); global: pass p gathers "
                                     "within R_0 sqrt(prod_{i=1..p} (i + alpha) / (i + 1)) everywhere, so passes "
@@ -80,7 +88,8 @@ PROGRESSIVE_PARAMS = (
 VOLUME_RADIUS_PARAM = Param("volume_radius", float, None,
                             "scenes with media: initial radius of the volume photons' spheres in the beam radiance "
                             "estimate; pass p uses it times sqrt(prod_{i=1..p} (i + alpha) / (i + 1)) "
-                            f"(default: {VOLUME_RADIUS_SCALE} x the initial --radius)", positive, "> 0")
+                            f"(default: {VOLUME_RADIUS_SCALE} x the initial --radius)", in_radius_range,
+                            RADIUS_ALLOWED)
 
 #: How aimed caustic photons are gathered (sppm and pspm with --caustic-photons).
 CAUSTIC_STATISTICS_PARAMS = (
@@ -91,7 +100,7 @@ CAUSTIC_STATISTICS_PARAMS = (
           choices=("separate", "shared")),
     Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
                                          f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
-          positive, "> 0"),
+          in_radius_range, RADIUS_ALLOWED),
 )
 
 
@@ -263,13 +272,28 @@ class ProgressivePhotonMethod(IndependentPasses):
     def independent(cls, settings) -> bool:
         return settings["schedule"] == "global"
 
+    #: What to lower when a pass's photon events would not fit in memory.
+    pass_memory_hint = "lower --photons or --max-bounces"
+
     @classmethod
     def check(cls, scene, settings):
+        """Settings the parameters' own ranges cannot refuse; and a pass's memory, before the first is traced."""
         if settings["spp"] != 1:
             raise ParameterError(f"--spp: {cls.name} takes one camera sample per pixel per pass "
                                  f"(got {settings['spp']}); more passes give more samples")
         if scene.has_media and settings["fixed_light_grid"]:
             raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
+        check_budget(cls.pass_buffer_bytes(scene, settings),
+                     f"one {cls.name} pass of {cls.emitted_per_pass(scene, settings):,} paths (their records and "
+                     f"the grid's copy)", cls.pass_memory_hint)
+
+    @classmethod
+    def auto_settings(cls, scene, settings) -> dict:
+        """The values the settings left to their defaults (None) take in this scene (checkpoint messages)."""
+        out = {"radius": initial_radius(scene, settings), "caustic_radius": initial_caustic_radius(scene, settings)}
+        if scene.has_media:
+            out["volume_radius"] = initial_volume_radius(scene, settings)
+        return out
 
     @classmethod
     def new_state(cls, scene, settings):
@@ -284,21 +308,18 @@ class ProgressivePhotonMethod(IndependentPasses):
 
     @classmethod
     def state_from_arrays(cls, scene, settings, arrays):
+        """The state a checkpoint holds, every array's dtype, shape and range checked (what a render writes)."""
+        cls.check(scene, settings)
         if cls.independent(settings):
             return super().state_from_arrays(scene, settings, arrays)
         n = settings["width"] * settings["height"]
-        try:
-            st = PixelStatistics(**{k: arrays[k] for k in PixelStatistics._fields})
-        except (KeyError, TypeError) as exc:
-            raise ParameterError(f"checkpoint: missing pixel statistics ({exc})") from None
-        st = st._replace(passes=int(st.passes), emitted=int(st.emitted))
-        shapes = {"n_photons": (n,), "radius": (n,), "tau": (n, 3), "direct": (n, 3), "gathered": (n,),
-                  "n_caustic": (n,), "radius_caustic": (n,), "tau_caustic": (n, 3)}
-        for name, shape in shapes.items():
-            if np.shape(getattr(st, name)) != shape:
-                raise ParameterError(f"checkpoint: its {name} has shape {np.shape(getattr(st, name))}, "
-                                     f"this {settings['width']}x{settings['height']} render needs {shape}")
-        return st
+        radii = dict(above=0.0, high=RADIUS_MAX)
+        spec = {"passes": ((), dict(low=0)), "emitted": ((), dict(low=0)), "n_photons": ((n,), dict(low=0)),
+                "radius": ((n,), radii), "tau": ((n, 3), {}), "direct": ((n, 3), {}), "gathered": ((n,), dict(low=0)),
+                "n_caustic": ((n,), dict(low=0)), "radius_caustic": ((n,), radii), "tau_caustic": ((n, 3), {})}
+        got = {name: require_array(arrays, name, np.int64 if shape == () else np.float64, shape, **bounds)
+               for name, (shape, bounds) in spec.items()}
+        return PixelStatistics(**dict(got, passes=int(got["passes"]), emitted=int(got["emitted"])))
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:

@@ -33,7 +33,7 @@ from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_stream_pass
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
-from .params import Param, non_negative, positive
+from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
 from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS
 from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod,
@@ -74,7 +74,8 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
               positive, ">= 1"),
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
         Param("stream_radius", float, 5.0, "stream radius r_s of the first pass (scene units); later passes "
-                                           "scale it as the gather radii shrink", non_negative, ">= 0"),
+                                           "scale it as the gather radii shrink", zero_or_in_radius_range,
+              "0 or " + RADIUS_ALLOWED),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         Param("specular", str, "merge", "merge: associated photons merge into the leading one at mirrors "
@@ -90,12 +91,18 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
 
     @classmethod
     def check(cls, scene, settings):
-        super().check(scene, settings)
         if settings["caustic_photons"] > 0 and settings["specular"] == "split":
             raise ParameterError("--caustic-photons: pspm's aimed caustic photons need --specular merge "
                                  "(with split, the streams carry their own caustic photons)")
         if scene.has_media and settings["specular"] == "split":
             raise ParameterError("--specular split: not supported in a scene with media (docs/media.md)")
+        super().check(scene, settings)
+
+    pass_memory_hint = "lower --streams, --assoc, --caustic-photons or --max-bounces"
+
+    @classmethod
+    def auto_settings(cls, scene, settings) -> dict:
+        return dict(super().auto_settings(scene, settings), streams=streams_per_pass(settings))
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:

@@ -22,7 +22,7 @@ from ..photons.records import empty_photon_map
 from ..photons.streams import StreamBuffers, StreamMap, trace_stream_pass
 from ..sampling.rng import STREAM_SPM
 from . import register
-from .params import Param, non_negative, positive
+from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
 from .photon_common import ESTIMATE_PARAMS, MEDIUM_SCATTERING_PARAM, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, \
     OneShot, camera_pass, camera_pass_in_media, check_media_settings
 
@@ -37,7 +37,8 @@ class StreamedPhotonMapping(OneShot):
     params = (
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),
         Param("assoc", int, 10, "associated photons per stream (n_fa)", non_negative, ">= 0"),
-        Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", non_negative, ">= 0"),
+        Param("stream_radius", float, 5.0, "stream radius r_s (scene units)", zero_or_in_radius_range,
+              "0 or " + RADIUS_ALLOWED),
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         MEDIUM_SCATTERING_PARAM,

@@ -59,9 +59,16 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         VOLUME_RADIUS_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 
+    pass_memory_hint = "lower --photons, --caustic-photons or --max-bounces"
+
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
         return sum(photon_counts(scene, settings))
+
+    @classmethod
+    def auto_settings(cls, scene, settings) -> dict:
+        photons, caustic = photon_counts(scene, settings)
+        return dict(super().auto_settings(scene, settings), photons=photons, caustic_photons=caustic)
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:

@@ -8,7 +8,7 @@ photon whose sphere it pierces with its projection t_i = (x_i − o)·d inside [
 
 T(t) = exp(−σt t) per channel, p the medium's phase function, ω_i the photon's direction of
 travel and Φ_i its stored power, which already holds σs / σt and the transmittance of its
-flight (:mod:`caustica.photons.trace_media`): with photons stored at scattering events, Σ Φ_i
+flight (:mod:`caustica.photons.trace`): with photons stored at scattering events, Σ Φ_i
 δ(x − x_i) δ(ω − ω_i) estimates σs L, and the 2-D kernel 1 / (π r²) across the segment
 turns the integral of T σs p L along it into that sum.  The kernel is 2-D (across the beam),
 so its progressive radius follows the 2-D rule of Knaus & Zwicker 2011: r_p² ∝ ∏ (i + α) / (i + 1),
