@@ -82,25 +82,11 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             depth += 1
             if depth >= max_depth:
                 break
-            contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(
-                geom, mats, lights, media, p, zero, zero, zero, -1, medium,
-                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
-            n_shadow += shadow
-            dim += 3
-            if ok:
-                w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
-                L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
-            wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-            if not pdf > 0.0:
-                break
-            beta = vec.mul(beta, weight)
-            o = p
-            d = wo
-            p_last = p
-            pdf_last = pdf
-            specular = False
-            crossings = 0
+            ng = ns = ng_front = zero
+            shape = -1
+            kind = DIFFUSE       # (unused in a medium)
+            m = 0
+            rgb = zero
         else:
             # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
@@ -122,15 +108,34 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
             if not scatters:
                 break
-            if kind == DIFFUSE:
-                contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
-                    geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
-                    uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
-                n_shadow += shadow
-                dim += 3
-                if ok:
+        in_medium = prim < 0
+        if in_medium or kind == DIFFUSE:
+            # next-event estimation: one light sample, MIS against the phase function or the BSDF
+            contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
+                geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
+                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+            n_shadow += shadow
+            dim += 3
+            if ok:
+                if in_medium:
+                    w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
+                    L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
+                else:
                     w_l = power_heuristic(pdf_light, cos_s * INV_PI) if is_area else 1.0
                     L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w_l * INV_PI)
+        if in_medium:
+            wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
+            dim += 2
+            if not pdf > 0.0:
+                break
+            beta = vec.mul(beta, weight)
+            o = p
+            d = wo
+            p_last = p
+            pdf_last = pdf
+            specular = False
+            crossings = 0
+        else:
             alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns,
                                                                             key, dim, beta, eta_scale)
             if not alive:
