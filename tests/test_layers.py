@@ -16,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[1] / "src" / "caustica"
 
 LAYERS = (
     ("base", ("caustica.errors", "caustica.limits", "caustica.memory", "caustica.jit", "caustica.sampling",
-              "caustica.geometry.vec", "caustica.imageio", "caustica.version", "caustica.film")),
+              "caustica.geometry.vec", "caustica.imageio", "caustica.version", "caustica.film",
+              "caustica.interrupts", "caustica.arrays")),
     ("scene", ("caustica.scene",)),
     ("tables", ("caustica.geometry", "caustica.bsdf", "caustica.emitters", "caustica.media", "caustica.camera",
                 "caustica.tables")),

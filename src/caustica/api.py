@@ -20,22 +20,13 @@ from .errors import ParameterError, RenderError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .version import __version__
 from .jit import default_threads
-from .limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
+from .limits import MAX_PIXELS
 from .memory import check_budget
-from .methods.params import Param, non_negative, positive
+from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
 from .tables import Scene, compile_scene
 
-#: Settings every method takes, next to its own parameters, with the bounds of caustica.limits.
-COMMON_PARAMS = (
-    Param("spp", int, None, "samples per pixel", positive, ">= 1", max=MAX_SPP),
-    Param("width", int, None, "image width", positive, ">= 1", option="--res width"),
-    Param("height", int, None, "image height", positive, ">= 1", option="--res height"),
-    Param("seed", int, 0, "random seed", non_negative, ">= 0", max=MAX_SEED),
-    Param("threads", int, None, "worker threads", positive, ">= 1", max=MAX_THREADS),
-)
-COMMON = tuple(p.name for p in COMMON_PARAMS)
 
 
 def load_scene(path_or_name, **defaults) -> Scene:

@@ -215,7 +215,7 @@ def _check_arrays(path, arrays) -> None:
 
 def _flag(method_cls, key: str) -> str:
     """How the command line names setting ``key`` (--radius, --res width, ...)."""
-    from .api import COMMON_PARAMS
+    from .methods.params import COMMON_PARAMS
     for p in tuple(method_cls.params) + COMMON_PARAMS:
         if p.name == key:
             return p.flag
@@ -288,22 +288,6 @@ def load(path, method_cls, scene, settings):
     if state.passes != header["passes"]:
         raise _refuse(path, f"damaged (its header says {header['passes']} passes, its state {state.passes})")
     return state
-
-
-def require_array(arrays, name: str, dtype, shape: tuple, *, low=None, above=None, high=None) -> np.ndarray:
-    """``arrays[name]`` if it has this dtype and shape and its values lie within the bounds given, else a
-    ParameterError naming what is wrong (``low`` <= values, ``above`` < values, values <= ``high``)."""
-    if name not in arrays:
-        raise ParameterError(f"checkpoint: it has no {name}")
-    a = arrays[name]
-    if a.dtype != np.dtype(dtype) or a.shape != tuple(shape):
-        raise ParameterError(f"checkpoint: its {name} is {a.dtype} of shape {a.shape}, this render needs "
-                             f"{np.dtype(dtype)} of shape {tuple(shape)}")
-    for bound, bad, word in ((low, lambda b: a < b, ">="), (above, lambda b: a <= b, ">"),
-                             (high, lambda b: a > b, "<=")):
-        if bound is not None and a.size and np.any(bad(bound)):
-            raise ParameterError(f"checkpoint: its {name} has values out of range (a render writes {word} {bound:g})")
-    return a
 
 
 def check_path(path, outputs=(), inputs=()) -> None:

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from ..checkpoint import require_array
+from ..arrays import require_array
 from ..errors import ParameterError
 from ..film import PassSums
 

@@ -20,7 +20,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ParameterError, quoted, shorten
-from ..limits import INT_MAX
+from ..limits import INT_MAX, MAX_SEED, MAX_SPP, MAX_THREADS
 
 
 @dataclass(frozen=True)
@@ -120,3 +120,14 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
             raise ParameterError(f"{spec.flag}: {shorten(value)} is out of range; allowed: {spec.describe_range()}")
         out[name] = value
     return out
+
+
+#: Settings every method takes (``caustica.render``'s own keywords), next to its own parameters, with the bounds of caustica.limits.
+COMMON_PARAMS = (
+    Param("spp", int, None, "samples per pixel", positive, ">= 1", max=MAX_SPP),
+    Param("width", int, None, "image width", positive, ">= 1", option="--res width"),
+    Param("height", int, None, "image height", positive, ">= 1", option="--res height"),
+    Param("seed", int, 0, "random seed", non_negative, ">= 0", max=MAX_SEED),
+    Param("threads", int, None, "worker threads", positive, ">= 1", max=MAX_THREADS),
+)
+COMMON = tuple(p.name for p in COMMON_PARAMS)

@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..checkpoint import require_array
+from ..arrays import require_array
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
