@@ -269,6 +269,8 @@ def parse_address(address: str) -> SchedulerAddress:
     example = "e.g. tcp://10.0.0.5:8786 (what 'dask scheduler' prints)"
     if not text:
         raise ParameterError(f"--dask: give the scheduler's address, {example}")
+    if not text.isprintable():
+        raise ParameterError(f"--dask {quoted(address)}: control characters in the address; {example}")
     scheme, sep, loc = text.partition("://")
     if not sep:
         scheme, loc = "tcp", text
@@ -346,6 +348,8 @@ def probe_scheduler(addr: SchedulerAddress, args: dict) -> None:
         import socket
         try:
             socket.create_connection((addr.host, addr.port), timeout=CONNECT_TIMEOUT_S).close()
+        except UnicodeError:   # a label longer than DNS allows (63), ...
+            raise ParameterError(f"{where}: {quoted(addr.host)} is not a host name DNS can look up") from None
         except OSError as exc:
             reason = getattr(exc, "strerror", None) or _first_line(exc)
             raise ParameterError(f"{where}: no Dask scheduler answers there ({reason}); {start}") from None
