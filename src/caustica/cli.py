@@ -58,9 +58,11 @@ def _add_render_options(r, method_names, default_method, output_help):
 def _add_cluster_options(group):
     group.add_argument("--dask", metavar="ADDRESS",
                        help="send the work to the Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786; "
-                            "start one with 'dask scheduler' and workers with 'dask worker ADDRESS')")
+                            "start one with 'dask scheduler' and workers with 'dask worker ADDRESS'; tls:// "
+                            "uses Dask's TLS settings, distributed.comm.tls.*: docs/cluster.md)")
     group.add_argument("--workers", type=int, metavar="N",
-                       help="start a local cluster of N single-threaded worker processes for this run")
+                       help="start a local cluster of N single-threaded worker processes for this run (at most "
+                            "the CPUs caustica may use, and N x 360 MB within the memory budget)")
 
 
 def _add_method_flags(group, method_names, default_word):
