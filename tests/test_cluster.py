@@ -372,6 +372,15 @@ def test_a_listener_that_is_not_a_dask_scheduler_is_one_line_within_the_timeout(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_closed_client_is_refused(diacaustic, two_workers):
+    """A closed Client handed in from Python was an AttributeError from deep inside."""
+    import distributed
+    client = distributed.Client(two_workers.address, set_as_default=False)
+    client.close()
+    with pytest.raises(ParameterError, match="the distributed.Client is closed, not running"):
+        caustica.render(diacaustic, "pt", res=8, passes=2, dask=client)
+
+
 def test_a_worker_s_address_is_refused_naming_the_scheduler_s(two_workers):
     worker = next(iter(two_workers.worker_threads))
     with pytest.raises(ParameterError, match="a Dask worker answers there, not the scheduler") as info:

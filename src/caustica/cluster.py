@@ -167,6 +167,9 @@ def check_args(address=None, workers=None) -> None:
     if address is not None and not isinstance(address, str):
         if type(address).__name__ != "Client" or not hasattr(address, "submit"):
             raise ParameterError(f"dask=: a scheduler address (str) or a distributed.Client, not {shorten(repr(address))}")
+        if getattr(address, "status", "running") != "running":
+            raise ParameterError(f"dask=: the distributed.Client is {shorten(address.status)}, not running; pass an "
+                                 f"open one (or the scheduler's address)")
         return  # a distributed.Client of the caller's
     if address is not None:
         parse_address(address)
