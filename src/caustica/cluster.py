@@ -126,16 +126,8 @@ class Cluster:
     def stop_local_workers(self) -> None:
         """SIGTERM to the worker processes of the local cluster this started (they hold nothing a render
         still needs: its parts are merged here); a cluster of the caller's is left alone."""
-        import signal
-        if self.local is None:
-            return
-        for nanny in list(getattr(self.local, "workers", {}).values()):
-            pid = getattr(getattr(nanny, "process", None), "pid", None)
-            if pid:
-                try:
-                    os.kill(pid, signal.SIGTERM)
-                except OSError:   # gone already
-                    pass
+        if self.local is not None:
+            _stop_workers(self.local)
 
     def __enter__(self):
         return self
@@ -219,7 +211,9 @@ def connect(address=None, workers=None) -> Cluster:
     else:
         import signal
         # worker processes started with SIGINT ignored keep ignoring it: Ctrl-C reaches this process
-        # alone, which cancels the tasks and closes the cluster (no traceback from every worker)
+        # alone, which cancels the tasks and stops them (no traceback from every worker). A Ctrl-C
+        # while they start is lost with it (a blocked SIGINT would be held, but the spawned processes
+        # do not inherit the mask): docs/cluster.md, Not handled.
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
         try:
             local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -229,7 +223,9 @@ def connect(address=None, workers=None) -> Cluster:
                 signal.signal(signal.SIGINT, previous)
         try:
             client = distributed.Client(local, set_as_default=False)
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt):
+                _stop_workers(local)
             local.close()
             raise
         cluster = Cluster(client, local, local.scheduler_address)
@@ -250,6 +246,19 @@ def connect(address=None, workers=None) -> Cluster:
 def _main_thread() -> bool:
     import threading
     return threading.current_thread() is threading.main_thread()
+
+
+
+def _stop_workers(local) -> None:
+    """SIGTERM to the worker processes of a LocalCluster (they hold nothing a render still needs)."""
+    import signal
+    for nanny in list(getattr(local, "workers", {}).values()):
+        pid = getattr(getattr(nanny, "process", None), "pid", None)
+        if pid:
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except OSError:   # gone already
+                pass
 
 
 @dataclass(frozen=True)
