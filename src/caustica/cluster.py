@@ -250,11 +250,17 @@ def _main_thread() -> bool:
 
 
 def _stop_workers(local) -> None:
-    """SIGTERM to the worker processes of a LocalCluster (they hold nothing a render still needs)."""
+    """SIGTERM to the worker processes of a LocalCluster (they hold nothing a render still needs).
+
+    Each nanny is marked as closing first: it then closes when its worker exits, rather than
+    starting a new one (which would log a traceback on stderr when the cluster closes it).
+    """
     import signal
+    from distributed.core import Status
     for nanny in list(getattr(local, "workers", {}).values()):
         pid = getattr(getattr(nanny, "process", None), "pid", None)
         if pid:
+            nanny.status = Status.closing_gracefully
             try:
                 os.kill(pid, signal.SIGTERM)
             except OSError:   # gone already
