@@ -433,6 +433,21 @@ def test_methods_lists_every_method_with_its_parameters(cli):
         assert block == [p.flag for p in methods.get(name).params], name
 
 
+def test_listings_claim_only_what_is_shown(cli, tmp_path):
+    """issue 19: 'caustica scenes' called the fog box "pt only" though every method renders it, and
+    'caustica methods' called sppm and pspm "consistent", which no test measures (the error falling
+    with the passes at the expected rate)."""
+    _, scenes, _ = cli("scenes")
+    fog = next(line for line in scenes.splitlines() if line.startswith("cornell-diacaustic-fog:"))
+    assert "pt only" not in fog and "every method" in fog
+    for method in sorted(methods.available()):
+        code, _, err = cli("render", "cornell-diacaustic-fog", "--method", method, "--res", "8", "-q",
+                           "-o", tmp_path / f"{method}.exr")
+        assert code == 0, (method, err)
+    _, listing, _ = cli("methods")
+    assert "consistent" not in listing
+
+
 def test_top_level_help_and_version(cli, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     code, out, _ = cli("--help")

@@ -138,6 +138,9 @@ def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_passes(diacaustic, two_
             if len(updates) == 3:
                 raise KeyboardInterrupt
 
+    # the workers load their kernels first: a cold worker's first pass can come back after three others,
+    # and Ctrl-C before pass 0 is merged is (rightly) a KeyboardInterrupt, not an image
+    caustica.render(diacaustic, "pt", res=16, passes=4, dask=two_workers.client)
     scene, cls, settings = caustica.api.resolve_settings(diacaustic, "pt", res=16, seed=1, multi_pass=True)
     plan = caustica.driver.check_plan(cls, passes=200)
     state, log, _ = cluster.run(two_workers, cls, scene, settings, plan, InterruptingBar)
@@ -163,6 +166,15 @@ def test_renders_a_cluster_cannot_take_apart_are_refused(diacaustic, method, kw,
 @pytest.mark.parametrize("args, words", [
     (("--dask", "tcp://127.0.0.1:1"), "no Dask scheduler answers"),
     (("--dask", "bad://x"), "not a scheduler address"),
+    (("--dask", "tcp://127.0.0.1:99999"), "port '99999' is not a port number (1 to 65535)"),
+    (("--dask", "tcp://127.0.0.1:abc"), "port 'abc' is not a port number"),
+    (("--dask", "tcp://127.0.0.1:0"), "port '0' is not a port number"),
+    (("--dask", "tcp://127.0.0.1"), "no port"),
+    (("--dask", "tcp://:8786"), "no host"),
+    (("--dask", "ucx://127.0.0.1:8786"), "ucx://"),
+    (("--dask", "tcp://127.0.0.1:1\nfoo"), "control characters in the address"),
+    (("--dask", "tcp://" + "h" * 300 + ":8786"), "is not a host name DNS can look up"),
+    (("--workers", "1000"), "--workers 1000: 1000 worker processes (about 360 MB each"),
     (("--dask", "tcp://127.0.0.1:1", "--workers", "2"), "give one"),
     (("--workers", "0"), "--workers"),
     (("--workers", "2", "--threads", "2"), "--threads"),
@@ -296,3 +308,176 @@ def test_the_memory_cap_counts_the_camera_segments_in_media(diacaustic, method):
     media = caustica.api.resolve_settings(fog, method, **kw)
     extra = media[1].pass_buffer_bytes(media[0], media[2]) - plain[1].pass_buffer_bytes(plain[0], plain[2])
     assert extra == 16 * 16 * SEGMENT_BYTES
+
+
+# --------------------------------------------------------------------------- hostile addresses (issue 19)
+
+
+@pytest.fixture
+def listener():
+    """``listener(greeting)``: a TCP server on 127.0.0.1 that accepts every connection, sends ``greeting``
+    (b"": nothing) and stays silent; returns its port."""
+    import socket
+    import threading
+    servers = []
+
+    def start(greeting: bytes) -> int:
+        srv = socket.socket()
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(16)
+        held = []
+
+        def serve():
+            while True:
+                try:
+                    conn, _ = srv.accept()
+                except OSError:
+                    return
+                held.append(conn)
+                if greeting:
+                    try:
+                        conn.sendall(greeting)
+                    except OSError:
+                        pass
+        threading.Thread(target=serve, daemon=True).start()
+        servers.append((srv, held))
+        return srv.getsockname()[1]
+    yield start
+    for srv, held in servers:
+        srv.close()
+        for conn in held:
+            conn.close()
+
+
+@pytest.mark.parametrize("scheme, greeting, words", [
+    ("tcp", b"", "something accepted the connection but sent nothing"),
+    # read as Dask's frame length, these bytes asked the client to allocate 7.65 EiB
+    ("tcp", b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n",
+     "something answered with bytes that are not Dask's protocol (b'HTTP/1.1 400"),
+    ("tcp", bytes(range(256)) * 4, "bytes that are not Dask's protocol"),
+    ("ws", b"", "no Dask handshake over ws://"),
+    ("ws", b"garbage\r\n\r\n", "not a Dask scheduler"),
+])
+def test_a_listener_that_is_not_a_dask_scheduler_is_one_line_within_the_timeout(cli, tmp_path, listener,
+                                                                                   monkeypatch, scheme, greeting,
+                                                                                   words):
+    """A silent listener hung the client for ever (Dask's handshake read has no timeout); one that sends
+    bytes made it size a buffer from them. Each is one line naming the address and what answered."""
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)
+    address = f"{scheme}://127.0.0.1:{listener(greeting)}"
+    t0 = time.monotonic()
+    code, _, err = cli("render", "cornell-diacaustic", "--res", "8", "--passes", "2", "-o", tmp_path / "x.exr",
+                       "--dask", address)
+    assert time.monotonic() - t0 < 1.0 + cluster.SNIFF_S + 4.0
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0].startswith(f"caustica: error: --dask {address}: ") and words in lines[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_closed_client_is_refused(diacaustic, two_workers):
+    """A closed Client handed in from Python was an AttributeError from deep inside."""
+    import distributed
+    client = distributed.Client(two_workers.address, set_as_default=False)
+    client.close()
+    with pytest.raises(ParameterError, match="the distributed.Client is closed, not running"):
+        caustica.render(diacaustic, "pt", res=8, passes=2, dask=client)
+
+
+def test_a_worker_s_address_is_refused_naming_the_scheduler_s(two_workers):
+    worker = next(iter(two_workers.worker_threads))
+    with pytest.raises(ParameterError, match="a Dask worker answers there, not the scheduler") as info:
+        cluster.connect(worker)
+    assert two_workers.address in str(info.value)
+
+
+def _self_signed(folder):
+    """A key and a self-signed certificate (CN dask-internal, as Dask's Security.temporary) made with openssl."""
+    import shutil
+    import subprocess
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    key, cert = folder / "key.pem", folder / "cert.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
+                    str(cert), "-days", "1", "-subj", "/CN=dask-internal"], check=True, capture_output=True)
+    return key, cert
+
+
+def test_tls_scheduler_is_reached_with_dask_s_tls_settings(diacaustic, tmp_path):
+    """A scheduler that requires TLS (mutual, a self-signed certificate made here) on 127.0.0.1: without
+    Dask's TLS settings the address is one line saying what to set (it was a Client.__del__ traceback);
+    with them (distributed.comm.tls.* in Dask's configuration) the render has a local render's bits."""
+    import dask
+    import distributed
+    key, cert = _self_signed(tmp_path)
+    sec = distributed.Security(tls_ca_file=str(cert), tls_client_cert=str(cert), tls_client_key=str(key),
+                               tls_scheduler_cert=str(cert), tls_scheduler_key=str(key),
+                               tls_worker_cert=str(cert), tls_worker_key=str(key), require_encryption=True)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tls://",
+                                  host="127.0.0.1", security=sec, dashboard_address=None) as lc:
+        address = lc.scheduler_address
+        assert address.startswith("tls://127.0.0.1:")
+        with pytest.raises(ParameterError, match="needs Dask's TLS settings: set distributed.comm.tls.ca-file"):
+            caustica.render(diacaustic, "pt", res=8, passes=2, dask=address)
+        tls = {"distributed.comm.tls.ca-file": str(cert), "distributed.comm.tls.client.cert": str(cert),
+               "distributed.comm.tls.client.key": str(key)}
+        with dask.config.set(tls):
+            far = caustica.render(diacaustic, "pt", res=8, seed=2, passes=3, dask=address)
+        with dask.config.set({**tls, "distributed.comm.tls.ca-file": str(tmp_path / "missing.pem")}):
+            with pytest.raises(ParameterError, match=r"TLS settings cannot be used \(no such file: "
+                                                     r"distributed.comm.tls.ca-file .*missing.pem\)"):
+                caustica.render(diacaustic, "pt", res=8, passes=2, dask=address)
+    assert far.stats["cluster"]["scheduler"] == address
+    assert far.image.tobytes() == caustica.render(diacaustic, "pt", res=8, seed=2, passes=3).image.tobytes()
+
+
+def test_a_local_cluster_must_fit_the_machine_s_memory_and_cpus(cli, tmp_path, monkeypatch):
+    """--workers 1000 started about 151 processes and 5.5 GB before anything checked: the estimate (workers x
+    a worker's measured memory) and the CPU count are checked before any process starts."""
+    import caustica.jit
+    import caustica.memory
+    monkeypatch.setattr(caustica.memory, "physical_memory_bytes", lambda: 1 << 30)
+    code, _, err = cli("render", "cornell-diacaustic", "--res", "8", "--passes", "2", "-o", tmp_path / "x.exr",
+                       "--workers", "2")
+    assert code == 2 and "--workers 2: 2 worker processes (about 360 MB each" in err and "would need about 0.7 GB" \
+        in err and len(err.strip().splitlines()) == 1, err
+    monkeypatch.undo()
+    monkeypatch.setattr(caustica.jit, "default_threads", lambda: 2)
+    code, _, err = cli("experiment", "table3", "--quick", "-o", tmp_path / "out", "--workers", "3")
+    assert code == 2 and "this machine lets caustica use 2 CPUs" in err and "at most --workers 2" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_stops_a_render_on_a_local_cluster_within_a_second(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) to ``caustica render --workers 2``
+    once passes are being merged (the checkpoint exists): the local cluster used to close worker by
+    worker (1.9-2.9 s); now its workers are stopped at once. They never see the SIGINT: one line, no
+    traceback from them."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    ck = tmp_path / "state.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "caustica", "render", "cornell-diacaustic", "--res", "16",
+                             "--time", "600", "--workers", "2", "--checkpoint", ck, "-o", tmp_path / "x.exr", "-q"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not ck.is_file() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.1)
+        assert ck.is_file(), proc.communicate()[1] if proc.poll() is not None else "no checkpoint within 300 s"
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        stopped = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted: wrote the image" in err and (tmp_path / "x.exr").is_file()
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert stopped < 1.5, stopped
+

@@ -407,3 +407,131 @@ def test_the_reference_noise_estimated_from_the_peer_renders():
     # not a Mitsuba render, or its samples unknown: no estimate
     assert peer_floor(Reference(ref.image, "pt", spp=32_768, renderer="caustica pt"), rows)["rel_rmse"] is None
     assert peer_floor(Reference(ref.image, "x"), rows)["caustic_rel_rmse"] is None
+
+
+# --------------------------------------------------------------------------- hostile input (issue 19)
+
+
+def _cut_down_convergence(monkeypatch, budget=0.4):
+    """The convergence study on one scene, pt and SPPM at one budget, PM+C at one count."""
+    from caustica.experiments import convergence, runner
+    monkeypatch.setattr(convergence, "SCENES", ("cornell-diacaustic",))
+    monkeypatch.setattr(runner, "CONVERGENCE_SCENES", ("cornell-diacaustic",))
+    monkeypatch.setattr(convergence, "PROGRESSIVE", (("pt", "pt", {}), ("SPPM", "sppm", {})))
+    monkeypatch.setattr(convergence, "QUICK_BUDGETS_S", (budget,))
+    monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))
+
+
+def test_ctrl_c_stops_the_convergence_experiment_and_scores_nothing(cli, tmp_path, monkeypatch):
+    """Ctrl-C in a timed render (here: as pt's third pass starts) used to return the two passes finished,
+    which the table then scored as the render of the whole budget, and the experiment went on. Now it
+    stops the experiment: exit 130, one line, no table written."""
+    import caustica
+    _cut_down_convergence(monkeypatch, budget=30.0)
+    cls = caustica.methods.get("pt")
+    real = cls.run_pass.__func__
+
+    def run_pass(klass, scene, settings, state, progress):
+        if state.passes == 2:
+            raise KeyboardInterrupt
+        return real(klass, scene, settings, state, progress)
+
+    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    out = tmp_path / "exp"
+    code, _, err = cli("experiment", "convergence", "--quick", "--res", "16", "-o", out, "--cache-dir",
+                       tmp_path / "cache", "-q")
+    assert code == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("caustica: interrupted") and "no render cut short" in lines[0]
+    assert not (out / "convergence" / "convergence.csv").exists() and not (out / "report.md").exists()
+
+
+def test_an_interrupted_render_is_never_returned_to_an_experiment(monkeypatch):
+    """The one place experiments get their renders from (local and on a worker): a render that reports
+    itself interrupted raises KeyboardInterrupt instead of being scored."""
+    import caustica
+    from caustica.experiments import renders
+
+    class Interrupted:
+        stats = {"interrupted": True, "passes": 2}
+    monkeypatch.setattr(renders, "render", lambda *a, **k: Interrupted())
+    with pytest.raises(KeyboardInterrupt):
+        renders.render_job(None, "pt", {"time_s": 5.0}, None, set(), 1)
+    assert caustica  # imported for the methods' registry
+
+
+@pytest.mark.parametrize("make, words", [(lambda: np.zeros((16, 16, 3), np.float32), "every pixel is zero"),
+                                         (lambda: np.full((16, 16, 3), np.nan, np.float32), "not finite")])
+def test_a_reference_without_light_or_with_nan_is_refused_before_rendering(cli, tmp_path, monkeypatch, make,
+                                                                           words):
+    """An all-zero reference made every relative error NaN and matplotlib's log axes raise; a NaN one
+    likewise: one line, exit 2, before anything is written."""
+    _cut_down_convergence(monkeypatch)
+    imageio.write_exr(tmp_path / "ref.exr", make())
+    out = tmp_path / "exp"
+    code, _, err = cli("experiment", "convergence", "--quick", "--res", "16", "-o", out, "--reference",
+                       f"cornell-diacaustic={tmp_path / 'ref.exr'}", "-q")
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and words in lines[0] and "ref.exr" in lines[0], err
+    assert not out.exists()
+
+
+def test_a_reference_dark_over_the_caustic_mask_is_refused():
+    from caustica.errors import CausticaError
+    from caustica.experiments.reference import check_reference_image
+    img = np.ones((8, 8, 3), np.float32)
+    mask = np.zeros((8, 8), bool)
+    mask[2:4, 2:4] = True
+    check_reference_image(img, "ref", mask)
+    img[mask] = 0.0
+    with pytest.raises(CausticaError, match=r"every pixel of the caustic mask \(4 pixels\) is zero"):
+        check_reference_image(img, "ref", mask)
+
+
+def test_convergence_plot_leaves_out_undefined_errors(tmp_path):
+    """A NaN or zero error has no place on a log axis: the plot leaves it out rather than failing."""
+    from caustica.experiments.figures import convergence_plot
+    rows = [{"label": "pt", "time_s": 1.0, "rel_rmse": float("nan"), "caustic_rel_rmse": 0.0},
+            {"label": "pt", "time_s": 2.0, "rel_rmse": float("nan"), "caustic_rel_rmse": float("nan")},
+            {"label": "ref", "method": "reference", "time_s": None, "rel_rmse": float("nan"),
+             "caustic_rel_rmse": None}]
+    convergence_plot(rows, tmp_path / "c.png", "scene")
+    assert (tmp_path / "c.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("reference, words", [
+    ("nosuch={ref}", "'nosuch' is not a scene these experiments measure; the scenes measured: cornell-catacaustic"),
+    ("cornell-diacaustic={ref}", "'cornell-diacaustic' is not a scene these experiments measure"),
+    ("cornell-catacaustic={tmp}/missing.exr", "no such file or folder"),
+])
+def test_a_reference_for_a_scene_the_run_does_not_measure_is_refused(cli, tmp_path, reference, words):
+    """--reference SCENE=PATH for a scene the experiments do not measure was silently ignored (and the
+    run measured against caustica's own reference instead). The cache folder given is a file, so
+    that before the fix this failed on it, not after a run."""
+    imageio.write_exr(tmp_path / "ref.exr", _image(3, (16, 16)).astype(np.float32))
+    (tmp_path / "file").write_text("")
+    code, _, err = cli("experiment", "table3", "--quick", "--res", "16", "-o", tmp_path / "out", "--cache-dir",
+                       tmp_path / "file" / "cache", "--reference",
+                       reference.format(ref=tmp_path / "ref.exr", tmp=tmp_path), "-q")
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and words in lines[0], err
+    assert not (tmp_path / "out").exists()
+
+
+def test_two_references_for_one_scene_are_refused(cli, tmp_path):
+    imageio.write_exr(tmp_path / "ref.exr", _image(3, (16, 16)).astype(np.float32))
+    ref = f"cornell-catacaustic={tmp_path / 'ref.exr'}"
+    code, _, err = cli("experiment", "table3", "--quick", "--res", "16", "-o", tmp_path / "out",
+                       "--reference", ref, "--reference", ref, "-q")
+    assert code == 2 and "has a reference already" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("output", ["", "  "])
+def test_an_empty_experiment_output_folder_is_refused(cli, tmp_path, monkeypatch, output):
+    """-o '' is Path('') = the working directory: it wrote the experiment's folders there."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file").write_text("")
+    code, _, err = cli("experiment", "table3", "--quick", "-o", output, "--cache-dir", tmp_path / "file" / "c", "-q")
+    assert code == 2 and "-o: the output folder is empty" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]

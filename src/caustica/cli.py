@@ -59,9 +59,11 @@ def _add_render_options(r, method_names, default_method, output_help):
 def _add_cluster_options(group):
     group.add_argument("--dask", metavar="ADDRESS",
                        help="send the work to the Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786; "
-                            "start one with 'dask scheduler' and workers with 'dask worker ADDRESS')")
+                            "start one with 'dask scheduler' and workers with 'dask worker ADDRESS'; tls:// "
+                            "uses Dask's TLS settings, distributed.comm.tls.*: docs/cluster.md)")
     group.add_argument("--workers", type=int, metavar="N",
-                       help="start a local cluster of N single-threaded worker processes for this run")
+                       help="start a local cluster of N single-threaded worker processes for this run (at most "
+                            "the CPUs caustica may use, and N x 360 MB within the memory budget)")
 
 
 def _add_method_flags(group, method_names, default_word):
@@ -296,19 +298,33 @@ def _cmd_experiment(args) -> int:
     from .experiments import runner
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
     names = runner.expand(args.names)          # unknown names fail before anything is written
-    for ref in args.reference or []:
-        path = Path(ref.split("=", 1)[1] if "=" in ref and not Path(ref).exists() else ref)
-        if not path.exists():
-            raise ParameterError(f"--reference {ref}: no such file or folder")
-    out = Path(args.output)
-    _check_outputs([out / "report.md"], args.output)
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
-    # Config checks every setting and method parameter, run() every planned render and the
-    # reference cache, all before anything is created.
-    config = runner.Config(out=out, res=args.res, seed=args.seed, quick=args.quick,
+    # Config checks every setting and method parameter (and -o), run() the references, every planned
+    # render and the reference cache, all before anything is created.
+    config = runner.Config(out=args.output, res=args.res, seed=args.seed, quick=args.quick,
                            reference_spp=args.reference_spp, references=args.reference or [], params=params,
                            threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,
                            progress=not args.quiet, log=log, dask=args.dask, workers=args.workers)
+    out = config.out
+    _check_outputs([out / "report.md"], args.output)
+    try:
+        _run_experiments(runner, names, config, args)
+    except KeyboardInterrupt as exc:
+        raise ExperimentInterrupted(signal_of(exc)) from None
+    if not args.quiet:
+        print(f"{', '.join(names)} -> {out / 'report.md'}")
+    return 0
+
+
+class ExperimentInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM) stopped an experiment: no render cut short was scored, and no table was written after it."""
+
+    def __init__(self, signum: int = signal.SIGINT):
+        super().__init__()
+        self.signum = int(signum)
+
+
+def _run_experiments(runner, names, config, args) -> None:
     if args.dask is None and args.workers is None:
         runner.run(names, config)
     else:
@@ -322,9 +338,6 @@ def _cmd_experiment(args) -> int:
             where = f"--dask {args.dask}" if args.dask else f"--workers {args.workers}"
             raise ClusterError(f"{where}: the cluster failed during the experiment ({type(exc).__name__}: "
                                f"{str(exc).splitlines()[0] if str(exc) else 'no detail'}); run it again") from None
-    if not args.quiet:
-        print(f"{', '.join(names)} -> {out / 'report.md'}")
-    return 0
 
 
 def _cmd_compare(args) -> int:
@@ -401,6 +414,11 @@ def _main(argv) -> int:
     except CausticaError as exc:
         print(f"caustica: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except ExperimentInterrupted as exc:
+        print(f"caustica: interrupted ({signal.Signals(exc.signum).name}): the experiment stopped; no render cut "
+              "short was scored, and the tables of the experiment under way were not written (renders saved before "
+              "stay)", file=sys.stderr)
+        return exit_status(exc.signum)
     except InterruptedAfterSaving as exc:
         print(f"caustica: interrupted ({signal.Signals(exc.signum).name}); {exc.saved} had been written in full",
               file=sys.stderr)

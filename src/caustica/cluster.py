@@ -29,14 +29,23 @@ from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
 from .driver import CHECKPOINT_INTERVAL_S, final_checkpoint, load_checkpoint, save_checkpoint
-from .errors import CausticaError, ClusterError, ParameterError
+from .errors import CausticaError, ClusterError, ParameterError, quoted, shorten
 from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
 
 #: Address schemes of Dask's comms a scheduler can listen on.
 SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
-#: Seconds to wait for a scheduler before giving up.
+#: ... of which these need Dask's TLS settings (certificates in its configuration).
+SECURE_SCHEMES = ("tls", "wss")
+#: The port 'dask scheduler' listens on unless told otherwise.
+DEFAULT_PORT = 8786
+#: Seconds to wait for each step of reaching a scheduler (the TCP connection, Dask's handshake, its answer).
 CONNECT_TIMEOUT_S = 5.0
+#: After a failed handshake on tcp://, how long to read what the other end sends, to say what it is.
+SNIFF_S = 1.0
+#: Memory of one local worker process once it has rendered (its kernels loaded): measured 354-356 MB RSS
+#: (212 MB of its own) after pt and sppm renders at 64 x 64, 2026-12-02, this 2-core machine.
+WORKER_PROCESS_BYTES = 360 * 10**6
 #: The most passes one task renders (16 film trunk blocks: a part of the film per 64 passes).
 MAX_TASK_PASSES = 16 * TRUNK_PASSES
 #: A task is made about this long (its passes' measured work), once the first tasks are back ...
@@ -80,6 +89,8 @@ class Cluster:
     address: str = ""
     #: Whether closing this closes the client (not when the caller handed in its own Client).
     owned: bool = True
+    #: Set by a render that Ctrl-C stopped: closing then stops the local workers at once.
+    interrupted: bool = False
 
     @property
     def worker_threads(self) -> dict:
@@ -100,7 +111,11 @@ class Cluster:
                   for w in info["workers"].values() if w.get("memory_limit")]
         return int(min(shares)) if shares else None
 
-    def close(self) -> None:
+    def close(self, at_once: bool = False) -> None:
+        """Close the client (if ours) and the local cluster (if any); ``at_once`` (after Ctrl-C) stops
+        the local worker processes first rather than letting them shut down in turn (1.4 s for two)."""
+        if at_once or self.interrupted:
+            self.stop_local_workers()
         try:
             if self.owned:
                 self.client.close()
@@ -108,11 +123,17 @@ class Cluster:
             if self.local is not None:
                 self.local.close()
 
+    def stop_local_workers(self) -> None:
+        """SIGTERM to the worker processes of the local cluster this started (they hold nothing a render
+        still needs: its parts are merged here); a cluster of the caller's is left alone."""
+        if self.local is not None:
+            _stop_workers(self.local)
+
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        self.close(at_once=exc_type is not None and issubclass(exc_type, KeyboardInterrupt))
 
 
 def quiet_cluster_logs() -> None:
@@ -128,44 +149,71 @@ def quiet_cluster_logs() -> None:
 
 
 def check_args(address=None, workers=None) -> None:
-    """One-line errors for --dask / --workers, before anything starts."""
+    """One-line errors for --dask / --workers, before anything starts (an address is read here, not reached)."""
     if address is not None and workers is not None:
         raise ParameterError("--dask and --workers: give one (a running scheduler, or a local cluster to start)")
     if workers is not None:
         if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_THREADS:
-            raise ParameterError(f"--workers: an integer between 1 and {MAX_THREADS} (got {workers})")
+            raise ParameterError(f"--workers: an integer between 1 and {MAX_THREADS} (got {shorten(workers)})")
+        check_local_workers(workers)
     if address is not None and not isinstance(address, str):
         if type(address).__name__ != "Client" or not hasattr(address, "submit"):
-            raise ParameterError(f"dask=: a scheduler address (str) or a distributed.Client, not {address!r}")
+            raise ParameterError(f"dask=: a scheduler address (str) or a distributed.Client, not {shorten(repr(address))}")
+        if getattr(address, "status", "running") != "running":
+            raise ParameterError(f"dask=: the distributed.Client is {shorten(address.status)}, not running; pass an "
+                                 f"open one (or the scheduler's address)")
         return  # a distributed.Client of the caller's
-    if address is not None and not address.strip():
-        raise ParameterError("--dask: give the scheduler's address, e.g. tcp://10.0.0.5:8786")
+    if address is not None:
+        parse_address(address)
+
+
+def check_local_workers(workers: int) -> None:
+    """A local cluster of ``workers`` single-threaded processes must fit the machine: its memory
+    (WORKER_PROCESS_BYTES each, measured) and its CPUs (more workers than CPUs only share them, and the
+    experiments' timed renders, alone on their worker, would be timed slower than they are)."""
+    from .jit import default_threads
+    from .memory import check_budget
+    check_budget(workers * WORKER_PROCESS_BYTES,
+                 f"--workers {workers}: {workers} worker processes (about {WORKER_PROCESS_BYTES / 1e6:.0f} MB each "
+                 f"once they have rendered)", "give fewer workers")
+    cpus = default_threads()
+    if workers > cpus:
+        raise ParameterError(f"--workers {workers}: this machine lets caustica use {cpus} CPU"
+                             f"{'' if cpus == 1 else 's'}, and each worker is one single-threaded process: more "
+                             f"than {cpus} would only share them; give at most --workers {cpus} (or --dask ADDRESS "
+                             f"for a cluster of more machines)")
 
 
 def connect(address=None, workers=None) -> Cluster:
     """Connect to the scheduler at ``address`` (or a ``distributed.Client``), or start ``workers`` local workers.
 
-    Refuses, in one line, a scheduler that does not answer within CONNECT_TIMEOUT_S, a
-    cluster without workers, and workers that run another build of caustica (their
-    passes would not have this build's bits).
+    Refuses, in one line, an address that is malformed or where no Dask scheduler answers
+    (:func:`probe_scheduler`: every step within CONNECT_TIMEOUT_S), tls:// without Dask's TLS
+    settings (:func:`connection_args`), a local cluster the machine cannot hold
+    (:func:`check_local_workers`), a cluster without workers, and workers that run another
+    build of caustica (their passes would not have this build's bits).
     """
     check_args(address, workers)
     distributed = _distributed()
     if address is not None and not isinstance(address, str):
         cluster = Cluster(address, None, str(address.scheduler.address), owned=False)
     elif address is not None:
-        _check_reachable(address)
+        addr = parse_address(address)
+        conn = connection_args(addr)
+        probe_scheduler(addr, conn)
         try:
-            client = distributed.Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise ParameterError(f"--dask {address}: no Dask scheduler answers there ({reason}); start one with "
-                                 f"'dask scheduler' and workers with 'dask worker ADDRESS'") from None
-        cluster = Cluster(client, None, address)
+            client = distributed.Client(f"{addr.scheme}://{_loc(addr)}", timeout=CONNECT_TIMEOUT_S,
+                                        security=conn["security"], set_as_default=False)
+        except Exception as exc:   # noqa: BLE001 - the probe answered; anything now is the link or the scheduler
+            raise ParameterError(f"--dask {shorten(address)}: the scheduler answered, then the client could not "
+                                 f"connect ({type(exc).__name__}: {_first_line(exc)})") from None
+        cluster = Cluster(client, None, addr.text)
     else:
         import signal
         # worker processes started with SIGINT ignored keep ignoring it: Ctrl-C reaches this process
-        # alone, which cancels the tasks and closes the cluster (no traceback from every worker)
+        # alone, which cancels the tasks and stops them (no traceback from every worker). A Ctrl-C
+        # while they start is lost with it (a blocked SIGINT would be held, but the spawned processes
+        # do not inherit the mask): docs/cluster.md, Not handled.
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
         try:
             local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -175,7 +223,9 @@ def connect(address=None, workers=None) -> Cluster:
                 signal.signal(signal.SIGINT, previous)
         try:
             client = distributed.Client(local, set_as_default=False)
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt):
+                _stop_workers(local)
             local.close()
             raise
         cluster = Cluster(client, local, local.scheduler_address)
@@ -187,8 +237,8 @@ def connect(address=None, workers=None) -> Cluster:
                 raise ParameterError(f"--dask {cluster.address}: the scheduler has no workers; start some with "
                                      f"'dask worker {cluster.address}'") from None
         check_workers_build(cluster)
-    except BaseException:
-        cluster.close()
+    except BaseException as exc:
+        cluster.close(at_once=isinstance(exc, KeyboardInterrupt))
         raise
     return cluster
 
@@ -198,26 +248,210 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _check_reachable(address: str) -> None:
-    """A refused or unresolvable TCP scheduler address fails at once (Dask would retry it until its timeout)."""
-    import socket
-    from distributed.comm import get_address_host_port, parse_address
-    try:
-        scheme, _ = parse_address(address)
-    except ValueError as exc:
-        raise ParameterError(f"--dask {address}: not a scheduler address ({exc}); e.g. tcp://10.0.0.5:8786") from None
+
+def _stop_workers(local) -> None:
+    """SIGTERM to the worker processes of a LocalCluster (they hold nothing a render still needs).
+
+    Each nanny is marked as closing first: it then closes when its worker exits, rather than
+    starting a new one (which would log a traceback on stderr when the cluster closes it).
+    """
+    import signal
+    from distributed.core import Status
+    for nanny in list(getattr(local, "workers", {}).values()):
+        pid = getattr(getattr(nanny, "process", None), "pid", None)
+        if pid:
+            nanny.status = Status.closing_gracefully
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except OSError:   # gone already
+                pass
+
+
+@dataclass(frozen=True)
+class SchedulerAddress:
+    """A scheduler address as given, and its parts."""
+    text: str
+    scheme: str
+    host: str
+    port: int
+
+    @property
+    def secure(self) -> bool:
+        return self.scheme in SECURE_SCHEMES
+
+
+def parse_address(address: str) -> SchedulerAddress:
+    """``scheme://host:port`` checked (scheme tcp:// when none is given), one line naming the part that is wrong."""
+    text = address.strip()
+    where = f"--dask {shorten(address)}"
+    example = "e.g. tcp://10.0.0.5:8786 (what 'dask scheduler' prints)"
+    if not text:
+        raise ParameterError(f"--dask: give the scheduler's address, {example}")
+    if not text.isprintable():
+        raise ParameterError(f"--dask {quoted(address)}: control characters in the address; {example}")
+    scheme, sep, loc = text.partition("://")
+    if not sep:
+        scheme, loc = "tcp", text
+    scheme = scheme.lower()
     if scheme not in SCHEMES:
-        raise ParameterError(f"--dask {address}: '{scheme}://' is not a scheduler address Dask can reach "
-                             f"(use {', '.join(s + '://' for s in SCHEMES)}), e.g. tcp://10.0.0.5:8786")
-    if scheme not in ("tcp", "tls"):
-        return
+        raise ParameterError(f"{where}: '{shorten(scheme)}://' is not a scheduler address Dask can reach "
+                             f"(use {', '.join(s + '://' for s in SCHEMES)}), {example}")
+    loc = loc.rstrip("/")
+    if loc.startswith("["):                      # [IPv6]:port
+        host, _, rest = loc[1:].partition("]")
+        port_text = rest[1:] if rest.startswith(":") else (None if not rest else rest)
+    else:
+        host, sep, port_text = loc.rpartition(":")
+        if not sep:
+            host, port_text = loc, None
+    if not host:
+        raise ParameterError(f"{where}: no host; give the scheduler's host and port, {example}")
+    if port_text is None:
+        raise ParameterError(f"{where}: no port; give the port the scheduler listens on ({DEFAULT_PORT} unless "
+                             f"told otherwise), {example}")
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ParameterError(f"{where}: port {quoted(port_text)} is not a port number (1 to 65535), {example}")
+    return SchedulerAddress(text, scheme, host, int(port_text))
+
+
+def connection_args(addr: SchedulerAddress) -> dict:
+    """Dask's connection arguments for ``addr``: from Dask's configuration (``distributed.comm.tls.*`` and
+    ``require-encryption``), read as ``distributed.Security()`` reads them.  tls:// and wss:// need a CA
+    file and the client's certificate and key there."""
+    distributed = _distributed()
+    where = f"--dask {shorten(addr.text)}"
     try:
-        host, port = get_address_host_port(address)
-        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
-    except (OSError, ValueError) as exc:
-        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-        raise ParameterError(f"--dask {address}: no Dask scheduler answers there ({reason}); start one with "
-                             f"'dask scheduler' and workers with 'dask worker ADDRESS'") from None
+        security = distributed.Security()
+        args = security.get_connection_args("client")
+    except (OSError, ValueError, TypeError) as exc:   # ssl.SSLError is an OSError: a file missing or not PEM
+        import dask
+        tls = dask.config.get("distributed.comm.tls", {}) or {}
+        client = tls.get("client", {}) or {}
+        files = [(name, value) for name, value in (("ca-file", tls.get("ca-file")), ("client.cert", client.get("cert")),
+                                                   ("client.key", client.get("key"))) if value]
+        missing = [f"{name} {shorten(value, 200)}" for name, value in files
+                   if not str(value).lstrip().startswith("-----BEGIN") and not os.path.isfile(value)]
+        if missing:
+            what = f"no such file: distributed.comm.tls.{', '.join(missing)}"
+        else:
+            what = (f"{_first_line(exc)}: distributed.comm.tls."
+                    f"{', '.join(f'{n} {shorten(v, 200)}' for n, v in files) or ' (nothing set)'}")
+        raise ParameterError(f"{where}: Dask's TLS settings cannot be used ({what})") from None
+    if addr.secure and args.get("ssl_context") is None:
+        raise ParameterError(f"{where}: {addr.scheme}:// needs Dask's TLS settings: set distributed.comm.tls.ca-file, "
+                             f"distributed.comm.tls.client.cert and distributed.comm.tls.client.key in Dask's "
+                             f"configuration (docs/cluster.md)")
+    if args.get("require_encryption") and not addr.secure:
+        raise ParameterError(f"{where}: Dask's configuration requires encryption "
+                             f"(distributed.comm.require-encryption): give a tls:// address")
+    return {"security": security, "args": args}
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return shorten(text.splitlines()[0], 160) if text else type(exc).__name__
+
+
+def probe_scheduler(addr: SchedulerAddress, args: dict) -> None:
+    """Refuse, in one line naming ``addr`` and what answered there, anything but a Dask scheduler.
+
+    Each step has a timeout (CONNECT_TIMEOUT_S): a refused or unknown address fails at once,
+    a listener that stays silent or answers with bytes that are not Dask's protocol fails
+    within the timeout, without Dask ever sizing a buffer from those bytes beyond what
+    arrives, and a Dask worker or nanny is told apart from the scheduler.
+    """
+    where = f"--dask {shorten(addr.text)}"
+    start = "start one with 'dask scheduler' and workers with 'dask worker ADDRESS'"
+    if addr.scheme != "ucx":     # every other comm runs over TCP: refused or unknown at once
+        import socket
+        try:
+            socket.create_connection((addr.host, addr.port), timeout=CONNECT_TIMEOUT_S).close()
+        except UnicodeError:   # a label longer than DNS allows (63), ...
+            raise ParameterError(f"{where}: {quoted(addr.host)} is not a host name DNS can look up") from None
+        except OSError as exc:
+            reason = getattr(exc, "strerror", None) or _first_line(exc)
+            raise ParameterError(f"{where}: no Dask scheduler answers there ({reason}); {start}") from None
+    from distributed.comm.registry import get_backend
+    try:
+        get_backend(addr.scheme).get_connector()
+    except Exception as exc:   # noqa: BLE001 - e.g. ucx://, which distributed 2025+ moved to distributed-ucxx
+        hint = "; UCX needs the distributed-ucxx package" if addr.scheme == "ucx" else ""
+        raise ParameterError(f"{where}: this installation of Dask cannot connect over {addr.scheme}:// "
+                             f"({type(exc).__name__}: {_first_line(exc)}){hint}") from None
+    result = _in_a_thread(lambda: _identity(addr, args["args"]), CONNECT_TIMEOUT_S + 1.0)
+    if isinstance(result, dict) and result.get("type") == "Scheduler":
+        return
+    if isinstance(result, dict) and result.get("type") in ("Worker", "Nanny"):
+        theirs = result.get("scheduler")
+        raise ParameterError(f"{where}: a Dask {result['type'].lower()} answers there, not the scheduler; give the "
+                             f"scheduler's address{f' ({theirs})' if theirs else ''}")
+    if isinstance(result, dict):
+        raise ParameterError(f"{where}: a Dask {shorten(result.get('type'))} answers there, not a scheduler; {start}")
+    what = _describe(addr, result)
+    raise ParameterError(f"{where}: {what}: not a Dask scheduler; give the address 'dask scheduler' prints")
+
+
+def _in_a_thread(fn, timeout):
+    """fn() in a thread of its own (its own event loop: the caller's may be running, as in Jupyter), waited
+    for at most ``timeout`` s: its result, the exception it raised, or TimeoutError."""
+    import threading
+    box = []
+
+    def target():
+        try:
+            box.append(fn())
+        except BaseException as exc:   # noqa: BLE001 - handed to the caller, who reports it
+            box.append(exc)
+    thread = threading.Thread(target=target, name="caustica-probe", daemon=True)
+    thread.start()
+    thread.join(timeout)
+    return box[0] if box else TimeoutError(f"no answer in {timeout:g} s")
+
+
+def _identity(addr: SchedulerAddress, args: dict):
+    """Dask's handshake and its ``identity`` call at ``addr``, each within CONNECT_TIMEOUT_S."""
+    import asyncio
+    import warnings
+    from distributed.comm import connect as comm_connect
+
+    async def ask():
+        comm = await asyncio.wait_for(comm_connect(f"{addr.scheme}://{_loc(addr)}", timeout=CONNECT_TIMEOUT_S,
+                                                   **args), CONNECT_TIMEOUT_S)
+        try:
+            await asyncio.wait_for(comm.write({"op": "identity", "reply": True}), CONNECT_TIMEOUT_S)
+            return await asyncio.wait_for(comm.read(), CONNECT_TIMEOUT_S)
+        finally:
+            comm.abort()
+    with warnings.catch_warnings():          # e.g. ucx's FutureWarning: it is reported as the error instead
+        warnings.simplefilter("ignore")
+        return asyncio.run(ask())
+
+
+def _loc(addr: SchedulerAddress) -> str:
+    return f"[{addr.host}]:{addr.port}" if ":" in addr.host else f"{addr.host}:{addr.port}"
+
+
+def _describe(addr: SchedulerAddress, error: BaseException) -> str:
+    """What answered at ``addr`` when Dask's handshake failed with ``error``: for plain TCP, the first
+    bytes it sends on its own (a Dask scheduler greets at once), read within SNIFF_S."""
+    if isinstance(error, TimeoutError):
+        waited = f"no Dask handshake over {addr.scheme}:// within {CONNECT_TIMEOUT_S:g} s"
+    else:
+        waited = f"Dask's {addr.scheme}:// handshake failed ({type(error).__name__}: {_first_line(error)})"
+    if addr.scheme != "tcp":
+        return waited
+    import socket
+    try:
+        with socket.create_connection((addr.host, addr.port), timeout=SNIFF_S) as sock:
+            data = sock.recv(64)
+    except socket.timeout:
+        return (f"something accepted the connection but sent nothing (waited {CONNECT_TIMEOUT_S:g} s; a Dask "
+                f"scheduler greets at once, a tls:// one waits for TLS)")
+    except OSError as exc:
+        return f"the connection failed ({getattr(exc, 'strerror', None) or _first_line(exc)})"
+    if not data:
+        return "something accepted the connection and closed it without a word"
+    return f"something answered with bytes that are not Dask's protocol ({shorten(repr(data), 60)})"
 
 
 def _source_hash() -> str:
@@ -530,6 +764,8 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
             client.cancel(list(flying))
         except Exception:   # a scheduler that is gone has nothing left to cancel
             pass
+        if isinstance(exc, KeyboardInterrupt):
+            cluster.interrupted = True   # Ctrl-C: closing stops the local cluster at once
         if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
             log.interrupt(exc)
         elif isinstance(exc, _ClusterFailed):

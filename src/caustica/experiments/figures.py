@@ -123,6 +123,11 @@ def side_by_side(panels, path: Path, *, title: str, mask=None, scene: str = ""):
     _save(fig, path)
 
 
+def _loggable(value) -> bool:
+    """Whether a log axis can show ``value`` (an undefined error, NaN, or an exact 0 cannot)."""
+    return value is not None and math.isfinite(value) and value > 0
+
+
 def convergence_plot(rows, path: Path, scene: str):
     """Caustic-mask and whole-image relative RMSE against wall time (log-log), a line per method."""
     plt = _plt()
@@ -135,13 +140,13 @@ def convergence_plot(rows, path: Path, scene: str):
         style = "--" if peer else (":" if label.startswith("PM+C") else "-")
         color = "black" if peer else palette[(2 * k) % 20 if k < 10 else (2 * k + 1) % 20]
         for ax, key in zip(axes, ("caustic_rel_rmse", "rel_rmse")):
-            pts = [(r["time_s"], r[key]) for r in mine if r.get(key) is not None]
+            pts = [(r["time_s"], r[key]) for r in mine if _loggable(r.get(key))]
             if pts:
                 x, y = zip(*pts)
                 ax.plot(x, y, style, marker="o", ms=3, color=color, label=label)
     floor = [r for r in rows if r.get("method") == "reference"]
     for ax, key, title in zip(axes, ("caustic_rel_rmse", "rel_rmse"), ("caustic mask", "whole image")):
-        if floor and floor[0].get(key):
+        if floor and _loggable(floor[0].get(key)):
             ax.axhline(floor[0][key], color="grey", lw=0.8, ls=":", label=floor[0]["label"])
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -149,5 +154,6 @@ def convergence_plot(rows, path: Path, scene: str):
         ax.set_ylabel("relative RMSE")
         ax.set_title(f"{scene}: {title}")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=7)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=7)
     _save(fig, path)

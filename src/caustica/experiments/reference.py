@@ -154,13 +154,31 @@ def pt_reference(scene, width: int, height: int, *, spp: int, seed: int = 0, cac
                      noise_stats(a, b, mask), a, b, render_s)
 
 
+def check_reference_image(img, label: str, mask=None) -> None:
+    """A reference must have finite pixels and light, over the image and over the caustic mask: every
+    error is relative to it (a zero reference leaves them undefined, NaN in every table and plot)."""
+    metrics.require_finite(img, label)
+    if not np.any(np.asarray(img, np.float64) != 0):
+        raise CausticaError(f"{label}: every pixel is zero; errors relative to it are undefined: give a rendered "
+                            f"reference of the scene")
+    if mask is not None and np.any(mask) and not np.any(np.asarray(img)[mask] != 0):
+        raise CausticaError(f"{label}: every pixel of the caustic mask ({int(np.sum(mask))} pixels) is zero; "
+                            f"the caustic's errors relative to it are undefined: give a rendered reference of "
+                            f"the scene")
+
+
 def user_reference(path, width: int, height: int, mask=None) -> Reference:
-    """An EXR given by the user, with its noise if halves or a JSON sidecar sit beside it."""
+    """An EXR given by the user, with its noise if halves or a JSON sidecar sit beside it.
+
+    Refused (CausticaError) when its size is not the experiment's or when
+    :func:`check_reference_image` refuses it (over ``mask`` too, when given).
+    """
     p = Path(path)
     img = read_exr(p)
     if img.shape[:2] != (height, width):
         raise CausticaError(f"--reference {p}: it is {img.shape[1]}x{img.shape[0]} but the experiment "
                             f"renders {width}x{height}; give --res {img.shape[1]}")
+    check_reference_image(img, f"--reference {p}", mask)
     ref = Reference(img, str(p))
     pa, pb = p.with_name(p.stem + "_a.exr"), p.with_name(p.stem + "_b.exr")
     if pa.is_file() and pb.is_file():

@@ -38,6 +38,7 @@ def render_job(scene, method: str, kw: dict, warm, warmed: set, threads):
     ``warm`` is None or (key, seed): the first job of a key in this process (``warmed``
     holds the keys done) renders once untimed at WARM_RES with that seed first, so its
     kernels compile (or load from the cache) there and no timed render pays for it.
+    A render that Ctrl-C cut short raises KeyboardInterrupt rather than being returned.
     """
     if warm is not None and warm[0] not in warmed:
         untimed = {k: v for k, v in kw.items() if k not in NOT_WARMED}
@@ -45,6 +46,10 @@ def render_job(scene, method: str, kw: dict, warm, warmed: set, threads):
         warmed.add(warm[0])
     t0 = time.perf_counter()
     result = render(scene, method, threads=threads, **kw)
+    if result.stats.get("interrupted"):
+        # Ctrl-C during a multi-pass render returns the passes finished so far: an experiment would score
+        # them as if the render had run its budget.  It stops the experiment instead (exit 130).
+        raise KeyboardInterrupt
     return result, time.perf_counter() - t0
 
 

@@ -26,8 +26,8 @@ import numpy as np
 
 from .. import driver, methods
 from ..api import check_common, load_scene, resolve_settings
-from ..errors import CausticaError, ParameterError, SceneError
-from ..imageio import atomic_write, read_exr, write_json, write_png
+from ..errors import ParameterError, SceneError, quoted
+from ..imageio import atomic_write, write_json, write_png
 from ..limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
 from ..methods.params import Param, non_negative, positive, resolve
 from . import metrics as M
@@ -143,6 +143,8 @@ class Config:
     workers: int | None = None                       # or a local cluster of this many worker processes
 
     def __post_init__(self):
+        if not str(self.out).strip():   # Path("") is the working directory: never write there unasked
+            raise ParameterError("-o: the output folder is empty; give e.g. -o out/experiments")
         self.out = Path(self.out)
         self.res_given = self.res is not None
         if self.res is None:
@@ -315,13 +317,11 @@ class Runner:
         return self.masks[name]
 
     def _user_reference_path(self, scene_name):
-        refs = self.cfg.references
-        for item in refs:
-            if "=" in item:
-                k, v = item.split("=", 1)
-                if k == scene_name:
-                    return Path(v)
-        plain = [Path(i) for i in refs if "=" not in i]
+        refs = [split_reference(item) for item in self.cfg.references]
+        for scene, path in refs:
+            if scene == scene_name:
+                return path
+        plain = [path for scene, path in refs if scene is None]
         for p in plain:
             if p.is_dir():
                 cand = p / f"{scene_name}_{self.cfg.res}.exr"
@@ -571,10 +571,7 @@ class Runner:
         for scene_name in sorted(measured_scenes(names)):
             path = self._user_reference_path(scene_name)
             if path is not None:
-                img = read_exr(path)
-                if img.shape[:2] != (r, r):
-                    raise CausticaError(f"--reference {path}: it is {img.shape[1]}x{img.shape[0]} but the "
-                                        f"experiment renders {r}x{r}; give --res {img.shape[1]}")
+                user_reference(path, r, r)   # its size and its pixels (the mask's are checked when it is made)
                 continue
             scene = self.scene(scene_name)
             seed = cfg.seed + REFERENCE_SEED_OFFSET
@@ -1003,6 +1000,38 @@ def measured_scenes(names) -> set[str]:
     return {scene for n in names if n not in UNMEASURED for scene in scenes_of(n)}
 
 
+def split_reference(item: str) -> tuple[str | None, Path]:
+    """``--reference`` as (scene or None, path): SCENE=PATH, or a path (which may hold '=' if it exists)."""
+    if "=" in item and not Path(item).exists():
+        scene, path = item.split("=", 1)
+        return scene, Path(path)
+    return None, Path(item)
+
+
+def check_references(references, measured) -> None:
+    """Every --reference names an existing file or folder and, as SCENE=PATH, a scene these experiments
+    measure (once); a plain file only when they measure one scene."""
+    seen = {}
+    for item in references:
+        scene, path = split_reference(item)
+        if not path.exists():
+            raise ParameterError(f"--reference {quoted(item)}: no such file or folder: {quoted(str(path))}")
+        if scene is None:
+            if not path.is_dir() and len(measured) > 1:
+                raise ParameterError(f"--reference {item}: these experiments measure {len(measured)} scenes "
+                                     f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
+            continue
+        if scene not in measured:
+            what = f"the scenes measured: {', '.join(sorted(measured))}" if measured else \
+                "these experiments measure no scene (their figures are not compared with a reference)"
+            raise ParameterError(f"--reference {quoted(item)}: {quoted(scene)} is not a scene these experiments "
+                                 f"measure; {what}")
+        if scene in seen:
+            raise ParameterError(f"--reference {quoted(item)}: {scene} has a reference already ({seen[scene]}); "
+                                 f"give one per scene")
+        seen[scene] = item
+
+
 @contextlib.contextmanager
 def _renders(config: Config, log):
     """Where the renders run: here, or on the cluster of ``--dask``/``--workers`` (connected for the run;
@@ -1012,14 +1041,11 @@ def _renders(config: Config, log):
         return
     from ..cluster import connect
     from .dask_renders import DaskRenders
-    cluster = connect(config.dask, config.workers)
-    try:
+    with connect(config.dask, config.workers) as cluster:   # Ctrl-C: a local cluster stops at once
         n = len(cluster.worker_threads)
         log(f"rendering on the Dask cluster at {cluster.address}: {n} worker{'' if n == 1 else 's'}, "
             f"{cluster.threads} threads")
-        yield DaskRenders(cluster)
-    finally:
-        cluster.close()      # leaves a caller's own Client open (Cluster.owned)
+        yield DaskRenders(cluster)    # closing leaves a caller's own Client open (Cluster.owned)
 
 
 def run(names, config: Config) -> dict:
@@ -1033,11 +1059,7 @@ def run(names, config: Config) -> dict:
         refs = shared_refs_dir()
         if not config.references and refs is not None and any(refs.glob(f"*_{config.res}.exr")):
             config.references.append(str(refs))
-    measured = measured_scenes(names)
-    plain_files = [r for r in config.references if "=" not in r and not Path(r).is_dir()]
-    if plain_files and len(measured) > 1:
-        raise ParameterError(f"--reference {plain_files[0]}: these experiments measure {len(measured)} scenes "
-                             f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
+    check_references(config.references, measured_scenes(names))
     runner = Runner(config)
     runner.preflight(names)   # nothing is created before every check has passed
     # an unreachable scheduler fails here, in one line, before anything is created

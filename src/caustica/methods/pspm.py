@@ -68,7 +68,7 @@ def stream_radius(scene, settings, radius) -> float:
 @register
 class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     name = "pspm"
-    summary = "progressive streamed photon mapping: SPPM's per-pixel statistics over streams (consistent)"
+    summary = "progressive streamed photon mapping: SPPM's per-pixel statistics over streams"
     params = (
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),

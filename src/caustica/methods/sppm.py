@@ -46,7 +46,7 @@ def photon_counts(scene, settings) -> tuple[int, int]:
 @register
 class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     name = "sppm"
-    summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass (consistent)"
+    summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass"
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
                                     "aimed at the mirrors and glass, if any, when --caustic-photons is not given)",

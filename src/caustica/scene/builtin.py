@@ -26,7 +26,7 @@ _SCENES = {
     "cornell-bunny": "the Stanford bunny in the Cornell box: the paper's Fig. 6 "
                      "(needs bunny.ply, not shipped; see CAUSTICA_DATA_PATH)",
     "cornell-diacaustic-fog": "the diacaustic scene filled with a thin fog (mean free path 20, the box's size): "
-                              "the light's cone and the sphere's focused beam show (pt only; docs/media.md)",
+                              "the light's cone and the sphere's focused beam show (every method renders it; docs/media.md)",
 }
 
 #: What to tell users about data files that are not shipped with caustica.
