@@ -74,7 +74,8 @@ def test_mean_err_is_the_signed_energy_difference():
 
 
 def test_seed_statistics_are_mean_and_sample_sd():
-    from caustica.experiments.runner import _cell, seed_statistics
+    from caustica.experiments.runner import seed_statistics
+    from caustica.experiments.tables import _cell
     st = seed_statistics([{"caustic_block_err": 0.1, "ssim": 0.5}, {"caustic_block_err": 0.3, "ssim": 0.7}])
     assert st["caustic_block_err"] == pytest.approx(0.2)
     assert st["caustic_block_err_sd"] == pytest.approx(np.std([0.1, 0.3], ddof=1))

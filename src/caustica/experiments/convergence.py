@@ -26,14 +26,13 @@ from __future__ import annotations
 import math
 
 import os
-import time
 from pathlib import Path
 
 import numpy as np
 
 from ..imageio import atomic_write
-from ..scene import builtin_scene_path
 from . import metrics as M
+from .mitsuba import mitsuba_equal_time, mitsuba_module  # noqa: F401 (the peer, as the benchmarks import it)
 
 SCENES = ("cornell-diacaustic", "cornell-catacaustic")
 BUDGETS_S = (5.0, 10.0, 30.0, 90.0)
@@ -52,11 +51,6 @@ PROGRESSIVE = (
 #: PM + caustic map at these photon counts (global = caustic), one shot each.
 PMC_PHOTONS = (25_000, 100_000, 400_000)
 QUICK_PMC_PHOTONS = (5_000,)
-MITSUBA_SPP_PER_PASS = 4
-#: Mitsuba's render(spp, seed) is a prefix of render(more spp, same seed), and shared/refs was rendered
-#: in passes seeded 0, 1, 2, ...: the peer's passes start far past those seeds, so that its samples are
-#: independent of the reference's (peer_floor assumes it).
-MITSUBA_SEED_BASE = 1 << 20
 MITSUBA_LABEL = "Mitsuba 3 path (scalar_rgb)"
 
 
@@ -96,7 +90,7 @@ def peer_floor(ref, peer_rows) -> dict:
 
     Only for a reference rendered by Mitsuba's path tracer with a known sample count N_ref
     (``shared/refs``): the peer renders are the same estimator with N_b samples, independent of
-    the reference's (MITSUBA_SEED_BASE), so their expected relative MSE against the reference is
+    the reference's (mitsuba.MITSUBA_SEED_BASE), so their expected relative MSE against the reference is
     v / N_b + v / N_ref, with v the estimator's per-sample relative variance.  Each budget gives
     v_b = relMSE_b / (1 / N_b + 1 / N_ref); they are pooled weighted by N_b, since a path
     tracer's caustic is heavy-tailed and few samples tend to underestimate v; the reference's
@@ -121,35 +115,6 @@ def shared_refs_dir() -> Path | None:
     env = os.environ.get("CAUSTICA_SHARED")
     cand = Path(env) / "refs" if env else Path(__file__).resolve().parents[4] / "shared" / "refs"
     return cand if cand.is_dir() else None
-
-
-def mitsuba_module():
-    """Mitsuba 3 with the scalar_rgb variant, or None when it is not installed."""
-    try:
-        import mitsuba as mi
-        mi.set_variant("scalar_rgb")
-    except Exception:  # not installed, or the variant is not compiled in: the peer column is left out
-        return None
-    return mi
-
-
-def mitsuba_equal_time(mi, scene_name, res, budget_s, seed):
-    """Mitsuba's path tracer, passes of a few spp (new seed each) until the next would cross the budget."""
-    scene = mi.load_file(str(builtin_scene_path(scene_name)), res=res)
-    mi.render(scene, spp=1, seed=2**31)   # untimed, as caustica's warm-up
-    acc = None
-    passes = 0
-    t0 = time.perf_counter()
-    last = 0.0
-    while passes == 0 or time.perf_counter() - t0 + last <= budget_s:
-        t1 = time.perf_counter()
-        img = np.array(mi.render(scene, spp=MITSUBA_SPP_PER_PASS,
-                                 seed=(MITSUBA_SEED_BASE + seed * 100_003 + passes) % 2**32),
-                       dtype=np.float64)[..., :3]
-        acc = img if acc is None else acc + img
-        passes += 1
-        last = time.perf_counter() - t1
-    return (acc / passes).astype(np.float32), time.perf_counter() - t0, passes * MITSUBA_SPP_PER_PASS
 
 
 class Convergence:
@@ -244,7 +209,7 @@ class Convergence:
             rows.append({"scene": name, "label": label, "method": "reference", "budget_s": None,
                          "time_s": None, "passes": ref.spp, **floor})
         tables, figures = {}, []
-        from .runner import markdown_table, write_csv
+        from .tables import markdown_table, write_csv
         cols = ("label", "budget_s", "time_s", "passes", "caustic_rel_rmse", "rel_rmse", "caustic_block_err",
                 "block_err", "caustic_flip", "flip")
         headers = {"label": "method", "budget_s": "budget s", "time_s": "time s", "passes": "passes / spp",

@@ -59,13 +59,13 @@ def mitsuba_task(scene_name: str, res: int, budget_s: float, seed: int):
     """Mitsuba 3's equal-time render on this worker, with as many threads as caustica's renders here get."""
     import drjit as dr
 
-    from .convergence import mitsuba_equal_time, mitsuba_module
+    from .mitsuba import mitsuba_equal_time, mitsuba_module
     dr.set_thread_count(_worker_threads())
     return mitsuba_equal_time(mitsuba_module(), scene_name, res, budget_s, seed)
 
 
 def _has_mitsuba() -> bool:
-    from .convergence import mitsuba_module
+    from .mitsuba import mitsuba_module
     return mitsuba_module() is not None
 
 

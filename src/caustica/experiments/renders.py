@@ -65,12 +65,12 @@ class LocalRenders:
         return Pending(lambda: render_job(scene, method, kw, warm, self.warmed, self.threads))
 
     def submit_mitsuba(self, scene_name: str, res: int, budget_s: float, seed: int) -> Pending:
-        """Mitsuba 3's equal-time render (:func:`.convergence.mitsuba_equal_time`): (image, seconds, spp)."""
-        from .convergence import mitsuba_equal_time, mitsuba_module
+        """Mitsuba 3's equal-time render (:func:`.mitsuba.mitsuba_equal_time`): (image, seconds, spp)."""
+        from .mitsuba import mitsuba_equal_time, mitsuba_module
         return Pending(lambda: mitsuba_equal_time(mitsuba_module(), scene_name, res, budget_s, seed))
 
     def has_mitsuba(self) -> bool:
-        from .convergence import mitsuba_module
+        from .mitsuba import mitsuba_module
         return mitsuba_module() is not None
 
     def describe(self):

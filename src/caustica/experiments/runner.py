@@ -13,8 +13,6 @@ Every measured configuration is rendered with ``config.seeds`` seeds (seed, seed
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import math
 import re
 import sys
@@ -36,6 +34,7 @@ from .masks import caustic_mask
 from .reference import Reference, _spp_halves, cache_folder, check_cache_writable, is_cached, pt_reference, \
     submit_halves, user_reference
 from .renders import LocalRenders
+from .tables import _fmt, markdown_table, write_csv
 
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation", "convergence")
 #: What ``all`` runs: the paper's experiments and the ablation (``convergence`` takes half an hour: ask for it).
@@ -92,8 +91,6 @@ ABLATION = (
      {"passes": ABLATION_PASSES, "specular": "split"}),
 )
 ABLATION_FIXED = ("streams", "assoc", "stream_radius", "estimator", "photons", "caustic_photons", "specular")
-#: Metrics whose seed spread the Markdown tables show as "mean ± s.d." (the CSVs hold every *_sd).
-SPREAD_SHOWN = ("block_err", "caustic_block_err", "mean_err", "caustic_mean_err")
 #: The error that equal-time / equal-error compare.
 #: relMSE over the ~1000 caustic pixels is dominated by a few outlier pixels and is not monotone
 #: in the photon budget (it cannot be inverted); the block-mean error falls steadily.
@@ -172,50 +169,6 @@ class Config:
     @property
     def on_cluster(self) -> bool:
         return self.dask is not None or self.workers is not None
-
-
-def _fmt(v, digits=4):
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "n/a"
-        if v == 0:
-            return "0"
-        if abs(v) >= 1000:
-            return f"{v:,.0f}"
-        if abs(v) < 1e-3:
-            return f"{v:.2e}"
-        return f"{v:.{digits}g}"
-    if isinstance(v, int) and not isinstance(v, bool):
-        return f"{v:,}"
-    return str(v)
-
-
-def write_csv(path: Path, rows: list[dict], columns) -> Path:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
-    w.writeheader()
-    for row in rows:
-        w.writerow({k: ("" if row.get(k) is None else row.get(k)) for k in columns})
-    text = buf.getvalue()
-    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def _cell(row: dict, col: str) -> str:
-    """A table cell: the value, and "± s.d." over seeds for the metrics in SPREAD_SHOWN."""
-    v, sd = row.get(col), row.get(col + "_sd")
-    if col in SPREAD_SHOWN and isinstance(v, float) and isinstance(sd, float) and math.isfinite(sd):
-        return f"{_fmt(v, 3)} ± {_fmt(sd, 2)}"
-    return _fmt(v)
-
-
-def markdown_table(rows: list[dict], columns, headers=None) -> str:
-    headers = headers or {}
-    head = "| " + " | ".join(headers.get(c, c) for c in columns) + " |"
-    sep = "| " + " | ".join("---" for _ in columns) + " |"
-    body = ["| " + " | ".join(_cell(r, c) for c in columns) + " |" for r in rows]
-    return "\n".join([head, sep, *body]) + "\n"
 
 
 HEADERS = {"label": "configuration", "photons_emitted": "photons", "map_mb": "map MB", "time_s": "time s",
