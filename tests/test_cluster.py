@@ -477,7 +477,7 @@ def test_ctrl_c_stops_a_render_on_a_local_cluster_within_a_second(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 130, err
-    assert "interrupted: wrote the image" in err and (tmp_path / "x.exr").is_file()
+    assert "interrupted (SIGINT): wrote the image" in err and (tmp_path / "x.exr").is_file()
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert stopped < 1.5, stopped
 
