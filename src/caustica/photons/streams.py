@@ -65,32 +65,24 @@ SPLIT_DISC_TAG = 2
 MEDIUM_SCATTERING = ("merge", "spread")
 
 
-@kernel
-def split_off(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces, slot0, split):
-    """An associated photon that leaves its stream at a mirror or glass (``--specular split``).
-
-    From o along d (in ``medium``) it is a photon of its own (:func:`caustica.photons.trace.trace_one`):
-    its own specular chain (Fresnel per photon, numbers from its own key), stored where it lands
-    (unless that is direct light) and at every later diffuse hit, in its own slots slot0 .. slot0 + mr
-    of ``split``.  It decays as an associated photon does (survives a diffuse bounce with p = mean
-    albedo, power scaled by albedo / p) and ends after the stream's ``max_bounces`` in all.  What
-    escapes or is absorbed on its way is lost, as any photon's power is.
-    """
-    trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces,
-              TERMINATION_ROULETTE, False, slot0, max_bounces + 1, split)
-
-
 @kernel(inline=True)
-def split_off_at(geom, mats, media, key, o, d, power, split_path, k, split):
-    """:func:`split_off` for the stream's split photon number split_path[1] + k: its key and its slots.
+def split_off(geom, mats, media, key, o, d, power, split_path, k, split):
+    """An associated photon that leaves its stream at a mirror or glass (``--specular split``): the stream's
+    split photon number split_path[1] + k, with ``split_path`` = (the stream's first split path, its split
+    photons so far, its medium, diffuse bounces, whether it has scattered, max_bounces).
 
-    ``split_path``: (the stream's first split path, its split photons so far, its medium, diffuse
-    bounces, whether it has scattered, max_bounces).
+    From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`) with a key of its
+    own: its own specular chain (Fresnel per photon), stored where it lands (unless that is direct light)
+    and at every later diffuse hit, in its own mr + 1 slots of ``split``.  It decays as an associated
+    photon does (survives a diffuse bounce with p = mean albedo, power scaled by albedo / p) and ends
+    after the stream's ``max_bounces`` in all.  What escapes or is absorbed on its way is lost, as any
+    photon's power is.
     """
     first_path, before, medium, diffuse_bounces, scattered, max_bounces = split_path
     index = before + k
-    split_off(geom, mats, media, path_key(key, SPLIT_TAG, index), o, d, power, medium, diffuse_bounces, scattered,
-              max_bounces, (first_path + index) * (max_bounces + 1), split)
+    trace_one(geom, mats, media, path_key(key, SPLIT_TAG, index), o, d, power, medium, diffuse_bounces, scattered,
+              max_bounces, TERMINATION_ROULETTE, False, (first_path + index) * (max_bounces + 1), max_bounces + 1,
+              split)
 
 
 @kernel(inline=True)
@@ -146,7 +138,7 @@ def place_associated(geom, mats, media, o, n_from, x_lead, d_lead, r_s, key, dim
     Returns (landed, split off): ``landed`` photons met a diffuse surface and are written to
     assoc slots [r * n_assoc, ...) when ``store``; the rest merge into the leading photon —
     except, with ``split``, those whose ray meets a mirror or glass, which leave the stream as
-    photons of their own (:func:`split_off_at`).  ``n_from`` is the normal of the surface o lies
+    photons of their own (:func:`split_off`).  ``n_from`` is the normal of the surface o lies
     on, facing the side the stream leaves by (zero for a point light or a point in a medium): a
     photon whose direction q - o points into that surface cannot leave it and is merged (before
     this check such rays met the surface again at t ~ 1e-4 and landed where the stream left from).
@@ -167,7 +159,7 @@ def place_associated(geom, mats, media, o, n_from, x_lead, d_lead, r_s, key, dim
         m = geom.prim_material[prim]
         if mats.kind[m] != DIFFUSE:
             if split:
-                split_off_at(geom, mats, media, key, o, d, p_assoc, split_path, n_split, split_buf)
+                split_off(geom, mats, media, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
@@ -214,7 +206,7 @@ def spread_in_medium(geom, o, x_lead, d_lead, r_s, key, dim, n_alive, store, r, 
 def split_at_specular(geom, mats, media, key, o, n_from, x, d, r_s, n_alive, p_assoc, lead, split_path, split_buf):
     """At the leading photon's mirror or glass hit x (``--specular split``): each associated photon is aimed
     from o through a point of the disc of radius r_s about x (numbers of its own disc key) and leaves the
-    stream (:func:`split_off_at`), unless its ray goes into the surface o lies on, escapes or meets a black
+    stream (:func:`split_off`), unless its ray goes into the surface o lies on, escapes or meets a black
     back first (then it merges).  Returns (the leading photon's power, split photons added).
     """
     s_ax, t_ax = vec.orthonormal_basis(d)
@@ -226,7 +218,7 @@ def split_at_specular(geom, mats, media, key, o, n_from, x, d, r_s, n_alive, p_a
         q = vec.madd(vec.madd(x, s_ax, u * r_s), t_ax, v * r_s)
         dj = vec.normalize(vec.sub(q, o))
         if leaves_by(geom, mats, o, dj, n_from, check_side):
-            split_off_at(geom, mats, media, key, o, dj, p_assoc, split_path, k, split_buf)
+            split_off(geom, mats, media, key, o, dj, p_assoc, split_path, k, split_buf)
             k += 1
         else:
             lead = vec.add(lead, p_assoc)  # into its surface, escaped or a black back: merged
