@@ -93,3 +93,22 @@ def full_disk_exr(monkeypatch):
 
         monkeypatch.setattr(OpenEXR, "File", FullDisk)
     return install
+
+
+@pytest.fixture
+def interrupt_at_pass(monkeypatch):
+    """``interrupt_at_pass(method, passes, exc=KeyboardInterrupt)``: the method's pass number ``passes`` raises
+    ``exc`` (an interrupt arriving then) instead of running; the passes before it run as usual."""
+    import caustica
+
+    def install(method, passes, exc=KeyboardInterrupt):
+        cls = caustica.methods.get(method)
+        real = cls.run_pass.__func__
+
+        def run_pass(klass, scene, settings, state, progress):
+            if state.passes == passes:
+                raise exc()
+            return real(klass, scene, settings, state, progress)
+
+        monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    return install

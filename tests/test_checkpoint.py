@@ -272,16 +272,8 @@ def test_an_interrupt_during_a_periodic_save_stops_after_it_without_saving_twice
     assert r.stats["interrupted_by"] == "SIGINT"
 
 
-def test_sigterm_is_handled_as_ctrl_c_with_exit_143(cli, tmp_path, monkeypatch):
-    cls = caustica.methods.get("sppm")
-    real = cls.run_pass.__func__
-
-    def run_pass(klass, scene, settings, state, progress):
-        if state.passes == 2:
-            raise interrupts.Terminated()   # what the CLI's SIGTERM handler raises
-        return real(klass, scene, settings, state, progress)
-
-    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+def test_sigterm_is_handled_as_ctrl_c_with_exit_143(cli, tmp_path, interrupt_at_pass):
+    interrupt_at_pass("sppm", 2, interrupts.Terminated)   # what the CLI's SIGTERM handler raises
     ck = tmp_path / "state.npz"
     code, _, err = cli("render", SCENE, "--method", "sppm", "--res", "8", "--passes", "9", "--checkpoint", ck,
                        "-o", tmp_path / "x.exr", "-q")

@@ -423,21 +423,12 @@ def _cut_down_convergence(monkeypatch, budget=0.4):
     monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))
 
 
-def test_ctrl_c_stops_the_convergence_experiment_and_scores_nothing(cli, tmp_path, monkeypatch):
+def test_ctrl_c_stops_the_convergence_experiment_and_scores_nothing(cli, tmp_path, monkeypatch, interrupt_at_pass):
     """Ctrl-C in a timed render (here: as pt's third pass starts) used to return the two passes finished,
     which the table then scored as the render of the whole budget, and the experiment went on. Now it
     stops the experiment: exit 130, one line, no table written."""
-    import caustica
     _cut_down_convergence(monkeypatch, budget=30.0)
-    cls = caustica.methods.get("pt")
-    real = cls.run_pass.__func__
-
-    def run_pass(klass, scene, settings, state, progress):
-        if state.passes == 2:
-            raise KeyboardInterrupt
-        return real(klass, scene, settings, state, progress)
-
-    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    interrupt_at_pass("pt", 2)
     out = tmp_path / "exp"
     code, _, err = cli("experiment", "convergence", "--quick", "--res", "16", "-o", out, "--cache-dir",
                        tmp_path / "cache", "-q")

@@ -618,17 +618,9 @@ def test_cli_checkpoint_may_not_be_an_output(cli, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_cli_interrupted_progressive_render_writes_the_finished_passes(cli, tmp_path, monkeypatch):
+def test_cli_interrupted_progressive_render_writes_the_finished_passes(cli, tmp_path, interrupt_at_pass):
     import json
-    cls = caustica.methods.get("sppm")
-    real = cls.run_pass.__func__
-
-    def run_pass(klass, scene, settings, state, progress):
-        if state.passes == 2:
-            raise KeyboardInterrupt
-        return real(klass, scene, settings, state, progress)
-
-    monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
+    interrupt_at_pass("sppm", 2)
     code, _, err = cli("render", "cornell-diacaustic", "--method", "sppm", "--res", "8", "--passes", "9",
                        "-o", tmp_path / "x.exr", "-q")
     assert code == 130 and "2 passes" in err
