@@ -251,7 +251,7 @@ def test_camera_pass_adds_a_light_seen_in_glass_with_its_fresnel_weight():
     """A camera ray meets glass at 45 degrees and its reflection meets an area light: every pass adds
     F Le (the light's expected share), instead of Le in a fraction F of the passes and 0 in the rest."""
     from test_pt import scene_from_xml, sensor_xml
-    from caustica.bsdf import fresnel_dielectric
+    from caustica.bsdfs.optics import fresnel_dielectric
     le = np.array([2.0, 3.0, 4.0])
     scene = scene_from_xml(f"""<scene version="3.0.0">
         {sensor_xml((0, -2, 2), (0, 0, 0), (0, 0, 1), 0.01, 1, 1)}

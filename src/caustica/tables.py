@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bsdf import MaterialTable, build_material_table
+from .bsdfs import MaterialTable, build_material_table
 from .camera import CameraParams, camera_params
 from .emitters import LightTable, build_light_table
 from .errors import SceneError

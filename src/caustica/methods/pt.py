@@ -1,9 +1,9 @@
 """Method ``pt``: unidirectional path tracing, the unbiased reference.
 
-Next-event estimation at every diffuse vertex with multiple importance sampling
-(power heuristic) against BSDF sampling for area lights; mirrors and glass are
-followed as Dirac deltas (glass chooses reflection or refraction with the Fresnel
-probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
+Next-event estimation at every vertex whose BSDF has a non-delta lobe, with multiple
+importance sampling (power heuristic) against BSDF sampling for area lights; mirrors and
+glass are followed as Dirac deltas (glass chooses reflection or refraction with the Fresnel
+probability); the BSDFs are reached through :mod:`caustica.bsdfs` only; Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
 ``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
 only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
 
@@ -31,14 +31,13 @@ import time
 
 import numpy as np
 
-from ..bsdf import sample_surface, scattering_side
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, eval_pdf, oriented, sample
 from ..camera import generate_ray
 from ..geometry import vec
 from ..jit import borrowed, kernel, parallel_for
 from ..media import free_flight, light_sample, medium_after, phase_pdf, phase_sample, phase_value, \
     power_heuristic
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..scene.description import DIFFUSE
 from ..transport import CROSSED, TRAPPED, surface_interaction
 from . import register
 from .independent import IndependentPasses
@@ -84,9 +83,7 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
                 break
             ng = ns = ng_front = zero
             shape = -1
-            kind = DIFFUSE       # (unused in a medium)
             m = 0
-            rgb = zero
         else:
             # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
@@ -104,12 +101,11 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             if depth >= max_depth:
                 break
             ng_front = ng
-            rgb = vec.row(mats.rgb, m)
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
         in_medium = prim < 0
-        if in_medium or kind == DIFFUSE:
+        if in_medium or mats.flags[m] & SMOOTH:
             # next-event estimation: one light sample, MIS against the phase function or the BSDF
             contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
                 geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
@@ -121,8 +117,9 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
                     w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
                     L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
                 else:
-                    w_l = power_heuristic(pdf_light, cos_s * INV_PI) if is_area else 1.0
-                    L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w_l * INV_PI)
+                    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, ng, ns, wi)
+                    w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
+                    L = vec.madd(L, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale)
         if in_medium:
             wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
             dim += 2
@@ -136,10 +133,14 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             specular = False
             crossings = 0
         else:
-            alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns,
-                                                                            key, dim, beta, eta_scale)
+            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, key, dim)
             if not alive:
                 break
+            beta = vec.hadamard(beta, weight)
+            if lobe & TRANSMISSION:
+                beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
+                eta_scale *= eta * eta
+            specular = lobe & DELTA != 0
             if not specular:
                 pdf_last = pdf
             medium = medium_after(media, shape, ng_front, wi, medium)

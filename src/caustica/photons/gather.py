@@ -21,15 +21,13 @@ import math
 
 import numpy as np
 
-from ..bsdf import dielectric_interface, fresnel_dielectric, mirror_reflect, reflect, refract, \
-    scattering_side
+from ..bsdfs import SMOOTH, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import CONDUCTOR, DIFFUSE
 from .estimate import flux_density
 
 SPLIT_STACK = 8
@@ -68,12 +66,11 @@ def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, 
             if e >= 0 and front:
                 L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
             m = geom.prim_material[prim]
-            kind = mats.kind[m]
             ng_front = ng
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
-            if kind == DIFFUSE:
+            if mats.flags[m] & SMOOTH:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
                 E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, geom.prim_shape[prim], -1,
                                       key, dim, n_strata, fixed_grid, -1)
@@ -87,27 +84,13 @@ def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, 
             depth += 1
             if depth > max_specular:
                 break
-            rgb = vec.row(mats.rgb, m)
-            if kind == CONDUCTOR:
-                wi = mirror_reflect(d, ng, ns)
-                beta = vec.hadamard(beta, rgb)
-                o = vec.offset_origin(p, ng, wi)
-                d = wi
-                continue
-            # glass: split into reflection and refraction, weighted by Fresnel
-            n, n_geo, eta = dielectric_interface(d, ng, ns, mats.eta[m])
-            cos_i = -vec.dot(d, n)
-            if cos_i <= 0.0:
-                n = n_geo
-                cos_i = -vec.dot(d, n)
-            F, cos_t = fresnel_dielectric(cos_i, eta)
-            beta = vec.hadamard(beta, rgb)
-            d_r = reflect(d, n)
+            # a mirror or glass: glass splits into reflection and refraction, weighted by Fresnel
+            d_r, d_t, F, eta, colour = delta_branches(mats, m, d, ng, ns)
+            beta = vec.hadamard(beta, colour)
             if F >= 1.0:
                 o = vec.offset_origin(p, ng, d_r)
                 d = d_r
                 continue
-            d_t = refract(d, n, eta, cos_i, cos_t)
             beta_t = vec.mul(beta, (1.0 - F) / (eta * eta))
             if depth <= SPLIT_DEPTH and top < st_o.shape[0]:
                 o_r = vec.offset_origin(p, ng, d_r)

@@ -41,7 +41,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdf import scattering_side
+from ..bsdfs import SMOOTH, oriented
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -49,12 +49,11 @@ from ..jit import borrowed, kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import DIFFUSE
 from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
                       build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -157,16 +156,15 @@ def place_associated(geom, mats, media, o, n_from, x_lead, d_lead, r_s, key, dim
         if prim < 0:
             continue  # escaped: merged into the leading photon
         m = geom.prim_material[prim]
-        if mats.kind[m] != DIFFUSE:
+        if not mats.flags[m] & SMOOTH:
             if split:
                 split_off(geom, mats, media, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
-        if vec.dot(d, ng) >= 0.0:
-            if mats.twosided[m] == 0:
-                continue  # the black back of a one-sided surface: merged
-            ns = vec.neg(ns)
+        scatters, ng, ns = oriented(mats, m, vec.dot(d, ng) < 0.0, ng, ns)
+        if not scatters:
+            continue  # the black back of a one-sided surface: merged
         if store:
             store_associated(r * n_assoc + landed, p, d, ns, assoc)
         landed += 1
@@ -235,7 +233,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
     if prim < 0:
         return False
     m = geom.prim_material[prim]
-    if mats.kind[m] != DIFFUSE or mats.twosided[m] != 0:
+    if not mats.flags[m] & SMOOTH or mats.twosided[m] != 0:
         return True
     _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
     return vec.dot(d, ng) < 0.0
@@ -328,56 +326,52 @@ def trace_streams(geom, mats, lights, media, light_medium, seed, stream, n_strea
                 break
             ng_front = ng
             split_path = (i * n_assoc, n_split, medium, bounces, scattered, max_bounces)
-            if kind != DIFFUSE:
-                if split and n_alive > 0:   # once per stream at most: no associated photon is left after it
+            smooth = mats.flags[m] & SMOOTH
+            if not smooth:
+                # mirror or glass: the associated photons split off (--specular split; once per stream at
+                # most, as none is left after it) or merge into the leading one
+                if split and n_alive > 0:
                     lead, k = split_at_specular(geom, mats, media, key, o, n_from, p, d, r_s, n_alive, p_assoc,
                                                 lead, split_path, split_buf)
                     n_split += k
                     n_alive = 0
-                # mirror or glass: merge every associated photon (left) into the leading one
                 lead = vec.madd(lead, p_assoc, float(n_alive))
                 n_alive = 0
+            scatters, ng, ns = oriented(mats, m, front, ng, ns)
+            if not scatters:
+                break  # absorbed by the black back of a one-sided surface
+            if smooth:
+                landed, split_now = place_associated(geom, mats, media, o, n_from, p, d, r_s, key, dim, n_alive,
+                                                     p_assoc, store, r, assoc, n_assoc, split, split_path, split_buf)
+                n_split += split_now
+                dim += 2 * n_assoc
+                lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
+                n_alive = landed
+                if store:
+                    # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
+                    # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
+                    store_stream_record(r, p, d, ns, lead, p_assoc, landed, INDIRECT if diffuse_like else CAUSTIC,
+                                        rec)
+                    stored += 1
+                if bounces >= max_bounces:
+                    break
+            alive, d_new, lead, delta, dim = bounce(mats, m, d, ng, ns, lead, key, dim, termination)
+            if not alive:
+                break
+            if delta:
                 specular_events += 1
                 if specular_events > SPECULAR_CAP:
                     break
-                d_new, lead, alive, ng_out = specular_scatter(mats, m, d, ng, ns, lead, front, uniform(key, dim))
-                dim += 1
-                if not alive:
-                    break
-                medium = medium_after(media, shape, ng_front, d_new, medium)
-                o = vec.offset_origin(p, ng_out, d_new)
                 n_from = zero     # associated photons are placed from here only after a split
-                d = d_new
-                scattered = True
-                continue
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # absorbed by the black back of a one-sided surface
-            landed, split_now = place_associated(geom, mats, media, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc,
-                                                 store, r, assoc, n_assoc, split, split_path, split_buf)
-            n_split += split_now
-            dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
-            n_alive = landed
-            if store:
-                # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
-                # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-                store_stream_record(r, p, d, ns, lead, p_assoc, landed, INDIRECT if diffuse_like else CAUSTIC, rec)
-                stored += 1
-            if bounces >= max_bounces:
-                break
-            # stream decay
-            d_new, lead, alive = diffuse_bounce(mats, m, ng, ns, lead, key, dim, termination)
-            dim += 3
-            if not alive:
-                break
-            n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
-            dim += n_assoc
-            bounces += 1
-            diffuse_like = True
+            else:
+                # stream decay
+                n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
+                dim += n_assoc
+                bounces += 1
+                diffuse_like = True
+                n_from = ng
             medium = medium_after(media, shape, ng_front, d_new, medium)
             o = vec.offset_origin(p, ng, d_new)
-            n_from = ng
             d = d_new
             scattered = True
 

@@ -24,14 +24,12 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdfs import DELTA, SMOOTH, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import borrowed, kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..sampling.warps import square_to_cosine_hemisphere
-from ..scene.description import CONDUCTOR, DIFFUSE
 from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
@@ -52,39 +50,25 @@ def store_record(s, p, d, power, n, kind, buf):
     buf.kind[s] = kind
 
 
-@kernel
-def diffuse_bounce(mats, m, ng, ns, power, key, dim, termination):
-    """Continue a photon from a diffuse surface: (new direction, power, alive).
+@kernel(inline=True)
+def bounce(mats, m, d, ng, ns, power, key, dim, termination):
+    """Continue a photon from material m (normals from :func:`caustica.bsdfs.oriented`): its BSDF sampled, then,
+    after a non-delta lobe, Russian roulette with the mean albedo (``TERMINATION_ROULETTE``: survive with
+    probability p, power scaled by 1 / p) on the number after the sample's.
 
-    ng, ns are oriented to the side the photon arrived from.
+    Returns (alive, new direction, power, delta: the lobe was a mirror's or glass's, dim).
     """
-    rgb = vec.row(mats.rgb, m)
+    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, key, dim)
+    if lobe & DELTA:
+        return ok, wi, vec.hadamard(power, weight), True, dim
+    u = uniform(key, dim)
+    dim += 1
     if termination == TERMINATION_ROULETTE:
         q = mats.albedo_mean[m]
-        if uniform(key, dim + 2) >= q:
-            return ng, power, False
-        power = vec.mul(vec.hadamard(power, rgb), 1.0 / q)
-    else:
-        power = vec.hadamard(power, rgb)
-    local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-    s, t = vec.orthonormal_basis(ns)
-    d = vec.from_local(s, t, ns, local)
-    if vec.dot(d, ng) <= 0.0 or local[2] <= 0.0:
-        return d, power, False
-    return d, power, True
-
-
-@kernel
-def specular_scatter(mats, m, d, ng, ns, power, front, u):
-    """Reflect or refract at a mirror or glass: (new direction, power, alive, geometric normal on the exit side)."""
-    rgb = vec.row(mats.rgb, m)
-    if mats.kind[m] == CONDUCTOR:
-        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-        if not scatters:
-            return d, power, False, ng
-        return mirror_reflect(d, ng, ns), vec.hadamard(power, rgb), True, ng
-    wi, _, _ = sample_dielectric(d, ng, ns, mats.eta[m], u)
-    return wi, vec.hadamard(power, rgb), True, ng
+        if u >= q:
+            return False, wi, power, False, dim
+        return ok, wi, vec.mul(vec.hadamard(power, weight), 1.0 / q), False, dim
+    return ok, wi, vec.hadamard(power, weight), False, dim
 
 
 @kernel
@@ -139,34 +123,28 @@ def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scat
         if nxt == TRAPPED:
             break
         ng_front = ng
-        if kind == DIFFUSE:
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # the black back of a one-sided surface absorbs
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
+        if not scatters:
+            break  # the black back of a one-sided surface absorbs
+        if mats.flags[m] & SMOOTH:
             if scattered and stored < slots:
                 store_record(slot0 + stored, p, d, power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            d, power, alive = diffuse_bounce(mats, m, ng, ns, power, key, dim, termination)
-            dim += 3
-            if not alive:
-                break
-            diffuse_bounces += 1
-            diffuse_like = True
-            medium = medium_after(media, shape, ng_front, d, medium)
-            o = vec.offset_origin(p, ng, d)
-        else:
+        alive, d_new, power, delta, dim = bounce(mats, m, d, ng, ns, power, key, dim, termination)
+        if not alive:
+            break
+        if delta:
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            d_new, power, alive, ng_out = specular_scatter(mats, m, d, ng, ns, power, front, uniform(key, dim))
-            dim += 1
-            if not alive:
-                break
-            medium = medium_after(media, shape, ng_front, d_new, medium)
-            o = vec.offset_origin(p, ng_out, d_new)
-            d = d_new
+        else:
+            diffuse_bounces += 1
+            diffuse_like = True
+        medium = medium_after(media, shape, ng_front, d_new, medium)
+        o = vec.offset_origin(p, ng, d_new)
+        d = d_new
         scattered = True
     return stored
 

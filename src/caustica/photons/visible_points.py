@@ -49,7 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
+from ..bsdfs import SMOOTH, TRANSMISSION, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -58,7 +58,6 @@ from ..lighting import direct_stratified
 from ..media import attenuation, medium_after
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
-from ..scene.description import CONDUCTOR, DIFFUSE
 from ..transport import CROSSED, TRAPPED, surface_interaction
 from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, \
     first_segment_numbers, segment_inscatter, store_segment
@@ -153,12 +152,11 @@ def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, 
             return False, zero, zero, zero, L, n_seg
         counted = False
         ng_front = ng
-        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             return False, zero, zero, zero, L, n_seg
-        rgb = vec.row(mats.rgb, m)
-        if kind == DIFFUSE:
-            w = vec.mul(vec.hadamard(beta, rgb), INV_PI)
+        if mats.flags[m] & SMOOTH:
+            w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
             if fixed_grid:
                 E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim,
                                       n_strata, True, -1)
@@ -170,15 +168,13 @@ def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, 
         depth += 1
         if depth > max_specular:
             return False, zero, zero, zero, L, n_seg
-        if kind == CONDUCTOR:
-            wi = mirror_reflect(d, ng, ns)
-            beta = vec.hadamard(beta, rgb)
-        else:
+        wr, wt, F, eta, colour = delta_branches(mats, m, d, ng, ns)
+        beta = vec.hadamard(beta, colour)
+        wi = wr
+        if mats.flags[m] & TRANSMISSION:
             u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
             first_glass = False
-            wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
-            beta = vec.hadamard(beta, rgb)
             # emitters seen along either branch, with their expected weights (glass_step)
             Lr = emitted_along(geom, mats, lights, media, vec.offset_origin(p, ng, wr), wr,
                                medium_after(media, shape, ng_front, wr, medium))
