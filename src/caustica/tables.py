@@ -44,6 +44,11 @@ class Scene:
         return self.description.has_media
 
     @property
+    def tables(self) -> tuple:
+        """(geometry, materials, lights, media): what the kernels take as ``tables``."""
+        return self.geometry, self.materials, self.lights, self.media
+
+    @property
     def width(self) -> int:
         return self.description.camera.width
 

@@ -27,10 +27,10 @@ from __future__ import annotations
 from ..bsdfs import DELTA, SMOOTH, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..transport import CROSSED, TRAPPED, surface_interaction
+from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
@@ -51,36 +51,40 @@ def store_record(s, p, d, power, n, kind, buf):
 
 
 @kernel(inline=True)
-def bounce(mats, m, d, ng, ns, power, key, dim, termination):
+def bounce(mats, m, d, ng, ns, key, dim, termination):
     """Continue a photon from material m (normals from :func:`caustica.bsdfs.oriented`): its BSDF sampled, then,
     after a non-delta lobe, Russian roulette with the mean albedo (``TERMINATION_ROULETTE``: survive with
     probability p, power scaled by 1 / p) on the number after the sample's.
 
-    Returns (alive, new direction, power, delta: the lobe was a mirror's or glass's, dim).
+    Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
+    was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
     """
     ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, key, dim)
     if lobe & DELTA:
-        return ok, wi, vec.hadamard(power, weight), True, dim
+        return ok, wi, weight, 1.0, True, dim
     u = uniform(key, dim)
     dim += 1
     if termination == TERMINATION_ROULETTE:
         q = mats.albedo_mean[m]
-        if u >= q:
-            return False, wi, power, False, dim
-        return ok, wi, vec.mul(vec.hadamard(power, weight), 1.0 / q), False, dim
-    return ok, wi, vec.hadamard(power, weight), False, dim
+        return ok and u < q, wi, weight, 1.0 / q, False, dim
+    return ok, wi, weight, 1.0, False, dim
 
 
 @kernel
-def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces, termination,
-              caustic_only, slot0, slots, buf):
-    """Follow one photon from o along d in ``medium``; records go to slots slot0 .. slot0 + slots - 1 of
-    ``buf`` (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
+def trace_one(tables, key, photon, rules, out):
+    """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
+    ``medium``.  Its records go to ``out`` = (slot0, slots, buf): slots slot0 .. slot0 + slots - 1 of ``buf``
+    (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
 
     A photon from a light starts with no bounce and not ``scattered``; a split photon of a stream
-    (:mod:`caustica.photons.streams`) starts with its stream's.  ``caustic_only``: stop at the
-    first diffuse or medium event (the aimed caustic photons).  Random numbers from 8 on.
+    (:mod:`caustica.photons.streams`) starts with its stream's.  ``rules`` = (max_bounces, termination,
+    caustic_only); ``caustic_only``: stop at the first diffuse or medium event (the aimed caustic
+    photons).  Random numbers from 8 on.
     """
+    geom, mats, _, media = tables
+    o, d, power, medium, diffuse_bounces, scattered = photon
+    max_bounces, termination, caustic_only = rules
+    slot0, slots, buf = out
     dim = 8
     specular_events = 0
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
@@ -117,7 +121,7 @@ def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scat
             continue
         # ---- a surface
         p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+            tables, (prim, t, b1, b2), o, d, medium, crossings)
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
@@ -132,9 +136,10 @@ def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scat
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-        alive, d_new, power, delta, dim = bounce(mats, m, d, ng, ns, power, key, dim, termination)
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, ng, ns, key, dim, termination)
         if not alive:
             break
+        power = vec.mul(vec.hadamard(power, weight), inv_q)
         if delta:
             specular_events += 1
             if specular_events > SPECULAR_CAP:
@@ -150,41 +155,45 @@ def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scat
 
 
 @kernel
-def trace_photons(geom, mats, lights, media, light_medium, seed, stream, n_paths, max_bounces, termination, buf,
-                  i0, i1):
-    """Emit and trace photons [i0, i1) of n_paths; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+def trace_photons(tables, light_medium, source, rules, buf, i0, i1):
+    """Emit and trace photons [i0, i1) of ``source`` = (seed, stream, n_paths); photon i writes slots
+    [i * (mr + 1), (i + 1) * (mr + 1)).  ``rules`` = (max_bounces mr, termination)."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    seed, stream, n_paths = source
+    max_bounces, termination = rules
     slots = max_bounces + 1
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, _ = emit_photon(geom, lights, key, n_paths)
         li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-        trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, max_bounces, termination, False,
-                  i * slots, slots, buf)
+        trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (max_bounces, termination, False),
+                  (i * slots, slots, buf))
 
 
 @kernel
-def trace_caustic_photons(geom, mats, lights, media, light_medium, spheres, seed, stream, n_paths, buf, i0, i1):
-    """Caustic photons [i0, i1) aimed at the specular objects: the first event after a mirror or glass only
-    (one slot each).  A photon that scatters in a medium or meets a diffuse surface before any mirror or
-    glass stores nothing (that light is the other photons' and the direct light's)."""
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
+    """Caustic photons [i0, i1) of ``source`` = (seed, stream, n_paths), aimed at the specular objects: the
+    first event after a mirror or glass only (one slot each).  A photon that scatters in a medium or meets a
+    diffuse surface before any mirror or glass stores nothing (that light is the other photons' and the
+    direct light's)."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    seed, stream, n_paths = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
             li, _, _ = choose_light(lights, uniform(key, 0))
-            trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, 0, TERMINATION_CAP, True,
-                      i, 1, buf)
+            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True), (i, 1, buf))
 
 
 def trace_photon_pass(scene, buf, seed, stream, n_paths, max_bounces, termination, *, threads=None,
                       progress=None) -> float:
     """Trace ``n_paths`` photons of (seed, stream) into ``buf`` (mr + 1 slots each) on the thread pool;
     returns the compile seconds."""
-    return parallel_for(trace_photons, n_paths, (scene.geometry, scene.materials, scene.lights, scene.media,
-                                                 light_media(scene), seed, stream, n_paths, max_bounces, termination,
-                                                 buf), threads=threads, progress=progress)
+    return parallel_for(trace_photons, n_paths, (scene.tables, light_media(scene), (seed, stream, n_paths),
+                                                 (max_bounces, termination), buf), threads=threads, progress=progress)
 
 
 def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None, threads=None,
@@ -193,6 +202,5 @@ def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None
     radius) into ``buf`` (one slot each); returns the compile seconds."""
     spheres = scene.specular_bounding_spheres() if spheres is None else spheres
     return parallel_for(trace_caustic_photons, n_paths,
-                        (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene), spheres,
-                         seed, stream, n_paths, buf),
+                        (scene.tables, light_media(scene), spheres, (seed, stream, n_paths), buf),
                         threads=threads, progress=progress)
