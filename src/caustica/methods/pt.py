@@ -107,20 +107,11 @@ def radiance(tables, o, d, key, max_depth, rr_depth):
                 break
         in_medium = prim < 0
         if in_medium or mats.flags[m] & SMOOTH:
-            # next-event estimation: one light sample, MIS against the phase function or the BSDF
-            contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
-                tables, ShadingPoint(p, ng, ns, ng_front, shape, medium),
-                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+            ok, term, scale, shadow, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium), m, d,
+                                                      beta, key, dim)
             n_shadow += shadow
-            dim += 3
             if ok:
-                if in_medium:
-                    w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
-                    L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
-                else:
-                    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, ng, ns, wi)
-                    w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
-                    L = vec.madd(L, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale)
+                L = vec.madd(L, term, scale)
         if in_medium:
             wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
             dim += 2
@@ -155,6 +146,25 @@ def radiance(tables, o, d, key, max_depth, rr_depth):
             dim += 1
             beta = vec.mul(beta, 1.0 / q)
     return L, n_ext, n_shadow
+
+
+@kernel(inline=True)
+def next_event(tables, at, m, d, beta, key, dim):
+    """Next-event estimation at ``at`` (a surface of material m, or a point in a medium) for a path arriving along
+    d with throughput β: one light sample (numbers dim .. dim + 2), weighted by MIS against the BSDF's or the
+    phase function's sampling for area lights.  Returns (ok, term, scale, shadow rays, dim): L += term · scale.
+    """
+    mats, media = tables[1], tables[3]
+    contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(tables, at, uniform(key, dim), uniform(key, dim + 1),
+                                                                 uniform(key, dim + 2))
+    if not ok:
+        return False, contrib, 0.0, shadow, dim + 3
+    if at.shape < 0:
+        w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
+        return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
+    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, wi)
+    w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
+    return True, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale, shadow, dim + 3
 
 
 @kernel(inline=True)
