@@ -12,6 +12,9 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   render of the same passes whatever the number of workers, the task sizes or the
   order tasks finish in (:mod:`caustica.film`).
 
+The pass loop (pass count, time budget, checkpoints, progress, Ctrl-C) is a local render's,
+:func:`caustica.driver.run`, with :class:`DaskPasses` as its executor.
+
 Tasks start at one pass; once the first are back, a task gets a power of two of passes
 (at most :data:`MAX_TASK_PASSES`) that takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
 overhead (scheduling, moving a part of the film) is a small share of its work; with a time budget a task is only sent if
@@ -679,8 +682,9 @@ class DaskPasses(driver.Executor):
         if not self.flying:
             return None
         fut = self._next_back(late_after)
-        if fut is None:
-            return self._give_up(state)
+        if fut is None:   # late: given up
+            self._give_up(state)
+            return None
         try:
             start, stop, sent = self.flying[fut]
             t1 = time.perf_counter()
@@ -750,21 +754,19 @@ class DaskPasses(driver.Executor):
             pass
         if isinstance(exc, KeyboardInterrupt):
             self.cluster.interrupted = True
-        if isinstance(exc, _ClusterFailed):
-            raise ClusterError(self._failure_message(exc.cause, state)) from None
-
-    def _failure_message(self, exc, state) -> str:
-        plan, cluster = self.plan, self.cluster
-        saved = ""
-        if plan.checkpoint is not None and state.passes > 0:
-            ckpt.save(plan.checkpoint, self.method_cls, self.scene, self.settings, state)
-            saved = f"; saved to {plan.checkpoint}, rerun to resume"
+        if not isinstance(exc, _ClusterFailed):
+            return
+        exc, saved = exc.cause, ""
+        if self.plan.checkpoint is not None and state.passes > 0:
+            ckpt.save(self.plan.checkpoint, self.method_cls, self.scene, self.settings, state)
+            saved = f"; saved to {self.plan.checkpoint}, rerun to resume"
         if isinstance(exc, _distributed().KilledWorker):
             what = "a task killed every worker that ran it (Dask's KilledWorker)"
-        elif cluster.client.status != "running":
+        elif self.cluster.client.status != "running":
             what = f"lost the scheduler ({type(exc).__name__})"
         else:
             what = f"the cluster dropped this render's tasks ({type(exc).__name__}: " \
                    f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})"
-        flag = f"--dask {cluster.address}" if cluster.local is None else f"--workers (a local cluster at {cluster.address})"
-        return f"{flag}: {what}; {state.passes} passes were finished{saved}"
+        where = self.cluster.address
+        flag = f"--dask {where}" if self.cluster.local is None else f"--workers (a local cluster at {where})"
+        raise ClusterError(f"{flag}: {what}; {state.passes} passes were finished{saved}") from None

@@ -159,7 +159,11 @@ def run(method_cls, scene, settings, plan: PassPlan, progress, executor=None):
         log.interrupt(exc)
     finally:
         bar.close()
-    final_checkpoint(plan, method_cls, scene, settings, state, log)
+    if plan.checkpoint is not None and state.passes > log.checkpoint_passes:
+        try:   # Ctrl-C or SIGTERM in this last save is held until it is complete, then recorded as an interrupt
+            save_checkpoint(plan, method_cls, scene, settings, state, log)
+        except InterruptedAfterSaving as exc:   # the render still returns, so its outputs are written too
+            log.interrupt(exc)
     return state, log
 
 
@@ -183,8 +187,8 @@ def _send(executor, next_pass: int, target, pass_s, end, first: bool) -> int:
 
 
 class Executor:
-    """Where :func:`run`'s passes render: ranges [start, stop) sent in pass order and taken back merged in
-    pass order (:class:`LocalPasses` here, ``cluster.DaskPasses`` on Dask).  How many, the loop decides."""
+    """Where :func:`run`'s passes render (:class:`LocalPasses` here, ``cluster.DaskPasses`` on Dask): ranges
+    [start, stop) sent in pass order, taken back merged in pass order.  How many passes, the loop decides."""
     label = ""   # follows "passes" in the progress bar
 
     def start(self) -> None:
@@ -192,21 +196,18 @@ class Executor:
 
     def room(self) -> int:
         """How many tasks may be sent now."""
-        raise NotImplementedError
 
     def task_size(self, start: int, target, pass_s: float) -> int:
-        """The passes (at least 1) of a task from ``start``, a pass predicted to take ``pass_s`` seconds."""
+        """The passes (at least 1) of a task from ``start``; ``pass_s`` predicts a pass's work."""
         return 1
 
     def submit(self, start: int, stop: int) -> None:
         """Send the passes [start, stop)."""
-        raise NotImplementedError
 
     def collect(self, state, late_after):
-        """The next task back: (``state`` with the passes now in order merged in, their (seconds, stats), the
-        task's work seconds per pass); None when none is out or those out were given up, late past
-        ``late_after`` (the budget's end, or None) and the executor's grace."""
-        raise NotImplementedError
+        """The next task back: (``state`` with the passes now in order merged in, their (seconds, stats), its
+        work seconds per pass); None when none is out, or those out were given up as late (past
+        ``late_after``, the budget's end, and the executor's grace)."""
 
     def stop(self, exc: BaseException, state) -> None:
         """The loop ends on ``exc``: cancel what is out (or raise an error of the executor's own)."""
@@ -248,20 +249,6 @@ def save_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> N
         log.checkpoint_passes = state.passes
         raise
     log.checkpoint_passes = state.passes
-
-
-def final_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> None:
-    """Save the plan's checkpoint after the last pass (unless it holds them all already).
-
-    Ctrl-C or SIGTERM during this save is held until the checkpoint is complete and then
-    recorded as an interrupt: the render still returns, so its outputs are written too.
-    """
-    if plan.checkpoint is None or state.passes <= log.checkpoint_passes:
-        return
-    try:
-        save_checkpoint(plan, method_cls, scene, settings, state, log)
-    except InterruptedAfterSaving as exc:
-        log.interrupt(exc)
 
 
 def load_checkpoint(method_cls, scene, settings, plan):
