@@ -630,9 +630,9 @@ def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
     return state, log, passes.clog
 
 
-class DaskPasses(driver.Executor):
-    """The driver's executor on a Dask cluster: a range of passes is a task on one worker thread
-    (:func:`render_part_task`); the parts come back in any order and are merged in pass order."""
+class DaskPasses:
+    """The driver's executor on a Dask cluster (:class:`caustica.driver.LocalPasses` says what each method does):
+    a range of passes is a task on one worker thread; parts come back in any order and are merged in pass order."""
 
     def __init__(self, cluster: Cluster, method_cls, scene, settings, plan):
         self.cluster, self.method_cls, self.scene, self.settings, self.plan = cluster, method_cls, scene, settings, plan

@@ -1,18 +1,16 @@
-"""The one pass loop: a method's passes under a pass count or a time budget, here or on a cluster.
+"""The one pass loop: a method's passes under a pass count or a time budget, here or on a Dask cluster.
 
 Every method is parameters + ``new_state`` + ``run_pass`` + ``image`` (see
 :mod:`caustica.methods`).  :func:`run` decides how many passes run, times them, drives the
 progress bar, writes checkpoints and turns Ctrl-C (or SIGTERM, :mod:`caustica.interrupts`)
-into a result of the passes finished so far.  Where the passes run is an :class:`Executor`'s
-business alone: :class:`LocalPasses` runs them in this process, one after another
-(``run_pass`` returns a *new* state rather than changing the old one, so an interrupt in the
-middle of a pass leaves the last finished state whole); ``cluster.DaskPasses`` runs ranges of
-independent passes as Dask tasks and merges them in pass order, with the same bits.
+into a result of the passes finished so far.  An executor runs the passes it is sent:
+:class:`LocalPasses` one after another in this process (``run_pass`` returns a *new* state, so
+an interrupt in the middle of a pass leaves the last finished state whole), ``cluster.DaskPasses``
+ranges of independent passes as Dask tasks, merged in pass order with the same bits.
 
-Time budget: a task is sent while it, each pass predicted to take as long as the slowest of
-the last three tasks' passes (compile time left out), would still end within the budget (the
-first pass always runs).  The budget counts from the start of the first pass and includes
-compile time.
+Time budget: a task is sent while it would still end within the budget, a pass predicted to take
+as long as the slowest of the last three tasks' passes (compile time left out); the first pass
+always runs.  The budget counts from the start of the first pass and includes compile time.
 
 Checkpoints are written after a task comes back when CHECKPOINT_INTERVAL_S have passed since
 the last one, after the last pass and when interrupted (a save costs an fsync: for passes
@@ -168,9 +166,9 @@ def run(method_cls, scene, settings, plan: PassPlan, progress, executor=None):
 
 
 def _send(executor, next_pass: int, target, pass_s, end, first: bool) -> int:
-    """Send tasks while the executor has room and passes are left: the next pass to send.  ``pass_s`` predicts
-    a pass (None until a task is back: tasks of one pass); with a budget (``end``) a task is halved (keeping
-    its alignment) until it ends within it, and not sent if one pass would not (but the render's first)."""
+    """Send tasks while the executor has room and passes are left: the next pass to send.  ``pass_s`` predicts a
+    pass (None until a task is back: tasks of one pass); a task is halved (keeping its alignment) until it ends
+    within the budget (``end``), and not sent if one pass would not, unless it is the render's ``first``."""
     for _ in range(executor.room()):
         if target is not None and next_pass >= target:
             break
@@ -186,48 +184,36 @@ def _send(executor, next_pass: int, target, pass_s, end, first: bool) -> int:
     return next_pass
 
 
-class Executor:
-    """Where :func:`run`'s passes render (:class:`LocalPasses` here, ``cluster.DaskPasses`` on Dask): ranges
-    [start, stop) sent in pass order, taken back merged in pass order.  How many passes, the loop decides."""
+class LocalPasses:
+    """The executor of a render in this process, and the reference for what an executor does (the other is
+    ``cluster.DaskPasses``): it takes ranges of passes [start, stop) in pass order and gives them back merged
+    in pass order, while :func:`run` decides how many.  Here a task is one pass, run on the loop's state
+    as it is taken back (on the method's threads): any method's passes, independent or not."""
     label = ""   # follows "passes" in the progress bar
+
+    def __init__(self, method_cls, scene, settings, progress):
+        self.method_cls, self.scene, self.settings, self.progress = method_cls, scene, settings, progress
+        self.sent = False
 
     def start(self) -> None:
         """Before the first task, after the checkpoint is read."""
 
     def room(self) -> int:
         """How many tasks may be sent now."""
+        return 0 if self.sent else 1
 
     def task_size(self, start: int, target, pass_s: float) -> int:
         """The passes (at least 1) of a task from ``start``; ``pass_s`` predicts a pass's work."""
         return 1
 
     def submit(self, start: int, stop: int) -> None:
-        """Send the passes [start, stop)."""
+        """Send the passes [start, stop) (here one, from the state's end)."""
+        self.sent = True
 
     def collect(self, state, late_after):
         """The next task back: (``state`` with the passes now in order merged in, their (seconds, stats), its
         work seconds per pass); None when none is out, or those out were given up as late (past
         ``late_after``, the budget's end, and the executor's grace)."""
-
-    def stop(self, exc: BaseException, state) -> None:
-        """The loop ends on ``exc``: cancel what is out (or raise an error of the executor's own)."""
-
-
-class LocalPasses(Executor):
-    """Passes in this process, one at a time (on the method's threads), run on the loop's state as they
-    are taken back: any method's passes, independent or not."""
-
-    def __init__(self, method_cls, scene, settings, progress):
-        self.method_cls, self.scene, self.settings, self.progress = method_cls, scene, settings, progress
-        self.sent = False
-
-    def room(self) -> int:
-        return 0 if self.sent else 1
-
-    def submit(self, start: int, stop: int) -> None:
-        self.sent = True   # one pass (task_size), from the state's end
-
-    def collect(self, state, late_after):
         if not self.sent:
             return None
         self.sent = False
@@ -235,6 +221,9 @@ class LocalPasses(Executor):
         state, stats = self.method_cls.run_pass(self.scene, self.settings, state, self.progress)
         seconds = time.perf_counter() - t0
         return state, [(seconds, stats)], max(0.0, seconds - stats.get("timings", {}).get("compile_s", 0.0))
+
+    def stop(self, exc: BaseException, state) -> None:
+        """The loop ends on ``exc``: cancel what is out (or raise an error of the executor's own)."""
 
 
 def save_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> None:
