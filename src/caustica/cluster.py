@@ -13,7 +13,7 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   order tasks finish in (:mod:`caustica.film`).
 
 The pass loop (pass count, time budget, checkpoints, progress, Ctrl-C) is a local render's,
-:func:`caustica.driver.run`, with :class:`DaskPasses` as its executor.
+:func:`caustica.driver.run`, given a :class:`DaskPasses` as its executor.
 
 Tasks start at one pass; once the first are back, a task gets a power of two of passes
 (at most :data:`MAX_TASK_PASSES`) that takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
@@ -31,7 +31,6 @@ import time
 from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
-from . import driver
 from .errors import CausticaError, ClusterError, ParameterError, quoted, shorten
 from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
@@ -621,13 +620,6 @@ def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
                              f"limit); give the workers more memory or fewer threads, or lower --res")
     blocks = (budget - need) // (pixels * 3 * 8)
     return int(max(1, min(MAX_TASK_PASSES, (blocks + 1) * TRUNK_PASSES - 1)))
-
-
-def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
-    """The driver's loop with passes as tasks on ``cluster``: (state, PassLog, ClusterLog)."""
-    passes = DaskPasses(cluster, method_cls, scene, settings, plan)
-    state, log = driver.run(method_cls, scene, settings, plan, progress, passes)
-    return state, log, passes.clog
 
 
 class DaskPasses:
