@@ -523,6 +523,13 @@ def test_time_budget_stops_between_passes(diacaustic):
     assert r.stats["time_budget_s"] == 1.0 and not r.stats["interrupted"]
 
 
+def test_the_first_pass_always_runs_whatever_the_budget(diacaustic):
+    """A budget over before the first pass is sent still renders it (then stops): never an image of no passes."""
+    r = caustica.render(diacaustic, "sppm", res=8, seed=1, time_s=1e-9)
+    assert r.stats["passes"] == 1 and len(r.stats["pass_seconds"]) == 1
+    assert r.image.tobytes() == caustica.render(diacaustic, "sppm", res=8, seed=1, passes=1).image.tobytes()
+
+
 def test_radius_shrinks_and_aovs(diacaustic):
     # plain SPPM: one set of statistics (with separate caustic statistics, radius is the other photons'
     # radius and count every event gathered)

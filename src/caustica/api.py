@@ -180,8 +180,9 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
                                      "worker thread (start workers with 'dask worker --nthreads T' to run T at once)")
             check_distributable(cls, settings, plan)
             with cluster.connect(dask, workers) as cl:
-                state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))
-                cluster_log = cluster_log.to_json(cl.address)
+                passes = cluster.DaskPasses(cl, cls, scene, settings, plan)   # the same loop, passes as Dask tasks
+                state, log = driver.run(cls, scene, settings, plan, progress_factory(progress), passes)
+                cluster_log = passes.clog.to_json(cl.address)
     image = cls.image(scene, settings, state)
     require_finite(image, method, state.passes if plan.multi else None)
     stats = dict(log.counters)
