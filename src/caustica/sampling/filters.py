@@ -30,8 +30,8 @@ measure.  The filters, as Mitsuba 3 defines them (``src/rfilters/*.cpp``):
 
 Mitsuba's scalar variants evaluate a filter from a 31-step table over [0, r] (the value at each
 step's inner end) rather than the formula; its JIT variants use the formula.  The step table moves
-an edge's response by at most 0.8 % (gaussian) / 0.4 % (tent) of the edge's contrast; caustica
-follows the formula.
+a straight edge's response by at most 0.8 % (gaussian) / 0.4 % (tent) of the edge's contrast;
+caustica follows the formula.
 """
 from __future__ import annotations
 
