@@ -319,6 +319,17 @@ def test_filters_are_read_with_mitsubas_defaults():
         assert (f.kind, f.stddev if f.kind == "gaussian" else f.radius) == want
 
 
+def test_the_sidecar_records_the_filter():
+    import caustica
+    from caustica.tables import compile_scene
+    for rf, want in [("", {"type": "box"}),
+                     ('<rfilter type="gaussian"/>', {"type": "gaussian", "stddev": 0.5}),
+                     ('<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>',
+                      {"type": "tent", "radius": 1.5})]:
+        scene = compile_scene(parse_scene_string(edge_scene_xml(rf)))
+        assert caustica.render(scene, "pt", spp=1, threads=1).stats["rfilter"] == want
+
+
 # ----------------------------------------------------------------------------- 3. bad input
 
 BAD_FILTERS = {
