@@ -304,6 +304,32 @@ def test_sharp_edges_match_mitsuba(mi, case):
     assert np.sum(np.abs(boxed - m_mean) > tol_box) >= 10, case
 
 
+#: Every method draws its camera rays through camera.generate_ray: the same filter.  (method, settings,
+#: samples per pixel); photons are few: the emitters are black and nothing else is in the scene.
+METHOD_CASES = {
+    "pm": ("pm", dict(photons=1000, spp=256), 256),
+    "spm": ("spm", dict(streams=100, spp=256), 256),
+    "sppm": ("sppm", dict(photons=1000, passes=256), 256),
+    "pspm": ("pspm", dict(streams=100, passes=128), 128),
+}
+
+
+@pytest.mark.parametrize("case", list(METHOD_CASES))
+def test_every_method_gets_the_filter(case):
+    """The gaussian edge scene by the photon methods: the filter's exact mass per pixel, within the
+    binomial bound of their samples per pixel (sppm's and pspm's passes are stratified, which only
+    lowers their noise)."""
+    import caustica
+    from caustica.tables import compile_scene
+    method, settings, n = METHOD_CASES[case]
+    rf, kind, radius, stddev = IMAGE_CASES["gaussian"]
+    scene = compile_scene(parse_scene_string(edge_scene_xml(rf)))
+    img = caustica.render(scene, method, seed=5, **settings).image[..., 0].astype(np.float64)
+    exact = expected_image(kind, radius, stddev)
+    z = np.abs(img - exact) / (binomial_tolerance(np.clip(exact, 0.0, 1.0), n) + 1e-5)
+    assert z.max() <= 1.0, (case, np.unravel_index(z.argmax(), z.shape), z.max())
+
+
 def test_a_film_without_rfilter_is_a_box():
     """caustica's default, not Mitsuba's (gaussian): docs/usage.md says why."""
     d = parse_scene_string(edge_scene_xml(""))
