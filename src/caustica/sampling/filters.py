@@ -47,9 +47,7 @@ TENT = 1
 GAUSSIAN = 2
 FILTER_KINDS = {"box": BOX, "tent": TENT, "gaussian": GAUSSIAN}
 
-#: Mitsuba's defaults: the tent's radius, the gaussian's standard deviation, its cut-off in deviations.
-TENT_RADIUS = 1.0
-GAUSSIAN_STDDEV = 0.5
+#: Where Mitsuba cuts the gaussian off, in standard deviations.
 GAUSSIAN_CUTOFF = 4.0
 
 _SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
@@ -76,16 +74,6 @@ def filter_cdf(kind, radius, stddev, x):
     if kind == GAUSSIAN:
         return stddev * _gaussian_cdf(x / stddev)
     return x   # box
-
-
-@kernel
-def filter_density(kind, radius, stddev, x):
-    """The filter's value at x (box: 1 inside its support)."""
-    if kind == TENT:
-        return max(0.0, 1.0 - abs(x) / radius)
-    if kind == GAUSSIAN:
-        return _gaussian_density(x / stddev)
-    return 1.0
 
 
 # The gaussian in units of its deviation, z = x / σ: always the same shape, exp(-z²/2) - exp(-8) on
