@@ -137,6 +137,16 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     return scene, cls, settings
 
 
+
+def _rfilter_stats(rf) -> dict:
+    """The film's reconstruction filter as the sidecar records it: its type and the parameter it takes."""
+    if rf.kind == "tent":
+        return {"type": "tent", "radius": rf.radius}
+    if rf.kind == "gaussian":
+        return {"type": "gaussian", "stddev": rf.stddev}
+    return {"type": rf.kind}
+
+
 def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
            threads: int | None = None, progress: bool = False, passes: int | None = None,
            time_s: float | None = None, checkpoint=None, aov=(), dask=None, workers: int | None = None,
@@ -204,6 +214,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "threads": threads,
         "timings": timings,
         "integrator_note": scene.description.integrator_note(method, settings),
+        "rfilter": _rfilter_stats(scene.description.camera.rfilter),
         **stats,
     }
     if plan.multi:

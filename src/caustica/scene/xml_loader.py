@@ -28,7 +28,8 @@ from ..limits import MAX_PIXELS, MAX_SPP
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
-                          NULL, SPHERE, Camera, Material, Medium, PointLight, SceneDescription, Shape)
+                          NULL, SPHERE, Camera, Material, Medium, PointLight, ReconstructionFilter, SceneDescription,
+                          Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 
 # ----------------------------------------------------------------------------- the subset
@@ -75,7 +76,7 @@ SENSOR_PROPS = {"perspective": {"fov": FLOAT, "fov_axis": STR, "near_clip": FLOA
 FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
 SAMPLER_TYPES = ("independent", "stratified", "multijitter")
 SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
-RFILTER_PROPS = {"box": {}}
+RFILTER_PROPS = {"box": {}, "tent": {"radius": FLOAT}, "gaussian": {"stddev": FLOAT}}
 FOV_AXES = ("x", "y", "smaller", "larger")
 
 #: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
@@ -618,6 +619,7 @@ class _Loader:
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
+        rfilter = ReconstructionFilter()   # caustica's default: a box (Mitsuba's is a gaussian; docs/usage.md)
         film_line = node.line
         medium = -1
         seen = set()
@@ -637,13 +639,10 @@ class _Loader:
                     self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
                                    f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
                                    f"lower width or height")
-                for rf in fprops.objects:
-                    if rf.attrs.get("type") != "box" and "type" in rf.attrs:
-                        self.fail(rf, f"reconstruction filter {quoted(rf.attrs['type'])} is not supported "
-                                      f"(caustica's film is a box filter)", supported=["box"])
-                    self.plugin(rf, RFILTER_PROPS)
                 if len(fprops.objects) > 1:
                     self.fail(fprops.objects[1], "the film takes only one <rfilter>")
+                for rf in fprops.objects:
+                    rfilter = self.rfilter(rf)
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
                 spp = int(self.number(sprops, "sample_count", spp, positive=True))
@@ -652,8 +651,19 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, film_source=f"{self.source}:{film_line}", medium=medium)
+                     near_clip=near, film_source=f"{self.source}:{film_line}", medium=medium, rfilter=rfilter)
         return cam, spp
+
+    def rfilter(self, node: Node) -> ReconstructionFilter:
+        """A film's <rfilter>: box, tent (radius) or gaussian (stddev), Mitsuba's defaults."""
+        props = self.plugin(node, RFILTER_PROPS)
+        kind = node.attrs["type"]
+        radius = float(self.number(props, "radius", 1.0, positive=True))
+        stddev = float(self.number(props, "stddev", 0.5, positive=True))
+        for name, v in (("radius", radius), ("stddev", stddev)):
+            if not math.isfinite(v):
+                self.fail(props.node_of(name), f"'{name}' must be finite, got {v}")
+        return ReconstructionFilter(kind, radius, stddev)
 
     # -- integrator -------------------------------------------------------------------
     def generic_props(self, node: Node) -> dict:
