@@ -35,7 +35,7 @@ from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 
 #: Property tags and plugin tags this loader knows.
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
+TOP_LEVEL_TAGS = ("default", "include", "path", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
@@ -118,6 +118,8 @@ class Node:
     attrs: dict[str, str]
     line: int
     children: list["Node"] = field(default_factory=list)
+    source: str = ""              # the file it was read from (as errors name it)
+    folder: Path | None = None    # that file's folder: relative file names start there
 
     def describe(self) -> str:
         keys = [k for k in ("type", "name", "id") if k in self.attrs]
@@ -129,18 +131,23 @@ class Node:
 #: bsdf > bsdf > rgb); the limit keeps the loader's recursive passes far from Python's
 #: recursion limit, and it also bounds chains of twosided BSDFs through <ref>.
 MAX_NESTING_DEPTH = 64
+#: How deep <include>s may nest (a loop is refused before this is reached; this bounds long chains).
+MAX_INCLUDE_DEPTH = 32
 
 _XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
-def _parse_xml(text: str | bytes, source: str) -> Node:
-    """Parse XML text into a Node tree; SceneError with file and line for malformed XML."""
+def _parse_xml(text: str | bytes, source: str, folder: Path | None = None) -> Node:
+    """Parse XML text into a Node tree; SceneError with file and line for malformed XML.
+
+    Every node records ``source`` (the name errors use) and ``folder`` (where relative file
+    names in it are looked up first)."""
     parser = xml.parsers.expat.ParserCreate()
     stack: list[Node] = []
     root: list[Node] = []
 
     def start(tag, attrs):
-        node = Node(tag, dict(attrs), parser.CurrentLineNumber)
+        node = Node(tag, dict(attrs), parser.CurrentLineNumber, source=source, folder=folder)
         if len(stack) >= MAX_NESTING_DEPTH:
             raise SceneError(f"{source}:{node.line}: {node.describe()}: elements are nested more than "
                              f"{MAX_NESTING_DEPTH} deep; a scene may nest at most {MAX_NESTING_DEPTH} levels")
@@ -246,6 +253,7 @@ class _Loader:
         self.base_dir = base_dir
         self.params = params
         self.ids: dict[str, Node] = {}
+        self.main_file: Path | None = None    # the scene file itself (resolved), for the include-loop check
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
@@ -254,13 +262,30 @@ class _Loader:
         self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
+        self.search_paths: list[Path] = []   # the <path> folders, in the order declared
+        self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
+
+    # -- files ------------------------------------------------------------------------
+    def lookup_dirs(self, node: Node) -> list[Path]:
+        """Where a relative file name in ``node`` is looked up after its own file's folder: the main scene's
+        folder, then the ``<path>`` folders, the last declared first (Mitsuba's file resolver prepends them)."""
+        return [self.base_dir] + self.search_paths[::-1]
+
+    def find_file(self, node: Node, filename: str, what: str = "mesh file") -> Path:
+        """A file the scene names (a mesh, ...), looked up as :func:`~caustica.scene.builtin.find_data_file`
+        does, with the folder of the file that names it first and the scene's ``<path>`` folders."""
+        return find_data_file(filename, node.folder or self.base_dir, self.lookup_dirs(node), what)
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None):
-        text = f"{self.source}:{node.line}: {node.describe()}: {msg}"
+        text = f"{self.at(node)}: {node.describe()}: {msg}"
         if supported is not None:
             text += f"; supported: {_names(supported)}"
         raise SceneError(text)
+
+    def at(self, node: Node) -> str:
+        """"file:line" of a node (its own file, which may be an included one)."""
+        return f"{node.source or self.source}:{node.line}"
 
     # -- substitution and ids -----------------------------------------------------------
     def substitute(self, node: Node) -> None:
@@ -281,10 +306,109 @@ class _Loader:
         if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
             i = node.attrs["id"]
             if i in self.ids:
-                self.fail(node, f"id {quoted(i)} is already used on line {self.ids[i].line}")
+                first = self.ids[i]
+                where = f"line {first.line}" if first.source == node.source else self.at(first)
+                self.fail(node, f"id {quoted(i)} is already used on {where}")
             self.ids[i] = node
         for c in node.children:
             self.substitute(c)
+
+    def substitute_attrs(self, node: Node) -> None:
+        """$name substitution in the attributes of one node (for <include> and <path>, which are read
+        before the rest of the tree is substituted)."""
+        children, node.children = node.children, []
+        try:
+            self.substitute(node)
+        finally:
+            node.children = children
+
+    def read_defaults(self, root: Node) -> None:
+        """The <default>s among root's children: a name not yet defined gets its value (the caller's -D
+        values and earlier defaults win, as in Mitsuba, where an included file's defaults only fill gaps);
+        the same name twice in one file is an error."""
+        local: dict[str, Node] = {}
+        for node in root.children:
+            if node.tag != "default":
+                continue
+            self.check_attrs(node, ("name", "value"), ("name", "value"))
+            if node.children:
+                self.fail(node.children[0], "<default> takes no child elements")
+            name = node.attrs["name"]
+            if not _PARAM_NAME.fullmatch(name):
+                self.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
+                                f"digits and _, not starting with a digit")
+            if name in local:
+                self.fail(node, f"default {quoted(name)} is given twice (first on line {local[name].line})")
+            local[name] = node
+            self.declared.setdefault(name, node)
+            self.params.setdefault(name, node.attrs["value"])
+
+    def expand(self, node: Node, chain: tuple[tuple[Path, Node], ...], top: bool) -> None:
+        """Replace every <include> below node by what the included file holds and read every <path>
+        (both in document order, as Mitsuba does).  ``chain``: the includes being expanded, outermost
+        first (for the loop check); ``top``: node is a scene's root (where <path> may appear)."""
+        out: list[Node] = []
+        for child in node.children:
+            if child.tag == "path":
+                if not top:
+                    self.fail(child, "<path> must be a child of <scene> (Mitsuba's rule)")
+                self.check_attrs(child, ("value",), ("value",))
+                self.substitute_attrs(child)
+                self.add_search_path(child)
+            elif child.tag == "include":
+                self.check_attrs(child, ("filename", "name"), ("filename",))
+                self.substitute_attrs(child)
+                out += self.include(child, chain)
+            else:
+                if child.tag != "default":
+                    self.expand(child, chain, False)
+                out.append(child)
+        node.children = out
+
+    def add_search_path(self, node: Node) -> None:
+        value = node.attrs["value"]
+        p = Path(value)
+        cands = [p] if p.is_absolute() else [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+        for c in cands:
+            if c.is_dir():
+                self.search_paths.append(c)
+                return
+        self.fail(node, f"folder {quoted(value)} not found (searched: {', '.join(str(c) for c in cands)}); "
+                        f"a <path> names a folder, absolute or relative to the scene file")
+
+    def include(self, node: Node, chain: tuple[tuple[Path, Node], ...]) -> list[Node]:
+        """The nodes an <include> stands for: the children of an included <scene> (its <default>s read),
+        or the included file's root element itself (a file holding one <bsdf>, say)."""
+        filename = node.attrs["filename"]
+        p = Path(filename)
+        cands = [p] if p.is_absolute() else [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+        path = next((c for c in cands if c.is_file()), None)
+        if path is None:
+            self.fail(node, f"included file {quoted(filename)} not found; searched: "
+                            f"{', '.join(str(c.parent) for c in cands)}; add its folder with <path value=\"...\"/>")
+        key = path.resolve()
+        if any(k == key for k, _ in chain) or key == self.main_file:
+            steps = [f"{self.at(n)} includes {n.attrs['filename']}" for _, n in chain] + \
+                    [f"{self.at(node)} includes {filename}"]
+            self.fail(node, f"include loop: {'; '.join(steps)}, which is already being read; "
+                            f"an included file must not include itself, directly or through others")
+        if len(chain) >= MAX_INCLUDE_DEPTH:
+            self.fail(node, f"includes nest more than {MAX_INCLUDE_DEPTH} deep; at most {MAX_INCLUDE_DEPTH} "
+                            f"levels are allowed")
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            self.fail(node, f"cannot read the included file {quoted(filename)}: {exc.strerror}")
+        root = _parse_xml(data, str(path), path.parent)
+        self.files.append(path)
+        inner = chain + ((key, node),)
+        if root.tag == "scene":
+            self.check_attrs(root, ("version",))
+            self.read_defaults(root)
+            self.expand(root, inner, True)
+            return [c for c in root.children if c.tag != "default"]
+        self.expand(root, inner, False)
+        return [root]
 
     def check_attrs(self, node: Node, allowed: tuple[str, ...], required: tuple[str, ...] = ()):
         for k in node.attrs:
@@ -493,7 +617,7 @@ class _Loader:
                 phase, g = HENYEY_GREENSTEIN, float(pprops.get("g", 0.8))   # Mitsuba's default g
                 if not -1.0 < g < 1.0:
                     self.fail(pprops.node_of("g"), f"'g' must lie strictly between -1 and 1, got {g}")
-        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=f"{self.source}:{node.line}")
+        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=self.at(node))
 
     def is_medium(self, obj: Node) -> bool:
         """Whether a shape's or sensor's child is a medium: a <medium>, or a <ref> named like one or
@@ -535,7 +659,7 @@ class _Loader:
         if material is None:
             material = self.default_material_index(emitter=radiance is not None)
 
-        src = f"{self.source}:{node.line}"
+        src = self.at(node)
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
                       id=node.attrs.get("id", ""), source=src,
                       interior=media.get("interior", -1), exterior=media.get("exterior", -1))
@@ -550,7 +674,7 @@ class _Loader:
                 if not props.has("filename"):
                     self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
                 try:
-                    path = find_data_file(props.get("filename"), self.base_dir)
+                    path = self.find_file(props.node_of("filename"), props.get("filename"))
                     self.files.append(Path(path))
                     local = load_mesh_file(path, kind)
                 except SceneError as exc:
@@ -618,7 +742,7 @@ class _Loader:
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
-        film_line = node.line
+        film_where = self.at(node)
         medium = -1
         seen = set()
         for obj in props.objects:
@@ -629,7 +753,7 @@ class _Loader:
             if tag == "medium":   # the medium the camera sits in
                 medium = self.medium_index(obj)
             elif obj.tag == "film":
-                film_line = obj.line
+                film_where = self.at(obj)
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
@@ -652,7 +776,7 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, film_source=f"{self.source}:{film_line}", medium=medium)
+                     near_clip=near, film_source=film_where, medium=medium)
         return cam, spp
 
     # -- integrator -------------------------------------------------------------------
@@ -711,7 +835,7 @@ class _Loader:
                     pos = props.get("position", np.zeros(3))
                 intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
                 lights.append(PointLight(tuple(float(c) for c in pos), intensity,
-                                         source=f"{self.source}:{node.line}"))
+                                         source=self.at(node)))
             else:
                 self.fail(node, "unknown element at the top level of the scene",
                           supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
@@ -722,43 +846,30 @@ class _Loader:
                                 point_lights=lights, spp=spp, integrator=integrator, media=self.media,
                                 integrator_props=integrator_props, source=self.source,
                                 integrator_source="" if integrator_node is None
-                                else f"{self.source}:{integrator_node.line}")
+                                else self.at(integrator_node))
 
 
 # ----------------------------------------------------------------------------- entry points
 
 def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: dict | None = None,
-                       source_name: str = "<string>") -> SceneDescription:
-    """Parse Mitsuba XML text; mesh filenames are relative to base_dir.
+                       source_name: str = "<string>", main_file: Path | None = None) -> SceneDescription:
+    """Parse Mitsuba XML text; mesh filenames and <include>s are relative to base_dir.
 
     defaults: values for ``$name`` (Mitsuba's ``-D``), overriding the file's ``<default>``s.
     source_name: the name used in error messages and as ``SceneDescription.source``.
     """
-    root = _parse_xml(text, source_name)
+    root = _parse_xml(text, source_name, Path(base_dir))
     loader = _Loader(source_name, Path(base_dir), {})
+    loader.main_file = main_file
     if root.tag != "scene":
         loader.fail(root, "the root element must be <scene>", supported=["<scene>"])
     loader.check_attrs(root, ("version",))
-    params: dict[str, str] = {}
-    declared: dict[str, Node] = {}
-    for node in root.children:
-        if node.tag == "default":
-            loader.check_attrs(node, ("name", "value"), ("name", "value"))
-            if node.children:
-                loader.fail(node.children[0], "<default> takes no child elements")
-            name = node.attrs["name"]
-            if not _PARAM_NAME.fullmatch(name):
-                loader.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
-                                  f"digits and _, not starting with a digit")
-            if name in declared:
-                loader.fail(node, f"default {quoted(name)} is given twice (first on line {declared[name].line})")
-            declared[name] = node
-            params[name] = node.attrs["value"]
     given = {str(k): _param_str(v) for k, v in (defaults or {}).items()}
-    params.update(given)
-    loader.params = params
+    loader.params = dict(given)
+    loader.read_defaults(root)
+    loader.expand(root, (), True)
     loader.substitute(root)
-    _check_defines(source_name, given, declared, loader.used_params)
+    _check_defines(source_name, given, loader.declared, loader.used_params)
     desc = loader.scene(root)
     desc.files = loader.files
     return desc
@@ -803,6 +914,6 @@ def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) ->
         data = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
-    desc = parse_scene_string(data, path.parent, defaults, str(path))
+    desc = parse_scene_string(data, path.parent, defaults, str(path), main_file=path.resolve())
     desc.files.insert(0, path)
     return desc

@@ -1,0 +1,125 @@
+"""Mitsuba 3 scene files as users have them: <include>, <path>, $parameters across files, and the
+sensor, film, sampler, spectrum and integrator settings Mitsuba 3 documents (docs/scenes.md)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from caustica.errors import SceneError
+from caustica.scene import load_scene_file, parse_scene_string
+
+SENSOR = """<sensor type="perspective"><float name="fov" value="45"/>
+<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform></sensor>"""
+
+
+def scene(body: str, sensor: str = SENSOR) -> str:
+    return f'<?xml version="1.0"?>\n<scene version="3.0.0">\n{sensor}\n{body}\n</scene>\n'
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def one_line_error(path: Path, defaults=None) -> str:
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path, defaults)
+    msg = str(e.value)
+    assert "\n" not in msg, msg
+    return msg
+
+
+# ----------------------------------------------------------------------------- <include>, <path>, $name
+
+def test_include_is_relative_to_the_including_file(tmp_path):
+    write(tmp_path / "parts" / "box.xml",
+          '<scene version="3.0.0">\n<include filename="../mats/white.xml"/>\n'
+          '<shape type="cube" id="box"><ref id="white"/></shape>\n</scene>')
+    write(tmp_path / "mats" / "white.xml",
+          '<bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.8"/></bsdf>')
+    main = write(tmp_path / "main.xml", scene('<include filename="parts/box.xml"/>'))
+    d = load_scene_file(main)
+    (box,) = d.shapes
+    assert box.id == "box" and box.source == f"{tmp_path / 'parts' / 'box.xml'}:3"
+    assert d.materials[box.material].rgb == (0.8, 0.8, 0.8)
+    assert [p.name for p in d.files] == ["main.xml", "box.xml", "white.xml"]
+
+
+def test_path_adds_folders_for_includes_and_meshes(tmp_path):
+    write(tmp_path / "lib" / "lights.xml", '<scene version="3.0.0"><shape type="rectangle" id="light">'
+                                           '<emitter type="area"/></shape></scene>')
+    ply = "\n".join(["ply", "format ascii 1.0", "element vertex 3", "property float x", "property float y",
+                     "property float z", "element face 1", "property list uchar int vertex_indices",
+                     "end_header", "0 0 0", "1 0 0", "0 1 0", "3 0 1 2", ""])
+    write(tmp_path / "assets" / "meshes" / "tri.ply", ply)
+    main = write(tmp_path / "scenes" / "main.xml",
+                 scene('<path value="../lib"/>\n<path value="../assets"/>\n<include filename="lights.xml"/>\n'
+                       '<shape type="ply" id="tri"><string name="filename" value="meshes/tri.ply"/></shape>'))
+    d = load_scene_file(main)
+    assert [s.id for s in d.shapes] == ["light", "tri"]
+    assert d.shapes[1].mesh.triangles.shape == (1, 3)
+    assert (tmp_path / "assets" / "meshes" / "tri.ply").resolve() in [p.resolve() for p in d.files]
+    # without the <path>, the mesh is not found, and the error says where it looked
+    main.write_text(scene('<shape type="ply"><string name="filename" value="meshes/tri.ply"/></shape>'))
+    assert "mesh file 'meshes/tri.ply' not found; searched: " in one_line_error(main)
+
+
+def test_parameters_reach_included_files(tmp_path):
+    write(tmp_path / "ball.xml", '<scene version="3.0.0">\n<default name="r" value="2"/>\n'
+                                 '<default name="albedo" value="0.3"/>\n'
+                                 '<shape type="sphere"><float name="radius" value="$r"/>'
+                                 '<bsdf type="diffuse"><float name="reflectance" value="$albedo"/></bsdf></shape>\n'
+                                 '</scene>')
+    main = write(tmp_path / "main.xml", scene('<default name="albedo" value="0.6"/>\n<include filename="ball.xml"/>'))
+    d = load_scene_file(main)
+    radius = lambda d: np.linalg.norm(d.shapes[0].to_world[:3, 0])
+    # the including file's default wins over the included one's; an included default fills the gap
+    assert radius(d) == pytest.approx(2.0) and d.materials[d.shapes[0].material].rgb == (0.6, 0.6, 0.6)
+    # -D wins over both, and may name a parameter only an included file uses
+    d = load_scene_file(main, {"r": "3", "albedo": "0.1"})
+    assert radius(d) == pytest.approx(3.0) and d.materials[d.shapes[0].material].rgb == (0.1, 0.1, 0.1)
+    # an include's file name may use $name
+    write(tmp_path / "main2.xml", scene('<default name="part" value="ball"/>\n<include filename="$part.xml"/>'))
+    assert len(load_scene_file(tmp_path / "main2.xml").shapes) == 1
+
+
+def test_an_include_loop_is_one_line_naming_the_files_and_lines(tmp_path):
+    write(tmp_path / "a.xml", '<scene version="3.0.0">\n\n<include filename="b.xml"/>\n</scene>')
+    write(tmp_path / "b.xml", '<scene version="3.0.0">\n<include filename="a.xml"/>\n</scene>')
+    main = write(tmp_path / "main.xml", scene('<include filename="a.xml"/>'))
+    msg = one_line_error(main)
+    assert msg.startswith(f"{tmp_path / 'b.xml'}:2: <include>: include loop: {main}:5 includes a.xml; "
+                          f"{tmp_path / 'a.xml'}:3 includes b.xml; {tmp_path / 'b.xml'}:2 includes a.xml"), msg
+    # a file including itself, and the main file included again
+    write(tmp_path / "self.xml", '<scene version="3.0.0"><include filename="self.xml"/></scene>')
+    main.write_text(scene('<include filename="self.xml"/>'))
+    assert "include loop" in one_line_error(main)
+    write(tmp_path / "back.xml", '<scene version="3.0.0"><include filename="main.xml"/></scene>')
+    main.write_text(scene('<include filename="back.xml"/>'))
+    assert "include loop" in one_line_error(main)
+
+
+@pytest.mark.parametrize("body, words", [
+    ('<include filename="nope.xml"/>', "<include>: included file 'nope.xml' not found"),
+    ('<include/>', "<include>: missing attribute 'filename'"),
+    ('<path value="no-such-folder"/>', "<path>: folder 'no-such-folder' not found"),
+    ('<shape type="cube"><path value="."/></shape>', "<path> must be a child of <scene>"),
+    ('<include filename="$missing.xml"/>', "uses $missing, which is not defined"),
+])
+def test_include_and_path_errors(tmp_path, body, words):
+    main = write(tmp_path / "main.xml", scene(body))
+    msg = one_line_error(main)
+    assert msg.startswith(f"{main}:5: ") and words in msg, msg
+
+
+def test_errors_inside_an_included_file_name_that_file(tmp_path):
+    write(tmp_path / "bad.xml", '<scene version="3.0.0">\n<shape type="sphere">\n'
+                                '<float name="radius" value="-1"/></shape></scene>')
+    main = write(tmp_path / "main.xml", scene('<include filename="bad.xml"/>'))
+    assert one_line_error(main).startswith(f"{tmp_path / 'bad.xml'}:3: <float name=\"radius\">")
+    write(tmp_path / "broken.xml", '<scene version="3.0.0">\n<shape type="cube">\n</scene>')
+    main.write_text(scene('<include filename="broken.xml"/>'))
+    assert one_line_error(main).startswith(f"{tmp_path / 'broken.xml'}:3: malformed XML")
