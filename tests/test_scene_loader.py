@@ -346,7 +346,7 @@ SENSOR_ERRORS = {
     "zero height": (FILM.format('<integer name="height" value="0"/>'), "height"),
     "gaussian rfilter": (FILM.format('<rfilter type="gaussian"/>'), "gaussian"),
     "unknown sampler": ('<sampler type="sobol"/>', "sobol"),
-    "far_clip": ('<float name="far_clip" value="100"/>', "far_clip"),
+    "far_clip before near_clip": ('<float name="far_clip" value="0.001"/>', "far_clip"),
 }
 
 

@@ -123,3 +123,92 @@ def test_errors_inside_an_included_file_name_that_file(tmp_path):
     write(tmp_path / "broken.xml", '<scene version="3.0.0">\n<shape type="cube">\n</scene>')
     main.write_text(scene('<include filename="broken.xml"/>'))
     assert one_line_error(main).startswith(f"{tmp_path / 'broken.xml'}:3: malformed XML")
+
+
+# ----------------------------------------------------------------------------- the sensor
+
+@pytest.fixture(scope="module")
+def mi():
+    mitsuba = pytest.importorskip("mitsuba")
+    try:
+        mitsuba.set_variant("scalar_rgb")
+    except Exception as exc:  # pragma: no cover - depends on the installed build
+        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
+    return mitsuba
+
+
+def sensor(inner: str, kind: str = "perspective", film: str = "") -> str:
+    return (f'<sensor type="{kind}">{inner}<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" '
+            f'up="0, 1, 0"/></transform>{film}</sensor>')
+
+
+FILM_WH = '<film type="hdrfilm"><integer name="width" value="{}"/><integer name="height" value="{}"/></film>'
+
+
+@pytest.mark.parametrize("inner", [
+    "",                                                        # Mitsuba's default: a 50 mm lens, diagonal
+    '<string name="focal_length" value="28mm"/>',
+    '<string name="focal_length" value="85"/>',
+    '<float name="fov" value="40"/><string name="fov_axis" value="diagonal"/>',
+    '<float name="fov" value="40"/><string name="fov_axis" value="y"/>',
+    '<float name="fov" value="40"/><string name="fov_axis" value="smaller"/>',
+    '<float name="fov" value="40"/><string name="fov_axis" value="larger"/>',
+])
+@pytest.mark.parametrize("size", [(64, 48), (30, 90)])
+def test_field_of_view_as_mitsuba_reads_it(mi, inner, size):
+    from caustica.camera import tan_half_angles
+    xml = scene("", sensor(inner, film=FILM_WH.format(*size)))
+    theirs = mi.traverse(mi.load_string(xml).sensors()[0])["x_fov"]
+    cam = parse_scene_string(xml).camera
+    tx, ty = tan_half_angles(cam.fov_deg, cam.fov_axis, *size)
+    assert tx == pytest.approx(np.tan(np.radians(float(np.ravel(theirs)[0])) / 2), rel=1e-5)
+    assert tx / ty == pytest.approx(size[0] / size[1])
+
+
+def test_clip_planes(tmp_path):
+    cam = parse_scene_string(scene("", sensor('<float name="fov" value="45"/>'))).camera
+    assert (cam.near_clip, cam.far_clip) == (1e-2, 1e4)          # Mitsuba's defaults
+    body = '<shape type="sphere" id="s"><point name="center" value="0, 0, -3"/></shape>'  # reaches depth 9 from the camera
+    for far in ("10", "9.01"):
+        d = parse_scene_string(scene(body, sensor(f'<float name="fov" value="45"/><float name="near_clip" value="0.5"/>'
+                                                  f'<float name="far_clip" value="{far}"/>')))
+        assert (d.camera.near_clip, d.camera.far_clip) == (0.5, float(far))
+    # a far plane that would cut a shape: refused, as caustica does not clip there
+    path = write(tmp_path / "far.xml", scene(body, sensor('<float name="fov" value="45"/>\n<float name="far_clip" value="7"/>')))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:4: <float name=\"far_clip\">: far_clip=7 would hide the parts of the scene beyond it "
+                          f"(they reach 9 along the view axis)"), msg
+    # a rectangle's far corner counts, not its centre
+    rect = '<shape type="rectangle"><transform name="to_world"><scale value="10"/><rotate x="1" angle="80"/></transform></shape>'
+    path.write_text(scene(rect, sensor('<float name="fov" value="45"/><float name="far_clip" value="12"/>')))
+    assert "they reach 14.85 along the view axis" in one_line_error(path)
+
+
+@pytest.mark.parametrize("inner, words", [
+    ('<float name="fov" value="45"/><string name="focal_length" value="50mm"/>', "either 'fov' or 'focal_length'"),
+    ('<string name="focal_length" value="wide"/>', "focal_length='wide' is not a positive length"),
+    ('<string name="focal_length" value="-5mm"/>', "focal_length='-5mm' is not a positive length"),
+    ('<float name="fov" value="45"/><string name="fov_axis" value="z"/>', "unknown fov_axis 'z'; supported: x, y, diagonal"),
+    ('<float name="fov" value="45"/><float name="principal_point_offset_x" value="0.1"/>', "off-centre"),
+    ('<float name="fov" value="45"/><float name="near_clip" value="2"/><float name="far_clip" value="1"/>',
+     "near_clip (2) must be smaller than far_clip (1)"),
+])
+def test_sensor_setting_errors(tmp_path, inner, words):
+    path = write(tmp_path / "cam.xml", scene("", sensor(inner)))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:3: ") and words in msg, msg
+
+
+def test_settings_that_change_nothing_in_a_pinhole_image_are_accepted():
+    inner = ('<float name="fov" value="45"/><float name="focus_distance" value="3"/>'
+             '<float name="shutter_open" value="0"/><float name="shutter_close" value="1"/>'
+             '<float name="principal_point_offset_x" value="0"/>')
+    plain = parse_scene_string(scene("", sensor('<float name="fov" value="45"/>'))).camera
+    cam = parse_scene_string(scene("", sensor(inner))).camera
+    assert (cam.fov_deg, cam.fov_axis, cam.near_clip) == (plain.fov_deg, plain.fov_axis, plain.near_clip)
+    # a thin lens of aperture 0 is a pinhole; a real aperture is refused
+    lens = parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0"/>', "thinlens"))).camera
+    assert np.array_equal(lens.to_world, plain.to_world) and lens.fov_deg == plain.fov_deg
+    with pytest.raises(SceneError, match=r'<float name="aperture_radius">: a thin lens with aperture_radius=0.1 '
+                                         r'\(depth of field\) is not supported'):
+        parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0.1"/>', "thinlens")))

@@ -129,8 +129,11 @@ class Camera:
     """A perspective camera in Mitsuba's convention.
 
     to_world maps camera space (looking along +z, +y up, +x towards the image's
-    left) to the world; fov_deg is measured along ``fov_axis`` (x, y, smaller or larger).
+    left) to the world; fov_deg is measured along ``fov_axis`` (x, y, diagonal, smaller or larger).
     ``medium``: the medium the camera sits in (an index into the scene's media, -1 for none).
+    ``near_clip``: camera rays start on the plane at this depth (Mitsuba's near clip plane).
+    ``far_clip``: Mitsuba's far clip plane (camera rays end at this depth).  caustica's camera rays do not
+    stop there yet; the loader refuses a ``far_clip`` that any shape reaches beyond, so it changes nothing.
     """
     to_world: np.ndarray
     fov_deg: float
@@ -138,6 +141,7 @@ class Camera:
     width: int = 768
     height: int = 576
     near_clip: float = 1e-2
+    far_clip: float = 1e4
     film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
     medium: int = -1
 

@@ -71,12 +71,26 @@ MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOA
 PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
 #: The names a medium takes inside a shape (Mitsuba's interior and exterior media).
 SHAPE_MEDIUM_NAMES = ("interior", "exterior")
-SENSOR_PROPS = {"perspective": {"fov": FLOAT, "fov_axis": STR, "near_clip": FLOAT, "to_world": XFORM}}
+_PERSPECTIVE = {"fov": FLOAT, "focal_length": STR + FLOAT, "fov_axis": STR, "near_clip": FLOAT, "far_clip": FLOAT,
+                "to_world": XFORM,
+                # accepted, changing nothing in a pinhole camera's image of a static scene (docs/scenes.md):
+                "focus_distance": FLOAT, "shutter_open": FLOAT, "shutter_close": FLOAT,
+                # accepted when 0 (Mitsuba's default), refused otherwise
+                "principal_point_offset_x": FLOAT, "principal_point_offset_y": FLOAT}
+SENSOR_PROPS = {"perspective": _PERSPECTIVE,
+                # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
+                "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT}}
 FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
 SAMPLER_TYPES = ("independent", "stratified", "multijitter")
 SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
 RFILTER_PROPS = {"box": {}}
-FOV_AXES = ("x", "y", "smaller", "larger")
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+#: Mitsuba 3's sensor defaults (src/render/sensor.cpp): a 50 mm lens on 35 mm film (36 x 24 mm), whose
+#: field of view is measured along the film's diagonal; the clip planes.
+DEFAULT_FOCAL_LENGTH_MM = 50.0
+FILM_DIAGONAL_MM = math.sqrt(36.0 ** 2 + 24.0 ** 2)
+DEFAULT_NEAR_CLIP = 1e-2
+DEFAULT_FAR_CLIP = 1e4
 
 #: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
 #: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
@@ -254,6 +268,7 @@ class _Loader:
         self.params = params
         self.ids: dict[str, Node] = {}
         self.main_file: Path | None = None    # the scene file itself (resolved), for the include-loop check
+        self.far_clip_node: Node | None = None
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
@@ -729,16 +744,25 @@ class _Loader:
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
         props = self.plugin(node, SENSOR_PROPS, ("film", "sampler", "medium", "ref"))
-        if not props.has("fov"):
-            self.fail(node, "the perspective sensor needs <float name=\"fov\" .../> "
-                            "(focal_length is not supported)")
-        fov = float(props.get("fov"))
-        if not 0.0 < fov < 180.0:
-            self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
-        axis = props.get("fov_axis", "x").strip().lower()
-        if axis not in FOV_AXES:
-            self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
-        near = float(self.number(props, "near_clip", 1e-2, positive=True))
+        fov, axis = self.field_of_view(node, props)
+        near = float(self.number(props, "near_clip", DEFAULT_NEAR_CLIP, positive=True))
+        far = float(self.number(props, "far_clip", DEFAULT_FAR_CLIP, positive=True))
+        if not near < far:
+            self.fail(props.node_of("far_clip" if props.has("far_clip") else "near_clip"),
+                      f"near_clip ({near:g}) must be smaller than far_clip ({far:g}), as in Mitsuba")
+        for p in ("principal_point_offset_x", "principal_point_offset_y"):
+            if props.get(p, 0.0) != 0.0:
+                self.fail(props.node_of(p), f"'{p}' other than 0 (an off-centre image) is not supported",
+                          supported=["0"])
+        if node.attrs["type"] == "thinlens":
+            radius = float(self.number(props, "aperture_radius", None, nonneg=True) or 0.0)
+            if not props.has("aperture_radius"):
+                self.fail(node, "a thinlens sensor needs <float name=\"aperture_radius\" .../> (as in Mitsuba)")
+            if radius > 0.0:
+                self.fail(props.node_of("aperture_radius"),
+                          f"a thin lens with aperture_radius={radius:g} (depth of field) is not supported: caustica's "
+                          f"camera is a pinhole",
+                          supported=["perspective", "thinlens with aperture_radius 0"])
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
@@ -776,8 +800,54 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, film_source=film_where, medium=medium)
+                     near_clip=near, far_clip=far, film_source=film_where, medium=medium)
+        self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
+
+    def field_of_view(self, node: Node, props: Props) -> tuple[float, str]:
+        """(fov in degrees, fov_axis) as Mitsuba 3's parse_fov reads them: ``fov`` along ``fov_axis`` (x by
+        default), or a ``focal_length`` ("<x>mm", 50mm by default) on 35 mm film, along the diagonal."""
+        if props.has("fov") and props.has("focal_length"):
+            self.fail(props.node_of("focal_length"), "give either 'fov' or 'focal_length', not both (as in Mitsuba)")
+        if props.has("fov"):
+            fov = float(props.get("fov"))
+            if not 0.0 < fov < 180.0:
+                self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
+            axis = props.get("fov_axis", "x").strip().lower()
+            if axis not in FOV_AXES:
+                self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
+            return fov, axis
+        if props.has("fov_axis"):   # Mitsuba reads it only with fov; check it all the same
+            axis = props.get("fov_axis").strip().lower()
+            if axis not in FOV_AXES:
+                self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
+        f = props.get("focal_length", f"{DEFAULT_FOCAL_LENGTH_MM:g}mm")
+        text = str(f).strip()
+        text = text[:-2] if text.endswith("mm") else text
+        try:
+            mm = tf.parse_float(text)
+        except ValueError:
+            mm = float("nan")
+        if not mm > 0:
+            self.fail(props.node_of("focal_length"), f"focal_length={quoted(f)} is not a positive length in "
+                                                     f"millimetres; write it as \"<x>mm\", e.g. \"50mm\"")
+        return math.degrees(2.0 * math.atan(FILM_DIAGONAL_MM / (2.0 * mm))), "diagonal"
+
+    def check_far_clip(self, camera: Camera, shapes: list[Shape]) -> None:
+        """caustica's camera rays do not stop at far_clip: accept a far_clip no shape reaches (then it changes
+        nothing), refuse one that would hide part of the scene.  Only a far_clip the file gives is checked
+        (Mitsuba's default, 1e4, cuts only scenes larger than that, which loaded before).  The test is the camera-space depth (the
+        distance along the view axis, where Mitsuba's far plane lies) of each shape's bounds."""
+        if self.far_clip_node is None:
+            return   # Mitsuba's default 1e4: not checked, so that scenes of any size load as before
+        m = np.asarray(camera.to_world, dtype=np.float64)
+        axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+        depth = _farthest_depth(shapes, m[:3, 3], axis)
+        if depth is not None and depth > camera.far_clip:
+            self.fail(self.far_clip_node,
+                      f"far_clip={camera.far_clip:g} would hide the parts of the scene beyond it (they reach "
+                      f"{depth:.4g} along the view axis), and caustica does not clip camera rays at far_clip; "
+                      f"raise far_clip to at least {depth:.4g} or remove it")
 
     # -- integrator -------------------------------------------------------------------
     def generic_props(self, node: Node) -> dict:
@@ -842,11 +912,31 @@ class _Loader:
         if camera is None:
             raise SceneError(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
                              f"add <sensor type=\"perspective\">")
+        self.check_far_clip(camera, shapes)
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=integrator, media=self.media,
                                 integrator_props=integrator_props, source=self.source,
                                 integrator_source="" if integrator_node is None
                                 else self.at(integrator_node))
+
+
+def _farthest_depth(shapes: list[Shape], origin: np.ndarray, axis: np.ndarray) -> float | None:
+    """The largest depth (distance along ``axis`` from ``origin``) any shape reaches, an upper bound for
+    disks and cylinders (their bounding boxes' corners); None without shapes."""
+    best = None
+    for s in shapes:
+        if s.mesh is not None:
+            d = float(np.max((s.mesh.positions - origin) @ axis)) if len(s.mesh.positions) else None
+        elif s.kind == SPHERE:
+            m = s.to_world
+            d = float((m[:3, 3] - origin) @ axis + np.linalg.norm(m[:3, 0]))
+        else:
+            zs = (0.0, 1.0) if s.kind == CYLINDER else (0.0,)
+            corners = np.array([[x, y, z, 1.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in zs])
+            d = float(np.max(((corners @ s.to_world.T)[:, :3] - origin) @ axis))
+        if d is not None and (best is None or d > best):
+            best = d
+    return best
 
 
 # ----------------------------------------------------------------------------- entry points
