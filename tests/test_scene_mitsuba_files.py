@@ -212,3 +212,65 @@ def test_settings_that_change_nothing_in_a_pinhole_image_are_accepted():
     with pytest.raises(SceneError, match=r'<float name="aperture_radius">: a thin lens with aperture_radius=0.1 '
                                          r'\(depth of field\) is not supported'):
         parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0.1"/>', "thinlens")))
+
+
+# ----------------------------------------------------------------------------- film and sampler
+
+def film(inner: str) -> str:
+    return sensor('<float name="fov" value="45"/>',
+                  film=f'<film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/>'
+                       f'\n{inner}</film>')
+
+
+def test_film_settings_that_change_nothing_in_the_image_are_accepted(mi):
+    inner = ('<string name="file_format" value="OpenEXR"/><string name="pixel_format" value="rgba"/>'
+             '<string name="component_format" value="float32"/><boolean name="banner" value="false"/>'
+             '<boolean name="sample_border" value="true"/><integer name="crop_offset_x" value="0"/>'
+             '<integer name="crop_width" value="32"/><integer name="crop_height" value="24"/>'
+             '<rfilter type="box"/>')
+    xml = scene("", film(inner))
+    mi.load_string(xml)   # all of it is Mitsuba 3's
+    plain = parse_scene_string(scene("", film(""))).camera
+    cam = parse_scene_string(xml).camera
+    assert (cam.width, cam.height, cam.fov_deg) == (plain.width, plain.height, plain.fov_deg) == (32, 24, 45)
+    for fmt in ("rgbe", "pfm", "exr"):
+        parse_scene_string(scene("", film(f'<string name="file_format" value="{fmt}"/>')))
+    for fmt in ("float16", "uint32"):
+        parse_scene_string(scene("", film(f'<string name="component_format" value="{fmt}"/>')))
+
+
+@pytest.mark.parametrize("inner, words", [
+    ('<string name="pixel_format" value="luminance"/>',
+     "pixel_format='luminance' is not supported: caustica's images are linear RGB; supported: rgb, rgba"),
+    ('<string name="pixel_format" value="cmyk"/>', "unknown pixel_format 'cmyk'; supported: rgb, rgba, luminance"),
+    ('<string name="file_format" value="png"/>', "unknown file_format 'png'; supported: openexr, exr, rgbe, pfm"),
+    ('<string name="component_format" value="int8"/>', "unknown component_format 'int8'"),
+    ('<integer name="crop_width" value="16"/>', "a crop window (crop_offset_x=0, crop_offset_y=0, crop_width=16, "
+                                                "crop_height=24) smaller than the 32 x 24 film is not supported"),
+    ('<integer name="crop_offset_x" value="20"/><integer name="crop_width" value="16"/>',
+     "must lie inside the 32 x 24 film"),
+    ('<integer name="crop_offset_y" value="-1"/>', "'crop_offset_y' must not be negative"),
+])
+def test_film_setting_errors(tmp_path, inner, words):
+    path = write(tmp_path / "film.xml", scene("", film(inner)))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:4: ") and words in msg, msg
+
+
+@pytest.mark.parametrize("kind, extra", [
+    ("independent", '<integer name="seed" value="3"/>'),
+    ("stratified", '<boolean name="jitter" value="false"/>'),
+    ("multijitter", '<boolean name="jitter" value="true"/>'),
+    ("orthogonal", '<integer name="strength" value="2"/>'),
+    ("ldsampler", ""),
+])
+@pytest.mark.parametrize("count", [10, 16, 37])
+def test_every_mitsuba_sampler_gives_its_sample_count(mi, kind, extra, count):
+    """sample_count is the samples per pixel, rounded as Mitsuba's sampler rounds it (stratified to a square...)."""
+    s = sensor('<float name="fov" value="45"/>',
+               film=f'<sampler type="{kind}"><integer name="sample_count" value="{count}"/>{extra}</sampler>')
+    theirs = mi.load_string(scene("", s)).sensors()[0].sampler().sample_count()
+    assert parse_scene_string(scene("", s)).spp == theirs >= count
+    assert (theirs == count) == (kind == "independent" or count == 16 and kind != "orthogonal")
+    with pytest.raises(SceneError, match=f"unknown property 'warp' of <sampler type=\"{kind}\">"):
+        parse_scene_string(scene("", s.replace("</sampler>", '<float name="warp" value="1"/></sampler>')))

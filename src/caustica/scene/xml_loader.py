@@ -80,9 +80,25 @@ _PERSPECTIVE = {"fov": FLOAT, "focal_length": STR + FLOAT, "fov_axis": STR, "nea
 SENSOR_PROPS = {"perspective": _PERSPECTIVE,
                 # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
                 "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT}}
-FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
-SAMPLER_TYPES = ("independent", "stratified", "multijitter")
-SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
+FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT,
+                           # how Mitsuba would store the image: accepted and ignored (caustica writes linear RGB
+                           # EXR + PNG), each checked against the values Mitsuba 3's hdrfilm takes
+                           "file_format": STR, "pixel_format": STR, "component_format": STR,
+                           "banner": BOOL, "compensate": BOOL, "sample_border": BOOL,
+                           # a crop window: accepted when it is the whole film
+                           "crop_offset_x": INT, "crop_offset_y": INT, "crop_width": INT, "crop_height": INT}}
+#: Mitsuba 3's hdrfilm values (src/films/hdrfilm.cpp); pixel formats other than RGB are refused (they change the
+#: image's values), the rest only change how Mitsuba stores the file.
+FILE_FORMATS = ("openexr", "exr", "rgbe", "pfm")
+PIXEL_FORMATS = ("rgb", "rgba")
+OTHER_PIXEL_FORMATS = ("luminance", "luminance_alpha", "xyz", "xyza")
+COMPONENT_FORMATS = ("float16", "float32", "uint32")
+#: Mitsuba 3's samplers: each takes sample_count as the samples per pixel; which points it draws only changes the
+#: noise, so caustica uses its own (seed, jitter and strength are accepted and do not change the expected image).
+SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+SAMPLER_PROPS = {t: {"sample_count": INT, "seed": INT,
+                     **({"jitter": BOOL} if t in ("stratified", "multijitter", "orthogonal") else {}),
+                     **({"strength": INT} if t == "orthogonal" else {})} for t in SAMPLER_TYPES}
 RFILTER_PROPS = {"box": {}}
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
 #: Mitsuba 3's sensor defaults (src/render/sensor.cpp): a 50 mm lens on 35 mm film (36 x 24 mm), whose
@@ -781,6 +797,7 @@ class _Loader:
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
+                self.film_settings(fprops, width, height)
                 if width * height > MAX_FILM_PIXELS:
                     self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
                                    f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
@@ -794,7 +811,8 @@ class _Loader:
                     self.fail(fprops.objects[1], "the film takes only one <rfilter>")
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
-                spp = int(self.number(sprops, "sample_count", spp, positive=True))
+                spp = mitsuba_sample_count(obj.attrs["type"], int(self.number(sprops, "sample_count", spp,
+                                                                                positive=True)))
                 if spp > MAX_SAMPLE_COUNT:
                     self.fail(sprops.node_of("sample_count"), f"sample_count={spp:,} is more than "
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
@@ -803,6 +821,35 @@ class _Loader:
                      near_clip=near, far_clip=far, film_source=film_where, medium=medium)
         self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
+
+    def film_settings(self, fprops: Props, width: int, height: int) -> None:
+        """Check hdrfilm's settings that change nothing in caustica's image (they are then ignored) and refuse
+        the ones that would: a pixel format other than RGB, a crop window smaller than the film."""
+        for name, allowed, other in (("file_format", FILE_FORMATS, ()), ("component_format", COMPONENT_FORMATS, ()),
+                                     ("pixel_format", PIXEL_FORMATS, OTHER_PIXEL_FORMATS)):
+            if not fprops.has(name):
+                continue
+            v = fprops.get(name).strip().lower()
+            if v in other:
+                self.fail(fprops.node_of(name), f"{name}={quoted(v)} is not supported: caustica's images are "
+                                                f"linear RGB", supported=list(allowed))
+            if v not in allowed:
+                self.fail(fprops.node_of(name), f"unknown {name} {quoted(v)}", supported=list(allowed) + list(other))
+        crop = {}
+        for name, default in (("crop_offset_x", 0), ("crop_offset_y", 0), ("crop_width", width),
+                              ("crop_height", height)):
+            crop[name] = int(self.number(fprops, name, default, nonneg=True))
+        for off, size, full in (("crop_offset_x", "crop_width", width), ("crop_offset_y", "crop_height", height)):
+            if crop[off] + crop[size] > full or crop[size] == 0:
+                self.fail(fprops.node_of(size if fprops.has(size) else off),
+                          f"the crop window ({off}={crop[off]}, {size}={crop[size]}) must lie inside the "
+                          f"{width} x {height} film and not be empty")
+        if (crop["crop_offset_x"], crop["crop_offset_y"], crop["crop_width"], crop["crop_height"]) != (0, 0, width, height):
+            given = [n for n in crop if fprops.has(n)]
+            self.fail(fprops.node_of(given[0]),
+                      f"a crop window ({', '.join(f'{n}={crop[n]}' for n in crop)}) smaller than the {width} x {height} "
+                      f"film is not supported: caustica renders the whole film; remove the crop_* settings",
+                      supported=["a crop window covering the whole film"])
 
     def field_of_view(self, node: Node, props: Props) -> tuple[float, str]:
         """(fov in degrees, fov_axis) as Mitsuba 3's parse_fov reads them: ``fov`` along ``fov_axis`` (x by
@@ -918,6 +965,31 @@ class _Loader:
                                 integrator_props=integrator_props, source=self.source,
                                 integrator_source="" if integrator_node is None
                                 else self.at(integrator_node))
+
+
+def mitsuba_sample_count(kind: str, spp: int) -> int:
+    """The samples per pixel a Mitsuba 3 sampler of this kind takes for ``sample_count`` spp: stratified and
+    ldsampler round up to a square (ldsampler: of a power of two), orthogonal to the square of a prime,
+    multijitter to a near-square product (Mitsuba's set_sample_count, src/samplers/)."""
+    if spp > MAX_SAMPLE_COUNT:
+        return spp   # refused by the caller with the bound
+    if kind == "stratified":
+        r = math.isqrt(spp - 1) + 1 if spp > 1 else 1
+        return r * r
+    if kind == "multijitter":
+        ry = max(1, math.isqrt(spp))
+        return -(-spp // ry) * ry
+    if kind == "orthogonal":
+        r = 2
+        while r * r < spp or any(r % k == 0 for k in range(2, math.isqrt(r) + 1)):
+            r += 1
+        return r * r
+    if kind == "ldsampler":
+        r = 2
+        while r * r < spp:
+            r = 1 << (r).bit_length()   # round_to_power_of_two(r + 1) for r >= 2
+        return r * r
+    return spp
 
 
 def _farthest_depth(shapes: list[Shape], origin: np.ndarray, axis: np.ndarray) -> float | None:
