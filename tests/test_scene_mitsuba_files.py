@@ -274,3 +274,90 @@ def test_every_mitsuba_sampler_gives_its_sample_count(mi, kind, extra, count):
     assert (theirs == count) == (kind == "independent" or count == 16 and kind != "orthogonal")
     with pytest.raises(SceneError, match=f"unknown property 'warp' of <sampler type=\"{kind}\">"):
         parse_scene_string(scene("", s.replace("</sampler>", '<float name="warp" value="1"/></sampler>')))
+
+
+# ----------------------------------------------------------------------------- <spectrum>
+
+SPECTRA = ["0.5", "400:0.1, 500:0.6, 600:0.3, 700:0.9", "360:1, 830:1", "550:2, 560:2",
+           "300:0.2,450:0.9,900:0.1"]
+
+
+def spectrum_scene(kind: str, value: str) -> tuple[str, str]:
+    """(XML with one sphere whose reflectance, radiance or medium's sigma_t is the spectrum, Mitsuba's key)."""
+    attr = f'<spectrum name="{{}}" value="{value}"/>'
+    if kind == "bsdf":
+        body, key = f'<shape type="sphere"><bsdf type="diffuse">{attr.format("reflectance")}</bsdf></shape>', \
+            "bsdf.reflectance.value"
+    elif kind == "emitter":
+        body, key = f'<shape type="sphere"><emitter type="area">{attr.format("radiance")}</emitter></shape>', \
+            "emitter.radiance.value"
+    else:
+        body, key = (f'<medium type="homogeneous" id="m">{attr.format("sigma_t")}</medium>'
+                     f'<shape type="sphere"><ref name="interior" id="m"/><bsdf type="null"/></shape>',
+                     "interior_medium.sigma_t.value.value")
+    return scene(body, sensor('<float name="fov" value="45"/>')), key
+
+
+def spectrum_rgb(d, kind):
+    s = d.shapes[0]
+    return {"bsdf": lambda: d.materials[s.material].rgb, "emitter": lambda: s.emitter_radiance,
+            "medium": lambda: d.media[0].sigma_t}[kind]()
+
+
+def test_a_constant_spectrum_is_grey_except_on_an_emitter():
+    xml, _ = spectrum_scene("bsdf", "0.5")
+    assert spectrum_rgb(parse_scene_string(xml), "bsdf") == (0.5, 0.5, 0.5)
+    xml, _ = spectrum_scene("bsdf", "360:0.5, 830:0.5")     # flat over the visible range: grey within 1e-3
+    assert spectrum_rgb(parse_scene_string(xml), "bsdf") == pytest.approx((0.5, 0.5, 0.5), abs=1e-3)
+    # an emitter's flat spectrum is D65-relative, so not white in sRGB (Mitsuba's RGB variants do the same)
+    xml, _ = spectrum_scene("emitter", "1")
+    assert spectrum_rgb(parse_scene_string(xml), "emitter") == pytest.approx((1.204794, 0.948291, 0.908916), abs=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["bsdf", "emitter", "medium"])
+@pytest.mark.parametrize("value", SPECTRA)
+def test_spectra_convert_to_rgb_as_mitsuba_does(mi, kind, value):
+    xml, key = spectrum_scene(kind, value)
+    theirs = np.ravel(np.array(mi.traverse(mi.load_string(xml).shapes()[0])[key]))
+    mine = np.array(spectrum_rgb(parse_scene_string(xml), kind))
+    np.testing.assert_allclose(mine, np.broadcast_to(theirs, (3,)), atol=1e-6)
+
+
+def test_spectrum_from_an_spd_file(tmp_path):
+    write(tmp_path / "data" / "refl.spd", "# a reflectance\n400 0.1\n500 0.6\n\n600 0.3  # comment\n700 0.9\n")
+    path = write(tmp_path / "s.xml", scene('<path value="data"/><shape type="sphere"><bsdf type="diffuse">'
+                                           '<spectrum name="reflectance" filename="refl.spd"/></bsdf></shape>'))
+    d = load_scene_file(path)
+    xml, _ = spectrum_scene("bsdf", SPECTRA[1])
+    assert spectrum_rgb(d, "bsdf") == spectrum_rgb(parse_scene_string(xml), "bsdf")
+    assert tmp_path / "data" / "refl.spd" in d.files
+
+
+@pytest.mark.parametrize("value, words", [
+    ("half", "'half' is not a number"),
+    ("500:0.5", "needs at least 2 pairs, got 1"),
+    ("600:0.5, 500:0.2", "wavelengths must increase, but 500 follows 600"),
+    ("400:0.5, 500", "'500' is not a wavelength:value pair"),
+    ("400:0.5, 500:x", "'500:x' is not a pair of numbers"),
+])
+def test_bad_spectra_are_one_line_with_file_and_line(tmp_path, capsys, value, words):
+    from caustica.cli import main
+    path = write(tmp_path / "bad.xml", scene(f'<shape type="sphere"><bsdf type="diffuse">\n'
+                                             f'<spectrum name="reflectance" value="{value}"/></bsdf></shape>'))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:6: <spectrum name=\"reflectance\">: ") and words in msg, msg
+    assert main(["render", str(path), "--method", "pt", "-q", "-o", str(tmp_path / "x.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"caustica: error: {msg}\n" and not (tmp_path / "x.exr").exists()
+
+
+@pytest.mark.parametrize("attrs, words", [
+    ('type="blackbody"', "a spectrum plugin (<spectrum type='blackbody'>) is not supported"),
+    ('value="0.5" filename="a.spd"', "either value= or filename=, not both"),
+    ('filename="none.spd"', "spectrum file 'none.spd' not found"),
+])
+def test_spectrum_element_errors(tmp_path, attrs, words):
+    path = write(tmp_path / "bad.xml", scene(f'<shape type="sphere"><bsdf type="diffuse">\n'
+                                             f'<spectrum name="reflectance" {attrs}/></bsdf></shape>'))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:6: ") and words in msg, msg

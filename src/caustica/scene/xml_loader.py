@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import SceneError, quoted, shorten
 from ..limits import MAX_PIXELS, MAX_SPP
+from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
@@ -34,14 +35,14 @@ from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 # ----------------------------------------------------------------------------- the subset
 
 #: Property tags and plugin tags this loader knows.
-PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
 TOP_LEVEL_TAGS = ("default", "include", "path", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
 BOOL = ("boolean",)
 STR = ("string",)
-COLOR = ("rgb", "float", "integer")
+COLOR = ("rgb", "spectrum", "float", "integer")
 POINT = ("point", "vector")
 XFORM = ("transform",)
 
@@ -222,6 +223,20 @@ _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 
 
 # ----------------------------------------------------------------------------- properties
+
+@dataclass
+class Spectrum:
+    """A ``<spectrum>`` property as read: a constant or (wavelengths, values); converted to RGB where it is
+    used (an emitter's converts differently, as in Mitsuba: :mod:`caustica.scene.spectra`)."""
+    constant: float | None = None
+    wavelengths: list = field(default_factory=list)
+    values: list = field(default_factory=list)
+
+    def rgb(self, emitter: bool, unbounded: bool) -> tuple[float, float, float]:
+        if self.constant is not None:
+            return spectra.constant_to_rgb(self.constant, emitter)
+        return spectra.pairs_to_rgb(self.wavelengths, self.values, emitter, unbounded)
+
 
 @dataclass
 class Prop:
@@ -465,6 +480,8 @@ class _Loader:
                 return tf.check_transform(tf.compose(ops))
             if node.children:
                 self.fail(node.children[0], f"<{tag}> takes no child elements")
+            if tag == "spectrum":
+                return self.spectrum_value(node)
             if tag in ("point", "vector"):
                 self.check_attrs(node, ("name", "value", "x", "y", "z"), ("name",))
                 return tf.xyz_from_attrs({k: v for k, v in node.attrs.items() if k != "name"}, 0.0)
@@ -491,11 +508,44 @@ class _Loader:
             self.fail(node, str(exc))
         raise AssertionError(tag)
 
-    def color(self, props: Props, name: str, default: tuple, nonneg: bool = True) -> tuple:
+    def spectrum_value(self, node: Node) -> Spectrum:
+        """A <spectrum value="..."/> (one number, or wavelength:value pairs) or <spectrum filename="x.spd"/>."""
+        if "type" in node.attrs:
+            self.fail(node, f"a spectrum plugin (<spectrum type={quoted(node.attrs['type'])}>) is not supported",
+                      supported=['<spectrum value="0.5"/>', '<spectrum value="400:0.1, 700:0.9"/>',
+                                 '<spectrum filename="x.spd"/>'])
+        self.check_attrs(node, ("name", "value", "filename"), ("name",))
+        if ("value" in node.attrs) == ("filename" in node.attrs):
+            self.fail(node, "a <spectrum> needs either value= or filename=, not both (as in Mitsuba)")
+        try:
+            if "value" in node.attrs:
+                parsed = spectra.parse_spectrum(node.attrs["value"])
+                if isinstance(parsed, float):
+                    return Spectrum(constant=tf.parse_float(node.attrs["value"].strip().rstrip(",")))
+            else:
+                path = self.find_file(node, node.attrs["filename"], "spectrum file")
+                self.files.append(Path(path))
+                parsed = spectra.read_spd(path)
+        except (ValueError, SceneError) as exc:
+            self.fail(node, str(exc))
+        except OSError as exc:
+            self.fail(node, f"cannot read the spectrum file {quoted(node.attrs['filename'])}: {exc.strerror}")
+        for v in parsed[1]:
+            if abs(v) > tf.MAX_ABS_FLOAT:
+                self.fail(node, f"spectrum value {v:g} is out of range (beyond {tf.MAX_ABS_FLOAT:.3g}, float32)")
+        return Spectrum(wavelengths=parsed[0], values=parsed[1])
+
+    def color(self, props: Props, name: str, default: tuple, nonneg: bool = True, *, emitter: bool = False,
+              unbounded: bool = False) -> tuple:
+        """A colour property as RGB (an <rgb>, a number, or a <spectrum> converted as Mitsuba's RGB variants do:
+        ``emitter`` for radiance and intensity, ``unbounded`` for quantities not limited to [0, 1])."""
         v = props.get(name)
         if v is None:
             return default
-        rgb = (float(v),) * 3 if not isinstance(v, tuple) else tuple(float(c) for c in v)
+        if isinstance(v, Spectrum):
+            rgb = v.rgb(emitter, unbounded)
+        else:
+            rgb = (float(v),) * 3 if not isinstance(v, tuple) else tuple(float(c) for c in v)
         if nonneg and min(rgb) < 0:
             self.fail(props.node_of(name), f"'{name}' must not be negative, got {rgb}")
         return rgb
@@ -631,8 +681,8 @@ class _Loader:
         """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults)."""
         props = self.plugin(node, MEDIUM_PROPS, ("phase",))
         scale = float(self.number(props, "scale", 1.0, nonneg=True))
-        sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0))
-        albedo = self.color(props, "albedo", (0.75, 0.75, 0.75))
+        sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0), unbounded=True)
+        albedo = self.color(props, "albedo", (0.75, 0.75, 0.75), unbounded=True)
         if max(albedo) > 1.0:
             self.fail(props.node_of("albedo"), f"'albedo' is sigma_s / sigma_t and must lie in [0, 1], got {albedo}")
         sigma = tuple(c * scale for c in sigma_t)
@@ -686,7 +736,7 @@ class _Loader:
                 if radiance is not None:
                     self.fail(obj, "a shape takes only one emitter")
                 eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]})
-                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0))
+                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0), emitter=True)
         if material is None:
             material = self.default_material_index(emitter=radiance is not None)
 
@@ -950,7 +1000,7 @@ class _Loader:
                     pos = props.get("to_world")[:3, 3]
                 else:
                     pos = props.get("position", np.zeros(3))
-                intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
+                intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
                 lights.append(PointLight(tuple(float(c) for c in pos), intensity,
                                          source=self.at(node)))
             else:
