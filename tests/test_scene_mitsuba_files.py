@@ -361,3 +361,56 @@ def test_spectrum_element_errors(tmp_path, attrs, words):
                                              f'<spectrum name="reflectance" {attrs}/></bsdf></shape>'))
     msg = one_line_error(path)
     assert msg.startswith(f"{path}:6: ") and words in msg, msg
+
+
+# ----------------------------------------------------------------------------- <integrator>
+
+def integrator_of(xml_integrator: str):
+    return parse_scene_string(scene(xml_integrator, sensor('<float name="fov" value="45"/>')))
+
+
+def test_the_integrator_settings_are_read():
+    d = integrator_of('<integrator type="path"><integer name="max_depth" value="8"/><integer name="rr_depth" value="3"/>'
+                      '<boolean name="hide_emitters" value="true"/></integrator>')
+    st = d.integrator_settings
+    assert (st.type, st.max_depth, st.rr_depth, st.hide_emitters, st.wrapper) == ("path", 8, 3, True, "")
+    assert st.source == "<string>:4" and d.integrator == "path" and d.integrator_source == "<string>:4"
+    # without an <integrator>: Mitsuba's defaults (its default integrator is path)
+    st = integrator_of("").integrator_settings
+    assert (st.type, st.max_depth, st.rr_depth, st.hide_emitters, st.source) == ("path", -1, 5, False, "")
+
+
+def test_a_moment_integrator_stands_for_the_one_it_wraps():
+    d = integrator_of('<integrator type="moment">\n<integrator type="volpath"><integer name="max_depth" value="4"/>'
+                      '</integrator></integrator>')
+    st = d.integrator_settings
+    assert (st.type, st.max_depth, st.wrapper, st.source, st.wrapper_source) == \
+        ("volpath", 4, "moment", "<string>:5", "<string>:4")
+    assert d.integrator == "volpath" and d.integrator_props == {"max_depth": 4}
+    # so the note about the integrator is the wrapped one's: pt with the file's settings says nothing
+    assert d.integrator_note("pt", {"max_depth": 4, "rr_depth": 5}) is None
+
+
+@pytest.mark.parametrize("xml, kind, props", [
+    ('<integrator type="direct"><integer name="emitter_samples" value="4"/></integrator>', "direct",
+     {"emitter_samples": 4}),
+    ('<integrator type="ptracer"><integer name="samples_per_pass" value="16"/></integrator>', "ptracer",
+     {"samples_per_pass": 16}),
+    ('<integrator type="bdpt"/>', "bdpt", {}),      # not Mitsuba 3's: recorded, caustica picks its own method
+])
+def test_other_integrators_are_recorded(xml, kind, props):
+    d = integrator_of(xml)
+    assert (d.integrator_settings.type, d.integrator_settings.props, d.integrator_settings.max_depth) == (kind, props, -1)
+
+
+@pytest.mark.parametrize("inner, words", [
+    ('<integer name="max_depth" value="-2"/>', "'max_depth' must be at least -1, got -2"),
+    ('<integer name="rr_depth" value="0"/>', "'rr_depth' must be positive, got 0"),
+    ('<float name="max_depth" value="3"/>', "'max_depth' must be given as <integer>"),
+    ('<string name="hide_emitters" value="yes"/>', "'hide_emitters' must be given as <boolean>"),
+])
+def test_integrator_setting_errors(tmp_path, inner, words):
+    path = write(tmp_path / "int.xml", scene(f'<integrator type="moment"><integrator type="path">\n{inner}'
+                                             f'</integrator></integrator>', sensor('<float name="fov" value="45"/>')))
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:5: ") and words in msg, msg

@@ -29,7 +29,8 @@ from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
-                          NULL, SPHERE, Camera, Material, Medium, PointLight, SceneDescription, Shape)
+                          NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, SceneDescription,
+                          Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 
 # ----------------------------------------------------------------------------- the subset
@@ -108,6 +109,12 @@ DEFAULT_FOCAL_LENGTH_MM = 50.0
 FILM_DIAGONAL_MM = math.sqrt(36.0 ** 2 + 24.0 ** 2)
 DEFAULT_NEAR_CLIP = 1e-2
 DEFAULT_FAR_CLIP = 1e4
+
+#: Integrators that wrap another (Mitsuba's moment, aov, stokes): the wrapped one renders the image.
+INTEGRATOR_WRAPPERS = ("moment", "aov", "stokes")
+#: The integrator settings the description carries: (Mitsuba's default, type, valid when).
+INTEGRATOR_SETTINGS = {"max_depth": (-1, int, lambda v: v >= -1), "rr_depth": (5, int, lambda v: v > 0),
+                       "hide_emitters": (False, bool, None)}
 
 #: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
 #: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
@@ -947,6 +954,33 @@ class _Loader:
                       f"raise far_clip to at least {depth:.4g} or remove it")
 
     # -- integrator -------------------------------------------------------------------
+    def integrator(self, node: Node) -> IntegratorSettings:
+        """The scene's <integrator>, recorded for the methods (not checked against a list: caustica picks its own
+        method).  A wrapper (``moment``, ``aov``, ``stokes``) stands for the integrator it wraps, whose
+        max_depth, rr_depth and hide_emitters are checked as Mitsuba checks them."""
+        self.check_attrs(node, ("type", "id", "name"), ("type",))
+        wrapper, wrapper_node = "", None
+        inner = [c for c in node.children if c.tag == "integrator"]
+        if node.attrs["type"] in INTEGRATOR_WRAPPERS and inner:
+            wrapper, wrapper_node = node.attrs["type"], node
+            node = inner[0]
+            self.check_attrs(node, ("type", "id", "name"), ("type",))
+        props = self.generic_props(node)
+        values = {}
+        for name, (default, kind, rule) in INTEGRATOR_SETTINGS.items():
+            v = props.get(name, default)
+            child = next((c for c in node.children if c.tag in PROPERTY_TAGS and c.attrs.get("name") == name), node)
+            ok = isinstance(v, bool) if kind is bool else (isinstance(v, int) and not isinstance(v, bool))
+            if not ok:
+                self.fail(child, f"'{name}' must be given as <{'boolean' if kind is bool else 'integer'}>")
+            if kind is int and not rule(v):
+                self.fail(child, f"'{name}' must be {'at least -1' if name == 'max_depth' else 'positive'}, got {v} "
+                                 f"(as in Mitsuba)")
+            values[name] = v
+        return IntegratorSettings(type=node.attrs["type"], **values, wrapper=wrapper, props=props,
+                                  source=self.at(node), wrapper_source="" if wrapper_node is None
+                                  else self.at(wrapper_node))
+
     def generic_props(self, node: Node) -> dict:
         """Any properties and nested plugins, for the integrator (recorded, not checked)."""
         out = {}
@@ -963,7 +997,7 @@ class _Loader:
     # -- the scene ----------------------------------------------------------------------
     def scene(self, root: Node) -> SceneDescription:
         camera, spp = None, 4
-        integrator, integrator_props, integrator_node = "path", {}, None
+        settings, integrator_node = IntegratorSettings(), None
         shapes: list[Shape] = []
         lights: list[PointLight] = []
         for node in root.children:
@@ -973,10 +1007,8 @@ class _Loader:
             if tag == "integrator":
                 if integrator_node is not None:
                     self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
-                self.check_attrs(node, ("type", "id", "name"), ("type",))
                 integrator_node = node
-                integrator = node.attrs["type"]
-                integrator_props = self.generic_props(node)
+                settings = self.integrator(node)
             elif tag == "sensor":
                 if camera is not None:
                     self.fail(node, "only one <sensor> is supported")
@@ -1011,10 +1043,9 @@ class _Loader:
                              f"add <sensor type=\"perspective\">")
         self.check_far_clip(camera, shapes)
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
-                                point_lights=lights, spp=spp, integrator=integrator, media=self.media,
-                                integrator_props=integrator_props, source=self.source,
-                                integrator_source="" if integrator_node is None
-                                else self.at(integrator_node))
+                                point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
+                                integrator_props=settings.props, source=self.source,
+                                integrator_source=settings.source, integrator_settings=settings)
 
 
 def mitsuba_sample_count(kind: str, spp: int) -> int:
