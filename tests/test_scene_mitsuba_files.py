@@ -414,3 +414,71 @@ def test_integrator_setting_errors(tmp_path, inner, words):
                                              f'</integrator></integrator>', sensor('<float name="fov" value="45"/>')))
     msg = one_line_error(path)
     assert msg.startswith(f"{path}:5: ") and words in msg, msg
+
+
+# ----------------------------------------------------------------------------- one report of every problem
+
+MANY = """<sensor type="perspective"><float name="fov" value="45"/>
+<film type="hdrfilm"><string name="pixel_format" value="rgb"/><boolean name="banner" value="no"/>
+<rfilter type="gaussian"/></film></sensor>
+<texture type="checkerboard" id="checks"/>
+<bsdf type="roughplastic" id="plastic"/>
+<shape type="torus"/>
+<shape type="sphere"><float name="radius" value="1"/><float name="smoothness" value="1"/>
+<bsdf type="diffuse"><spectrum name="reflectance" value="600:1, 500:1"/></bsdf></shape>
+<shape type="cube"><ref id="plastic"/></shape>
+<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>
+<include filename="more.xml"/>
+<shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+
+
+def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
+    from caustica.cli import main
+    write(tmp_path / "more.xml", '<scene version="3.0.0">\n<emitter type="spot"/>\n</scene>')
+    path = write(tmp_path / "many.xml", f'<scene version="3.0.0">\n{MANY}\n</scene>\n')
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path)
+    head, *items = str(e.value).split("\n")
+    assert head == f"{path}: 9 problems, each with its file and line (and what is supported there):"
+    expected = [
+        (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
+        (4, "<rfilter type=\"gaussian\">: "),
+        (5, "<texture type=\"checkerboard\" id=\"checks\">: unknown element at the top level of the scene; supported: "),
+        (6, "<bsdf type=\"roughplastic\" id=\"plastic\">: unknown bsdf type 'roughplastic'; supported: diffuse,"),
+        (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
+        (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),
+        (9, "<spectrum name=\"reflectance\">: wavelengths must increase, but 500 follows 600"),
+        (11, "<emitter type=\"envmap\">: unknown emitter type 'envmap'; supported: point (top level), area"),
+    ]
+    assert len(items) == 9
+    for item, (line, words) in zip(items, expected):
+        assert item.startswith(f"  {path}:{line}: {words}"), item
+    assert items[8].startswith(f"  {tmp_path / 'more.xml'}:2: <emitter type=\"spot\">: unknown emitter type 'spot'")
+    # the command line prints it as one error, exit 2, nothing written
+    assert main(["render", str(path), "--method", "pt", "-q", "-o", str(tmp_path / "x.exr")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"caustica: error: {e.value}\n" and not (tmp_path / "x.exr").exists()
+
+
+def test_a_single_problem_keeps_its_one_line_message(tmp_path):
+    path = write(tmp_path / "one.xml", scene('<shape type="torus"/>\n<shape type="cube"/>'))
+    assert one_line_error(path) == (f"{path}:5: <shape type=\"torus\">: unknown shape type 'torus'; supported: "
+                                    f"rectangle, cube, sphere, disk, cylinder, obj, ply")
+    # a shape that uses a broken BSDF is not a second problem: the BSDF is
+    path.write_text(scene('<bsdf type="diffuse" id="d"><float name="gloss" value="1"/></bsdf>\n'
+                          '<shape type="cube"><ref id="d"/></shape><shape type="sphere"><ref id="d"/></shape>'))
+    assert one_line_error(path).startswith(f"{path}:5: <float name=\"gloss\">: unknown property 'gloss'")
+
+
+def test_reading_stops_where_going_on_is_not_safe(tmp_path):
+    # malformed XML: nothing after it can be read
+    path = write(tmp_path / "bad.xml", scene('<shape type="torus"/>\n<shape type="cube">'))
+    assert one_line_error(path).startswith(f"{path}:7: malformed XML")
+    # an undefined $name: reported (every one) before anything is interpreted
+    path.write_text(scene('<shape type="torus"/>\n<shape type="sphere"><float name="radius" value="$r"/></shape>\n'
+                          '<shape type="sphere"><float name="radius" value="$q"/></shape>'))
+    with pytest.raises(SceneError) as e:
+        load_scene_file(path)
+    lines = str(e.value).split("\n")
+    assert lines[0] == f"{path}: 2 problems, each with its file and line (and what is supported there):"
+    assert "uses $r, which is not defined" in lines[1] and "uses $q, which is not defined" in lines[2]

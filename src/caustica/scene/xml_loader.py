@@ -138,9 +138,16 @@ IOR_TABLE = {
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
+#: The plugin tables and nested elements the one report checks in elements it cannot build.
+LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
+                 "film": ("rfilter",), "medium": ("phase",)}
+
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
              "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS}
+
+
+LINT_TABLES = SUPPORTED
 
 
 def _names(items) -> str:
@@ -252,39 +259,53 @@ class Prop:
     node: Node
 
 
+class _Abandon(Exception):
+    """An element is left unbuilt because of problems already recorded (see ``_Loader.record``)."""
+
+
 class Props:
     """The properties and nested objects of one plugin element, checked against a spec.
 
-    Unknown names or wrong tags raise at once (at the property's line); ``get`` marks a
-    property as used, and :meth:`finish` is not needed because the spec already lists
-    every name the plugin consumes.
+    Unknown names, wrong tags and bad values are each recorded (at the property's line) and the element is
+    then abandoned (``_Abandon``), so one report lists every problem of an element; ``get`` returns a value,
+    and no final check is needed because the spec already lists every name the plugin consumes.
     """
 
     def __init__(self, loader: "_Loader", node: Node, spec: dict, child_tags: tuple[str, ...]):
         self.node = node
         self.props: dict[str, Prop] = {}
         self.objects: list[Node] = []
+        bad = False
         for child in node.children:
-            if child.tag in PROPERTY_TAGS:
-                name = child.attrs.get("name")
-                if name is None:
-                    loader.fail(child, "a property needs a name= attribute")
-                if name not in spec:
-                    loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
-                                supported=list(spec))
-                if child.tag not in spec[name]:
-                    loader.fail(child, f"property '{name}' must be given as "
-                                       f"{' or '.join('<' + t + '>' for t in spec[name])}, not <{child.tag}>")
-                if name in self.props:
-                    loader.fail(child, f"property '{name}' is given twice "
-                                       f"(first on line {self.props[name].node.line})")
-                self.props[name] = Prop(child.tag, loader.property_value(child), child)
-            elif child.tag in child_tags or (child.tag == "ref" and "ref" in child_tags):
-                self.objects.append(child)
-            else:
-                supported = [f"<{t}>" for t in child_tags] + (
-                    [f"properties {_names(list(spec))}"] if spec else [])
-                loader.fail(child, f"unexpected element inside {node.describe()}", supported=supported)
+            try:
+                self._read(loader, node, child, spec, child_tags)
+            except SceneError as exc:
+                loader.record(exc)
+                bad = True
+        if bad:
+            raise _Abandon
+
+    def _read(self, loader: "_Loader", node: Node, child: Node, spec: dict, child_tags: tuple[str, ...]) -> None:
+        if child.tag in PROPERTY_TAGS:
+            name = child.attrs.get("name")
+            if name is None:
+                loader.fail(child, "a property needs a name= attribute")
+            if name not in spec:
+                loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
+                            supported=list(spec))
+            if child.tag not in spec[name]:
+                loader.fail(child, f"property '{name}' must be given as "
+                                   f"{' or '.join('<' + t + '>' for t in spec[name])}, not <{child.tag}>")
+            if name in self.props:
+                loader.fail(child, f"property '{name}' is given twice "
+                                   f"(first on line {self.props[name].node.line})")
+            self.props[name] = Prop(child.tag, loader.property_value(child), child)
+        elif child.tag in child_tags or (child.tag == "ref" and "ref" in child_tags):
+            self.objects.append(child)
+        else:
+            supported = [f"<{t}>" for t in child_tags] + (
+                [f"properties {_names(list(spec))}"] if spec else [])
+            loader.fail(child, f"unexpected element inside {node.describe()}", supported=supported)
 
     def has(self, name: str) -> bool:
         return name in self.props
@@ -314,6 +335,8 @@ class _Loader:
         self.media: list[Medium] = []
         self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
+        self.errors: list[str] = []          # every problem found, for the one report
+        self.error_keys: set = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
         self.search_paths: list[Path] = []   # the <path> folders, in the order declared
         self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
@@ -330,11 +353,58 @@ class _Loader:
         return find_data_file(filename, node.folder or self.base_dir, self.lookup_dirs(node), what)
 
     # -- errors -----------------------------------------------------------------------
-    def fail(self, node: Node, msg: str, supported=None):
+    def fail(self, node: Node, msg: str, supported=None, fatal: bool = False):
+        """Raise the SceneError of a problem at node.  ``fatal``: reading on is not safe (a limit was hit), so
+        the error is reported alone, at once, rather than collected for the one report."""
         text = f"{self.at(node)}: {node.describe()}: {msg}"
         if supported is not None:
             text += f"; supported: {_names(supported)}"
-        raise SceneError(text)
+        exc = SceneError(text)
+        exc.node = node
+        exc.fatal = fatal
+        raise exc
+
+    def record(self, exc: SceneError) -> None:
+        """Keep a problem for the one report (:meth:`raise_errors`): one per element, the first found.  A fatal
+        one is raised alone at once."""
+        if getattr(exc, "fatal", False):
+            raise exc
+        node = getattr(exc, "node", None)
+        key = id(node) if node is not None else str(exc)
+        if key not in self.error_keys and str(exc) not in self.errors:
+            self.error_keys.add(key)
+            self.errors.append(str(exc))
+
+    def raise_errors(self) -> None:
+        """One problem: its own one-line message, as ever; several: one message listing each on its line."""
+        if len(self.errors) == 1:
+            raise SceneError(self.errors[0])
+        if self.errors:
+            raise SceneError(f"{self.source}: {len(self.errors)} problems, each with its file and line (and what "
+                             f"is supported there):\n" + "\n".join(f"  {e}" for e in self.errors))
+
+    def lint(self, node: Node) -> None:
+        """Record the problems of a plugin element that will not be built (its parent failed): its type and its
+        properties, checked as building it would, then its nested elements."""
+        table = LINT_TABLES.get(node.tag)
+        if table is None:
+            return
+        try:
+            if node.tag == "bsdf" and node.attrs.get("type") == "twosided":
+                children = ("bsdf", "ref")
+            else:
+                children = LINT_CHILDREN.get(node.tag, ())
+            self.plugin(node, table, children, extra=_SHAPE_COMMON if node.tag == "shape" else None)
+        except SceneError as exc:
+            self.record(exc)
+        except _Abandon:
+            pass
+        self.lint_children(node)
+
+    def lint_children(self, node: Node) -> None:
+        for c in node.children:
+            if c.tag not in PROPERTY_TAGS:
+                self.lint(c)
 
     def at(self, node: Node) -> str:
         """"file:line" of a node (its own file, which may be an included one)."""
@@ -342,7 +412,16 @@ class _Loader:
 
     # -- substitution and ids -----------------------------------------------------------
     def substitute(self, node: Node) -> None:
-        """Replace $name in every attribute (except inside <default>) and collect ids."""
+        """Replace $name in every attribute (except inside <default>) and collect ids; every problem is
+        recorded (none is interpreted yet, so all can be listed)."""
+        try:
+            self._substitute_one(node)
+        except SceneError as exc:
+            self.record(exc)
+        for c in node.children:
+            self.substitute(c)
+
+    def _substitute_one(self, node: Node) -> None:
         if node.tag != "default":
             for k, v in node.attrs.items():
                 if "$" in v:
@@ -363,8 +442,6 @@ class _Loader:
                 where = f"line {first.line}" if first.source == node.source else self.at(first)
                 self.fail(node, f"id {quoted(i)} is already used on {where}")
             self.ids[i] = node
-        for c in node.children:
-            self.substitute(c)
 
     def substitute_attrs(self, node: Node) -> None:
         """$name substitution in the attributes of one node (for <include> and <path>, which are read
@@ -374,6 +451,7 @@ class _Loader:
             self.substitute(node)
         finally:
             node.children = children
+        self.raise_errors()
 
     def read_defaults(self, root: Node) -> None:
         """The <default>s among root's children: a name not yet defined gets its value (the caller's -D
@@ -599,7 +677,7 @@ class _Loader:
             self.fail(node, "the BSDF refers to itself (a reference cycle)")
         if len(self.in_progress) >= MAX_NESTING_DEPTH:
             self.fail(node, f"BSDFs wrap each other (through twosided and <ref>) more than "
-                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed")
+                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed", fatal=True)
         self.in_progress.add(key)
         try:
             return self._build_material(node)
@@ -1000,52 +1078,72 @@ class _Loader:
         settings, integrator_node = IntegratorSettings(), None
         shapes: list[Shape] = []
         lights: list[PointLight] = []
+        sensor_seen = False
         for node in root.children:
-            tag = node.tag
-            if tag == "default":
-                continue
-            if tag == "integrator":
-                if integrator_node is not None:
-                    self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
-                integrator_node = node
-                settings = self.integrator(node)
-            elif tag == "sensor":
-                if camera is not None:
-                    self.fail(node, "only one <sensor> is supported")
-                camera, spp = self.sensor(node)
-            elif tag == "bsdf":
-                self.material_index(node)
-            elif tag == "medium":
-                self.medium_index(node)
-            elif tag == "shape":
-                shapes.append(self.shape(node))
-            elif tag == "emitter":
-                if node.attrs.get("type") == "area":
-                    self.fail(node, "an area emitter must be nested inside a <shape>")
-                if node.attrs.get("type") not in (None, "point"):
-                    self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
-                              supported=["point (top level)", "area (inside a <shape>)"])
-                props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
-                if props.has("position") and props.has("to_world"):
-                    self.fail(node, "give either 'position' or 'to_world', not both")
-                if props.has("to_world"):
-                    pos = props.get("to_world")[:3, 3]
-                else:
-                    pos = props.get("position", np.zeros(3))
-                intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
-                lights.append(PointLight(tuple(float(c) for c in pos), intensity,
-                                         source=self.at(node)))
-            else:
-                self.fail(node, "unknown element at the top level of the scene",
-                          supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
-        if camera is None:
-            raise SceneError(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
-                             f"add <sensor type=\"perspective\">")
-        self.check_far_clip(camera, shapes)
+            if node.tag == "sensor":
+                sensor_seen = True
+            try:
+                camera, spp, settings, integrator_node = self.top_level(node, camera, spp, settings, integrator_node,
+                                                                        shapes, lights)
+            except SceneError as exc:
+                self.record(exc)
+                self.lint_children(node)
+            except _Abandon:
+                self.lint_children(node)
+        if camera is None and not sensor_seen:
+            self.errors.append(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
+                               f"add <sensor type=\"perspective\">")
+        if camera is not None:
+            try:
+                self.check_far_clip(camera, shapes)
+            except SceneError as exc:
+                self.record(exc)
+        self.raise_errors()
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
                                 integrator_props=settings.props, source=self.source,
                                 integrator_source=settings.source, integrator_settings=settings)
+
+    def top_level(self, node: Node, camera, spp, settings, integrator_node, shapes, lights):
+        """Read one element at the top of the scene (what it defines goes into the arguments)."""
+        tag = node.tag
+        if tag == "default":
+            return camera, spp, settings, integrator_node
+        if tag == "integrator":
+            if integrator_node is not None:
+                self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
+            integrator_node = node
+            settings = self.integrator(node)
+        elif tag == "sensor":
+            if camera is not None:
+                self.fail(node, "only one <sensor> is supported")
+            camera, spp = self.sensor(node)
+        elif tag == "bsdf":
+            self.material_index(node)
+        elif tag == "medium":
+            self.medium_index(node)
+        elif tag == "shape":
+            shapes.append(self.shape(node))
+        elif tag == "emitter":
+            if node.attrs.get("type") == "area":
+                self.fail(node, "an area emitter must be nested inside a <shape>")
+            if node.attrs.get("type") not in (None, "point"):
+                self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
+                          supported=["point (top level)", "area (inside a <shape>)"])
+            props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
+            if props.has("position") and props.has("to_world"):
+                self.fail(node, "give either 'position' or 'to_world', not both")
+            if props.has("to_world"):
+                pos = props.get("to_world")[:3, 3]
+            else:
+                pos = props.get("position", np.zeros(3))
+            intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
+            lights.append(PointLight(tuple(float(c) for c in pos), intensity,
+                                     source=self.at(node)))
+        else:
+            self.fail(node, "unknown element at the top level of the scene",
+                      supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
+        return camera, spp, settings, integrator_node
 
 
 def mitsuba_sample_count(kind: str, spp: int) -> int:
@@ -1112,6 +1210,7 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
     loader.read_defaults(root)
     loader.expand(root, (), True)
     loader.substitute(root)
+    loader.raise_errors()    # stop here: nothing can be read with a value missing
     _check_defines(source_name, given, loader.declared, loader.used_params)
     desc = loader.scene(root)
     desc.files = loader.files
