@@ -482,3 +482,53 @@ def test_reading_stops_where_going_on_is_not_safe(tmp_path):
     lines = str(e.value).split("\n")
     assert lines[0] == f"{path}: 2 problems, each with its file and line (and what is supported there):"
     assert "uses $r, which is not defined" in lines[1] and "uses $q, which is not defined" in lines[2]
+
+
+# ----------------------------------------------------------------------------- elements given by reference
+
+def test_an_area_emitter_declared_at_the_top_level_and_given_by_reference(mi, tmp_path):
+    by_ref = ('<emitter type="area" id="light"><rgb name="radiance" value="2, 3, 4"/></emitter>\n'
+              '<shape type="rectangle" id="lamp"><ref id="light"/><bsdf type="diffuse"/></shape>')
+    nested = '<shape type="rectangle" id="lamp"><emitter type="area"><rgb name="radiance" value="2, 3, 4"/></emitter>' \
+             '<bsdf type="diffuse"/></shape>'
+    a = parse_scene_string(scene(by_ref, sensor('<float name="fov" value="45"/>')))
+    b = parse_scene_string(scene(nested, sensor('<float name="fov" value="45"/>')))
+    assert a.shapes[0].emitter_radiance == b.shapes[0].emitter_radiance == (2.0, 3.0, 4.0)
+    assert a.materials[a.shapes[0].material] == b.materials[b.shapes[0].material]
+    theirs = mi.load_string(scene(by_ref, sensor('<float name="fov" value="45"/>'))).shapes()[0]
+    assert theirs.is_emitter()
+    # declared and never used: refused, as Mitsuba refuses an area emitter without a shape
+    path = write(tmp_path / "lonely.xml", scene('<emitter type="area" id="light"/>', sensor('<float name="fov" value="45"/>')))
+    assert one_line_error(path).startswith(f"{path}:4: <emitter type=\"area\" id=\"light\">: an area emitter must be "
+                                           f"nested inside a <shape> or given to one by <ref id=\"light\"/>")
+
+
+def test_a_sampler_and_film_declared_at_the_top_level(mi):
+    xml = scene('<sampler type="stratified" id="my_sampler"><integer name="sample_count" value="16"/></sampler>\n'
+                '<film type="hdrfilm" id="my_film"><integer name="width" value="40"/><integer name="height" value="30"/>'
+                '</film>',
+                sensor('<float name="fov" value="45"/><ref id="my_sampler"/><ref id="my_film"/>'))
+    sensor_ = mi.load_string(xml).sensors()[0]
+    d = parse_scene_string(xml)
+    assert d.spp == sensor_.sampler().sample_count() == 16
+    assert (d.camera.width, d.camera.height) == tuple(sensor_.film().size()) == (40, 30)
+    with pytest.raises(SceneError, match="a <sampler> at the top level needs an id="):
+        parse_scene_string(scene('<sampler type="independent"/>'))
+
+
+def test_a_rotation_about_an_axis_that_is_not_unit_is_mitsubas_matrix(mi):
+    xf = '<transform name="to_world"><rotate x="0" y="1" z="1" angle="30"/><translate x="1"/></transform>'
+    xml = scene(f'<shape type="cube" id="c">{xf}</shape>', sensor('<float name="fov" value="45"/>'))
+    b = mi.load_string(xml).shapes()[0].bbox()
+    pos = parse_scene_string(xml).shapes[0].mesh.positions
+    np.testing.assert_allclose(pos.min(0), np.array(b.min), atol=1e-5)
+    np.testing.assert_allclose(pos.max(0), np.array(b.max), atol=1e-5)
+
+
+def test_a_medium_s_sampling_settings_are_accepted(mi):
+    xml = scene('<medium type="homogeneous" id="m"><boolean name="sample_emitters" value="false"/>'
+                '<boolean name="has_spectral_extinction" value="false"/><float name="scale" value="2"/></medium>'
+                '<shape type="sphere"><ref name="interior" id="m"/><bsdf type="null"/></shape>',
+                sensor('<float name="fov" value="45"/>'))
+    mi.load_string(xml)
+    assert parse_scene_string(xml).media[0].sigma_t == (2.0, 2.0, 2.0)

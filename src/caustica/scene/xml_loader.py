@@ -37,7 +37,8 @@ from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 
 #: Property tags and plugin tags this loader knows.
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "include", "path", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
+TOP_LEVEL_TAGS = ("default", "include", "path", "integrator", "sensor", "bsdf", "shape", "emitter", "medium",
+                  "film (with an id)", "sampler (with an id)")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
@@ -69,7 +70,10 @@ EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
 }
-MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT}}
+MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
+                                 # how Mitsuba samples the medium (shadow rays from inside it, a spectral
+                                 # majorant): accepted, they change the noise, not the image's expectation
+                                 "sample_emitters": BOOL, "has_spectral_extinction": BOOL}}
 PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
 #: The names a medium takes inside a shape (Mitsuba's interior and exterior media).
 SHAPE_MEDIUM_NAMES = ("interior", "exterior")
@@ -328,6 +332,8 @@ class _Loader:
         self.ids: dict[str, Node] = {}
         self.main_file: Path | None = None    # the scene file itself (resolved), for the include-loop check
         self.far_clip_node: Node | None = None
+        self.top_level_area: dict[int, Node] = {}   # area emitters declared at the top level with an id
+        self.referenced_emitters: set[int] = set()
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
@@ -805,6 +811,10 @@ class _Loader:
         material, radiance = None, None
         media = {}
         for obj in props.objects:
+            target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else None
+            if target is not None and target.tag == "emitter":   # an area emitter declared at the top level
+                self.referenced_emitters.add(id(target))
+                obj = target
             if self.is_medium(obj):
                 name = obj.attrs.get("name")
                 if name not in SHAPE_MEDIUM_NAMES:
@@ -921,6 +931,10 @@ class _Loader:
         medium = -1
         seen = set()
         for obj in props.objects:
+            if obj.tag == "ref":   # a film or sampler declared at the top level, or a medium
+                target = self.ids.get(obj.attrs.get("id", ""))
+                if target is not None and target.tag in ("film", "sampler"):
+                    obj = target
             tag = "medium" if obj.tag == "ref" else obj.tag
             if tag in seen:
                 self.fail(obj, f"the sensor takes only one <{tag}>")
@@ -1090,6 +1104,10 @@ class _Loader:
                 self.lint_children(node)
             except _Abandon:
                 self.lint_children(node)
+        for n in self.top_level_area.values():
+            if id(n) not in self.referenced_emitters:
+                self.errors.append(f"{self.at(n)}: {n.describe()}: an area emitter must be nested inside a <shape> "
+                                   f"or given to one by <ref id=\"{n.attrs['id']}\"/>; no shape refers to it")
         if camera is None and not sensor_seen:
             self.errors.append(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
                                f"add <sensor type=\"perspective\">")
@@ -1120,12 +1138,19 @@ class _Loader:
             camera, spp = self.sensor(node)
         elif tag == "bsdf":
             self.material_index(node)
+        elif tag in ("film", "sampler"):   # declared for a <ref> from the sensor, read there
+            if "id" not in node.attrs:
+                self.fail(node, f"a <{tag}> at the top level needs an id= for the sensor's <ref>",
+                          supported=[f"<{tag}> inside the <sensor>", f"<{tag} id=...> with <ref id=.../> in the sensor"])
         elif tag == "medium":
             self.medium_index(node)
         elif tag == "shape":
             shapes.append(self.shape(node))
         elif tag == "emitter":
             if node.attrs.get("type") == "area":
+                if "id" in node.attrs:   # Mitsuba's area emitter declared once and given to a shape by <ref>
+                    self.top_level_area[id(node)] = node
+                    return camera, spp, settings, integrator_node
                 self.fail(node, "an area emitter must be nested inside a <shape>")
             if node.attrs.get("type") not in (None, "point"):
                 self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
