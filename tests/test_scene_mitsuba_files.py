@@ -463,7 +463,7 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
 def test_a_single_problem_keeps_its_one_line_message(tmp_path):
     path = write(tmp_path / "one.xml", scene('<shape type="torus"/>\n<shape type="cube"/>'))
     assert one_line_error(path) == (f"{path}:5: <shape type=\"torus\">: unknown shape type 'torus'; supported: "
-                                    f"rectangle, cube, sphere, disk, cylinder, obj, ply")
+                                    f"rectangle, cube, sphere, disk, cylinder, obj, ply, serialized")
     # a shape that uses a broken BSDF is not a second problem: the BSDF is
     path.write_text(scene('<bsdf type="diffuse" id="d"><float name="gloss" value="1"/></bsdf>\n'
                           '<shape type="cube"><ref id="d"/></shape><shape type="sphere"><ref id="d"/></shape>'))
@@ -532,3 +532,83 @@ def test_a_medium_s_sampling_settings_are_accepted(mi):
                 sensor('<float name="fov" value="45"/>'))
     mi.load_string(xml)
     assert parse_scene_string(xml).media[0].sigma_t == (2.0, 2.0, 2.0)
+
+
+# ----------------------------------------------------------------------------- .serialized meshes
+
+def serialized_file(path: Path, meshes, version: int = 4) -> Path:
+    """Write meshes [(positions, triangles, normals or None, double, extras)] as Mitsuba's .serialized format."""
+    import struct
+    import zlib
+    out, offsets = b"", []
+    for positions, triangles, normals, double, extras in meshes:
+        flags = (0x0001 if normals is not None else 0) | (0x2000 if double else 0x1000) | \
+            (0x0002 if "uv" in extras else 0) | (0x0008 if "color" in extras else 0)
+        f = "<f8" if double else "<f4"
+        body = struct.pack("<I", flags) + (b"mesh\0" if version == 4 else b"")
+        body += struct.pack("<QQ", len(positions), len(triangles)) + np.asarray(positions, f).tobytes()
+        if normals is not None:
+            body += np.asarray(normals, f).tobytes()
+        if "uv" in extras:
+            body += np.zeros((len(positions), 2), f).tobytes()
+        if "color" in extras:
+            body += np.ones((len(positions), 3), f).tobytes()
+        body += np.asarray(triangles, "<u4").tobytes()
+        offsets.append(len(out))
+        out += struct.pack("<HH", 0x041C, version) + zlib.compress(body)
+    out += b"".join(struct.pack("<Q" if version == 4 else "<I", o) for o in offsets) + struct.pack("<I", len(meshes))
+    path.write_bytes(out)
+    return path
+
+
+TETRA = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+
+
+@pytest.mark.parametrize("version", [3, 4])
+def test_serialized_meshes_load_as_in_mitsuba(mi, tmp_path, version):
+    rng = np.random.default_rng(1)
+    normals = rng.normal(size=(4, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    path = serialized_file(tmp_path / "m.serialized", [
+        (TETRA[0], TETRA[1], None, False, ()),
+        (TETRA[0] * 2 + 1, TETRA[1], normals, True, ("uv", "color")),
+        (TETRA[0] - 3, TETRA[1][:2], normals, False, ("uv",)),
+    ], version)
+    for index in range(3):
+        xml = scene(f'<shape type="serialized" id="s"><string name="filename" value="{path}"/>'
+                    f'<integer name="shape_index" value="{index}"/><transform name="to_world"><rotate x="1" angle="30"/>'
+                    f'<translate y="2"/></transform></shape>', sensor('<float name="fov" value="45"/>'))
+        theirs = mi.load_string(xml).shapes()[0]
+        mesh = parse_scene_string(xml).shapes[0].mesh
+        assert theirs.face_count() == len(mesh.triangles) == (4 if index < 2 else 2)
+        b = theirs.bbox()
+        np.testing.assert_allclose(mesh.positions.min(0), np.array(b.min), atol=1e-6)
+        np.testing.assert_allclose(mesh.positions.max(0), np.array(b.max), atol=1e-6)
+        assert (mesh.normals is not None) == (index > 0)
+        if index > 0:
+            params = mi.traverse(theirs)
+            np.testing.assert_allclose(mesh.normals, np.array(params["vertex_normals"]).reshape(-1, 3), atol=1e-6)
+
+
+@pytest.mark.parametrize("content, words", [
+    (b"\x1c\x04\x05\x00" + b"\0" * 40, ".serialized version 5 is not supported; supported: 3, 4"),
+    (b"PLY whatever", "is not a Mitsuba .serialized file"),
+    (None, "holds 1 meshes (shape_index 0..0); shape_index 1 is out of range"),
+    ("cut", "is cut short or corrupt"),
+])
+def test_serialized_errors(tmp_path, content, words):
+    path = tmp_path / "m.serialized"
+    if content is None or content == "cut":
+        serialized_file(path, [(TETRA[0], TETRA[1], None, False, ())])
+        if content == "cut":
+            import struct
+            import zlib
+            body = zlib.compress(struct.pack("<I", 0x1000) + b"cut\0" + struct.pack("<QQ", 4, 4) + b"\0" * 20)
+            path.write_bytes(struct.pack("<HH", 0x041C, 4) + body)
+    else:
+        path.write_bytes(content)
+    index = 1 if content is None else 0
+    xml = write(tmp_path / "s.xml", scene(f'<shape type="serialized">\n<string name="filename" value="m.serialized"/>'
+                                          f'<integer name="shape_index" value="{index}"/></shape>'))
+    msg = one_line_error(xml)
+    assert msg.startswith(f"{xml}:6: <string name=\"filename\">: mesh file ") and words in msg, msg

@@ -32,6 +32,7 @@ from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY
                           NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, SceneDescription,
                           Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
+from .serialized import load_serialized
 
 # ----------------------------------------------------------------------------- the subset
 
@@ -57,6 +58,7 @@ SHAPE_PROPS = {
     "cylinder": {"p0": POINT, "p1": POINT, "radius": FLOAT},
     "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "ply": {"filename": STR, "face_normals": BOOL},
+    "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
 }
 BSDF_PROPS = {
     "diffuse": {"reflectance": COLOR},
@@ -839,7 +841,7 @@ class _Loader:
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
                       id=node.attrs.get("id", ""), source=src,
                       interior=media.get("interior", -1), exterior=media.get("exterior", -1))
-        if kind in ("rectangle", "cube", "obj", "ply"):
+        if kind in ("rectangle", "cube", "obj", "ply", "serialized"):
             if kind == "rectangle":
                 # Under a mirroring to_world the front side follows the winding, as in
                 # Mitsuba 3 (its rectangle's normal is dp/du x dp/dv; checked in the tests).
@@ -849,10 +851,14 @@ class _Loader:
             else:
                 if not props.has("filename"):
                     self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
+                index = int(self.number(props, "shape_index", 0, nonneg=True))
                 try:
                     path = self.find_file(props.node_of("filename"), props.get("filename"))
                     self.files.append(Path(path))
-                    local = load_mesh_file(path, kind)
+                    if kind == "serialized":
+                        local = load_serialized(path, index)
+                    else:
+                        local = load_mesh_file(path, kind)
                 except SceneError as exc:
                     self.fail(props.node_of("filename"), str(exc))
                 if props.get("face_normals", False):
