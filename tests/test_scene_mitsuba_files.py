@@ -612,3 +612,33 @@ def test_serialized_errors(tmp_path, content, words):
                                           f'<integer name="shape_index" value="{index}"/></shape>'))
     msg = one_line_error(xml)
     assert msg.startswith(f"{xml}:6: <string name=\"filename\">: mesh file ") and words in msg, msg
+
+
+# ----------------------------------------------------------------------------- files older than version 2.0
+
+OLD = '''<scene version="{version}"><sensor type="perspective"><float name="fov" value="45"/><string name="fovAxis" value="y"/>
+<transform name="toWorld"><lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform>
+<sampler type="independent"><integer name="sampleCount" value="7"/></sampler></sensor>
+<shape type="sphere" id="s"><transform name="toWorld"><scale value="2"/></transform>
+<bsdf type="diffuse"><rgb name="diffuseReflectance" value="0.3"/></bsdf></shape>
+<shape type="sphere" id="g"><bsdf type="dielectric"><float name="intIOR" value="1.7"/></bsdf></shape>
+</scene>'''
+
+
+def test_the_names_of_mitsuba_0_6_files_are_upgraded_as_mitsuba_3_does(mi, tmp_path):
+    from caustica.scene.xml_loader import camel_to_snake
+    assert [camel_to_snake(n) for n in ("toWorld", "intIOR", "sampleCount", "fov", "specularReflectance")] == \
+        ["to_world", "int_ior", "sample_count", "fov", "specular_reflectance"]
+    xml = OLD.format(version="0.6.0")
+    theirs = mi.load_string(xml)
+    d = parse_scene_string(xml)
+    assert d.spp == theirs.sensors()[0].sampler().sample_count() == 7 and d.camera.fov_axis == "y"
+    assert d.materials[d.shapes[0].material].rgb == (0.3, 0.3, 0.3) and d.materials[d.shapes[1].material].int_ior == 1.7
+    np.testing.assert_allclose(d.shapes[0].to_world, np.array(mi.traverse(theirs.shapes()[0])["to_world"].matrix))
+    # an old file included by a new one is upgraded, the new one is not
+    shapes_only = OLD.format(version="0.5.0").split("</sensor>\n", 1)[1]   # the two shapes and </scene>
+    write(tmp_path / "old.xml", '<scene version="0.5.0">' + shapes_only)
+    main = write(tmp_path / "main.xml", scene('<include filename="old.xml"/>', sensor('<float name="fov" value="45"/>')))
+    assert len(load_scene_file(main).shapes) == 2
+    main.write_text(OLD.format(version="3.0.0"))
+    assert "unknown property 'fovAxis'" in str(pytest.raises(SceneError, load_scene_file, main).value)

@@ -347,6 +347,7 @@ class _Loader:
         self.error_keys: set = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
         self.search_paths: list[Path] = []   # the <path> folders, in the order declared
+        self.file_versions: dict[str, tuple | None] = {}   # each file's version= (Mitsuba upgrades < 2.0)
         self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
 
     # -- files ------------------------------------------------------------------------
@@ -540,6 +541,7 @@ class _Loader:
             self.fail(node, f"cannot read the included file {quoted(filename)}: {exc.strerror}")
         root = _parse_xml(data, str(path), path.parent)
         self.files.append(path)
+        self.file_versions[str(path)] = _version(root.attrs.get("version"))
         inner = chain + ((key, node),)
         if root.tag == "scene":
             self.check_attrs(root, ("version",))
@@ -1239,9 +1241,13 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
     given = {str(k): _param_str(v) for k, v in (defaults or {}).items()}
     loader.params = dict(given)
     loader.read_defaults(root)
+    loader.file_versions[source_name] = _version(root.attrs.get("version"))
     loader.expand(root, (), True)
     loader.substitute(root)
     loader.raise_errors()    # stop here: nothing can be read with a value missing
+    old = {src for src, v in loader.file_versions.items() if v is not None and v < (2,)}
+    if old:
+        _upgrade_from_v1(root, old)
     _check_defines(source_name, given, loader.declared, loader.used_params)
     desc = loader.scene(root)
     desc.files = loader.files
@@ -1249,6 +1255,48 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
 
 
 _PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def camel_to_snake(name: str) -> str:
+    """Mitsuba 3's camel_to_underscore_case (parser.cpp): "toWorld" -> "to_world", "intIOR" -> "int_ior"."""
+    out, i = [], 0
+    while i < len(name):
+        c = name[i]
+        if i > 0 and name[i - 1].islower() and c.isupper():
+            out += ["_", c.lower()]
+            while i + 1 < len(name) and name[i + 1].isupper():
+                i += 1
+                out.append(name[i].lower())
+        else:
+            out.append(c)
+        i += 1
+    return "".join(out)
+
+
+def _version(text: str | None) -> tuple[int, ...] | None:
+    """A file's version="x.y.z" as numbers, None when absent or not numbers."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(p) for p in text.strip().split("."))
+    except ValueError:
+        return None
+
+
+def _upgrade_from_v1(node: Node, old: set[str]) -> None:
+    """Mitsuba 3's upgrade of files older than version 2.0 (parser.cpp, upgrade_from_v1): property names in
+    camelCase become snake_case (toWorld, sampleCount, intIOR, fovAxis...), and a diffuse BSDF's
+    diffuse_reflectance becomes reflectance.  ``old``: the files (sources) whose version is below 2."""
+    if node.source in old:
+        if "name" in node.attrs and (node.tag in PROPERTY_TAGS or node.tag in ("ref",) or node.tag in SUPPORTED):
+            node.attrs["name"] = camel_to_snake(node.attrs["name"])
+        if node.tag == "bsdf" and node.attrs.get("type") == "diffuse":
+            for c in node.children:
+                if c.tag in PROPERTY_TAGS and c.source in old and \
+                        camel_to_snake(c.attrs.get("name", "")) == "diffuse_reflectance":
+                    c.attrs["name"] = "reflectance"
+    for c in node.children:
+        _upgrade_from_v1(c, old)
 
 
 def _check_defines(source: str, given: dict[str, str], declared: dict[str, Node], used: set[str]) -> None:
