@@ -463,7 +463,8 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
 def test_a_single_problem_keeps_its_one_line_message(tmp_path):
     path = write(tmp_path / "one.xml", scene('<shape type="torus"/>\n<shape type="cube"/>'))
     assert one_line_error(path) == (f"{path}:5: <shape type=\"torus\">: unknown shape type 'torus'; supported: "
-                                    f"rectangle, cube, sphere, disk, cylinder, obj, ply, serialized")
+                                    f"rectangle, cube, sphere, disk, cylinder, obj, ply, serialized, shapegroup, "
+                                    f"instance")
     # a shape that uses a broken BSDF is not a second problem: the BSDF is
     path.write_text(scene('<bsdf type="diffuse" id="d"><float name="gloss" value="1"/></bsdf>\n'
                           '<shape type="cube"><ref id="d"/></shape><shape type="sphere"><ref id="d"/></shape>'))
@@ -642,3 +643,59 @@ def test_the_names_of_mitsuba_0_6_files_are_upgraded_as_mitsuba_3_does(mi, tmp_p
     assert len(load_scene_file(main).shapes) == 2
     main.write_text(OLD.format(version="3.0.0"))
     assert "unknown property 'fovAxis'" in str(pytest.raises(SceneError, load_scene_file, main).value)
+
+
+# ----------------------------------------------------------------------------- instances
+
+GROUP = '''<shape type="shapegroup" id="group">
+  <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="-30"/><translate x="0.5"/></transform></shape>
+  <shape type="sphere"><point name="center" value="-3, 0, 0"/><float name="radius" value="0.5"/></shape>
+  <shape type="disk"><transform name="to_world"><rotate x="1" angle="90"/><translate y="5"/></transform></shape>
+</shape>
+<shape type="instance"><ref id="group"/></shape>
+<shape type="instance"><ref id="group"/><transform name="to_world"><rotate x="1" angle="40"/><scale value="1.5"/>
+  <translate x="20"/></transform></shape>
+<shape type="instance"><ref id="group"/><transform name="to_world"><scale x="-1"/><translate x="-20"/></transform></shape>'''
+
+
+def bounds(s):
+    """A shape's bounding box as Mitsuba computes it (meshes: vertices; sphere: centre +- radius; disk: its rim)."""
+    if s.mesh is not None:
+        return s.mesh.positions.min(0), s.mesh.positions.max(0)
+    lin, c = s.to_world[:3, :3], s.to_world[:3, 3]
+    e = np.linalg.norm(lin, axis=1) if s.kind == "sphere" else np.sqrt(lin[:, 0] ** 2 + lin[:, 1] ** 2)
+    return c - e, c + e
+
+
+def test_instances_place_copies_of_their_shapegroup_as_mitsuba_does(mi):
+    xml = scene(GROUP, sensor('<float name="fov" value="45"/>'))
+    theirs = mi.load_string(xml)
+    d = parse_scene_string(xml)
+    assert len(d.shapes) == 9 and [s.kind for s in d.shapes[:3]] == ["mesh", "sphere", "disk"]
+    # each instance's bounding box is Mitsuba's: the group's box (the identity instance) through its to_world
+    lo = np.min([bounds(s)[0] for s in d.shapes[:3]], axis=0)
+    hi = np.max([bounds(s)[1] for s in d.shapes[:3]], axis=0)
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    for inst, m in zip(theirs.shapes(), [np.eye(4)] + [d.shapes[3 * i].to_world @ np.linalg.inv(d.shapes[0].to_world)
+                                                      for i in (1, 2)]):
+        b = inst.bbox()
+        placed = (corners @ m.T)[:, :3]
+        np.testing.assert_allclose(placed.min(0), np.array(b.min), atol=1e-5)
+        np.testing.assert_allclose(placed.max(0), np.array(b.max), atol=1e-5)
+    # the instanced rectangles face the way Mitsuba's do (a ray at each centre), the mirrored copy included
+    for rect in d.shapes[0::3]:
+        p = rect.mesh.positions
+        centre = p.mean(axis=0)
+        a, b, c = p[rect.mesh.triangles[0]]
+        n = np.cross(b - a, c - a)   # the front side, as caustica's kernels see it: the winding
+        n /= np.linalg.norm(n)
+        origin = centre + 3 * n
+        si = theirs.ray_intersect(mi.Ray3f(mi.Point3f(*origin), mi.Vector3f(*(-n))))
+        assert si.is_valid()
+        np.testing.assert_allclose(np.array(si.p), centre, atol=1e-4)
+        assert float(np.dot(np.array(si.n), n)) > 0.999, rect.source
+    with pytest.raises(SceneError, match="an instance needs a <ref> to a <shape type=\"shapegroup\">"):
+        parse_scene_string(scene('<bsdf type="diffuse" id="b"/><shape type="instance"><ref id="b"/></shape>'))
+    with pytest.raises(SceneError, match="cannot be an emitter"):
+        parse_scene_string(scene('<shape type="shapegroup" id="g"><shape type="sphere"><emitter type="area"/></shape>'
+                                 '</shape><shape type="instance"><ref id="g"/></shape>'))

@@ -59,6 +59,9 @@ SHAPE_PROPS = {
     "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "ply": {"filename": STR, "face_normals": BOOL},
     "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
+    # shapes declared once and placed by instances (each instance becomes copies of them)
+    "shapegroup": {},
+    "instance": {},
 }
 BSDF_PROPS = {
     "diffuse": {"reflectance": COLOR},
@@ -335,6 +338,7 @@ class _Loader:
         self.main_file: Path | None = None    # the scene file itself (resolved), for the include-loop check
         self.far_clip_node: Node | None = None
         self.top_level_area: dict[int, Node] = {}   # area emitters declared at the top level with an id
+        self.groups: dict[int, list[Shape]] = {}     # each shapegroup's shapes, once built
         self.referenced_emitters: set[int] = set()
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
@@ -401,6 +405,11 @@ class _Loader:
         try:
             if node.tag == "bsdf" and node.attrs.get("type") == "twosided":
                 children = ("bsdf", "ref")
+            elif node.tag == "shape" and node.attrs.get("type") in ("shapegroup", "instance"):
+                self.plugin(node, {"shapegroup": {}, "instance": {"to_world": XFORM}},
+                            ("shape",) if node.attrs["type"] == "shapegroup" else ("ref",))
+                self.lint_children(node)
+                return
             else:
                 children = LINT_CHILDREN.get(node.tag, ())
             self.plugin(node, table, children, extra=_SHAPE_COMMON if node.tag == "shape" else None)
@@ -805,7 +814,68 @@ class _Loader:
                                      or (target is not None and target.tag == "medium"))
 
     # -- shapes ----------------------------------------------------------------------
+    def shape_group(self, node: Node) -> list[Shape]:
+        """The shapes of a <shape type="shapegroup"> in its own space, built once (Mitsuba forbids emitters,
+        nested groups and instances in a group)."""
+        key = id(node)
+        if key not in self.groups:
+            self.plugin(node, {"shapegroup": {}}, ("shape",))
+            built = []
+            for child in node.children:
+                kind = child.attrs.get("type")
+                if kind in ("shapegroup", "instance"):
+                    self.fail(child, f"a shapegroup cannot hold a {kind} (nested instancing is not permitted, as in "
+                                     f"Mitsuba)")
+                if any(c.tag == "emitter" or (c.tag == "ref" and self.ids.get(c.attrs.get("id", ""), c).tag
+                                              == "emitter") for c in child.children):
+                    self.fail(child, "a shape in a shapegroup cannot be an emitter (Mitsuba does not instance "
+                                     "emitters)")
+                built.append(self.shape(child))
+            self.groups[key] = built
+        return self.groups[key]
+
+    def instance(self, node: Node) -> list[Shape]:
+        """A <shape type="instance">: a copy of its shapegroup's shapes placed by its to_world (Mitsuba's instance:
+        shading normals through the inverse transpose, so a mirroring to_world keeps each surface's front)."""
+        props = self.plugin(node, {"instance": {"to_world": XFORM}}, ("ref",))
+        if len(props.objects) != 1:
+            self.fail(node, f"an instance takes exactly one <ref> to a shapegroup, found {len(props.objects)}")
+        ref = props.objects[0]
+        target = self.ids.get(ref.attrs.get("id", ""))
+        if target is None or target.tag != "shape" or target.attrs.get("type") != "shapegroup":
+            known = sorted(k for k, n in self.ids.items() if n.tag == "shape" and n.attrs.get("type") == "shapegroup")
+            self.fail(ref, f"an instance needs a <ref> to a <shape type=\"shapegroup\">; "
+                           f"{quoted(ref.attrs.get('id', ''))} is not one", supported=known or None)
+        m = props.get("to_world")
+        m = np.eye(4) if m is None else m
+        out = []
+        for s in self.shape_group(target):
+            placed = copy.copy(s)
+            placed.source = f"{s.source} (instanced at {self.at(node)})"
+            if s.mesh is not None:
+                try:
+                    mesh = to_world_mesh(s.mesh, m)
+                except SceneError as exc:
+                    self.fail(node, str(exc))
+                if np.linalg.det(m[:3, :3]) < 0:   # keep the front side where Mitsuba's instance keeps it
+                    mesh.triangles = np.ascontiguousarray(mesh.triangles[:, ::-1])
+                placed.mesh = mesh
+                placed.to_world = m @ s.to_world
+            else:
+                placed.to_world = self.placement(node, m @ s.to_world, "the instance's to_world with the shape's")
+                if s.kind == SPHERE:
+                    lin = placed.to_world[:3, :3]
+                    gram = lin.T @ lin
+                    s2 = np.trace(gram) / 3.0
+                    if np.abs(gram - s2 * np.eye(3)).max() > 1e-6 * s2:
+                        self.fail(props.node_of("to_world"), "an instanced sphere must stay round: the instance's "
+                                                             "to_world must not shear or scale non-uniformly")
+            out.append(placed)
+        return out
+
     def shape(self, node: Node) -> Shape:
+        if node.attrs.get("type") in ("shapegroup", "instance"):
+            self.fail(node, f"a {node.attrs['type']} belongs at the top level of the scene")
         props = self.plugin(node, SHAPE_PROPS, ("bsdf", "ref", "emitter", "medium"), extra=_SHAPE_COMMON)
         kind = node.attrs["type"]
         to_world = props.get("to_world")
@@ -1152,6 +1222,12 @@ class _Loader:
                           supported=[f"<{tag}> inside the <sensor>", f"<{tag} id=...> with <ref id=.../> in the sensor"])
         elif tag == "medium":
             self.medium_index(node)
+        elif tag == "shape" and node.attrs.get("type") == "shapegroup":
+            self.check_attrs(node, ("type", "id", "name"), ("type",))
+            if "id" not in node.attrs:
+                self.fail(node, "a shapegroup needs an id= for its instances' <ref>")
+        elif tag == "shape" and node.attrs.get("type") == "instance":
+            shapes.extend(self.instance(node))
         elif tag == "shape":
             shapes.append(self.shape(node))
         elif tag == "emitter":
