@@ -514,10 +514,16 @@ class _Loader:
                 out.append(child)
         node.children = out
 
+    def candidates(self, node: Node, p: Path) -> list[Path]:
+        """Where a relative path named in node may be: its file's folder, the scene's folder, the <path>s."""
+        if p.is_absolute():
+            return [p]
+        return [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+
     def add_search_path(self, node: Node) -> None:
         value = node.attrs["value"]
         p = Path(value)
-        cands = [p] if p.is_absolute() else [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+        cands = self.candidates(node, p)
         for c in cands:
             if c.is_dir():
                 self.search_paths.append(c)
@@ -530,7 +536,7 @@ class _Loader:
         or the included file's root element itself (a file holding one <bsdf>, say)."""
         filename = node.attrs["filename"]
         p = Path(filename)
-        cands = [p] if p.is_absolute() else [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+        cands = self.candidates(node, p)
         path = next((c for c in cands if c.is_file()), None)
         if path is None:
             self.fail(node, f"included file {quoted(filename)} not found; searched: "
@@ -994,9 +1000,9 @@ class _Loader:
                 self.fail(props.node_of(p), f"'{p}' other than 0 (an off-centre image) is not supported",
                           supported=["0"])
         if node.attrs["type"] == "thinlens":
-            radius = float(self.number(props, "aperture_radius", None, nonneg=True) or 0.0)
             if not props.has("aperture_radius"):
                 self.fail(node, "a thinlens sensor needs <float name=\"aperture_radius\" .../> (as in Mitsuba)")
+            radius = float(self.number(props, "aperture_radius", 0.0, nonneg=True))
             if radius > 0.0:
                 self.fail(props.node_of("aperture_radius"),
                           f"a thin lens with aperture_radius={radius:g} (depth of field) is not supported: caustica's "
@@ -1071,10 +1077,11 @@ class _Loader:
                 self.fail(fprops.node_of(size if fprops.has(size) else off),
                           f"the crop window ({off}={crop[off]}, {size}={crop[size]}) must lie inside the "
                           f"{width} x {height} film and not be empty")
-        if (crop["crop_offset_x"], crop["crop_offset_y"], crop["crop_width"], crop["crop_height"]) != (0, 0, width, height):
+        if tuple(crop.values()) != (0, 0, width, height):
             given = [n for n in crop if fprops.has(n)]
+            window = ", ".join(f"{n}={crop[n]}" for n in crop)
             self.fail(fprops.node_of(given[0]),
-                      f"a crop window ({', '.join(f'{n}={crop[n]}' for n in crop)}) smaller than the {width} x {height} "
+                      f"a crop window ({window}) smaller than the {width} x {height} "
                       f"film is not supported: caustica renders the whole film; remove the crop_* settings",
                       supported=["a crop window covering the whole film"])
 
@@ -1110,8 +1117,9 @@ class _Loader:
     def check_far_clip(self, camera: Camera, shapes: list[Shape]) -> None:
         """caustica's camera rays do not stop at far_clip: accept a far_clip no shape reaches (then it changes
         nothing), refuse one that would hide part of the scene.  Only a far_clip the file gives is checked
-        (Mitsuba's default, 1e4, cuts only scenes larger than that, which loaded before).  The test is the camera-space depth (the
-        distance along the view axis, where Mitsuba's far plane lies) of each shape's bounds."""
+        (Mitsuba's default, 1e4, cuts only scenes larger than that, which loaded before).  The test is the
+        camera-space depth (the distance along the view axis, where Mitsuba's far plane lies) of each shape's
+        bounds."""
         if self.far_clip_node is None:
             return   # Mitsuba's default 1e4: not checked, so that scenes of any size load as before
         m = np.asarray(camera.to_world, dtype=np.float64)
@@ -1219,7 +1227,8 @@ class _Loader:
         elif tag in ("film", "sampler"):   # declared for a <ref> from the sensor, read there
             if "id" not in node.attrs:
                 self.fail(node, f"a <{tag}> at the top level needs an id= for the sensor's <ref>",
-                          supported=[f"<{tag}> inside the <sensor>", f"<{tag} id=...> with <ref id=.../> in the sensor"])
+                          supported=[f"<{tag}> inside the <sensor>",
+                                     f"<{tag} id=...> with <ref id=.../> in the sensor"])
         elif tag == "medium":
             self.medium_index(node)
         elif tag == "shape" and node.attrs.get("type") == "shapegroup":
