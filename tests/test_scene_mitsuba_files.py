@@ -699,3 +699,18 @@ def test_instances_place_copies_of_their_shapegroup_as_mitsuba_does(mi):
     with pytest.raises(SceneError, match="cannot be an emitter"):
         parse_scene_string(scene('<shape type="shapegroup" id="g"><shape type="sphere"><emitter type="area"/></shape>'
                                  '</shape><shape type="instance"><ref id="g"/></shape>'))
+
+
+def test_an_alias_names_an_element_a_second_time(mi, tmp_path):
+    xml = scene('<bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.7"/></bsdf>\n'
+                '<alias id="white" as="paint"/>\n<shape type="cube" id="c"><ref id="paint"/></shape>',
+                sensor('<float name="fov" value="45"/>'))
+    theirs = np.ravel(np.array(mi.traverse(mi.load_string(xml).shapes()[0])["bsdf.reflectance.value"]))
+    np.testing.assert_allclose(theirs, 0.7, rtol=1e-6)
+    d = parse_scene_string(xml)
+    assert d.materials[d.shapes[0].material].rgb == (0.7, 0.7, 0.7)
+    path = write(tmp_path / "alias.xml", scene('<bsdf type="diffuse" id="a"/><bsdf type="diffuse" id="b"/>\n'
+                                               '<alias id="a" as="b"/>'))
+    assert "<alias id=\"a\">: id 'b' is already used on" in one_line_error(path)
+    path.write_text(scene('<alias id="nothing" as="b"/>'))
+    assert "<alias id=\"nothing\">: no element has id 'nothing'" in one_line_error(path)

@@ -38,7 +38,7 @@ from .serialized import load_serialized
 
 #: Property tags and plugin tags this loader knows.
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "include", "path", "integrator", "sensor", "bsdf", "shape", "emitter", "medium",
+TOP_LEVEL_TAGS = ("default", "include", "path", "alias", "integrator", "sensor", "bsdf", "shape", "emitter", "medium",
                   "film (with an id)", "sampler (with an id)")
 
 FLOAT = ("float", "integer")
@@ -453,13 +453,34 @@ class _Loader:
                                       supported=sorted(self.params) or None)
                         return self.params[m.group(1)]
                     node.attrs[k] = _PARAM.sub(repl, v)
-        if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
+        if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default", "alias"):
             i = node.attrs["id"]
             if i in self.ids:
                 first = self.ids[i]
                 where = f"line {first.line}" if first.source == node.source else self.at(first)
                 self.fail(node, f"id {quoted(i)} is already used on {where}")
             self.ids[i] = node
+
+    def aliases(self, node: Node) -> None:
+        """Mitsuba's <alias id="a" as="b"/>: b names what a names (a must exist, b must be new); the elements
+        are then removed from the tree.  Problems are recorded."""
+        kept = []
+        for c in node.children:
+            if c.tag != "alias":
+                self.aliases(c)
+                kept.append(c)
+                continue
+            try:
+                self.check_attrs(c, ("id", "as"), ("id", "as"))
+                src, dst = c.attrs["id"], c.attrs["as"]
+                if src not in self.ids:
+                    self.fail(c, f"no element has id {quoted(src)}", supported=sorted(self.ids) or None)
+                if dst in self.ids:
+                    self.fail(c, f"id {quoted(dst)} is already used on {self.at(self.ids[dst])}")
+                self.ids[dst] = self.ids[src]
+            except SceneError as exc:
+                self.record(exc)
+        node.children = kept
 
     def substitute_attrs(self, node: Node) -> None:
         """$name substitution in the attributes of one node (for <include> and <path>, which are read
@@ -1329,6 +1350,7 @@ def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: 
     loader.file_versions[source_name] = _version(root.attrs.get("version"))
     loader.expand(root, (), True)
     loader.substitute(root)
+    loader.aliases(root)
     loader.raise_errors()    # stop here: nothing can be read with a value missing
     old = {src for src, v in loader.file_versions.items() if v is not None and v < (2,)}
     if old:
