@@ -714,3 +714,8 @@ def test_an_alias_names_an_element_a_second_time(mi, tmp_path):
     assert "<alias id=\"a\">: id 'b' is already used on" in one_line_error(path)
     path.write_text(scene('<alias id="nothing" as="b"/>'))
     assert "<alias id=\"nothing\">: no element has id 'nothing'" in one_line_error(path)
+
+
+def test_an_area_emitter_named_by_a_broken_shape_is_not_a_second_problem(tmp_path):
+    path = write(tmp_path / "s.xml", scene('<emitter type="area" id="light"/>\n<shape type="torus"><ref id="light"/></shape>'))
+    assert one_line_error(path).startswith(f"{path}:6: <shape type=\"torus\">: unknown shape type 'torus'")

@@ -1211,8 +1211,10 @@ class _Loader:
                 self.lint_children(node)
             except _Abandon:
                 self.lint_children(node)
+        named = {c.attrs.get("id") for n in root.children if n.tag == "shape" for c in n.children if c.tag == "ref"}
         for n in self.top_level_area.values():
-            if id(n) not in self.referenced_emitters:
+            # unused, and not because the shape that names it failed (that shape's problem is reported)
+            if id(n) not in self.referenced_emitters and n.attrs["id"] not in named:
                 self.errors.append(f"{self.at(n)}: {n.describe()}: an area emitter must be nested inside a <shape> "
                                    f"or given to one by <ref id=\"{n.attrs['id']}\"/>; no shape refers to it")
         if camera is None and not sensor_seen:
