@@ -143,7 +143,8 @@ def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_passes(diacaustic, two_
     caustica.render(diacaustic, "pt", res=16, passes=4, dask=two_workers.client)
     scene, cls, settings = caustica.api.resolve_settings(diacaustic, "pt", res=16, seed=1, multi_pass=True)
     plan = caustica.driver.check_plan(cls, passes=200)
-    state, log, _ = cluster.run(two_workers, cls, scene, settings, plan, InterruptingBar)
+    state, log = caustica.driver.run(cls, scene, settings, plan, InterruptingBar,
+                                     cluster.DaskPasses(two_workers, cls, scene, settings, plan))
     assert log.interrupted and 0 < state.passes < 200
     local = caustica.render(diacaustic, "pt", res=16, seed=1, passes=state.passes)
     assert cls.image(scene, settings, state).tobytes() == local.image.tobytes()

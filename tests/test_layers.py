@@ -19,7 +19,7 @@ LAYERS = (
               "caustica.geometry.vec", "caustica.imageio", "caustica.version", "caustica.film",
               "caustica.interrupts", "caustica.arrays")),
     ("scene", ("caustica.scene",)),
-    ("tables", ("caustica.geometry", "caustica.bsdf", "caustica.emitters", "caustica.media", "caustica.camera",
+    ("tables", ("caustica.geometry", "caustica.bsdfs", "caustica.emitters", "caustica.media", "caustica.camera",
                 "caustica.tables")),
     ("transport", ("caustica.transport", "caustica.lighting", "caustica.photons")),
     ("methods", ("caustica.methods",)),

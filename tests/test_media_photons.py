@@ -83,7 +83,8 @@ def test_beam_gather_finds_each_pierced_sphere_once_and_matches_a_uniform_densit
     vg = build_volume_grid(pos, dirs, power, r)
     out = np.empty((k, 3))
     found = np.empty(k, np.int64)
-    beam_gather(vg, media, a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.ones(k, np.int32), 1, out, found, 0, k)
+    beam_gather(vg, media, (a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.ones(k, np.int32)), 1, (out, found), 0,
+                k)
     density = 1.0 / 8.0                        # N Φ / V
     for j in range(k):
         want, terms, count = brute_force(pos, dirs, power, r, a[j], seg_d[j], seg_len[j], sigma, g)
@@ -112,8 +113,8 @@ def test_beam_gather_of_no_photons_is_zero():
     vg = build_volume_grid(z, z, z, 0.5)
     out = np.full((1, 3), 7.0)
     found = np.full(1, 7, np.int64)
-    beam_gather(vg, medium_table((1, 1, 1), (1, 1, 1), None), np.zeros((1, 3)), np.array([[0, 0, 1.0]]),
-                np.ones(1), np.ones((1, 3)), np.zeros(1, np.int32), np.ones(1, np.int32), 1, out, found, 0, 1)
+    beam_gather(vg, medium_table((1, 1, 1), (1, 1, 1), None), (np.zeros((1, 3)), np.array([[0, 0, 1.0]]),
+                np.ones(1), np.ones((1, 3)), np.zeros(1, np.int32), np.ones(1, np.int32)), 1, (out, found), 0, 1)
     assert np.all(out == 0) and found[0] == 0
 
 
@@ -329,8 +330,7 @@ def test_in_scattering_samples_near_an_area_light_stay_bounded():
     for h in (1e-2, 1e-3, 1e-4):   # the light is the square |x|, |z| <= 1.5 at y = 19.99, facing down
         o, d = (-1.4, 19.99 - h, 0.1), (1.0, 0.0, 0.0)
         for u in rng.random((n, 7)):
-            c = segment_inscatter(scene.geometry, scene.materials, scene.lights, scene.media, o, d, 2.8, 0,
-                                  (1.0, 1.0, 1.0), *map(float, u))
+            c = segment_inscatter(scene.tables, o, d, 2.8, 0, (1.0, 1.0, 1.0), tuple(map(float, u)))
             worst = max(worst, max(c))
             total += c
     assert worst <= 1.5 * le * albedo * (1 + 1e-9), worst

@@ -251,7 +251,7 @@ def test_camera_pass_adds_a_light_seen_in_glass_with_its_fresnel_weight():
     """A camera ray meets glass at 45 degrees and its reflection meets an area light: every pass adds
     F Le (the light's expected share), instead of Le in a fraction F of the passes and 0 in the rest."""
     from test_pt import scene_from_xml, sensor_xml
-    from caustica.bsdf import fresnel_dielectric
+    from caustica.bsdfs.optics import fresnel_dielectric
     le = np.array([2.0, 3.0, 4.0])
     scene = scene_from_xml(f"""<scene version="3.0.0">
         {sensor_xml((0, -2, 2), (0, 0, 0), (0, 0, 1), 0.01, 1, 1)}
@@ -521,6 +521,13 @@ def test_time_budget_stops_between_passes(diacaustic):
     assert r.stats["passes"] >= 2
     assert sum(r.stats["pass_seconds"]) <= 1.0 + max(r.stats["pass_seconds"])
     assert r.stats["time_budget_s"] == 1.0 and not r.stats["interrupted"]
+
+
+def test_the_first_pass_always_runs_whatever_the_budget(diacaustic):
+    """A budget over before the first pass is sent still renders it (then stops): never an image of no passes."""
+    r = caustica.render(diacaustic, "sppm", res=8, seed=1, time_s=1e-9)
+    assert r.stats["passes"] == 1 and len(r.stats["pass_seconds"]) == 1
+    assert r.image.tobytes() == caustica.render(diacaustic, "sppm", res=8, seed=1, passes=1).image.tobytes()
 
 
 def test_radius_shrinks_and_aovs(diacaustic):

@@ -348,7 +348,7 @@ SENSOR_ERRORS = {
                               "sample_count"),
     "zero width": (FILM.format('<integer name="width" value="0"/>'), "width"),
     "zero height": (FILM.format('<integer name="height" value="0"/>'), "height"),
-    "gaussian rfilter": (FILM.format('<rfilter type="gaussian"/>'), "gaussian"),
+    "unknown rfilter": (FILM.format('<rfilter type="mitchell"/>'), "mitchell"),
     "unknown sampler": ('<sampler type="sobol"/>', "sobol"),
     "far_clip before near_clip": ('<float name="far_clip" value="0.001"/>', "far_clip"),
 }

@@ -233,6 +233,8 @@ def test_film_settings_that_change_nothing_in_the_image_are_accepted(mi):
     plain = parse_scene_string(scene("", film(""))).camera
     cam = parse_scene_string(xml).camera
     assert (cam.width, cam.height, cam.fov_deg) == (plain.width, plain.height, plain.fov_deg) == (32, 24, 45)
+    # sample_border is read (the reconstruction filter honours it), off by default as in Mitsuba
+    assert cam.sample_border and not plain.sample_border
     for fmt in ("rgbe", "pfm", "exr"):
         parse_scene_string(scene("", film(f'<string name="file_format" value="{fmt}"/>')))
     for fmt in ("float16", "uint32"):
@@ -420,7 +422,7 @@ def test_integrator_setting_errors(tmp_path, inner, words):
 
 MANY = """<sensor type="perspective"><float name="fov" value="45"/>
 <film type="hdrfilm"><string name="pixel_format" value="rgb"/><boolean name="banner" value="no"/>
-<rfilter type="gaussian"/></film></sensor>
+<rfilter type="mitchell"/></film></sensor>
 <texture type="checkerboard" id="checks"/>
 <bsdf type="roughplastic" id="plastic"/>
 <shape type="torus"/>
@@ -442,7 +444,7 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     assert head == f"{path}: 9 problems, each with its file and line (and what is supported there):"
     expected = [
         (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
-        (4, "<rfilter type=\"gaussian\">: "),
+        (4, "<rfilter type=\"mitchell\">: unknown rfilter type 'mitchell'; supported: box, tent, gaussian"),
         (5, "<texture type=\"checkerboard\" id=\"checks\">: unknown element at the top level of the scene; supported: "),
         (6, "<bsdf type=\"roughplastic\" id=\"plastic\">: unknown bsdf type 'roughplastic'; supported: diffuse,"),
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),

@@ -137,6 +137,16 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     return scene, cls, settings
 
 
+
+def _rfilter_stats(rf) -> dict:
+    """The film's reconstruction filter as the sidecar records it: its type and the parameter it takes."""
+    if rf.kind == "tent":
+        return {"type": "tent", "radius": rf.radius}
+    if rf.kind == "gaussian":
+        return {"type": "gaussian", "stddev": rf.stddev}
+    return {"type": rf.kind}
+
+
 def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed: int = 0,
            threads: int | None = None, progress: bool = False, passes: int | None = None,
            time_s: float | None = None, checkpoint=None, aov=(), dask=None, workers: int | None = None,
@@ -180,8 +190,9 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
                                      "worker thread (start workers with 'dask worker --nthreads T' to run T at once)")
             check_distributable(cls, settings, plan)
             with cluster.connect(dask, workers) as cl:
-                state, log, cluster_log = cluster.run(cl, cls, scene, settings, plan, progress_factory(progress))
-                cluster_log = cluster_log.to_json(cl.address)
+                passes = cluster.DaskPasses(cl, cls, scene, settings, plan)   # the same loop, passes as Dask tasks
+                state, log = driver.run(cls, scene, settings, plan, progress_factory(progress), passes)
+                cluster_log = passes.clog.to_json(cl.address)
     image = cls.image(scene, settings, state)
     require_finite(image, method, state.passes if plan.multi else None)
     stats = dict(log.counters)
@@ -203,6 +214,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "threads": threads,
         "timings": timings,
         "integrator_note": scene.description.integrator_note(method, settings),
+        "rfilter": _rfilter_stats(scene.description.camera.rfilter),
         **stats,
     }
     if plan.multi:

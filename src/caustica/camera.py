@@ -3,8 +3,10 @@
 Camera space looks along +z with +y up and +x towards the image's *left* (that is
 what Mitsuba's ``lookat`` builds: its first column is ``cross(up, dir)``).  The
 field of view is given along one axis (``fov_axis`` x, y, smaller or larger) and
-converted to the half-angle tangents of both axes.  Pixels integrate a box filter:
-each sample is jittered uniformly inside its pixel.
+converted to the half-angle tangents of both axes.  Pixels integrate the film's
+reconstruction filter (box, tent or gaussian, as Mitsuba 3 defines them): each sample's
+sub-pixel position is drawn from the filter by :func:`caustica.sampling.filters.film_position`
+from the two uniform numbers the caller passes (box: uniform inside the pixel).
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import numpy as np
 from .errors import SceneError
 from .geometry import vec
 from .jit import kernel
+from .sampling.filters import FILTER_KINDS, GAUSSIAN, film_position, filter_radius
 from .scene.description import Camera
 
 
@@ -27,6 +30,10 @@ class CameraParams(NamedTuple):
     width: int
     height: int
     near_clip: float
+    filter_kind: int       # caustica.sampling.filters: BOX, TENT or GAUSSIAN
+    filter_radius: float   # the filter's support radius in pixels
+    filter_stddev: float   # the gaussian's standard deviation in pixels (0 for the others)
+    sample_border: bool    # sample beyond the film's edge (Mitsuba's film sample_border)
 
 
 def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> tuple[float, float]:
@@ -53,17 +60,25 @@ def camera_params(cam: Camera, width: int | None = None, height: int | None = No
     h = int(height or cam.height)
     tx, ty = tan_half_angles(cam.fov_deg, cam.fov_axis, w, h)
     m = np.asarray(cam.to_world, dtype=np.float64)
-    return CameraParams(m[:3, 3].copy(), m[:3, :3].copy(), tx, ty, w, h, float(cam.near_clip))
+    rf = cam.rfilter
+    kind = FILTER_KINDS[rf.kind]
+    return CameraParams(m[:3, 3].copy(), m[:3, :3].copy(), tx, ty, w, h, float(cam.near_clip),
+                        kind, float(filter_radius(kind, rf.radius, rf.stddev)),
+                        float(rf.stddev) if kind == GAUSSIAN else 0.0,
+                        bool(cam.sample_border))
 
 
 @kernel
 def generate_ray(cam, px, py, u1, u2):
-    """The primary ray through pixel (px, py) at sub-pixel offset (u1, u2): (origin, unit direction).
+    """The primary ray of a sample of pixel (px, py) drawn with the uniform numbers (u1, u2): (origin, unit direction).
 
-    Pixel (0, 0) is the top-left corner of the image.
+    The sample's film position comes from the film's reconstruction filter centred on the pixel (box:
+    (px + u1, py + u2), uniform inside the pixel).  Pixel (0, 0) is the top-left corner of the image.
     """
-    sx = (px + u1) / cam.width
-    sy = (py + u2) / cam.height
+    sx = film_position(cam.filter_kind, cam.filter_radius, cam.filter_stddev, cam.sample_border,
+                       px, cam.width, u1) / cam.width
+    sy = film_position(cam.filter_kind, cam.filter_radius, cam.filter_stddev, cam.sample_border,
+                       py, cam.height, u2) / cam.height
     local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
     b = cam.basis
     d = vec.normalize((b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],

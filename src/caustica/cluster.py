@@ -12,6 +12,9 @@ a local cluster of N single-threaded worker processes.  What goes over the wire:
   render of the same passes whatever the number of workers, the task sizes or the
   order tasks finish in (:mod:`caustica.film`).
 
+The pass loop (pass count, time budget, checkpoints, progress, Ctrl-C) is a local render's,
+:func:`caustica.driver.run`, given a :class:`DaskPasses` as its executor.
+
 Tasks start at one pass; once the first are back, a task gets a power of two of passes
 (at most :data:`MAX_TASK_PASSES`) that takes about :data:`TASK_SECONDS` (longer on more than 16 worker threads), so a task's
 overhead (scheduling, moving a part of the film) is a small share of its work; with a time budget a task is only sent if
@@ -28,7 +31,6 @@ import time
 from dataclasses import dataclass, field
 
 from . import checkpoint as ckpt
-from .driver import CHECKPOINT_INTERVAL_S, final_checkpoint, load_checkpoint, save_checkpoint
 from .errors import CausticaError, ClusterError, ParameterError, quoted, shorten
 from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
@@ -569,22 +571,6 @@ def cluster_failures() -> tuple:
     return (distributed.KilledWorker, CommClosedError, CancelledError, FutureCancelled, TimeoutError, OSError)
 
 
-def _failure_message(cluster, exc, method_cls, scene, settings, plan, state) -> str:
-    saved = ""
-    if plan.checkpoint is not None and state.passes > 0:
-        ckpt.save(plan.checkpoint, method_cls, scene, settings, state)
-        saved = f"; saved to {plan.checkpoint}, rerun to resume"
-    if isinstance(exc, _distributed().KilledWorker):
-        what = "a task killed every worker that ran it (Dask's KilledWorker)"
-    elif cluster.client.status != "running":
-        what = f"lost the scheduler ({type(exc).__name__})"
-    else:
-        what = f"the cluster dropped this render's tasks ({type(exc).__name__}: " \
-               f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})"
-    flag = f"--dask {cluster.address}" if cluster.local is None else f"--workers (a local cluster at {cluster.address})"
-    return f"{flag}: {what}; {state.passes} passes were finished{saved}"
-
-
 def _next_size(start: int, want: int, limit: int) -> int:
     """The passes of the next task: a power of two <= want, limit and MAX_TASK_PASSES, aligned when it can be.
 
@@ -636,148 +622,143 @@ def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
     return int(max(1, min(MAX_TASK_PASSES, (blocks + 1) * TRUNK_PASSES - 1)))
 
 
-def run(cluster: Cluster, method_cls, scene, settings, plan, progress):
-    """The driver's loop with passes as cluster tasks: (state, PassLog, ClusterLog)."""
-    distributed = _distributed()
-    client = cluster.client
-    clog = ClusterLog(workers=len(cluster.worker_threads), worker_threads=cluster.threads)
-    source = _source_hash()
-    state, log = load_checkpoint(method_cls, scene, settings, plan)
-    if state is None:
-        state = method_cls.new_state(scene, settings)
-    try:
-        task_cap = max_task_passes(cluster, method_cls, settings, scene)
-    except cluster_failures() as exc:
-        raise ClusterError(f"--dask {cluster.address}: the scheduler did not answer when asked for the workers' "
-                           f"memory ({type(exc).__name__})") from None
-    clog.max_task_passes = task_cap
-    t0 = time.perf_counter()
-    scene_f = send_scene(client, scene)
-    clog.scene_transfer_s = time.perf_counter() - t0
-    target = plan.passes
-    bar = progress(total=target, desc=f"{method_cls.name} passes on {clog.workers} workers", unit="pass")
-    if log.resumed_from:
-        bar.update(log.resumed_from)
-    flying: dict = {}          # future -> (start, stop, time sent)
-    done: dict = {}            # start -> (part, per-pass log)
-    next_pass = state.end
-    per_pass = []              # measured work seconds per pass of finished tasks
-    t_start = time.perf_counter()
-    last_save = t_start
-    arrived = queue.SimpleQueue()   # tasks that ended (done, failed or cancelled), in the order they did
-    try:
-        while True:
-            try:
-                slots = max(1, cluster.threads)     # workers may join (or leave) during the render
-            except cluster_failures() as exc:
-                raise _ClusterFailed(exc) from exc
-            clog.workers = max(clog.workers, len(cluster.worker_threads))
-            clog.worker_threads = max(clog.worker_threads, slots)
-            task_seconds = TASK_SECONDS * max(1.0, slots / THREADS_FOR_LONGER_TASKS)
-            held_cap = MAX_HELD_PARTS_PER_SLOT * slots
-            while len(flying) < slots and len(done) < held_cap and (target is None or next_pass < target):
-                limit = min(target - next_pass, task_cap) if target is not None else task_cap
-                size = 1                 # until the first task is back, one pass per task
-                if per_pass:
-                    pass_s = max(per_pass[-3:])
-                    want = max(1, int(task_seconds / max(pass_s, 1e-6)))
-                    if target is not None:   # share what is left among the slots
-                        want = min(want, -(-(target - next_pass) // slots))
-                    size = _next_size(next_pass, want, limit)
-                    if plan.time_s is not None:
-                        left = plan.time_s - (time.perf_counter() - t_start)
-                        while size > 1 and size * pass_s > left:
-                            size //= 2
-                        if size * pass_s > left:
-                            break
-                elif plan.time_s is not None and time.perf_counter() - t_start > plan.time_s:
-                    break
-                fut = client.submit(render_part_task, scene_f, method_cls.name, settings, next_pass,
-                                    next_pass + size, source, pure=False)
-                flying[fut] = (next_pass, next_pass + size, time.perf_counter())
-                fut.add_done_callback(arrived.put)   # on Dask's thread, when the task ends however it ends
-                next_pass += size
-            if not flying:
-                break
-            deadline = None
-            if plan.time_s is not None:
-                # past the budget and its grace, what is still out is given up; before any task has come
-                # back the workers may still be compiling or loading their kernels: a longer allowance
-                grace = (max(LATE_TASK_GRACE_S, 3.0 * max(clog.task_wall_seconds)) if clog.tasks
-                         else FIRST_TASK_GRACE_S)
-                deadline = t_start + plan.time_s + grace
-            fut = None
-            while fut is None and (deadline is None or time.perf_counter() < deadline):
-                wait_s = 0.5 if deadline is None else min(0.5, max(0.0, deadline - time.perf_counter()))
-                try:   # in short waits, so Ctrl-C is seen at once whatever the platform's locks do
-                    fut = arrived.get(timeout=wait_s)
-                except queue.Empty:
-                    pass
-            if fut is None:   # a task that ended just now is not late
-                try:
-                    fut = arrived.get_nowait()
-                except queue.Empty:
-                    pass
-            if fut is None:
-                clog.late_grace_s = grace
-                clog.late_tasks = len(flying)
-                clog.dropped_passes = (sum(stop - start for start, stop, _ in flying.values())
-                                       + sum(len(part_log) for _, part_log in done.values()))
-                try:
-                    client.cancel(list(flying))
-                except cluster_failures() as exc:   # a scheduler gone by now: nothing left to cancel
-                    raise _ClusterFailed(exc) from exc
-                flying.clear()
-                done.clear()
-                break
-            try:
-                start, stop, sent = flying[fut]
-                t1 = time.perf_counter()
-                part, part_log, work_s = fut.result()
-                del flying[fut]
-            except cluster_failures() as exc:
-                if isinstance(exc, CausticaError):
-                    raise
-                raise _ClusterFailed(exc) from exc
-            clog.result_transfer_s += time.perf_counter() - t1
-            clog.result_bytes += part.nbytes
-            clog.tasks += 1
-            clog.task_passes.append(stop - start)
-            clog.task_seconds.append(work_s)
-            clog.task_wall_seconds.append(time.perf_counter() - sent)
-            compile_s = sum(stats.get("timings", {}).get("compile_s", 0.0) for _, stats in part_log)
-            per_pass.append(max(0.0, work_s - compile_s) / (stop - start))
-            done[start] = (part, part_log)
-            bar.update(stop - start)
-            if plan.time_s is not None:
-                bar.set_postfix_str(f"{time.perf_counter() - t_start:.1f} of {plan.time_s:g} s")
-            while state.end in done:
-                part, part_log = done.pop(state.end)
-                state = state.merge(part)
-                for seconds, stats in part_log:
-                    log.add(seconds, stats)
-            if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
-                save_checkpoint(plan, method_cls, scene, settings, state, log)
-                last_save = time.perf_counter()
-    except BaseException as exc:
+class DaskPasses:
+    """The driver's executor on a Dask cluster (:class:`caustica.driver.LocalPasses` says what each method does):
+    a range of passes is a task on one worker thread; parts come back in any order and are merged in pass order."""
+
+    def __init__(self, cluster: Cluster, method_cls, scene, settings, plan):
+        self.cluster, self.method_cls, self.scene, self.settings, self.plan = cluster, method_cls, scene, settings, plan
+        self.clog = ClusterLog(workers=len(cluster.worker_threads), worker_threads=cluster.threads)
+        self.label = f" on {self.clog.workers} workers"
+        self.source = _source_hash()
+        self.flying: dict = {}               # future -> (start, stop, time sent)
+        self.done: dict = {}                 # start -> (part, per-pass log), back before a pass still out
+        self.arrived = queue.SimpleQueue()   # tasks that ended (done, failed or cancelled), in the order they did
+        self.slots = 1
+
+    def start(self) -> None:
         try:
-            client.cancel(list(flying))
+            self.clog.max_task_passes = max_task_passes(self.cluster, self.method_cls, self.settings, self.scene)
+        except cluster_failures() as exc:
+            raise ClusterError(f"--dask {self.cluster.address}: the scheduler did not answer when asked for the "
+                               f"workers' memory ({type(exc).__name__})") from None
+        t0 = time.perf_counter()
+        self.scene_f = send_scene(self.cluster.client, self.scene)
+        self.clog.scene_transfer_s = time.perf_counter() - t0
+
+    def room(self) -> int:
+        """Free task slots (workers may join or leave during the render); none while too many parts are held."""
+        try:
+            self.slots = max(1, self.cluster.threads)
+        except cluster_failures() as exc:
+            raise _ClusterFailed(exc) from exc
+        self.clog.workers = max(self.clog.workers, len(self.cluster.worker_threads))
+        self.clog.worker_threads = max(self.clog.worker_threads, self.slots)
+        return 0 if len(self.done) >= MAX_HELD_PARTS_PER_SLOT * self.slots else max(0, self.slots - len(self.flying))
+
+    def task_size(self, start: int, target, pass_s: float) -> int:
+        """About TASK_SECONDS of passes (longer on many threads), what is left shared among the slots."""
+        limit = self.clog.max_task_passes if target is None else min(target - start, self.clog.max_task_passes)
+        want = max(1, int(TASK_SECONDS * max(1.0, self.slots / THREADS_FOR_LONGER_TASKS) / max(pass_s, 1e-6)))
+        if target is not None:
+            want = min(want, -(-(target - start) // self.slots))
+        return _next_size(start, want, limit)
+
+    def submit(self, start: int, stop: int) -> None:
+        fut = self.cluster.client.submit(render_part_task, self.scene_f, self.method_cls.name, self.settings, start,
+                                         stop, self.source, pure=False)
+        self.flying[fut] = (start, stop, time.perf_counter())
+        fut.add_done_callback(self.arrived.put)   # on Dask's thread, when the task ends however it ends
+
+    def collect(self, state, late_after):
+        if not self.flying:
+            return None
+        fut = self._next_back(late_after)
+        if fut is None:   # late: given up
+            self._give_up(state)
+            return None
+        try:
+            start, stop, sent = self.flying[fut]
+            t1 = time.perf_counter()
+            part, part_log, work_s = fut.result()
+            del self.flying[fut]
+        except cluster_failures() as exc:
+            if isinstance(exc, CausticaError):
+                raise
+            raise _ClusterFailed(exc) from exc
+        clog = self.clog
+        clog.result_transfer_s += time.perf_counter() - t1
+        clog.result_bytes += part.nbytes
+        clog.tasks += 1
+        clog.task_passes.append(stop - start)
+        clog.task_seconds.append(work_s)
+        clog.task_wall_seconds.append(time.perf_counter() - sent)
+        compile_s = sum(stats.get("timings", {}).get("compile_s", 0.0) for _, stats in part_log)
+        self.done[start] = (part, part_log)
+        merged = []
+        while state.end in self.done:
+            part, part_log = self.done.pop(state.end)
+            state = state.merge(part)
+            merged += part_log
+        return state, merged, max(0.0, work_s - compile_s) / (stop - start)
+
+    def _next_back(self, late_after):
+        """The next task to end, waited for in short waits (so Ctrl-C is seen at once whatever the platform's
+        locks do); None when none ended by ``late_after`` and the grace after it."""
+        deadline = None
+        if late_after is not None:
+            # past the budget and its grace, what is still out is given up; before any task has come
+            # back the workers may still be compiling or loading their kernels: a longer allowance
+            self.grace = (max(LATE_TASK_GRACE_S, 3.0 * max(self.clog.task_wall_seconds)) if self.clog.tasks
+                          else FIRST_TASK_GRACE_S)
+            deadline = late_after + self.grace
+        while True:
+            left = None if deadline is None else deadline - time.perf_counter()
+            try:   # past the deadline, one look without waiting: a task that ended just now is not late
+                return self.arrived.get(timeout=0.5 if left is None else min(0.5, max(0.0, left)))
+            except queue.Empty:
+                if left is not None and left <= 0:
+                    return None
+
+    def _give_up(self, state) -> None:
+        """Cancel the late tasks: their passes, and those back after them, are dropped."""
+        clog = self.clog
+        clog.late_grace_s, clog.late_tasks = self.grace, len(self.flying)
+        clog.dropped_passes = (sum(stop - start for start, stop, _ in self.flying.values())
+                               + sum(len(part_log) for _, part_log in self.done.values()))
+        try:
+            self.cluster.client.cancel(list(self.flying))
+        except cluster_failures() as exc:   # a scheduler gone by now: nothing left to cancel
+            raise _ClusterFailed(exc) from exc
+        self.flying.clear()
+        self.done.clear()
+        if state.passes == 0:
+            raise ClusterError(f"--time {self.plan.time_s:g}: no pass could be merged within the budget and its "
+                               f"grace of {clog.late_grace_s:g} s ({clog.late_tasks} task(s) still out, given up): "
+                               f"are the workers hung?")
+
+    def stop(self, exc: BaseException, state) -> None:
+        """Cancel this render's tasks; after Ctrl-C closing stops a local cluster at once; a failure of the
+        cluster is one ClusterError (the passes finished saved to the checkpoint first)."""
+        try:
+            self.cluster.client.cancel(list(self.flying))
         except Exception:   # a scheduler that is gone has nothing left to cancel
             pass
         if isinstance(exc, KeyboardInterrupt):
-            cluster.interrupted = True   # Ctrl-C: closing stops the local cluster at once
-        if isinstance(exc, KeyboardInterrupt) and state.passes > 0:
-            log.interrupt(exc)
-        elif isinstance(exc, _ClusterFailed):
-            raise ClusterError(_failure_message(cluster, exc.cause, method_cls, scene, settings, plan,
-                                                state)) from None
+            self.cluster.interrupted = True
+        if not isinstance(exc, _ClusterFailed):
+            return
+        exc, saved = exc.cause, ""
+        if self.plan.checkpoint is not None and state.passes > 0:
+            ckpt.save(self.plan.checkpoint, self.method_cls, self.scene, self.settings, state)
+            saved = f"; saved to {self.plan.checkpoint}, rerun to resume"
+        if isinstance(exc, _distributed().KilledWorker):
+            what = "a task killed every worker that ran it (Dask's KilledWorker)"
+        elif self.cluster.client.status != "running":
+            what = f"lost the scheduler ({type(exc).__name__})"
         else:
-            raise
-    finally:
-        bar.close()
-    if clog.late_tasks and state.passes == 0:
-        raise ClusterError(f"--time {plan.time_s:g}: no pass could be merged within the budget and its grace of "
-                           f"{clog.late_grace_s:g} s ({clog.late_tasks} task(s) still out, given up): are the "
-                           f"workers hung?")
-    final_checkpoint(plan, method_cls, scene, settings, state, log)
-    return state, log, clog
+            what = f"the cluster dropped this render's tasks ({type(exc).__name__}: " \
+                   f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})"
+        where = self.cluster.address
+        flag = f"--dask {where}" if self.cluster.local is None else f"--workers (a local cluster at {where})"
+        raise ClusterError(f"{flag}: {what}; {state.passes} passes were finished{saved}") from None

@@ -1,18 +1,19 @@
-"""The one render loop: a method's passes under a pass count or a time budget.
+"""The one pass loop: a method's passes under a pass count or a time budget, here or on a Dask cluster.
 
 Every method is parameters + ``new_state`` + ``run_pass`` + ``image`` (see
-:mod:`caustica.methods`).  This module runs the passes, times them, drives the
+:mod:`caustica.methods`).  :func:`run` decides how many passes run, times them, drives the
 progress bar, writes checkpoints and turns Ctrl-C (or SIGTERM, :mod:`caustica.interrupts`)
-into a result of the passes finished so far.  ``run_pass`` returns a *new* state rather than changing the old
-one, so an interrupt in the middle of a pass leaves the last finished state whole.
+into a result of the passes finished so far.  An executor runs the passes it is sent:
+:class:`LocalPasses` one after another in this process (``run_pass`` returns a *new* state, so
+an interrupt in the middle of a pass leaves the last finished state whole), ``cluster.DaskPasses``
+ranges of independent passes as Dask tasks, merged in pass order with the same bits.
 
-Time budget: passes run while the next one, predicted to take as long as the
-slowest of the last three (compile time left out), would still end within the budget
-(the first pass always runs).  The budget counts from the start of the first pass and
-includes compile time.
+Time budget: a task is sent while it would still end within the budget, a pass predicted to take
+as long as the slowest of the last three tasks' passes (compile time left out); the first pass
+always runs.  The budget counts from the start of the first pass and includes compile time.
 
-Checkpoints are written after a pass when CHECKPOINT_INTERVAL_S have passed since the
-last one, after the last pass and when interrupted (a save costs an fsync: for passes
+Checkpoints are written after a task comes back when CHECKPOINT_INTERVAL_S have passed since
+the last one, after the last pass and when interrupted (a save costs an fsync: for passes
 of milliseconds, saving each would cost more than rendering).  An interrupt during a
 save is held until the checkpoint is complete (:func:`save_checkpoint`), so it never
 costs the passes being saved.
@@ -22,6 +23,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,7 +88,6 @@ def check_plan(method_cls, passes=None, time_s=None, checkpoint=None) -> PassPla
 class PassLog:
     """What the loop measured: seconds per pass, summed per-phase timings and counters."""
     pass_seconds: list = field(default_factory=list)
-    work_seconds: list = field(default_factory=list)   # pass_seconds without compile time
     timings: dict = field(default_factory=dict)
     counters: dict = field(default_factory=dict)
     interrupted: bool = False
@@ -103,7 +104,6 @@ class PassLog:
 
     def add(self, seconds: float, stats: dict) -> None:
         self.pass_seconds.append(seconds)
-        self.work_seconds.append(max(0.0, seconds - stats.get("timings", {}).get("compile_s", 0.0)))
         for k, v in stats.get("timings", {}).items():
             self.timings[k] = self.timings.get(k, 0.0) + v
         for k, v in stats.items():
@@ -115,48 +115,115 @@ class PassLog:
                 self.counters[k] = v
 
 
-def run(method_cls, scene, settings, plan: PassPlan, progress):
-    """Run the passes of ``plan``: (final state, PassLog)."""
+def run(method_cls, scene, settings, plan: PassPlan, progress, executor=None):
+    """Run the passes of ``plan`` on ``executor`` (default: :class:`LocalPasses`): (final state, PassLog)."""
+    if executor is None:
+        executor = LocalPasses(method_cls, scene, settings, QuietBar if plan.multi else progress)
     state, log = load_checkpoint(method_cls, scene, settings, plan)
     if state is None:
         state = method_cls.new_state(scene, settings)
-    multi = plan.multi
+    executor.start()
+    # passes rendered elsewhere are counted, and kept on Ctrl-C, even when there is one (its own bar is not shown)
+    multi = plan.multi or bool(executor.label)
     target = plan.passes if plan.passes is not None else (None if plan.time_s is not None else 1)
-    bar = None
-    if multi:
-        total = target if target is not None else None
-        bar = progress(total=total, desc=f"{method_cls.name} passes", unit="pass")
-        if log.resumed_from:
-            bar.update(log.resumed_from)
-    inner = progress if not multi else QuietBar
-    t_start = time.perf_counter()
-    last_save = t_start
+    bar = progress(total=target, desc=f"{method_cls.name} passes{executor.label}", unit="pass") if multi \
+        else QuietBar()
+    if log.resumed_from:
+        bar.update(log.resumed_from)
+    first = next_pass = state.passes
+    pass_s = deque(maxlen=3)   # work seconds per pass of the last tasks back (compile time left out)
+    t_start = last_save = time.perf_counter()
+    end = None if plan.time_s is None else t_start + plan.time_s
     try:
-        while target is None or state.passes < target:
-            elapsed = time.perf_counter() - t_start
-            if plan.time_s is not None and log.pass_seconds:
-                predicted = max(log.work_seconds[-3:])
-                if elapsed + predicted > plan.time_s:
-                    break
-            t0 = time.perf_counter()
-            state, stats = method_cls.run_pass(scene, settings, state, inner)
-            log.add(time.perf_counter() - t0, stats)
+        while True:
+            next_pass = _send(executor, next_pass, target, max(pass_s, default=None), end, next_pass == first)
+            back = executor.collect(state, end)
+            if back is None:   # nothing out, or what was out is given up (late past the budget)
+                break
+            state, passes, task_pass_s = back
+            for seconds, stats in passes:
+                log.add(seconds, stats)
+            pass_s.append(task_pass_s)
             if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
                 save_checkpoint(plan, method_cls, scene, settings, state, log)
                 last_save = time.perf_counter()
-            if bar is not None:
-                bar.update(1)
-                if plan.time_s is not None:
-                    bar.set_postfix_str(f"{time.perf_counter() - t_start:.1f} of {plan.time_s:g} s")
-    except KeyboardInterrupt as exc:   # Ctrl-C, or SIGTERM (interrupts.Terminated)
-        if state.passes == 0 or not multi:
+            bar.update(len(passes))
+            if end is not None:
+                bar.set_postfix_str(f"{time.perf_counter() - t_start:.1f} of {plan.time_s:g} s")
+    except BaseException as exc:   # Ctrl-C, SIGTERM (interrupts.Terminated), or a failure
+        executor.stop(exc, state)   # cancels what is out; may raise an error of its own instead
+        if not isinstance(exc, KeyboardInterrupt) or state.passes == 0 or not multi:
             raise
         log.interrupt(exc)
     finally:
-        if bar is not None:
-            bar.close()
-    final_checkpoint(plan, method_cls, scene, settings, state, log)
+        bar.close()
+    if plan.checkpoint is not None and state.passes > log.checkpoint_passes:
+        try:   # Ctrl-C or SIGTERM in this last save is held until it is complete, then recorded as an interrupt
+            save_checkpoint(plan, method_cls, scene, settings, state, log)
+        except InterruptedAfterSaving as exc:   # the render still returns, so its outputs are written too
+            log.interrupt(exc)
     return state, log
+
+
+def _send(executor, next_pass: int, target, pass_s, end, first: bool) -> int:
+    """Send tasks while the executor has room and passes are left: the next pass to send.  ``pass_s`` predicts a
+    pass (None until a task is back: tasks of one pass); a task is halved (keeping its alignment) until it ends
+    within the budget (``end``), and not sent if one pass would not, unless it is the render's ``first``."""
+    for _ in range(executor.room()):
+        if target is not None and next_pass >= target:
+            break
+        size = 1 if pass_s is None else executor.task_size(next_pass, target, pass_s)
+        if end is not None and not first:
+            left, p = end - time.perf_counter(), pass_s or 0.0
+            while size > 1 and size * p > left:
+                size //= 2
+            if size * p > left:
+                break
+        executor.submit(next_pass, next_pass + size)
+        next_pass, first = next_pass + size, False
+    return next_pass
+
+
+class LocalPasses:
+    """The executor of a render in this process, and the reference for what an executor does (the other is
+    ``cluster.DaskPasses``): it takes ranges of passes [start, stop) in pass order and gives them back merged
+    in pass order, while :func:`run` decides how many.  Here a task is one pass, run on the loop's state
+    as it is taken back (on the method's threads): any method's passes, independent or not."""
+    label = ""   # follows "passes" in the progress bar
+
+    def __init__(self, method_cls, scene, settings, progress):
+        self.method_cls, self.scene, self.settings, self.progress = method_cls, scene, settings, progress
+        self.sent = False
+
+    def start(self) -> None:
+        """Before the first task, after the checkpoint is read."""
+
+    def room(self) -> int:
+        """How many tasks may be sent now."""
+        return 0 if self.sent else 1
+
+    def task_size(self, start: int, target, pass_s: float) -> int:
+        """The passes (at least 1) of a task from ``start``; ``pass_s`` predicts a pass's work."""
+        return 1
+
+    def submit(self, start: int, stop: int) -> None:
+        """Send the passes [start, stop) (here one, from the state's end)."""
+        self.sent = True
+
+    def collect(self, state, late_after):
+        """The next task back: (``state`` with the passes now in order merged in, their (seconds, stats), its
+        work seconds per pass); None when none is out, or those out were given up as late (past
+        ``late_after``, the budget's end, and the executor's grace)."""
+        if not self.sent:
+            return None
+        self.sent = False
+        t0 = time.perf_counter()
+        state, stats = self.method_cls.run_pass(self.scene, self.settings, state, self.progress)
+        seconds = time.perf_counter() - t0
+        return state, [(seconds, stats)], max(0.0, seconds - stats.get("timings", {}).get("compile_s", 0.0))
+
+    def stop(self, exc: BaseException, state) -> None:
+        """The loop ends on ``exc``: cancel what is out (or raise an error of the executor's own)."""
 
 
 def save_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> None:
@@ -171,20 +238,6 @@ def save_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> N
         log.checkpoint_passes = state.passes
         raise
     log.checkpoint_passes = state.passes
-
-
-def final_checkpoint(plan, method_cls, scene, settings, state, log: PassLog) -> None:
-    """Save the plan's checkpoint after the last pass (unless it holds them all already).
-
-    Ctrl-C or SIGTERM during this save is held until the checkpoint is complete and then
-    recorded as an interrupt: the render still returns, so its outputs are written too.
-    """
-    if plan.checkpoint is None or state.passes <= log.checkpoint_passes:
-        return
-    try:
-        save_checkpoint(plan, method_cls, scene, settings, state, log)
-    except InterruptedAfterSaving as exc:
-        log.interrupt(exc)
 
 
 def load_checkpoint(method_cls, scene, settings, plan):

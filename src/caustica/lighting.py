@@ -17,9 +17,9 @@ from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 
 
 @kernel
-def direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim, n_strata,
-                      fixed_grid, pass_index):
-    """Irradiance E = Σ_lights ∫ L T cos θ dω at surface point p of ``shape``, every light sampled (SPEC §2).
+def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
+    """Irradiance E = Σ_lights ∫ L T cos θ dω at ``at`` (a :class:`caustica.transport.ShadingPoint` on a
+    surface), every light sampled (SPEC §2).
 
     Area lights: n_strata x n_strata strata; stratum s = (i, j) is jittered by its cell centre when
     ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
@@ -30,6 +30,8 @@ def direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, med
     in vacuum, with the vacuum arithmetic).  ng, ns: normals on the lit side; ng_front: the front.
     Returns E per channel, before the diffuse BRDF ρ / π.
     """
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium = at
     E = (0.0, 0.0, 0.0)
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):

@@ -296,11 +296,11 @@ def power_heuristic(a, b):
 
 
 @kernel(hot=True)
-def light_sample(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, u0, u1, u2):
-    """One light sample seen from p through media and null boundaries (next-event estimation).
+def light_sample(tables, at, u0, u1, u2):
+    """One light sample seen from ``at`` through media and null boundaries (next-event estimation).
 
-    p is a surface point of ``shape`` (ng, ns its normals on the scattering side, ng_front its
-    front normal) or, with shape < 0, a point in ``medium``.  u0 chooses the light (by power),
+    ``at`` (a :class:`caustica.transport.ShadingPoint`) is a surface point p of ``shape`` (ng, ns its
+    normals on the scattering side, ng_front its front normal) or, with shape < 0, a point in ``medium``.  u0 chooses the light (by power),
     (u1, u2) the point on an area light.  Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
     contrib = L_e T cos_s / pdf at a surface (the caller multiplies by f_r), L_e T / pdf in a medium
     (the caller multiplies by the phase function); wi the unit direction to the light; pdf the
@@ -308,6 +308,8 @@ def light_sample(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, 
     False when the sample cannot light p (behind the light or the surface, or blocked: contrib 0).
     In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium = at
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
         return zero, zero, 0.0, 0.0, False, False, 0

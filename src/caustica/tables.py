@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bsdf import MaterialTable, build_material_table
+from .bsdfs import MaterialTable, build_material_table
 from .camera import CameraParams, camera_params
 from .emitters import LightTable, build_light_table
 from .errors import SceneError
@@ -42,6 +42,11 @@ class Scene:
     def has_media(self) -> bool:
         """Whether the scene has media or null-BSDF boundaries (the volume estimates and media outputs run)."""
         return self.description.has_media
+
+    @property
+    def tables(self) -> tuple:
+        """(geometry, materials, lights, media): what the kernels take as ``tables``."""
+        return self.geometry, self.materials, self.lights, self.media
 
     @property
     def width(self) -> int:

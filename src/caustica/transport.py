@@ -10,11 +10,38 @@ One offset rule (:func:`caustica.geometry.vec.offset_origin`) and one ``tmax`` c
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from .geometry import vec
 from .geometry.scene_geometry import surface_at
-from .jit import kernel
+from .jit import borrowed, kernel
 from .media import cross_null
 from .scene.description import NULL
+
+class ShadingPoint(NamedTuple):
+    """Where a path scatters, as next-event estimation needs it (built in kernels)."""
+    p: tuple          # the point
+    ng: tuple         # geometric normal on the side that scatters (zero in a medium)
+    ns: tuple         # shading normal on that side (zero in a medium)
+    ng_front: tuple   # the front geometric normal: which side leads to the exterior medium
+    shape: int        # the shape, or -1 for a point in a medium
+    medium: int       # the medium the path is in
+
+
+@kernel(inline=True)
+def in_medium(p, medium):
+    """A :class:`ShadingPoint` at p inside ``medium``: no surface, no normals."""
+    zero = (0.0, 0.0, 0.0)
+    return ShadingPoint(p, zero, zero, zero, -1, medium)
+
+
+@kernel(inline=True)
+def borrow_tables(tables):
+    """The scene tables (geometry, materials, lights, media) with their reference counts detached
+    (:func:`caustica.jit.borrowed`): what a range kernel does once with the tables it is given."""
+    geom, mats, lights, media = tables
+    return borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+
 
 #: What a loop does after :func:`surface_interaction`.
 SCATTER = 0   # a real surface: the loop's own rules apply at p
@@ -23,8 +50,8 @@ TRAPPED = 2   # more null crossings in a row than NULL_CROSSINGS_CAP: the path e
 
 
 @kernel(inline=True)
-def surface_interaction(geom, mats, media, prim, o, d, t, b1, b2, medium, crossings):
-    """A ray from o along d (in ``medium``) meets primitive ``prim`` at t (barycentrics b1, b2).
+def surface_interaction(tables, hit, o, d, medium, crossings):
+    """A ray from o along d (in ``medium``) meets ``hit`` = (primitive, t, barycentrics b1, b2).
 
     Returns (p, ng, ns, front, m, kind, shape, medium, o, crossings, next): the hit point, its front
     geometric and shading normals (not turned towards the ray), whether the ray arrives on the front,
@@ -32,6 +59,8 @@ def surface_interaction(geom, mats, media, prim, o, d, t, b1, b2, medium, crossi
     the ray's continuation, and ``next`` (SCATTER, CROSSED or TRAPPED).  At a real surface the
     crossings start again from 0 and medium and o are unchanged (the loop's scattering decides them).
     """
+    geom, mats, _, media = tables
+    prim, t, b1, b2 = hit
     p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
     front = vec.dot(d, ng) < 0.0
     m = geom.prim_material[prim]

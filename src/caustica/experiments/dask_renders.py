@@ -1,7 +1,7 @@
 """An experiment's renders as Dask tasks (``caustica experiment ... --dask ADDRESS`` or ``--workers N``).
 
 Every render is one task on one worker; a render is never split across workers
-(:func:`caustica.cluster.run` does that for one long render, not here).  The scene goes
+(:class:`caustica.cluster.DaskPasses` does that for one long render, not here).  The scene goes
 to every worker once (:func:`caustica.cluster.send_scene`: recoverable, unlike scattered
 data, when the workers holding it die); a task receives it,
 renders with ``caustica.render`` on all of its worker's threads and sends back the

@@ -86,12 +86,10 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     knn_queries = np.zeros(n, np.int32)
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
-    compile_s = parallel_for(gather_pixels, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
-                                                global_map,
-                                                caustic_map, settings["seed"], settings["spp"], settings["k"],
-                                                settings["radius"], k_caustic, r_caustic, filt,
-                                                settings["light_samples"], settings["fixed_light_grid"],
-                                                settings["max_specular_depth"], image, knn_queries),
+    estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
+    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"])
+    compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings["seed"], settings["spp"]),
+                                                (global_map, caustic_map), estimate, params, (image, knn_queries)),
                              threads=settings["threads"], progress=bar)
     bar.close()
     return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}, \
@@ -124,13 +122,14 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     t0 = time.perf_counter()
     for s in range(spp):
         (vp_pos, vp_nrm, vp_weight, vp_found, radiance), segments, c = progressive_camera_pass(scene, settings, s, bar)
-        c += parallel_for(gather_at_visible_points, n, (global_map, caustic_map, vp_pos, vp_nrm, vp_found, vp_weight,
-                                                        settings["k"], settings["radius"], k_caustic, r_caustic,
-                                                        filt, radiance, knn_queries), threads=settings["threads"])
+        estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
+        c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate,
+                                                        (vp_pos, vp_nrm, vp_found, vp_weight), (radiance, knn_queries)),
+                          threads=settings["threads"])
         vol = np.empty((n, 3))
         found = np.empty(n, np.int64)
-        c += parallel_for(beam_gather, n, (vgrid, scene.media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol,
-                                           found), threads=settings["threads"])
+        c += parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, found)),
+                          threads=settings["threads"])
         gathered += int(found.sum())
         acc += radiance
         acc += vol

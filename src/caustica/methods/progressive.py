@@ -146,8 +146,11 @@ CELL_PER_RADIUS = 2.0
 
 
 @kernel(inline=True)
-def _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i):
-    """Σ Φ and the number of the grid's events within radius[i] of visible point i into flux[i], count[i]."""
+def _gather_at(grid, points, radius, out, i):
+    """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (position,
+    normal, found) into ``out`` = (flux, count) at i."""
+    vp_pos, vp_nrm, vp_found = points
+    flux, count = out
     if not vp_found[i]:
         count[i] = 0
         for c in range(3):
@@ -162,31 +165,38 @@ def _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i):
 
 
 @kernel
-def gather_flux(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i0, i1):
-    """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without one)."""
+def gather_flux(grid, points, radius, out, i0, i1):
+    """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without
+    one): :func:`_gather_at`."""
     grid = borrowed(grid)
     for i in range(i0, i1):
-        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
+        _gather_at(grid, points, radius, out, i)
 
 
 @kernel
-def gather_flux_two(grid, grid_c, vp_pos, vp_nrm, vp_found, radius, radius_c, flux, count, flux_c, count_c, i0, i1):
-    """:func:`gather_flux` over two grids at once: ``grid`` within radius[i], ``grid_c`` within radius_c[i]."""
+def gather_flux_two(grids, points, radii, outs, i0, i1):
+    """:func:`gather_flux` over two grids at once: ``grids`` = (grid, grid_c) within ``radii`` = (radius[i],
+    radius_c[i]) into ``outs`` = ((flux, count), (flux_c, count_c))."""
+    grid, grid_c = grids
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
     for i in range(i0, i1):
-        _gather_at(grid, vp_pos, vp_nrm, vp_found, radius, flux, count, i)
-        _gather_at(grid_c, vp_pos, vp_nrm, vp_found, radius_c, flux_c, count_c, i)
+        _gather_at(grid, points, radii[0], outs[0], i)
+        _gather_at(grid_c, points, radii[1], outs[1], i)
 
 
 @kernel
-def update_statistics(alpha, n_photons, radius, tau, vp_found, vp_weight, flux, count, n_new, r_new, tau_new):
-    """SPPM's update (step 4) of N, R and tau at every pixel, into the *_new arrays (the old state stays whole).
+def update_statistics(alpha, old, vp_found, vp_weight, gathered, new):
+    """SPPM's update (step 4) of ``old`` = (N, R, tau) at every pixel, with this pass's ``gathered`` = (flux,
+    count), into ``new`` = (N, R, tau) arrays (the old state stays whole).
 
     Per pixel with a visible point and M > 0 events: N <- N + alpha M, ratio = N_new / (N + M),
     R <- R sqrt(ratio), tau <- (tau + W Phi) ratio; the others keep N, R and tau.  The same
     operations, in the same order, as the NumPy expressions it replaced, so the same bits.
     """
+    n_photons, radius, tau = old
+    flux, count = gathered
+    n_new, r_new, tau_new = new
     for i in range(n_photons.shape[0]):
         if vp_found[i] and count[i] > 0:
             m = float(count[i])
@@ -386,13 +396,13 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         flux_c = count_c = None
         if grid_c is None:
-            c2 = parallel_for(gather_flux, n, (grid, vp_pos, vp_nrm, vp_found, radius, flux, count),
+            c2 = parallel_for(gather_flux, n, (grid, (vp_pos, vp_nrm, vp_found), radius, (flux, count)),
                               threads=threads)
         else:
             flux_c = np.empty((n, 3))
             count_c = np.empty(n, np.int64)
-            c2 = parallel_for(gather_flux_two, n, (grid, grid_c, vp_pos, vp_nrm, vp_found, radius, radius_caustic,
-                                                   flux, count, flux_c, count_c), threads=threads)
+            c2 = parallel_for(gather_flux_two, n, ((grid, grid_c), (vp_pos, vp_nrm, vp_found), (radius, radius_caustic),
+                                                   ((flux, count), (flux_c, count_c))), threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0
         if scene.has_media:
@@ -408,7 +418,7 @@ class ProgressivePhotonMethod(IndependentPasses):
             vol = np.empty((n, 3))
             vfound = np.empty(n, np.int64)
             t1 = time.perf_counter()
-            c4 = parallel_for(beam_gather, n, (vgrid, scene.media, *segments[:5], segments[5], MEDIUM_SEGMENTS, vol, vfound),
+            c4 = parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, vfound)),
                               threads=threads)
             timings["volume_gather_s"] = time.perf_counter() - t1 - c4
             c3 += c4
@@ -449,8 +459,8 @@ class ProgressivePhotonMethod(IndependentPasses):
     def updated(alpha, n_photons, radius, tau, got, flux, count):
         """(N, R, tau) after this pass's events (flux, count) at the visible points ``got`` found: new arrays."""
         n_new, r_new, tau_new = np.empty_like(n_photons), np.empty_like(radius), np.empty_like(tau)
-        update_statistics(alpha, n_photons, radius, tau, got.vp_found, got.vp_weight, flux, count,
-                          n_new, r_new, tau_new)
+        update_statistics(alpha, (n_photons, radius, tau), got.vp_found, got.vp_weight, (flux, count),
+                          (n_new, r_new, tau_new))
         return n_new, r_new, tau_new
 
     @classmethod

@@ -1,9 +1,9 @@
 """Method ``pt``: unidirectional path tracing, the unbiased reference.
 
-Next-event estimation at every diffuse vertex with multiple importance sampling
-(power heuristic) against BSDF sampling for area lights; mirrors and glass are
-followed as Dirac deltas (glass chooses reflection or refraction with the Fresnel
-probability); Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
+Next-event estimation at every vertex whose BSDF has a non-delta lobe, with multiple
+importance sampling (power heuristic) against BSDF sampling for area lights; mirrors and
+glass are followed as Dirac deltas (glass chooses reflection or refraction with the Fresnel
+probability); the BSDFs are reached through :mod:`caustica.bsdfs` only; Russian roulette after ``rr_depth`` vertices, as in Mitsuba 3's
 ``path`` integrator, whose depth convention this follows: ``max_depth`` = 1 sees
 only emitters, 2 adds direct light, -1 is unlimited (capped at 1024).
 
@@ -31,15 +31,14 @@ import time
 
 import numpy as np
 
-from ..bsdf import sample_surface, scattering_side
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, eval_pdf, oriented, sample
 from ..camera import generate_ray
 from ..geometry import vec
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import kernel, parallel_for
 from ..media import free_flight, light_sample, medium_after, phase_pdf, phase_sample, phase_value, \
     power_heuristic
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..scene.description import DIFFUSE
-from ..transport import CROSSED, TRAPPED, surface_interaction
+from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
 from . import register
 from .independent import IndependentPasses
 from .params import Param
@@ -49,11 +48,12 @@ DEPTH_CAP = 1024
 
 
 @kernel(hot=True)
-def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
+def radiance(tables, o, d, key, max_depth, rr_depth):
     """Radiance arriving at o from direction -d, estimated along one random path (from the camera's medium).
 
     Returns (L, extension rays, shadow rays): the rays traced, counted where they are traced.
     """
+    geom, mats, lights, media = tables
     zero = (0.0, 0.0, 0.0)
     n_ext = 0
     n_shadow = 0
@@ -84,18 +84,16 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
                 break
             ng = ns = ng_front = zero
             shape = -1
-            kind = DIFFUSE       # (unused in a medium)
             m = 0
-            rgb = zero
         else:
             # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
             p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-                geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+                tables, (prim, t, b1, b2), o, d, medium, crossings)
             e = geom.prim_emitter[prim]
             if e >= 0 and front:
                 L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
-                             emission_mis(lights, e, specular, pdf_last, -vec.dot(d, ng), t, crossed, p, p_last))
+                             emission_mis(lights, e, (specular, pdf_last, p_last), -vec.dot(d, ng), t, crossed, p))
             if nxt == CROSSED:
                 continue
             if nxt == TRAPPED:
@@ -104,25 +102,16 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             if depth >= max_depth:
                 break
             ng_front = ng
-            rgb = vec.row(mats.rgb, m)
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
         in_medium = prim < 0
-        if in_medium or kind == DIFFUSE:
-            # next-event estimation: one light sample, MIS against the phase function or the BSDF
-            contrib, wi, pdf_light, cos_s, is_area, ok, shadow = light_sample(
-                geom, mats, lights, media, p, ng, ns, ng_front, shape, medium,
-                uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+        if in_medium or mats.flags[m] & SMOOTH:
+            ok, term, scale, shadow, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium), m, d,
+                                                      beta, key, dim)
             n_shadow += shadow
-            dim += 3
             if ok:
-                if in_medium:
-                    w_l = power_heuristic(pdf_light, phase_pdf(media, medium, d, wi)) if is_area else 1.0
-                    L = vec.madd(L, vec.hadamard(beta, contrib), w_l * phase_value(media, medium, d, wi))
-                else:
-                    w_l = power_heuristic(pdf_light, cos_s * INV_PI) if is_area else 1.0
-                    L = vec.madd(L, vec.hadamard(beta, vec.hadamard(rgb, contrib)), w_l * INV_PI)
+                L = vec.madd(L, term, scale)
         if in_medium:
             wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
             dim += 2
@@ -136,10 +125,14 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
             specular = False
             crossings = 0
         else:
-            alive, wi, beta, eta_scale, pdf, specular, dim = sample_surface(kind, rgb, mats.eta[m], d, ng, ns,
-                                                                            key, dim, beta, eta_scale)
+            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, key, dim)
             if not alive:
                 break
+            beta = vec.hadamard(beta, weight)
+            if lobe & TRANSMISSION:
+                beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
+                eta_scale *= eta * eta
+            specular = lobe & DELTA != 0
             if not specular:
                 pdf_last = pdf
             medium = medium_after(media, shape, ng_front, wi, medium)
@@ -156,10 +149,31 @@ def radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth):
 
 
 @kernel(inline=True)
-def emission_mis(lights, e, specular, pdf_last, cos_l, t, crossings, p, p_last):
-    """The MIS weight of emitter e's radiance reached by BSDF or phase sampling (density pdf_last) against
-    light sampling from the last scattering point: 1 after a delta bounce or from the camera.  The
-    distance is the ray's t, or |p - p_last| when null surfaces were crossed since that point."""
+def next_event(tables, at, m, d, beta, key, dim):
+    """Next-event estimation at ``at`` (a surface of material m, or a point in a medium) for a path arriving along
+    d with throughput β: one light sample (numbers dim .. dim + 2), weighted by MIS against the BSDF's or the
+    phase function's sampling for area lights.  Returns (ok, term, scale, shadow rays, dim): L += term · scale.
+    """
+    mats, media = tables[1], tables[3]
+    contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(tables, at, uniform(key, dim), uniform(key, dim + 1),
+                                                                 uniform(key, dim + 2))
+    if not ok:
+        return False, contrib, 0.0, shadow, dim + 3
+    if at.shape < 0:
+        w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
+        return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
+    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, wi)
+    w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
+    return True, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale, shadow, dim + 3
+
+
+@kernel(inline=True)
+def emission_mis(lights, e, last, cos_l, t, crossings, p):
+    """The MIS weight of emitter e's radiance (at p, cosine cos_l) reached by BSDF or phase sampling from the
+    last scattering, ``last`` = (specular, pdf_last, p_last), against light sampling from there: 1 after a
+    delta bounce or from the camera (``specular``).  The distance is the ray's t, or |p - p_last| when null
+    surfaces were crossed since that point."""
+    specular, pdf_last, p_last = last
     if specular:
         return 1.0
     if crossings == 0:
@@ -171,13 +185,16 @@ def emission_mis(lights, e, specular, pdf_last, cos_l, t, crossings, p, p_last):
 
 
 @kernel
-def render_pixels(geom, mats, lights, media, cam, seed, stream, spp, max_depth, rr_depth, image, rays, i0, i1):
-    """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order.
+def render_pixels(tables, cam, keys, params, out, i0, i1):
+    """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order into ``out`` = (image, rays).
 
-    Sample s of pixel i is random path (i * spp + s) of ``stream`` (the pass's camera stream).
-    rays[i] receives pixel i's (extension, shadow) ray counts.
+    Sample s of pixel i is random path (i * spp + s) of ``keys`` = (seed, the pass's camera stream);
+    ``params`` = (spp, max_depth, rr_depth).  rays[i] receives pixel i's (extension, shadow) ray counts.
     """
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+    tables = borrow_tables(tables)
+    seed, stream = keys
+    spp, max_depth, rr_depth = params
+    image, rays = out
     width = cam.width
     for i in range(i0, i1):
         y = i // width
@@ -186,7 +203,7 @@ def render_pixels(geom, mats, lights, media, cam, seed, stream, spp, max_depth, 
         for s in range(spp):
             key = path_key(seed, stream, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L, n_ext, n_shadow = radiance(geom, mats, lights, media, o, d, key, max_depth, rr_depth)
+            L, n_ext, n_shadow = radiance(tables, o, d, key, max_depth, rr_depth)
             rays[i, 0] += n_ext
             rays[i, 1] += n_shadow
             if math.isfinite(L[0] + L[1] + L[2]):
@@ -221,9 +238,8 @@ class PathTracer(IndependentPasses):
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        compile_s = parallel_for(render_pixels, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
-                                                    settings["seed"], stream, settings["spp"], max_depth,
-                                                    settings["rr_depth"], image, rays),
+        params = (settings["spp"], max_depth, settings["rr_depth"])
+        compile_s = parallel_for(render_pixels, n, (scene.tables, cam, (settings["seed"], stream), params, (image, rays)),
                                  threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}

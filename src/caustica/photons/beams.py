@@ -250,9 +250,13 @@ def segment_estimate(vg, media, o, d, s, m):
 
 
 @kernel
-def beam_gather(vg, media, seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_count, per_pixel, out, found, i0, i1):
-    """Pixels [i0, i1): out[i] = Σ over its segments of β Σ_i T p Φ_i / (π r²); found[i] the photons counted."""
+def beam_gather(vg, media, segments, per_pixel, out, i0, i1):
+    """Pixels [i0, i1) of the camera ``segments`` (:class:`~caustica.photons.segments.CameraSegments`, per_pixel
+    slots a pixel): into ``out`` = (radiance, found), radiance[i] = Σ over its segments of β Σ_i T p Φ_i / (π r²),
+    found[i] the photons counted."""
     vg, media = borrowed(vg), borrowed(media)
+    seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_count = segments
+    out, found = out
     norm = 1.0 / (math.pi * vg.radius[0] * vg.radius[0])
     for i in range(i0, i1):
         acc0 = 0.0

@@ -21,15 +21,14 @@ import math
 
 import numpy as np
 
-from ..bsdf import dielectric_interface, fresnel_dielectric, mirror_reflect, reflect, refract, \
-    scattering_side
+from ..bsdfs import SMOOTH, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import CONDUCTOR, DIFFUSE
+from ..transport import ShadingPoint, borrow_tables
 from .estimate import flux_density
 
 SPLIT_STACK = 8
@@ -40,9 +39,19 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel
-def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
-                    n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth,
-                    idx, d2):
+def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
+    """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
+    direct light and the maps' estimates are gathered.  Returns (L, k-nearest searches made).
+
+    ``maps`` = (global map, caustic map); ``estimate`` = (k_g, r_g, k_c, r_c, filter) their k-nearest
+    estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular); ``scratch`` = the split stack
+    (origins, directions, throughputs, depths) and the k-nearest buffers (indices, squared distances).
+    """
+    geom, mats, lights, media = tables
+    gmap, cmap = maps
+    k_g, r_g, k_c, r_c, filt = estimate
+    n_strata, fixed_grid, max_specular = params
+    st_o, st_d, st_beta, st_depth, idx, d2 = scratch
     L = (0.0, 0.0, 0.0)
     queries = 0
     for c in range(3):
@@ -68,14 +77,13 @@ def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, 
             if e >= 0 and front:
                 L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
             m = geom.prim_material[prim]
-            kind = mats.kind[m]
             ng_front = ng
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+            scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
-            if kind == DIFFUSE:
+            if mats.flags[m] & SMOOTH:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
-                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, geom.prim_shape[prim], -1,
+                E = direct_stratified(tables, ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], -1),
                                       key, dim, n_strata, fixed_grid, -1)
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
@@ -87,27 +95,13 @@ def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, 
             depth += 1
             if depth > max_specular:
                 break
-            rgb = vec.row(mats.rgb, m)
-            if kind == CONDUCTOR:
-                wi = mirror_reflect(d, ng, ns)
-                beta = vec.hadamard(beta, rgb)
-                o = vec.offset_origin(p, ng, wi)
-                d = wi
-                continue
-            # glass: split into reflection and refraction, weighted by Fresnel
-            n, n_geo, eta = dielectric_interface(d, ng, ns, mats.eta[m])
-            cos_i = -vec.dot(d, n)
-            if cos_i <= 0.0:
-                n = n_geo
-                cos_i = -vec.dot(d, n)
-            F, cos_t = fresnel_dielectric(cos_i, eta)
-            beta = vec.hadamard(beta, rgb)
-            d_r = reflect(d, n)
+            # a mirror or glass: glass splits into reflection and refraction, weighted by Fresnel
+            d_r, d_t, F, eta, colour = delta_branches(mats, m, d, ng, ns)
+            beta = vec.hadamard(beta, colour)
             if F >= 1.0:
                 o = vec.offset_origin(p, ng, d_r)
                 d = d_r
                 continue
-            d_t = refract(d, n, eta, cos_i, cos_t)
             beta_t = vec.mul(beta, (1.0 - F) / (eta * eta))
             if depth <= SPLIT_DEPTH and top < st_o.shape[0]:
                 o_r = vec.offset_origin(p, ng, d_r)
@@ -134,14 +128,17 @@ def gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, 
 
 
 @kernel
-def gather_pixels(geom, mats, lights, media, cam, gmap, cmap, seed, spp, k_g, r_g, k_c, r_c, filt,
-                  n_strata, fixed_grid, max_specular, image, knn_queries, i0, i1):
-    """The camera pass over pixels [i0, i1) in row-major order: spp jittered rays per pixel.
-
-    knn_queries[i] receives the number of k-nearest searches pixel i made.
+def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
+    """The camera pass over pixels [i0, i1) in row-major order: ``camera`` = (cam, seed, spp), spp jittered rays
+    per pixel (:func:`gather_radiance`) into ``out`` = (image, knn_queries): knn_queries[i] receives the number
+    of k-nearest searches pixel i made.
     """
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
-    gmap, cmap = borrowed(gmap), borrowed(cmap)
+    tables = borrow_tables(tables)
+    gmap, cmap = maps
+    maps = (borrowed(gmap), borrowed(cmap))
+    cam, seed, spp = camera
+    k_g, _, k_c, _, _ = estimate
+    image, knn_queries = out
     width = cam.width
     kmax = max(k_g, k_c, 1)
     for i in range(i0, i1):
@@ -158,8 +155,7 @@ def gather_pixels(geom, mats, lights, media, cam, gmap, cmap, seed, spp, k_g, r_
         for s in range(spp):
             key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
-            L, q = gather_radiance(geom, mats, lights, media, gmap, cmap, o, d, key, k_g, r_g, k_c, r_c, filt,
-                                n_strata, fixed_grid, max_specular, st_o, st_d, st_beta, st_depth, idx, d2)
+            L, q = gather_radiance(tables, maps, estimate, params, o, d, key, (st_o, st_d, st_beta, st_depth, idx, d2))
             nq += q
             if math.isfinite(L[0] + L[1] + L[2]):
                 acc = vec.add(acc, L)
@@ -171,15 +167,20 @@ def gather_pixels(geom, mats, lights, media, cam, gmap, cmap, seed, spp, k_g, r_
 
 
 @kernel
-def gather_at_visible_points(gmap, cmap, vp_pos, vp_nrm, vp_found, vp_weight, k_g, r_g, k_c, r_c, filt, out,
-                             knn_queries, i0, i1):
-    """out[i] += W_i (E_global + E_caustic) at visible point i, for i in [i0, i1): the maps' k-nearest estimates.
+def gather_at_visible_points(maps, estimate, points, out, i0, i1):
+    """radiance[i] += W_i (E_global + E_caustic) at visible point i, for i in [i0, i1): the k-nearest estimates of
+    ``maps`` = (global, caustic) with ``estimate`` = (k_g, r_g, k_c, r_c, filter); ``out`` = (radiance,
+    knn_queries), knn_queries[i] counting the searches made.
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
-    (:func:`caustica.photons.visible_points.camera_pass`); W_i = β ρ / π.
-    knn_queries[i] counts the searches made.
+    (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
+    W_i = β ρ / π).
     """
+    gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)
+    k_g, r_g, k_c, r_c, filt = estimate
+    vp_pos, vp_nrm, vp_found, vp_weight = points
+    out, knn_queries = out
     kmax = max(k_g, k_c, 1)
     idx = np.empty(kmax, np.int64)
     d2 = np.empty(kmax)

@@ -29,6 +29,7 @@ from ..media import NULL_CROSSINGS_CAP, attenuation, light_sample, medium_after,
 from ..memory import check_budget
 from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 from ..scene.description import NULL
+from ..transport import in_medium
 
 #: Medium segments a camera path may have (room for them is allocated per pixel); a path that
 #: would need more ends, as at the specular depth cap.
@@ -72,7 +73,7 @@ def store_segment(k, o, d, s, beta, medium, segments):
 
 
 @kernel
-def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
+def emission_weighted(tables, o, d, medium, pdf_dir):
     """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
 
     d was sampled with solid-angle density pdf_dir (the phase function); an area emitter met at
@@ -81,6 +82,7 @@ def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
     pdf_dir < 0: no MIS (weight 1).  Emitters on null surfaces crossed count, as in the path
     tracer; the first other surface ends the ray (its emission counts if it is an emitter's front).
     """
+    geom, mats, lights, media = tables
     L = (0.0, 0.0, 0.0)
     T = (1.0, 1.0, 1.0)
     dist = 0.0
@@ -108,21 +110,23 @@ def emission_weighted(geom, mats, lights, media, o, d, medium, pdf_dir):
 
 
 @kernel
-def emitted_along(geom, mats, lights, media, o, d, medium):
+def emitted_along(tables, o, d, medium):
     """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries."""
-    return emission_weighted(geom, mats, lights, media, o, d, medium, -1.0)
+    return emission_weighted(tables, o, d, medium, -1.0)
 
 
 @kernel
-def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2):
+def segment_inscatter(tables, o, d, s, m, beta, u):
     """β times one estimate of the direct light scattered towards o along the segment (o, d, s) in m.
 
-    One distance (u_channel, u_dist: :func:`caustica.media.sample_distance_within`); from there one
-    light sample (u_light chooses the light, (u1, u2) the point on it) and one phase-function sample
-    (u_ph1, u_ph2) that counts the emitter it sees, combined by MIS (power heuristic) for area
-    lights.  Light sampling alone has unbounded variance where a segment passes close to an area
+    ``u`` = (u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2): one distance (u_channel, u_dist:
+    :func:`caustica.media.sample_distance_within`); from there one light sample (u_light chooses the
+    light, (u1, u2) the point on it) and one phase-function sample (u_ph1, u_ph2) that counts the
+    emitter it sees, combined by MIS (power heuristic) for area lights.  Light sampling alone has unbounded variance where a segment passes close to an area
     light (its value grows as 1 / distance²); the phase sample takes over there.
     """
+    media = tables[3]
+    u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2 = u
     zero = (0.0, 0.0, 0.0)
     t = sample_distance_within(media, m, s, u_channel, u_dist)
     w = within_weight(media, m, s, t)
@@ -131,14 +135,13 @@ def segment_inscatter(geom, mats, lights, media, o, d, s, m, beta, u_channel, u_
     p = vec.madd(o, d, t)
     bw = vec.hadamard(beta, w)
     L = zero
-    contrib, wi, pdf_light, _, is_area, ok, _ = light_sample(geom, mats, lights, media, p, zero, zero, zero, -1, m,
-                                                             u_light, u1, u2)
+    contrib, wi, pdf_light, _, is_area, ok, _ = light_sample(tables, in_medium(p, m), u_light, u1, u2)
     if ok:
         mis = power_heuristic(pdf_light, phase_pdf(media, m, d, wi)) if is_area else 1.0
         L = vec.mul(vec.hadamard(bw, contrib), mis * phase_value(media, m, d, wi))
     wo, weight, pdf = phase_sample(media, m, d, u_ph1, u_ph2)
     if pdf > 0.0:
-        Le = emission_weighted(geom, mats, lights, media, p, wo, m, pdf)
+        Le = emission_weighted(tables, p, wo, m, pdf)
         L = vec.add(L, vec.mul(vec.hadamard(bw, Le), weight))
     return L
 

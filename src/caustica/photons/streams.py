@@ -41,20 +41,19 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdf import scattering_side
+from ..bsdfs import SMOOTH, oriented
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import DIFFUSE
-from ..transport import CROSSED, TRAPPED, surface_interaction
+from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
                       build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, diffuse_bounce, specular_scatter, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -66,7 +65,7 @@ MEDIUM_SCATTERING = ("merge", "spread")
 
 
 @kernel(inline=True)
-def split_off(geom, mats, media, key, o, d, power, split_path, k, split):
+def split_off(tables, key, o, d, power, split_path, k, split):
     """An associated photon that leaves its stream at a mirror or glass (``--specular split``): the stream's
     split photon number split_path[1] + k, with ``split_path`` = (the stream's first split path, its split
     photons so far, its medium, diffuse bounces, whether it has scattered, max_bounces).
@@ -80,14 +79,14 @@ def split_off(geom, mats, media, key, o, d, power, split_path, k, split):
     """
     first_path, before, medium, diffuse_bounces, scattered, max_bounces = split_path
     index = before + k
-    trace_one(geom, mats, media, path_key(key, SPLIT_TAG, index), o, d, power, medium, diffuse_bounces, scattered,
-              max_bounces, TERMINATION_ROULETTE, False, (first_path + index) * (max_bounces + 1), max_bounces + 1,
-              split)
+    trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
+              (max_bounces, TERMINATION_ROULETTE, False),
+              ((first_path + index) * (max_bounces + 1), max_bounces + 1, split))
 
 
 @kernel(inline=True)
 def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
-    """The associated photons after a diffuse bounce on material m: (how many survive, their power).
+    """The associated photons after a diffuse bounce on material m: (how many survive, their power, dim).
 
     Each survives with p = mean albedo, its power scaled by albedo / p (numbers key, dim + j).
     With roulette the leading photon has already survived with probability p, and the stream
@@ -108,8 +107,10 @@ def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
 
 
 @kernel(inline=True)
-def store_stream_record(r, p, d, n, lead, p_assoc, landed, kind, rec):
-    """Write stream record r: leading photon (position, direction, normal, power), the associated photons' power."""
+def store_stream_record(r, p, d, n, stream, kind, rec):
+    """Write stream record r: the leading photon (position, direction, normal), and of ``stream`` = (its power,
+    the associated photons' power, how many landed) the powers and the count."""
+    lead, p_assoc, landed = stream
     for c in range(3):
         rec.position[r, c] = p[c]
         rec.direction[r, c] = d[c]
@@ -130,65 +131,80 @@ def store_associated(a, p, d, n, assoc):
         assoc.normal[a, c] = n[c]
 
 
-@kernel
-def place_associated(geom, mats, media, o, n_from, x_lead, d_lead, r_s, key, dim, n_alive, p_assoc, store, r,
-                     assoc, n_assoc, split, split_path, split_buf):
-    """Trace the stream's associated photons from o towards the disc about x_lead.
+@kernel(inline=True)
+def disc_point(beam, u1, u2):
+    """The point of the stream's disc for numbers (u1, u2), and the unit direction from the beam's origin to it.
 
-    Returns (landed, split off): ``landed`` photons met a diffuse surface and are written to
-    assoc slots [r * n_assoc, ...) when ``store``; the rest merge into the leading photon —
-    except, with ``split``, those whose ray meets a mirror or glass, which leave the stream as
-    photons of their own (:func:`split_off`).  ``n_from`` is the normal of the surface o lies
-    on, facing the side the stream leaves by (zero for a point light or a point in a medium): a
-    photon whose direction q - o points into that surface cannot leave it and is merged (before
-    this check such rays met the surface again at t ~ 1e-4 and landed where the stream left from).
+    ``beam`` = (o, n_from, x, d, r_s): the associated photons leave o (on a surface of normal n_from, zero
+    if none) towards the disc of radius r_s about the leading photon's event x, across its direction d.
     """
-    s, t = vec.orthonormal_basis(d_lead)
+    o, _, x, d, r_s = beam
+    s, t = vec.orthonormal_basis(d)
+    u, v = square_to_uniform_disk(u1, u2)
+    q = vec.madd(vec.madd(x, s, u * r_s), t, v * r_s)
+    return q, vec.sub(q, o)
+
+
+@kernel
+def place_associated(tables, beam, key, dim, photons, out, splitting):
+    """Trace the stream's associated photons, ``photons`` = (how many, their power), from the beam's origin
+    towards its disc (:func:`disc_point`, numbers key, dim + 2j and dim + 2j + 1).
+
+    Returns (landed, split off): ``landed`` photons met a diffuse surface and are written, when ``out`` =
+    (store, first slot, assoc) says store, to assoc slots from the first on; the rest merge into the
+    leading photon — except, with ``splitting`` = (split, split_path, split_buf) split, those whose ray
+    meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A photon
+    whose direction q - o points into the surface o lies on (``n_from``, facing the side the stream
+    leaves by) cannot leave it and is merged (before this check such rays met the surface again at
+    t ~ 1e-4 and landed where the stream left from).
+    """
+    geom, mats, _, _ = tables
+    o, n_from, _, _, _ = beam
+    n_alive, p_assoc = photons
+    store, a0, assoc = out
+    split, split_path, split_buf = splitting
     check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
     n_split = 0
     for j in range(n_alive):
-        u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
-        q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
-        d = vec.normalize(vec.sub(q, o))
+        _, to_q = disc_point(beam, uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
+        d = vec.normalize(to_q)
         if check_side and vec.dot(d, n_from) <= 0.0:
             continue  # into the surface it leaves: merged
         prim, th, b1, b2 = intersect(geom, o, d, 1e30)
         if prim < 0:
             continue  # escaped: merged into the leading photon
         m = geom.prim_material[prim]
-        if mats.kind[m] != DIFFUSE:
+        if not mats.flags[m] & SMOOTH:
             if split:
-                split_off(geom, mats, media, key, o, d, p_assoc, split_path, n_split, split_buf)
+                split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror or glass: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
-        if vec.dot(d, ng) >= 0.0:
-            if mats.twosided[m] == 0:
-                continue  # the black back of a one-sided surface: merged
-            ns = vec.neg(ns)
+        scatters, ng, ns = oriented(mats, m, vec.dot(d, ng) < 0.0, ng, ns)
+        if not scatters:
+            continue  # the black back of a one-sided surface: merged
         if store:
-            store_associated(r * n_assoc + landed, p, d, ns, assoc)
+            store_associated(a0 + landed, p, d, ns, assoc)
         landed += 1
     return landed, n_split
 
 
 @kernel
-def spread_in_medium(geom, o, x_lead, d_lead, r_s, key, dim, n_alive, store, r, assoc, n_assoc):
-    """Place the stream's associated photons about a medium event at x_lead (``--medium-scattering spread``);
-    returns how many were placed.
+def spread_in_medium(geom, beam, key, dim, n_alive, out):
+    """Place the stream's associated photons about a medium event (``--medium-scattering spread``); returns
+    how many were placed.
 
-    Photon j takes a point q of the disc of radius r_s about x_lead across d_lead (numbers
-    key, dim + 2j and dim + 2j + 1); it is placed there, travelling along q - o, when the segment
-    from o to q meets no surface (null boundaries included: beyond one is another medium), and
-    written to assoc slot r * n_assoc + (its rank) when ``store``.  The others merge.
+    Photon j takes the point q of the beam's disc for numbers key, dim + 2j and dim + 2j + 1
+    (:func:`disc_point`); it is placed there, travelling along q - o, when the segment from o to q meets no
+    surface (null boundaries included: beyond one is another medium), and written to the next assoc slot
+    of ``out`` = (store, first slot, assoc) when it says store.  The others merge.
     """
-    s, t = vec.orthonormal_basis(d_lead)
+    o = beam[0]
+    store, a0, assoc = out
     placed = 0
     for j in range(n_alive):
-        u, v = square_to_uniform_disk(uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
-        q = vec.madd(vec.madd(x_lead, s, u * r_s), t, v * r_s)
-        to_q = vec.sub(q, o)
+        q, to_q = disc_point(beam, uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
         dist = vec.length(to_q)
         if not dist > 0.0:
             continue
@@ -197,28 +213,30 @@ def spread_in_medium(geom, o, x_lead, d_lead, r_s, key, dim, n_alive, store, r, 
         if prim >= 0:
             continue  # a surface between: merged into the leading photon
         if store:
-            store_associated(r * n_assoc + placed, q, d, (0.0, 0.0, 0.0), assoc)
+            store_associated(a0 + placed, q, d, (0.0, 0.0, 0.0), assoc)
         placed += 1
     return placed
 
 
 @kernel
-def split_at_specular(geom, mats, media, key, o, n_from, x, d, r_s, n_alive, p_assoc, lead, split_path, split_buf):
-    """At the leading photon's mirror or glass hit x (``--specular split``): each associated photon is aimed
-    from o through a point of the disc of radius r_s about x (numbers of its own disc key) and leaves the
-    stream (:func:`split_off`), unless its ray goes into the surface o lies on, escapes or meets a black
-    back first (then it merges).  Returns (the leading photon's power, split photons added).
+def split_at_specular(tables, key, beam, photons, lead, splitting):
+    """At the leading photon's mirror or glass hit, the beam's x (``--specular split``): each associated photon
+    is aimed from o through a point of the beam's disc (numbers of its own disc key) and leaves the stream
+    (:func:`split_off`), unless its ray goes into the surface o lies on, escapes or meets a black back first
+    (then it merges).  Returns (the leading photon's power, split photons added).
     """
-    s_ax, t_ax = vec.orthonormal_basis(d)
+    geom, mats, _, _ = tables
+    o, n_from, _, _, _ = beam
+    n_alive, p_assoc = photons
+    _, split_path, split_buf = splitting
     check_side = vec.dot(n_from, n_from) > 0.5
     k = 0
     for j in range(n_alive):
         kd = path_key(key, SPLIT_DISC_TAG, j)
-        u, v = square_to_uniform_disk(uniform(kd, 0), uniform(kd, 1))
-        q = vec.madd(vec.madd(x, s_ax, u * r_s), t_ax, v * r_s)
-        dj = vec.normalize(vec.sub(q, o))
+        _, to_q = disc_point(beam, uniform(kd, 0), uniform(kd, 1))
+        dj = vec.normalize(to_q)
         if leaves_by(geom, mats, o, dj, n_from, check_side):
-            split_off(geom, mats, media, key, o, dj, p_assoc, split_path, k, split_buf)
+            split_off(tables, key, o, dj, p_assoc, split_path, k, split_buf)
             k += 1
         else:
             lead = vec.add(lead, p_assoc)  # into its surface, escaped or a black back: merged
@@ -235,16 +253,30 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
     if prim < 0:
         return False
     m = geom.prim_material[prim]
-    if mats.kind[m] != DIFFUSE or mats.twosided[m] != 0:
+    if not mats.flags[m] & SMOOTH or mats.twosided[m] != 0:
         return True
     _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
     return vec.dot(d, ng) < 0.0
 
 
 @kernel
-def trace_streams(geom, mats, lights, media, light_medium, seed, stream, n_streams, rules, rec, assoc, split_buf,
-                  i0, i1):
-    """Emit and trace streams [i0, i1) of n_streams; stream i owns records [i * (mr + 1), (i + 1) * (mr + 1)).
+def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
+    """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
+    ``buf`` = (records, associated photons, split photons)."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    seed, stream, n_streams = source
+    for i in range(i0, i1):
+        key = path_key(seed, stream, i)
+        o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
+        li, _, _ = choose_light(lights, uniform(key, 0))                   # the light emit_photon chose
+        trace_stream(tables, key, (o, d, e_s, n_from, light_medium[li]), rules, i, buf)
+
+
+@kernel
+def trace_stream(tables, key, start, rules, i, buf):
+    """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium);
+    it owns records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``.
 
     ``rules`` = (n_assoc, r_s, max_bounces, termination, split, spread).  In a medium the leading
     photon samples the free flights and every photon of the stream takes the flight's weight, so the
@@ -256,105 +288,88 @@ def trace_streams(geom, mats, lights, media, light_medium, seed, stream, n_strea
     diffuse hit), in the stream's split paths [i * n_assoc, (i + 1) * n_assoc) of mr + 1 slots each
     (an associated photon splits off at most once: it never rejoins).
     """
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+    geom, mats, _, media = tables
+    o, d, e_s, n_from, medium = start
     n_assoc, r_s, max_bounces, termination, split, spread = rules
+    rec, assoc, split_buf = buf
     slots = max_bounces + 1
     share = 1.0 / (n_assoc + 1)
     zero = (0.0, 0.0, 0.0)
-    for i in range(i0, i1):
-        key = path_key(seed, stream, i)
-        o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
-        li, _, _ = choose_light(lights, uniform(key, 0))                   # the light emit_photon chose
-        medium = light_medium[li]
-        lead = vec.mul(e_s, share)
-        p_assoc = vec.mul(e_s, share)
-        n_alive = n_assoc
-        dim = 8
-        bounces = 0           # diffuse and medium scattering events
-        specular_events = 0
-        scattered = False     # any event so far: what is stored from now on is not direct light
-        diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
-        crossings = 0
-        stored = 0
-        n_split = 0           # associated photons split off so far
-        while True:
-            prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
-            if escaped:
+    lead = vec.mul(e_s, share)
+    p_assoc = vec.mul(e_s, share)
+    n_alive = n_assoc
+    dim = 8
+    bounces = 0           # diffuse and medium scattering events
+    specular_events = 0
+    scattered = False     # any event so far: what is stored from now on is not direct light
+    diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
+    crossings = 0
+    stored = 0
+    n_split = 0           # associated photons split off so far
+    while True:
+        prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
+        if escaped:
+            break
+        if medium >= 0:
+            if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
                 break
-            if medium >= 0:
-                if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
-                    break
-                lead = vec.hadamard(lead, w)
-                p_assoc = vec.hadamard(p_assoc, w)
-            store = scattered and stored < slots
-            r = i * slots + stored
-            if prim < 0:
-                # ---- a scattering event in the medium
-                x = vec.madd(o, d, t)
-                landed = 0
-                if spread and n_alive > 0:
-                    landed = spread_in_medium(geom, o, x, d, r_s, key, dim, n_alive, store, r, assoc, n_assoc)
-                dim += 2 * n_assoc
-                lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
-                n_alive = landed
-                if store:
-                    store_stream_record(r, x, d, zero, lead, p_assoc, landed,
-                                        VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec)
-                    stored += 1
-                if bounces >= max_bounces:
-                    break
-                alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim,
-                                                          termination == TERMINATION_ROULETTE)
-                dim += 3
-                if not alive:
-                    break
-                lead = vec.mul(vec.mul(lead, inv_q), weight)
-                p_assoc = vec.mul(vec.mul(p_assoc, inv_q), weight)
-                o = x
-                d = wo
-                n_from = zero     # a point in a medium: no surface the associated photons could aim into
-                bounces += 1
-                scattered = True
-                diffuse_like = True
-                crossings = 0
-                continue
-            # ---- a surface
-            p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-                geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
-            if nxt == CROSSED:
-                n_from = zero
-                continue
-            if nxt == TRAPPED:
+            lead = vec.hadamard(lead, w)
+            p_assoc = vec.hadamard(p_assoc, w)
+        store = scattered and stored < slots
+        r = i * slots + stored
+        if prim < 0:
+            # ---- a scattering event in the medium
+            x = vec.madd(o, d, t)
+            landed = 0
+            if spread and n_alive > 0:
+                landed = spread_in_medium(geom, (o, zero, x, d, r_s), key, dim, n_alive, (store, r * n_assoc, assoc))
+            dim += 2 * n_assoc
+            lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
+            n_alive = landed
+            if store:
+                store_stream_record(r, x, d, zero, (lead, p_assoc, landed),
+                                    VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec)
+                stored += 1
+            if bounces >= max_bounces:
                 break
-            ng_front = ng
-            split_path = (i * n_assoc, n_split, medium, bounces, scattered, max_bounces)
-            if kind != DIFFUSE:
-                if split and n_alive > 0:   # once per stream at most: no associated photon is left after it
-                    lead, k = split_at_specular(geom, mats, media, key, o, n_from, p, d, r_s, n_alive, p_assoc,
-                                                lead, split_path, split_buf)
-                    n_split += k
-                    n_alive = 0
-                # mirror or glass: merge every associated photon (left) into the leading one
-                lead = vec.madd(lead, p_assoc, float(n_alive))
+            alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
+            dim += 3
+            if not alive:
+                break
+            lead = vec.mul(vec.mul(lead, inv_q), weight)
+            p_assoc = vec.mul(vec.mul(p_assoc, inv_q), weight)
+            o, d, n_from = x, wo, zero   # a point in a medium: no surface the associated photons could aim into
+            bounces += 1
+            scattered = diffuse_like = True
+            crossings = 0
+            continue
+        # ---- a surface
+        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+            tables, (prim, t, b1, b2), o, d, medium, crossings)
+        if nxt == CROSSED:
+            n_from = zero
+            continue
+        if nxt == TRAPPED:
+            break
+        ng_front = ng
+        beam = (o, n_from, p, d, r_s)
+        splitting = (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf)
+        smooth = mats.flags[m] & SMOOTH
+        if not smooth:
+            # mirror or glass: the associated photons split off (--specular split; once per stream at
+            # most, as none is left after it) or merge into the leading one
+            if split and n_alive > 0:
+                lead, k = split_at_specular(tables, key, beam, (n_alive, p_assoc), lead, splitting)
+                n_split += k
                 n_alive = 0
-                specular_events += 1
-                if specular_events > SPECULAR_CAP:
-                    break
-                d_new, lead, alive, ng_out = specular_scatter(mats, m, d, ng, ns, lead, front, uniform(key, dim))
-                dim += 1
-                if not alive:
-                    break
-                medium = medium_after(media, shape, ng_front, d_new, medium)
-                o = vec.offset_origin(p, ng_out, d_new)
-                n_from = zero     # associated photons are placed from here only after a split
-                d = d_new
-                scattered = True
-                continue
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # absorbed by the black back of a one-sided surface
-            landed, split_now = place_associated(geom, mats, media, o, n_from, p, d, r_s, key, dim, n_alive, p_assoc,
-                                                 store, r, assoc, n_assoc, split, split_path, split_buf)
+            lead = vec.madd(lead, p_assoc, float(n_alive))
+            n_alive = 0
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
+        if not scatters:
+            break  # absorbed by the black back of a one-sided surface
+        if smooth:
+            landed, split_now = place_associated(tables, beam, key, dim, (n_alive, p_assoc),
+                                                 (store, r * n_assoc, assoc), splitting)
             n_split += split_now
             dim += 2 * n_assoc
             lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
@@ -362,24 +377,30 @@ def trace_streams(geom, mats, lights, media, light_medium, seed, stream, n_strea
             if store:
                 # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
                 # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-                store_stream_record(r, p, d, ns, lead, p_assoc, landed, INDIRECT if diffuse_like else CAUSTIC, rec)
+                store_stream_record(r, p, d, ns, (lead, p_assoc, landed), INDIRECT if diffuse_like else CAUSTIC, rec)
                 stored += 1
             if bounces >= max_bounces:
                 break
-            # stream decay
-            d_new, lead, alive = diffuse_bounce(mats, m, ng, ns, lead, key, dim, termination)
-            dim += 3
-            if not alive:
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, ng, ns, key, dim, termination)
+        if not alive:
+            break
+        lead = vec.mul(vec.hadamard(lead, weight), inv_q)
+        if delta:
+            specular_events += 1
+            if specular_events > SPECULAR_CAP:
                 break
+            n_from = zero     # associated photons are placed from here only after a split
+        else:
+            # stream decay
             n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
             dim += n_assoc
             bounces += 1
             diffuse_like = True
-            medium = medium_after(media, shape, ng_front, d_new, medium)
-            o = vec.offset_origin(p, ng, d_new)
             n_from = ng
-            d = d_new
-            scattered = True
+        medium = medium_after(media, shape, ng_front, d_new, medium)
+        o = vec.offset_origin(p, ng, d_new)
+        d = d_new
+        scattered = True
 
 
 def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, *,
@@ -388,8 +409,8 @@ def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bou
     pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE."""
     rules = (n_assoc, float(r_s), max_bounces, termination, bool(split), bool(spread))
     return parallel_for(trace_streams, n_streams,
-                        (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene), seed, stream,
-                         n_streams, rules, *buf.kernel_args), threads=threads, progress=progress)
+                        (scene.tables, light_media(scene), (seed, stream, n_streams), rules, buf.kernel_args),
+                        threads=threads, progress=progress)
 
 
 class StreamRecords(NamedTuple):

@@ -24,15 +24,13 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdf import mirror_reflect, sample_dielectric, scattering_side
+from ..bsdfs import DELTA, SMOOTH, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..sampling.warps import square_to_cosine_hemisphere
-from ..scene.description import CONDUCTOR, DIFFUSE
-from ..transport import CROSSED, TRAPPED, surface_interaction
+from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
@@ -52,51 +50,41 @@ def store_record(s, p, d, power, n, kind, buf):
     buf.kind[s] = kind
 
 
-@kernel
-def diffuse_bounce(mats, m, ng, ns, power, key, dim, termination):
-    """Continue a photon from a diffuse surface: (new direction, power, alive).
+@kernel(inline=True)
+def bounce(mats, m, d, ng, ns, key, dim, termination):
+    """Continue a photon from material m (normals from :func:`caustica.bsdfs.oriented`): its BSDF sampled, then,
+    after a non-delta lobe, Russian roulette with the mean albedo (``TERMINATION_ROULETTE``: survive with
+    probability p, power scaled by 1 / p) on the number after the sample's.
 
-    ng, ns are oriented to the side the photon arrived from.
+    Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
+    was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
     """
-    rgb = vec.row(mats.rgb, m)
+    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, key, dim)
+    if lobe & DELTA:
+        return ok, wi, weight, 1.0, True, dim
+    u = uniform(key, dim)
+    dim += 1
     if termination == TERMINATION_ROULETTE:
         q = mats.albedo_mean[m]
-        if uniform(key, dim + 2) >= q:
-            return ng, power, False
-        power = vec.mul(vec.hadamard(power, rgb), 1.0 / q)
-    else:
-        power = vec.hadamard(power, rgb)
-    local = square_to_cosine_hemisphere(uniform(key, dim), uniform(key, dim + 1))
-    s, t = vec.orthonormal_basis(ns)
-    d = vec.from_local(s, t, ns, local)
-    if vec.dot(d, ng) <= 0.0 or local[2] <= 0.0:
-        return d, power, False
-    return d, power, True
+        return ok and u < q, wi, weight, 1.0 / q, False, dim
+    return ok, wi, weight, 1.0, False, dim
 
 
 @kernel
-def specular_scatter(mats, m, d, ng, ns, power, front, u):
-    """Reflect or refract at a mirror or glass: (new direction, power, alive, geometric normal on the exit side)."""
-    rgb = vec.row(mats.rgb, m)
-    if mats.kind[m] == CONDUCTOR:
-        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-        if not scatters:
-            return d, power, False, ng
-        return mirror_reflect(d, ng, ns), vec.hadamard(power, rgb), True, ng
-    wi, _, _ = sample_dielectric(d, ng, ns, mats.eta[m], u)
-    return wi, vec.hadamard(power, rgb), True, ng
-
-
-@kernel
-def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scattered, max_bounces, termination,
-              caustic_only, slot0, slots, buf):
-    """Follow one photon from o along d in ``medium``; records go to slots slot0 .. slot0 + slots - 1 of
-    ``buf`` (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
+def trace_one(tables, key, photon, rules, out):
+    """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
+    ``medium``.  Its records go to ``out`` = (slot0, slots, buf): slots slot0 .. slot0 + slots - 1 of ``buf``
+    (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
 
     A photon from a light starts with no bounce and not ``scattered``; a split photon of a stream
-    (:mod:`caustica.photons.streams`) starts with its stream's.  ``caustic_only``: stop at the
-    first diffuse or medium event (the aimed caustic photons).  Random numbers from 8 on.
+    (:mod:`caustica.photons.streams`) starts with its stream's.  ``rules`` = (max_bounces, termination,
+    caustic_only); ``caustic_only``: stop at the first diffuse or medium event (the aimed caustic
+    photons).  Random numbers from 8 on.
     """
+    geom, mats, _, media = tables
+    o, d, power, medium, diffuse_bounces, scattered = photon
+    max_bounces, termination, caustic_only = rules
+    slot0, slots, buf = out
     dim = 8
     specular_events = 0
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
@@ -133,80 +121,79 @@ def trace_one(geom, mats, media, key, o, d, power, medium, diffuse_bounces, scat
             continue
         # ---- a surface
         p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+            tables, (prim, t, b1, b2), o, d, medium, crossings)
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
             break
         ng_front = ng
-        if kind == DIFFUSE:
-            scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
-            if not scatters:
-                break  # the black back of a one-sided surface absorbs
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
+        if not scatters:
+            break  # the black back of a one-sided surface absorbs
+        if mats.flags[m] & SMOOTH:
             if scattered and stored < slots:
                 store_record(slot0 + stored, p, d, power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            d, power, alive = diffuse_bounce(mats, m, ng, ns, power, key, dim, termination)
-            dim += 3
-            if not alive:
-                break
-            diffuse_bounces += 1
-            diffuse_like = True
-            medium = medium_after(media, shape, ng_front, d, medium)
-            o = vec.offset_origin(p, ng, d)
-        else:
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, ng, ns, key, dim, termination)
+        if not alive:
+            break
+        power = vec.mul(vec.hadamard(power, weight), inv_q)
+        if delta:
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            d_new, power, alive, ng_out = specular_scatter(mats, m, d, ng, ns, power, front, uniform(key, dim))
-            dim += 1
-            if not alive:
-                break
-            medium = medium_after(media, shape, ng_front, d_new, medium)
-            o = vec.offset_origin(p, ng_out, d_new)
-            d = d_new
+        else:
+            diffuse_bounces += 1
+            diffuse_like = True
+        medium = medium_after(media, shape, ng_front, d_new, medium)
+        o = vec.offset_origin(p, ng, d_new)
+        d = d_new
         scattered = True
     return stored
 
 
 @kernel
-def trace_photons(geom, mats, lights, media, light_medium, seed, stream, n_paths, max_bounces, termination, buf,
-                  i0, i1):
-    """Emit and trace photons [i0, i1) of n_paths; photon i writes slots [i * (mr + 1), (i + 1) * (mr + 1))."""
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+def trace_photons(tables, light_medium, source, rules, buf, i0, i1):
+    """Emit and trace photons [i0, i1) of ``source`` = (seed, stream, n_paths); photon i writes slots
+    [i * (mr + 1), (i + 1) * (mr + 1)).  ``rules`` = (max_bounces mr, termination)."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    seed, stream, n_paths = source
+    max_bounces, termination = rules
     slots = max_bounces + 1
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, _ = emit_photon(geom, lights, key, n_paths)
         li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-        trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, max_bounces, termination, False,
-                  i * slots, slots, buf)
+        trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (max_bounces, termination, False),
+                  (i * slots, slots, buf))
 
 
 @kernel
-def trace_caustic_photons(geom, mats, lights, media, light_medium, spheres, seed, stream, n_paths, buf, i0, i1):
-    """Caustic photons [i0, i1) aimed at the specular objects: the first event after a mirror or glass only
-    (one slot each).  A photon that scatters in a medium or meets a diffuse surface before any mirror or
-    glass stores nothing (that light is the other photons' and the direct light's)."""
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
+    """Caustic photons [i0, i1) of ``source`` = (seed, stream, n_paths), aimed at the specular objects: the
+    first event after a mirror or glass only (one slot each).  A photon that scatters in a medium or meets a
+    diffuse surface before any mirror or glass stores nothing (that light is the other photons' and the
+    direct light's)."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    seed, stream, n_paths = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
             li, _, _ = choose_light(lights, uniform(key, 0))
-            trace_one(geom, mats, media, key, o, d, power, light_medium[li], 0, False, 0, TERMINATION_CAP, True,
-                      i, 1, buf)
+            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True), (i, 1, buf))
 
 
 def trace_photon_pass(scene, buf, seed, stream, n_paths, max_bounces, termination, *, threads=None,
                       progress=None) -> float:
     """Trace ``n_paths`` photons of (seed, stream) into ``buf`` (mr + 1 slots each) on the thread pool;
     returns the compile seconds."""
-    return parallel_for(trace_photons, n_paths, (scene.geometry, scene.materials, scene.lights, scene.media,
-                                                 light_media(scene), seed, stream, n_paths, max_bounces, termination,
-                                                 buf), threads=threads, progress=progress)
+    return parallel_for(trace_photons, n_paths, (scene.tables, light_media(scene), (seed, stream, n_paths),
+                                                 (max_bounces, termination), buf), threads=threads, progress=progress)
 
 
 def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None, threads=None,
@@ -215,6 +202,5 @@ def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None
     radius) into ``buf`` (one slot each); returns the compile seconds."""
     spheres = scene.specular_bounding_spheres() if spheres is None else spheres
     return parallel_for(trace_caustic_photons, n_paths,
-                        (scene.geometry, scene.materials, scene.lights, scene.media, light_media(scene), spheres,
-                         seed, stream, n_paths, buf),
+                        (scene.tables, light_media(scene), spheres, (seed, stream, n_paths), buf),
                         threads=threads, progress=progress)

@@ -49,17 +49,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdf import dielectric_branches, mirror_reflect, scattering_side
+from ..bsdfs import SMOOTH, TRANSMISSION, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
-from ..jit import borrowed, kernel, parallel_for
+from ..jit import kernel, parallel_for
 from ..lighting import direct_stratified
 from ..media import attenuation, medium_after
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
-from ..scene.description import CONDUCTOR, DIFFUSE
-from ..transport import CROSSED, TRAPPED, surface_interaction
+from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
 from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, \
     first_segment_numbers, segment_inscatter, store_segment
 
@@ -76,15 +75,17 @@ def glass_branch_number(first_glass, pass_index, qkey, key, dim):
 
 
 @kernel(inline=True)
-def glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt):
+def glass_step(L, beta, seen, branches, u):
     """At glass: the emitters seen along both branches added with their expected weights, then the branch u picks.
 
-    Lr, Lt: the emission first met along the reflected and the refracted direction (Lt unused when
-    F = 1).  An emitter seen along either branch is added with weight F or (1 - F) / η² rather than
+    ``seen`` = (Lr, Lt): the emission first met along the reflected and the refracted direction (Lt unused
+    when F = 1); ``branches`` = (wr, wt, F, eta) as :func:`caustica.bsdfs.delta_branches` gives them.  An emitter seen along either branch is added with weight F or (1 - F) / η² rather than
     when the choice happens to take that branch: a light's reflection in the glass is a smooth term,
     not a rare spike; the branch taken must then leave its first hit's emission out.  Returns
     (L, the new direction, β for it).
     """
+    Lr, Lt = seen
+    wr, wt, F, eta = branches
     L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
     inv_eta2 = 1.0 / (eta * eta)
     if F < 1.0:
@@ -95,11 +96,14 @@ def glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt):
 
 
 @kernel
-def medium_segment(geom, mats, lights, media, o, d, t, hit, medium, beta, L, n_seg, slot0, pass_index, qkey, vkey,
-                   segments):
-    """A camera path's flight from o along d through ``medium`` (to a surface at t when ``hit``): the segment is
-    stored in slot slot0 + n_seg, the direct light scattered along it added to L.  Returns (L, β past it)."""
-    s = t if hit else np.inf
+def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
+    """A camera path's flight through ``medium``, ``segment`` = (o, d, its length s: to a surface, or inf): it is
+    stored in slot slot0 + n_seg of ``out`` = (slot0, segments).  Returns (the direct light scattered along
+    it towards o, times β; β past it).  ``numbers`` = (key, qkey, vkey, pass_index), see :func:`visible_point`.
+    """
+    o, d, s = segment
+    _, qkey, vkey, pass_index = numbers
+    slot0, segments = out
     store_segment(slot0 + n_seg, o, d, s, beta, medium, segments)
     vd = 7 * n_seg
     u_dist = uniform(vkey, vd + 1)
@@ -107,21 +111,25 @@ def medium_segment(geom, mats, lights, media, o, d, t, hit, medium, beta, L, n_s
     u2 = uniform(vkey, vd + 4)
     if n_seg == 0:   # the first segment's distance and light point: stratified over the passes
         u_dist, u1, u2 = first_segment_numbers(pass_index, qkey)
-    L = vec.add(L, segment_inscatter(geom, mats, lights, media, o, d, min(s, 1e30), medium, beta,
-                                     uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2,
-                                     uniform(vkey, vd + 5), uniform(vkey, vd + 6)))
-    if hit:
-        beta = vec.hadamard(beta, attenuation(media, medium, t))
-    return L, beta
+    Ls = segment_inscatter(tables, o, d, min(s, 1e30), medium, beta,
+                           (uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2, uniform(vkey, vd + 5),
+                            uniform(vkey, vd + 6)))
+    if s < np.inf:
+        beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
+    return Ls, beta
 
 
 @kernel
-def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, n_strata, fixed_grid, max_specular,
-                  segments, slot0):
+def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
 
-    The path's medium segments are written to slots slot0, slot0 + 1, ... of ``segments``.
+    ``numbers`` = (key, qkey, vkey, pass_index): the path's own key, the key that scrambles the pass-indexed
+    sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular).
+    The path's medium segments are written to ``out`` = (slot0, segments): slots slot0, slot0 + 1, ...
     """
+    geom, mats, lights, media = tables
+    key, qkey, _, pass_index = numbers
+    n_strata, fixed_grid, max_specular = params
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     zero = (0.0, 0.0, 0.0)
@@ -137,13 +145,13 @@ def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, 
         if medium >= 0:
             if n_seg >= MEDIUM_SEGMENTS:
                 return False, zero, zero, zero, L, n_seg
-            L, beta = medium_segment(geom, mats, lights, media, o, d, t, prim >= 0, medium, beta, L, n_seg, slot0,
-                                     pass_index, qkey, vkey, segments)
+            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf), medium, beta, n_seg, numbers, out)
+            L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
             return False, zero, zero, zero, L, n_seg
         p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            geom, mats, media, prim, o, d, t, b1, b2, medium, crossings)
+            tables, (prim, t, b1, b2), o, d, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
             L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
@@ -153,40 +161,35 @@ def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, 
             return False, zero, zero, zero, L, n_seg
         counted = False
         ng_front = ng
-        scatters, ng, ns = scattering_side(mats, m, front, ng, ns)
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             return False, zero, zero, zero, L, n_seg
-        rgb = vec.row(mats.rgb, m)
-        if kind == DIFFUSE:
-            w = vec.mul(vec.hadamard(beta, rgb), INV_PI)
+        if mats.flags[m] & SMOOTH:
+            w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
+            at = ShadingPoint(p, ng, ns, ng_front, shape, medium)
             if fixed_grid:
-                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, key, dim,
-                                      n_strata, True, -1)
+                E = direct_stratified(tables, at, key, dim, n_strata, True, -1)
             else:
-                E = direct_stratified(geom, mats, lights, media, p, ng, ns, ng_front, shape, medium, qkey, 3,
-                                      n_strata, False, pass_index)
+                E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index)
             L = vec.add(L, vec.hadamard(w, E))
             return True, p, ns, w, L, n_seg
         depth += 1
         if depth > max_specular:
             return False, zero, zero, zero, L, n_seg
-        if kind == CONDUCTOR:
-            wi = mirror_reflect(d, ng, ns)
-            beta = vec.hadamard(beta, rgb)
-        else:
+        wr, wt, F, eta, colour = delta_branches(mats, m, d, ng, ns)
+        beta = vec.hadamard(beta, colour)
+        wi = wr
+        if mats.flags[m] & TRANSMISSION:
             u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
             first_glass = False
-            wr, wt, F, eta = dielectric_branches(d, ng, ns, mats.eta[m])
             dim += 1
-            beta = vec.hadamard(beta, rgb)
             # emitters seen along either branch, with their expected weights (glass_step)
-            Lr = emitted_along(geom, mats, lights, media, vec.offset_origin(p, ng, wr), wr,
-                               medium_after(media, shape, ng_front, wr, medium))
+            Lr = emitted_along(tables, vec.offset_origin(p, ng, wr), wr, medium_after(media, shape, ng_front, wr, medium))
             Lt = zero
             if F < 1.0:
-                Lt = emitted_along(geom, mats, lights, media, vec.offset_origin(p, ng, wt), wt,
+                Lt = emitted_along(tables, vec.offset_origin(p, ng, wt), wt,
                                    medium_after(media, shape, ng_front, wt, medium))
-            L, wi, beta = glass_step(L, beta, Lr, Lt, F, eta, u, wr, wt)
+            L, wi, beta = glass_step(L, beta, (Lr, Lt), (wr, wt, F, eta), u)
             counted = True   # the branch taken leaves its first hit's emission out
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, wi)
@@ -194,11 +197,13 @@ def visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index, 
 
 
 @kernel
-def visible_points(geom, mats, lights, media, cam, seed, stream, vstream, pass_index, n_strata, fixed_grid,
-                   max_specular, points, segments, i0, i1):
-    """The visible points of pixels [i0, i1) (row-major) into ``points`` (:class:`VisiblePoints`), the radiance
-    each pixel saw directly, and each pixel's medium segments."""
-    geom, mats, lights, media = borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
+def visible_points(tables, cam, keys, params, out, i0, i1):
+    """The visible points of pixels [i0, i1) (row-major) into ``out`` = (points: :class:`VisiblePoints`, segments):
+    the radiance each pixel saw directly, and each pixel's medium segments.  ``keys`` = (seed, camera
+    stream, media stream, pass index); ``params`` as :func:`visible_point` takes them."""
+    tables = borrow_tables(tables)
+    seed, stream, vstream, pass_index = keys
+    points, segments = out
     width = cam.width
     for i in range(i0, i1):
         y = i // width
@@ -208,8 +213,8 @@ def visible_points(geom, mats, lights, media, cam, seed, stream, vstream, pass_i
         vkey = path_key(seed, vstream, i)
         u1, u2 = sobol02(pass_index, qkey)
         o, d = generate_ray(cam, x, y, u1, u2)
-        found, p, n, w, L, n_seg = visible_point(geom, mats, lights, media, o, d, key, qkey, vkey, pass_index,
-                                                 n_strata, fixed_grid, max_specular, segments, i * MEDIUM_SEGMENTS)
+        found, p, n, w, L, n_seg = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
+                                                 (i * MEDIUM_SEGMENTS, segments))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
         for c in range(3):
@@ -243,10 +248,9 @@ def camera_pass(scene, settings, pass_index, bar=None):
                            np.empty((n, 3)))
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
-    compile_s = parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam,
-                                                 settings["seed"], pass_stream(STREAM_CAMERA, pass_index),
-                                                 pass_stream(STREAM_CAMERA_MEDIA, pass_index), pass_index,
-                                                 settings["light_samples"], settings["fixed_light_grid"],
-                                                 settings["max_specular_depth"], points, segments),
+    keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
+            pass_index)
+    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"])
+    compile_s = parallel_for(visible_points, n, (scene.tables, cam, keys, params, (points, segments)),
                              threads=settings["threads"], progress=bar)
     return points, (segments if scene.has_media else None), compile_s

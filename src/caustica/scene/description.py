@@ -125,6 +125,18 @@ class PointLight:
 
 
 @dataclass
+class ReconstructionFilter:
+    """The film's ``<rfilter>``: ``kind`` box, tent or gaussian (Mitsuba 3's definitions, see
+    :mod:`caustica.sampling.filters`); ``radius`` the tent's radius in pixels (Mitsuba's default 1;
+    unused by the others: the box's is 1/2, the gaussian's 4 ``stddev``); ``stddev`` the gaussian's
+    standard deviation in pixels (Mitsuba's default 0.5).  A film without ``<rfilter>`` gets a box:
+    caustica's default, not Mitsuba's (a gaussian; docs/usage.md says why)."""
+    kind: str = "box"
+    radius: float = 1.0
+    stddev: float = 0.5
+
+
+@dataclass
 class Camera:
     """A perspective camera in Mitsuba's convention.
 
@@ -134,6 +146,8 @@ class Camera:
     ``near_clip``: camera rays start on the plane at this depth (Mitsuba's near clip plane).
     ``far_clip``: Mitsuba's far clip plane (camera rays end at this depth).  caustica's camera rays do not
     stop there yet; the loader refuses a ``far_clip`` that any shape reaches beyond, so it changes nothing.
+    ``rfilter``: the film's reconstruction filter; ``sample_border``: whether samples may land
+    beyond the film's edge (Mitsuba's film ``sample_border``; off: a filter is truncated at the edge).
     """
     to_world: np.ndarray
     fov_deg: float
@@ -144,6 +158,8 @@ class Camera:
     far_clip: float = 1e4
     film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
     medium: int = -1
+    rfilter: ReconstructionFilter = field(default_factory=ReconstructionFilter)
+    sample_border: bool = False
 
 
 @dataclass

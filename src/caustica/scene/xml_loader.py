@@ -29,8 +29,8 @@ from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
-                          NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, SceneDescription,
-                          Shape)
+                          NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
+                          SceneDescription, Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 
@@ -92,10 +92,12 @@ SENSOR_PROPS = {"perspective": _PERSPECTIVE,
                 # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
                 "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT}}
 FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT,
+                           # samples beyond the film's edge reach its pixels through the filter (read)
+                           "sample_border": BOOL,
                            # how Mitsuba would store the image: accepted and ignored (caustica writes linear RGB
                            # EXR + PNG), each checked against the values Mitsuba 3's hdrfilm takes
                            "file_format": STR, "pixel_format": STR, "component_format": STR,
-                           "banner": BOOL, "compensate": BOOL, "sample_border": BOOL,
+                           "banner": BOOL, "compensate": BOOL,
                            # a crop window: accepted when it is the whole film
                            "crop_offset_x": INT, "crop_offset_y": INT, "crop_width": INT, "crop_height": INT}}
 #: Mitsuba 3's hdrfilm values (src/films/hdrfilm.cpp); pixel formats other than RGB are refused (they change the
@@ -110,7 +112,7 @@ SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsa
 SAMPLER_PROPS = {t: {"sample_count": INT, "seed": INT,
                      **({"jitter": BOOL} if t in ("stratified", "multijitter", "orthogonal") else {}),
                      **({"strength": INT} if t == "orthogonal" else {})} for t in SAMPLER_TYPES}
-RFILTER_PROPS = {"box": {}}
+RFILTER_PROPS = {"box": {}, "tent": {"radius": FLOAT}, "gaussian": {"stddev": FLOAT}}
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
 #: Mitsuba 3's sensor defaults (src/render/sensor.cpp): a 50 mm lens on 35 mm film (36 x 24 mm), whose
 #: field of view is measured along the film's diagonal; the clip planes.
@@ -1033,6 +1035,8 @@ class _Loader:
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
         film_where = self.at(node)
+        rfilter = ReconstructionFilter()   # caustica's default: a box (Mitsuba's is a gaussian; docs/usage.md)
+        sample_border = False
         medium = -1
         seen = set()
         for obj in props.objects:
@@ -1051,18 +1055,16 @@ class _Loader:
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
+                sample_border = bool(fprops.get("sample_border", False))
                 self.film_settings(fprops, width, height)
                 if width * height > MAX_FILM_PIXELS:
                     self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
                                    f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
                                    f"lower width or height")
-                for rf in fprops.objects:
-                    if rf.attrs.get("type") != "box" and "type" in rf.attrs:
-                        self.fail(rf, f"reconstruction filter {quoted(rf.attrs['type'])} is not supported "
-                                      f"(caustica's film is a box filter)", supported=["box"])
-                    self.plugin(rf, RFILTER_PROPS)
                 if len(fprops.objects) > 1:
                     self.fail(fprops.objects[1], "the film takes only one <rfilter>")
+                for rf in fprops.objects:
+                    rfilter = self.rfilter(rf)
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
                 spp = mitsuba_sample_count(obj.attrs["type"], int(self.number(sprops, "sample_count", spp,
@@ -1072,9 +1074,21 @@ class _Loader:
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, far_clip=far, film_source=film_where, medium=medium)
+                     near_clip=near, far_clip=far, film_source=film_where, medium=medium, rfilter=rfilter,
+                     sample_border=sample_border)
         self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
+
+    def rfilter(self, node: Node) -> ReconstructionFilter:
+        """A film's <rfilter>: box, tent (radius) or gaussian (stddev), Mitsuba's defaults."""
+        props = self.plugin(node, RFILTER_PROPS)
+        kind = node.attrs["type"]
+        radius = float(self.number(props, "radius", 1.0, positive=True))
+        stddev = float(self.number(props, "stddev", 0.5, positive=True))
+        for name, v in (("radius", radius), ("stddev", stddev)):
+            if not math.isfinite(v):
+                self.fail(props.node_of(name), f"'{name}' must be finite, got {v}")
+        return ReconstructionFilter(kind, radius, stddev)
 
     def film_settings(self, fprops: Props, width: int, height: int) -> None:
         """Check hdrfilm's settings that change nothing in caustica's image (they are then ignored) and refuse

@@ -1,0 +1,112 @@
+"""The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
+
+A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``) with its ``KIND`` (the code the
+loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS`` (:mod:`.flags`) and
+its kernels; the transport loops call only the functions below, and decide by flags, never by name:
+
+* :func:`oriented` — which side of the surface scatters, and its normals turned towards the ray;
+* :func:`sample` — a direction, the weight f |cos| / pdf, its density, the lobe it came from and the
+  relative IOR crossed, and the path's dimension past the random numbers it used (no caller counts);
+* :func:`eval_pdf` — f towards a given direction (a colour times a scalar, so next-event estimation
+  keeps one multiplication order) and the density :func:`sample` would give it;
+* :func:`delta_branches` — for a BSDF with only delta lobes: both directions and the reflection
+  probability, for the loops that follow both branches of glass (the photon-map gather) or add what
+  each branch sees in expectation (the visible-point pass).
+
+Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf`` for a smooth one or
+``delta_branches`` for a delta one), add it to :data:`BSDFS` and one line to each dispatch function
+below, and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
+walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
+delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
+scaled by 1 / eta² (solid-angle compression); camera paths apply it, photons (importance) do not.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..geometry import vec
+from ..jit import kernel
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneDescription
+from . import conductor, dielectric, diffuse
+from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
+    GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
+
+#: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
+BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric}
+
+
+class MaterialTable(NamedTuple):
+    kind: np.ndarray       # int32[M]: the BSDF's KIND (or NULL)
+    flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
+    rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse), specular reflectance (conductor), scale (glass)
+    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric only)
+    twosided: np.ndarray   # int8[M]: 1 when both sides scatter
+    albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
+
+
+def build_material_table(desc: SceneDescription) -> MaterialTable:
+    m = max(1, len(desc.materials))
+    kind = np.zeros(m, np.int32)
+    flags = np.full(m, diffuse.FLAGS, np.int32)
+    rgb = np.full((m, 3), 0.5)
+    eta = np.ones(m)
+    twosided = np.zeros(m, np.int8)
+    for i, mat in enumerate(desc.materials):
+        kind[i] = mat.kind
+        flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
+        rgb[i] = mat.rgb
+        eta[i] = mat.int_ior / mat.ext_ior
+        twosided[i] = 1 if mat.twosided else 0
+    return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1))
+
+
+@kernel(inline=True)
+def oriented(mats, m, front, ng, ns):
+    """(scatters, ng, ns) for a ray arriving on the front (``front``) or back of material m.
+
+    A BSDF that transmits is an interface: both sides scatter and its normals stay on the front.
+    The others reflect on the side the ray came from, normals turned to it; their back is black
+    (``scatters`` False) unless the material is two-sided, as in Mitsuba.
+    """
+    if front or mats.flags[m] & TRANSMISSION:
+        return True, ng, ns
+    if mats.twosided[m] == 0:
+        return False, ng, ns
+    return True, vec.neg(ng), vec.neg(ns)
+
+
+@kernel(inline=True)
+def sample(mats, m, d, ng, ns, key, dim):
+    """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`), with numbers
+    (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers used)."""
+    kind = mats.kind[m]
+    if kind == DIFFUSE:
+        return diffuse.sample(mats, m, d, ng, ns, key, dim)
+    if kind == CONDUCTOR:
+        return conductor.sample(mats, m, d, ng, ns, key, dim)
+    return dielectric.sample(mats, m, d, ng, ns, key, dim)
+
+
+@kernel(inline=True)
+def eval_pdf(mats, m, d, ng, ns, wi):
+    """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale (0 for a delta
+    BSDF, which no direction given in advance can meet), pdf the solid-angle density of :func:`sample`."""
+    if mats.kind[m] == DIFFUSE:
+        return diffuse.eval_pdf(mats, m, d, ng, ns, wi)
+    return (0.0, 0.0, 0.0), 0.0, 0.0
+
+
+@kernel(inline=True)
+def delta_branches(mats, m, d, ng, ns):
+    """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, colour).
+
+    F is the probability :func:`sample` reflects (1 for a mirror, and under total internal reflection,
+    when the transmitted direction repeats the reflected one); eta the relative IOR of the
+    transmission; the colour scales either branch.  ``u < F`` picks reflection as :func:`sample` does
+    with number u.
+    """
+    if mats.kind[m] == CONDUCTOR:
+        return conductor.delta_branches(mats, m, d, ng, ns)
+    return dielectric.delta_branches(mats, m, d, ng, ns)
