@@ -22,8 +22,10 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_depth_inf.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/variants_cbox_rgb.xml",
     "mitsuba-renderer+mitsuba-data/scenes/cbox/cbox-rgb.xml",
+    "mitsuba-renderer+mitsuba-data/scenes/cbox/cbox.xml",
     "mitsuba-renderer+mitsuba-data/scenes/hello.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/instancing/test_instancing_path.xml",
+    "mitsuba-renderer+mitsuba-tutorials/scenes/cbox.xml",
     "mitsuba-renderer+mitsuba-tutorials/scenes/simple.xml",
 ]
 
