@@ -721,3 +721,20 @@ def test_an_alias_names_an_element_a_second_time(mi, tmp_path):
 def test_an_area_emitter_named_by_a_broken_shape_is_not_a_second_problem(tmp_path):
     path = write(tmp_path / "s.xml", scene('<emitter type="area" id="light"/>\n<shape type="torus"><ref id="light"/></shape>'))
     assert one_line_error(path).startswith(f"{path}:6: <shape type=\"torus\">: unknown shape type 'torus'")
+
+
+def test_a_path_folder_comes_before_the_scene_s_own_as_in_mitsuba(mi, tmp_path):
+    """Mitsuba's file resolver prepends each <path>: a file in a <path> folder wins over one beside the scene."""
+    def ply(path, faces):
+        rows = ["0 0 0", "1 0 0", "1 1 0", "0 1 0"]
+        head = ["ply", "format ascii 1.0", "element vertex 4", "property float x", "property float y",
+                "property float z", f"element face {len(faces)}", "property list uchar int vertex_indices",
+                "end_header"]
+        write(path, "\n".join(head + rows + [f"3 {a} {b} {c}" for a, b, c in faces]) + "\n")
+    ply(tmp_path / "m.ply", [(0, 1, 2)])
+    ply(tmp_path / "lib" / "m.ply", [(0, 1, 2), (0, 2, 3)])
+    path = write(tmp_path / "s.xml", scene('<path value="lib"/><shape type="ply" id="m">'
+                                           '<string name="filename" value="m.ply"/></shape>',
+                                           sensor('<float name="fov" value="45"/>')))
+    assert mi.load_file(str(path)).shapes()[0].face_count() == 2
+    assert len(load_scene_file(path).shapes[0].mesh.triangles) == 2

@@ -358,14 +358,15 @@ class _Loader:
 
     # -- files ------------------------------------------------------------------------
     def lookup_dirs(self, node: Node) -> list[Path]:
-        """Where a relative file name in ``node`` is looked up after its own file's folder: the main scene's
-        folder, then the ``<path>`` folders, the last declared first (Mitsuba's file resolver prepends them)."""
-        return [self.base_dir] + self.search_paths[::-1]
+        """Mitsuba's file resolver: the ``<path>`` folders, the last declared first (each is prepended), then the
+        main scene's folder."""
+        return self.search_paths[::-1] + [self.base_dir]
 
     def find_file(self, node: Node, filename: str, what: str = "mesh file") -> Path:
-        """A file the scene names (a mesh, ...), looked up as :func:`~caustica.scene.builtin.find_data_file`
-        does, with the folder of the file that names it first and the scene's ``<path>`` folders."""
-        return find_data_file(filename, node.folder or self.base_dir, self.lookup_dirs(node), what)
+        """A file the scene names (a mesh, a spectrum), looked up as :func:`~caustica.scene.builtin.find_data_file`
+        does: ``$CAUSTICA_DATA_PATH``, then Mitsuba's resolver (:meth:`lookup_dirs`), then the folder of the
+        included file that names it (which Mitsuba does not search), then ``shared/data``."""
+        return find_data_file(filename, None, self.lookup_dirs(node) + [node.folder or self.base_dir], what)
 
     # -- errors -----------------------------------------------------------------------
     def fail(self, node: Node, msg: str, supported=None, fatal: bool = False):
@@ -538,7 +539,8 @@ class _Loader:
         node.children = out
 
     def candidates(self, node: Node, p: Path) -> list[Path]:
-        """Where a relative path named in node may be: its file's folder, the scene's folder, the <path>s."""
+        """Where a relative <include> or <path> named in node may be: its own file's folder (Mitsuba prepends
+        it while reading the file), then Mitsuba's resolver (:meth:`lookup_dirs`)."""
         if p.is_absolute():
             return [p]
         return [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
