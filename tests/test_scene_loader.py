@@ -191,8 +191,12 @@ def test_rotate_right_handed():
     np.testing.assert_allclose(R[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-15)
     c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
     np.testing.assert_allclose(M("rotate", z=1, angle=30)[:3, :3], [[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    with pytest.raises(ValueError, match="unit"):
-        M("rotate", x=1, y=1, angle=10)
+    # a non-unit axis: Mitsuba 3's matrix (Rodrigues with the axis as given, not a rotation)
+    C = 1 - c
+    np.testing.assert_allclose(M("rotate", y=1, z=1, angle=30)[:3, :3],
+                               [[c, -s, s], [s, C + c, C], [-s, C, C + c]], atol=1e-15)
+    with pytest.raises(ValueError, match="zero"):
+        M("rotate", angle=10)
 
 
 def test_matrix_and_order():
@@ -346,7 +350,7 @@ SENSOR_ERRORS = {
     "zero height": (FILM.format('<integer name="height" value="0"/>'), "height"),
     "unknown rfilter": (FILM.format('<rfilter type="mitchell"/>'), "mitchell"),
     "unknown sampler": ('<sampler type="sobol"/>', "sobol"),
-    "far_clip": ('<float name="far_clip" value="100"/>', "far_clip"),
+    "far_clip before near_clip": ('<float name="far_clip" value="0.001"/>', "far_clip"),
 }
 
 

@@ -37,7 +37,7 @@ class CameraParams(NamedTuple):
 
 
 def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> tuple[float, float]:
-    """tan(fov_x / 2), tan(fov_y / 2) for Mitsuba's fov / fov_axis."""
+    """tan(fov_x / 2), tan(fov_y / 2) for Mitsuba's fov / fov_axis (as Mitsuba 3's parse_fov)."""
     aspect = width / height
     axis = fov_axis
     if axis == "smaller":
@@ -49,7 +49,10 @@ def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> t
         return t, t / aspect
     if axis == "y":
         return t * aspect, t
-    raise SceneError(f"fov_axis '{fov_axis}' is not supported; supported: x, y, smaller, larger")
+    if axis == "diagonal":
+        tx = t / math.sqrt(1.0 + 1.0 / (aspect * aspect))
+        return tx, tx / aspect
+    raise SceneError(f"fov_axis '{fov_axis}' is not supported; supported: x, y, diagonal, smaller, larger")
 
 
 def camera_params(cam: Camera, width: int | None = None, height: int | None = None) -> CameraParams:

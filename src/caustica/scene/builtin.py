@@ -61,11 +61,13 @@ def _repo_data_dirs() -> list[Path]:
             if (a / "shared" / "data").is_dir()]
 
 
-def data_search_dirs(xml_dir: str | Path | None) -> list[Path]:
+def data_search_dirs(xml_dir: str | Path | None, extra_dirs=()) -> list[Path]:
     """Folders searched for a mesh file, in order.
 
-    $CAUSTICA_DATA_PATH (os.pathsep-separated), the XML file's folder, ../shared/data
-    relative to the current directory (as cwd's parent/shared/data), then shared/data beside every folder above the
+    $CAUSTICA_DATA_PATH (os.pathsep-separated), the XML file's folder, ``extra_dirs`` (the
+    loader passes the main scene file's folder and the scene's ``<path>`` folders, the last
+    declared first, as Mitsuba's file resolver does), ../shared/data relative to the current
+    directory (as cwd's parent/shared/data), then shared/data beside every folder above the
     installed package (which finds the repository's shared/data).  Duplicates removed.
     """
     dirs: list[Path] = []
@@ -73,6 +75,7 @@ def data_search_dirs(xml_dir: str | Path | None) -> list[Path]:
     dirs += [Path(p) for p in env.split(os.pathsep) if p.strip()]
     if xml_dir is not None:
         dirs.append(Path(xml_dir))
+    dirs += [Path(d) for d in extra_dirs]
     dirs.append(Path.cwd().parent / "shared" / "data")
     dirs += _repo_data_dirs()
     seen, out = set(), []
@@ -84,8 +87,8 @@ def data_search_dirs(xml_dir: str | Path | None) -> list[Path]:
     return out
 
 
-def find_data_file(filename: str, xml_dir: str | Path | None) -> Path:
-    """Resolve a mesh ``filename`` from a scene.
+def find_data_file(filename: str, xml_dir: str | Path | None, extra_dirs=(), what: str = "mesh file") -> Path:
+    """Resolve a ``filename`` a scene names (a mesh; ``what`` names the kind in the error).
 
     An absolute path is used as is.  A relative one is tried in each folder of
     :func:`data_search_dirs` (as written, and then by its base name so that
@@ -98,12 +101,12 @@ def find_data_file(filename: str, xml_dir: str | Path | None) -> Path:
             return p
         searched: list[Path] = [p.parent]
     else:
-        searched = data_search_dirs(xml_dir)
+        searched = data_search_dirs(xml_dir, extra_dirs)
         for d in searched:
             for cand in (d / p, d / p.name):
                 if cand.is_file():
                     return cand
-    msg = (f"mesh file '{filename}' not found; searched: "
+    msg = (f"{what} '{filename}' not found; searched: "
            f"{', '.join(str(d) for d in searched)}; put it in one of these folders or set "
            f"{DATA_PATH_ENV} to the folder holding it")
     hint = DATA_HINTS.get(p.name.lower())

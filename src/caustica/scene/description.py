@@ -141,8 +141,11 @@ class Camera:
     """A perspective camera in Mitsuba's convention.
 
     to_world maps camera space (looking along +z, +y up, +x towards the image's
-    left) to the world; fov_deg is measured along ``fov_axis`` (x, y, smaller or larger).
+    left) to the world; fov_deg is measured along ``fov_axis`` (x, y, diagonal, smaller or larger).
     ``medium``: the medium the camera sits in (an index into the scene's media, -1 for none).
+    ``near_clip``: camera rays start on the plane at this depth (Mitsuba's near clip plane).
+    ``far_clip``: Mitsuba's far clip plane (camera rays end at this depth).  caustica's camera rays do not
+    stop there yet; the loader refuses a ``far_clip`` that any shape reaches beyond, so it changes nothing.
     ``rfilter``: the film's reconstruction filter; ``sample_border``: whether samples may land
     beyond the film's edge (Mitsuba's film ``sample_border``; off: a filter is truncated at the edge).
     """
@@ -152,6 +155,7 @@ class Camera:
     width: int = 768
     height: int = 576
     near_clip: float = 1e-2
+    far_clip: float = 1e4
     film_source: str = ""  # "file:line" of the <film> (of the <sensor> without one), for messages
     medium: int = -1
     rfilter: ReconstructionFilter = field(default_factory=ReconstructionFilter)
@@ -159,10 +163,35 @@ class Camera:
 
 
 @dataclass
+class IntegratorSettings:
+    """The scene file's ``<integrator>``, as the methods may read it (Mitsuba 3's defaults without one).
+
+    ``type``: the integrator that renders the image ("path", "volpath", "direct", "ptracer", ... any name:
+    the loader does not check it, caustica picks its own method); when the file wraps it in a ``moment``,
+    ``aov`` or ``stokes`` integrator, ``type`` is the wrapped one and ``wrapper`` the wrapper's type.
+    ``max_depth`` (-1: unbounded; Mitsuba counts the camera ray's first segment as depth 1, so 1 is only
+    directly visible emitters), ``rr_depth`` (the depth from which Russian roulette starts) and
+    ``hide_emitters`` (emitters seen directly by the camera render black) are Mitsuba's settings, checked
+    as Mitsuba checks them (max_depth >= -1, rr_depth > 0).  ``props``: every property of the (wrapped)
+    integrator as read, for settings of other types (``emitter_samples`` of ``direct``, ...).
+    ``source`` / ``wrapper_source``: "file:line" of the elements, "" when absent.
+    """
+    type: str = "path"
+    max_depth: int = -1
+    rr_depth: int = 5
+    hide_emitters: bool = False
+    wrapper: str = ""
+    props: dict = field(default_factory=dict)
+    source: str = ""
+    wrapper_source: str = ""
+
+
+@dataclass
 class SceneDescription:
-    """A whole scene.  ``integrator`` / ``integrator_props`` record the file's
-    ``<integrator>`` (at ``integrator_source``, "file:line", or "" when it has none);
-    caustica does not read them: the method is chosen when rendering (see
+    """A whole scene.  ``integrator_settings`` is the file's ``<integrator>`` (:class:`IntegratorSettings`:
+    type, max_depth, rr_depth, hide_emitters; Mitsuba's defaults when the file has none).
+    ``integrator`` / ``integrator_props`` / ``integrator_source`` repeat its type, properties and "file:line"
+    ("" when the file has none).  The methods do not read them yet: the method is chosen when rendering (see
     :meth:`integrator_note` and docs/methods.md)."""
     camera: Camera
     shapes: list[Shape] = field(default_factory=list)
@@ -175,6 +204,7 @@ class SceneDescription:
     integrator_source: str = ""
     files: list = field(default_factory=list)  # the scene file and every mesh file it read (Paths)
     media: list[Medium] = field(default_factory=list)
+    integrator_settings: IntegratorSettings = field(default_factory=IntegratorSettings)
 
     @property
     def has_media(self) -> bool:

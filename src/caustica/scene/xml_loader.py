@@ -25,24 +25,27 @@ import numpy as np
 
 from ..errors import SceneError, quoted, shorten
 from ..limits import MAX_PIXELS, MAX_SPP
+from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
-                          NULL, SPHERE, Camera, Material, Medium, PointLight, ReconstructionFilter, SceneDescription,
-                          Shape)
+                          NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
+                          SceneDescription, Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
+from .serialized import load_serialized
 
 # ----------------------------------------------------------------------------- the subset
 
 #: Property tags and plugin tags this loader knows.
-PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "integrator", "sensor", "bsdf", "shape", "emitter", "medium")
+PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
+TOP_LEVEL_TAGS = ("default", "include", "path", "alias", "integrator", "sensor", "bsdf", "shape", "emitter", "medium",
+                  "film (with an id)", "sampler (with an id)")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
 BOOL = ("boolean",)
 STR = ("string",)
-COLOR = ("rgb", "float", "integer")
+COLOR = ("rgb", "spectrum", "float", "integer")
 POINT = ("point", "vector")
 XFORM = ("transform",)
 
@@ -55,6 +58,10 @@ SHAPE_PROPS = {
     "cylinder": {"p0": POINT, "p1": POINT, "radius": FLOAT},
     "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "ply": {"filename": STR, "face_normals": BOOL},
+    "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
+    # shapes declared once and placed by instances (each instance becomes copies of them)
+    "shapegroup": {},
+    "instance": {},
 }
 BSDF_PROPS = {
     "diffuse": {"reflectance": COLOR},
@@ -68,16 +75,57 @@ EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
 }
-MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT}}
+MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
+                                 # how Mitsuba samples the medium (shadow rays from inside it, a spectral
+                                 # majorant): accepted, they change the noise, not the image's expectation
+                                 "sample_emitters": BOOL, "has_spectral_extinction": BOOL}}
 PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
 #: The names a medium takes inside a shape (Mitsuba's interior and exterior media).
 SHAPE_MEDIUM_NAMES = ("interior", "exterior")
-SENSOR_PROPS = {"perspective": {"fov": FLOAT, "fov_axis": STR, "near_clip": FLOAT, "to_world": XFORM}}
-FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT}}
-SAMPLER_TYPES = ("independent", "stratified", "multijitter")
-SAMPLER_PROPS = {t: {"sample_count": INT} for t in SAMPLER_TYPES}
+_PERSPECTIVE = {"fov": FLOAT, "focal_length": STR + FLOAT, "fov_axis": STR, "near_clip": FLOAT, "far_clip": FLOAT,
+                "to_world": XFORM,
+                # accepted, changing nothing in a pinhole camera's image of a static scene (docs/scenes.md):
+                "focus_distance": FLOAT, "shutter_open": FLOAT, "shutter_close": FLOAT,
+                # accepted when 0 (Mitsuba's default), refused otherwise
+                "principal_point_offset_x": FLOAT, "principal_point_offset_y": FLOAT}
+SENSOR_PROPS = {"perspective": _PERSPECTIVE,
+                # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
+                "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT}}
+FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT,
+                           # samples beyond the film's edge reach its pixels through the filter (read)
+                           "sample_border": BOOL,
+                           # how Mitsuba would store the image: accepted and ignored (caustica writes linear RGB
+                           # EXR + PNG), each checked against the values Mitsuba 3's hdrfilm takes
+                           "file_format": STR, "pixel_format": STR, "component_format": STR,
+                           "banner": BOOL, "compensate": BOOL,
+                           # a crop window: accepted when it is the whole film
+                           "crop_offset_x": INT, "crop_offset_y": INT, "crop_width": INT, "crop_height": INT}}
+#: Mitsuba 3's hdrfilm values (src/films/hdrfilm.cpp); pixel formats other than RGB are refused (they change the
+#: image's values), the rest only change how Mitsuba stores the file.
+FILE_FORMATS = ("openexr", "exr", "rgbe", "pfm")
+PIXEL_FORMATS = ("rgb", "rgba")
+OTHER_PIXEL_FORMATS = ("luminance", "luminance_alpha", "xyz", "xyza")
+COMPONENT_FORMATS = ("float16", "float32", "uint32")
+#: Mitsuba 3's samplers: each takes sample_count as the samples per pixel; which points it draws only changes the
+#: noise, so caustica uses its own (seed, jitter and strength are accepted and do not change the expected image).
+SAMPLER_TYPES = ("independent", "stratified", "multijitter", "orthogonal", "ldsampler")
+SAMPLER_PROPS = {t: {"sample_count": INT, "seed": INT,
+                     **({"jitter": BOOL} if t in ("stratified", "multijitter", "orthogonal") else {}),
+                     **({"strength": INT} if t == "orthogonal" else {})} for t in SAMPLER_TYPES}
 RFILTER_PROPS = {"box": {}, "tent": {"radius": FLOAT}, "gaussian": {"stddev": FLOAT}}
-FOV_AXES = ("x", "y", "smaller", "larger")
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+#: Mitsuba 3's sensor defaults (src/render/sensor.cpp): a 50 mm lens on 35 mm film (36 x 24 mm), whose
+#: field of view is measured along the film's diagonal; the clip planes.
+DEFAULT_FOCAL_LENGTH_MM = 50.0
+FILM_DIAGONAL_MM = math.sqrt(36.0 ** 2 + 24.0 ** 2)
+DEFAULT_NEAR_CLIP = 1e-2
+DEFAULT_FAR_CLIP = 1e4
+
+#: Integrators that wrap another (Mitsuba's moment, aov, stokes): the wrapped one renders the image.
+INTEGRATOR_WRAPPERS = ("moment", "aov", "stokes")
+#: The integrator settings the description carries: (Mitsuba's default, type, valid when).
+INTEGRATOR_SETTINGS = {"max_depth": (-1, int, lambda v: v >= -1), "rr_depth": (5, int, lambda v: v > 0),
+                       "hide_emitters": (False, bool, None)}
 
 #: The largest ``sample_count`` a scene's sampler may ask for: 2**20 samples per pixel
 #: (the kernels key each sample by pixel * spp + sample in 64 bits, which this and
@@ -101,9 +149,16 @@ IOR_TABLE = {
 DEFAULT_REFLECTANCE = (0.5, 0.5, 0.5)
 DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
+#: The plugin tables and nested elements the one report checks in elements it cannot build.
+LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
+                 "film": ("rfilter",), "medium": ("phase",)}
+
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
              "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS}
+
+
+LINT_TABLES = SUPPORTED
 
 
 def _names(items) -> str:
@@ -119,6 +174,8 @@ class Node:
     attrs: dict[str, str]
     line: int
     children: list["Node"] = field(default_factory=list)
+    source: str = ""              # the file it was read from (as errors name it)
+    folder: Path | None = None    # that file's folder: relative file names start there
 
     def describe(self) -> str:
         keys = [k for k in ("type", "name", "id") if k in self.attrs]
@@ -130,18 +187,23 @@ class Node:
 #: bsdf > bsdf > rgb); the limit keeps the loader's recursive passes far from Python's
 #: recursion limit, and it also bounds chains of twosided BSDFs through <ref>.
 MAX_NESTING_DEPTH = 64
+#: How deep <include>s may nest (a loop is refused before this is reached; this bounds long chains).
+MAX_INCLUDE_DEPTH = 32
 
 _XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
-def _parse_xml(text: str | bytes, source: str) -> Node:
-    """Parse XML text into a Node tree; SceneError with file and line for malformed XML."""
+def _parse_xml(text: str | bytes, source: str, folder: Path | None = None) -> Node:
+    """Parse XML text into a Node tree; SceneError with file and line for malformed XML.
+
+    Every node records ``source`` (the name errors use) and ``folder`` (where relative file
+    names in it are looked up first)."""
     parser = xml.parsers.expat.ParserCreate()
     stack: list[Node] = []
     root: list[Node] = []
 
     def start(tag, attrs):
-        node = Node(tag, dict(attrs), parser.CurrentLineNumber)
+        node = Node(tag, dict(attrs), parser.CurrentLineNumber, source=source, folder=folder)
         if len(stack) >= MAX_NESTING_DEPTH:
             raise SceneError(f"{source}:{node.line}: {node.describe()}: elements are nested more than "
                              f"{MAX_NESTING_DEPTH} deep; a scene may nest at most {MAX_NESTING_DEPTH} levels")
@@ -188,45 +250,73 @@ _PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 # ----------------------------------------------------------------------------- properties
 
 @dataclass
+class Spectrum:
+    """A ``<spectrum>`` property as read: a constant or (wavelengths, values); converted to RGB where it is
+    used (an emitter's converts differently, as in Mitsuba: :mod:`caustica.scene.spectra`)."""
+    constant: float | None = None
+    wavelengths: list = field(default_factory=list)
+    values: list = field(default_factory=list)
+
+    def rgb(self, emitter: bool, unbounded: bool) -> tuple[float, float, float]:
+        if self.constant is not None:
+            return spectra.constant_to_rgb(self.constant, emitter)
+        return spectra.pairs_to_rgb(self.wavelengths, self.values, emitter, unbounded)
+
+
+@dataclass
 class Prop:
     tag: str
     value: object
     node: Node
 
 
+class _Abandon(Exception):
+    """An element is left unbuilt because of problems already recorded (see ``_Loader.record``)."""
+
+
 class Props:
     """The properties and nested objects of one plugin element, checked against a spec.
 
-    Unknown names or wrong tags raise at once (at the property's line); ``get`` marks a
-    property as used, and :meth:`finish` is not needed because the spec already lists
-    every name the plugin consumes.
+    Unknown names, wrong tags and bad values are each recorded (at the property's line) and the element is
+    then abandoned (``_Abandon``), so one report lists every problem of an element; ``get`` returns a value,
+    and no final check is needed because the spec already lists every name the plugin consumes.
     """
 
     def __init__(self, loader: "_Loader", node: Node, spec: dict, child_tags: tuple[str, ...]):
         self.node = node
         self.props: dict[str, Prop] = {}
         self.objects: list[Node] = []
+        bad = False
         for child in node.children:
-            if child.tag in PROPERTY_TAGS:
-                name = child.attrs.get("name")
-                if name is None:
-                    loader.fail(child, "a property needs a name= attribute")
-                if name not in spec:
-                    loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
-                                supported=list(spec))
-                if child.tag not in spec[name]:
-                    loader.fail(child, f"property '{name}' must be given as "
-                                       f"{' or '.join('<' + t + '>' for t in spec[name])}, not <{child.tag}>")
-                if name in self.props:
-                    loader.fail(child, f"property '{name}' is given twice "
-                                       f"(first on line {self.props[name].node.line})")
-                self.props[name] = Prop(child.tag, loader.property_value(child), child)
-            elif child.tag in child_tags or (child.tag == "ref" and "ref" in child_tags):
-                self.objects.append(child)
-            else:
-                supported = [f"<{t}>" for t in child_tags] + (
-                    [f"properties {_names(list(spec))}"] if spec else [])
-                loader.fail(child, f"unexpected element inside {node.describe()}", supported=supported)
+            try:
+                self._read(loader, node, child, spec, child_tags)
+            except SceneError as exc:
+                loader.record(exc)
+                bad = True
+        if bad:
+            raise _Abandon
+
+    def _read(self, loader: "_Loader", node: Node, child: Node, spec: dict, child_tags: tuple[str, ...]) -> None:
+        if child.tag in PROPERTY_TAGS:
+            name = child.attrs.get("name")
+            if name is None:
+                loader.fail(child, "a property needs a name= attribute")
+            if name not in spec:
+                loader.fail(child, f"unknown property {quoted(name)} of {node.describe()}",
+                            supported=list(spec))
+            if child.tag not in spec[name]:
+                loader.fail(child, f"property '{name}' must be given as "
+                                   f"{' or '.join('<' + t + '>' for t in spec[name])}, not <{child.tag}>")
+            if name in self.props:
+                loader.fail(child, f"property '{name}' is given twice "
+                                   f"(first on line {self.props[name].node.line})")
+            self.props[name] = Prop(child.tag, loader.property_value(child), child)
+        elif child.tag in child_tags or (child.tag == "ref" and "ref" in child_tags):
+            self.objects.append(child)
+        else:
+            supported = [f"<{t}>" for t in child_tags] + (
+                [f"properties {_names(list(spec))}"] if spec else [])
+            loader.fail(child, f"unexpected element inside {node.describe()}", supported=supported)
 
     def has(self, name: str) -> bool:
         return name in self.props
@@ -247,6 +337,11 @@ class _Loader:
         self.base_dir = base_dir
         self.params = params
         self.ids: dict[str, Node] = {}
+        self.main_file: Path | None = None    # the scene file itself (resolved), for the include-loop check
+        self.far_clip_node: Node | None = None
+        self.top_level_area: dict[int, Node] = {}   # area emitters declared at the top level with an id
+        self.groups: dict[int, list[Shape]] = {}     # each shapegroup's shapes, once built
+        self.referenced_emitters: set[int] = set()
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
         self.in_progress: set[int] = set()
@@ -254,18 +349,100 @@ class _Loader:
         self.media: list[Medium] = []
         self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
+        self.errors: list[str] = []          # every problem found, for the one report
+        self.error_keys: set = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
+        self.search_paths: list[Path] = []   # the <path> folders, in the order declared
+        self.file_versions: dict[str, tuple | None] = {}   # each file's version= (Mitsuba upgrades < 2.0)
+        self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
+
+    # -- files ------------------------------------------------------------------------
+    def lookup_dirs(self, node: Node) -> list[Path]:
+        """Mitsuba's file resolver: the ``<path>`` folders, the last declared first (each is prepended), then the
+        main scene's folder."""
+        return self.search_paths[::-1] + [self.base_dir]
+
+    def find_file(self, node: Node, filename: str, what: str = "mesh file") -> Path:
+        """A file the scene names (a mesh, a spectrum), looked up as :func:`~caustica.scene.builtin.find_data_file`
+        does: ``$CAUSTICA_DATA_PATH``, then Mitsuba's resolver (:meth:`lookup_dirs`), then the folder of the
+        included file that names it (which Mitsuba does not search), then ``shared/data``."""
+        return find_data_file(filename, None, self.lookup_dirs(node) + [node.folder or self.base_dir], what)
 
     # -- errors -----------------------------------------------------------------------
-    def fail(self, node: Node, msg: str, supported=None):
-        text = f"{self.source}:{node.line}: {node.describe()}: {msg}"
+    def fail(self, node: Node, msg: str, supported=None, fatal: bool = False):
+        """Raise the SceneError of a problem at node.  ``fatal``: reading on is not safe (a limit was hit), so
+        the error is reported alone, at once, rather than collected for the one report."""
+        text = f"{self.at(node)}: {node.describe()}: {msg}"
         if supported is not None:
             text += f"; supported: {_names(supported)}"
-        raise SceneError(text)
+        exc = SceneError(text)
+        exc.node = node
+        exc.fatal = fatal
+        raise exc
+
+    def record(self, exc: SceneError) -> None:
+        """Keep a problem for the one report (:meth:`raise_errors`): one per element, the first found.  A fatal
+        one is raised alone at once."""
+        if getattr(exc, "fatal", False):
+            raise exc
+        node = getattr(exc, "node", None)
+        key = id(node) if node is not None else str(exc)
+        if key not in self.error_keys and str(exc) not in self.errors:
+            self.error_keys.add(key)
+            self.errors.append(str(exc))
+
+    def raise_errors(self) -> None:
+        """One problem: its own one-line message, as ever; several: one message listing each on its line."""
+        if len(self.errors) == 1:
+            raise SceneError(self.errors[0])
+        if self.errors:
+            raise SceneError(f"{self.source}: {len(self.errors)} problems, each with its file and line (and what "
+                             f"is supported there):\n" + "\n".join(f"  {e}" for e in self.errors))
+
+    def lint(self, node: Node) -> None:
+        """Record the problems of a plugin element that will not be built (its parent failed): its type and its
+        properties, checked as building it would, then its nested elements."""
+        table = LINT_TABLES.get(node.tag)
+        if table is None:
+            return
+        try:
+            if node.tag == "bsdf" and node.attrs.get("type") == "twosided":
+                children = ("bsdf", "ref")
+            elif node.tag == "shape" and node.attrs.get("type") in ("shapegroup", "instance"):
+                self.plugin(node, {"shapegroup": {}, "instance": {"to_world": XFORM}},
+                            ("shape",) if node.attrs["type"] == "shapegroup" else ("ref",))
+                self.lint_children(node)
+                return
+            else:
+                children = LINT_CHILDREN.get(node.tag, ())
+            self.plugin(node, table, children, extra=_SHAPE_COMMON if node.tag == "shape" else None)
+        except SceneError as exc:
+            self.record(exc)
+        except _Abandon:
+            pass
+        self.lint_children(node)
+
+    def lint_children(self, node: Node) -> None:
+        for c in node.children:
+            if c.tag not in PROPERTY_TAGS:
+                self.lint(c)
+
+    def at(self, node: Node) -> str:
+        """"file:line" of a node (its own file, which may be an included one)."""
+        return f"{node.source or self.source}:{node.line}"
 
     # -- substitution and ids -----------------------------------------------------------
     def substitute(self, node: Node) -> None:
-        """Replace $name in every attribute (except inside <default>) and collect ids."""
+        """Replace $name in every attribute (except inside <default>) and collect ids; every problem is
+        recorded (none is interpreted yet, so all can be listed)."""
+        try:
+            self._substitute_one(node)
+        except SceneError as exc:
+            self.record(exc)
+        for c in node.children:
+            self.substitute(c)
+
+    def _substitute_one(self, node: Node) -> None:
         if node.tag != "default":
             for k, v in node.attrs.items():
                 if "$" in v:
@@ -279,13 +456,140 @@ class _Loader:
                                       supported=sorted(self.params) or None)
                         return self.params[m.group(1)]
                     node.attrs[k] = _PARAM.sub(repl, v)
-        if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default"):
+        if "id" in node.attrs and node.tag not in PROPERTY_TAGS and node.tag not in ("ref", "default", "alias"):
             i = node.attrs["id"]
             if i in self.ids:
-                self.fail(node, f"id {quoted(i)} is already used on line {self.ids[i].line}")
+                first = self.ids[i]
+                where = f"line {first.line}" if first.source == node.source else self.at(first)
+                self.fail(node, f"id {quoted(i)} is already used on {where}")
             self.ids[i] = node
+
+    def aliases(self, node: Node) -> None:
+        """Mitsuba's <alias id="a" as="b"/>: b names what a names (a must exist, b must be new); the elements
+        are then removed from the tree.  Problems are recorded."""
+        kept = []
         for c in node.children:
-            self.substitute(c)
+            if c.tag != "alias":
+                self.aliases(c)
+                kept.append(c)
+                continue
+            try:
+                self.check_attrs(c, ("id", "as"), ("id", "as"))
+                src, dst = c.attrs["id"], c.attrs["as"]
+                if src not in self.ids:
+                    self.fail(c, f"no element has id {quoted(src)}", supported=sorted(self.ids) or None)
+                if dst in self.ids:
+                    self.fail(c, f"id {quoted(dst)} is already used on {self.at(self.ids[dst])}")
+                self.ids[dst] = self.ids[src]
+            except SceneError as exc:
+                self.record(exc)
+        node.children = kept
+
+    def substitute_attrs(self, node: Node) -> None:
+        """$name substitution in the attributes of one node (for <include> and <path>, which are read
+        before the rest of the tree is substituted)."""
+        children, node.children = node.children, []
+        try:
+            self.substitute(node)
+        finally:
+            node.children = children
+        self.raise_errors()
+
+    def read_defaults(self, root: Node) -> None:
+        """The <default>s among root's children: a name not yet defined gets its value (the caller's -D
+        values and earlier defaults win, as in Mitsuba, where an included file's defaults only fill gaps);
+        the same name twice in one file is an error."""
+        local: dict[str, Node] = {}
+        for node in root.children:
+            if node.tag != "default":
+                continue
+            self.check_attrs(node, ("name", "value"), ("name", "value"))
+            if node.children:
+                self.fail(node.children[0], "<default> takes no child elements")
+            name = node.attrs["name"]
+            if not _PARAM_NAME.fullmatch(name):
+                self.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
+                                f"digits and _, not starting with a digit")
+            if name in local:
+                self.fail(node, f"default {quoted(name)} is given twice (first on line {local[name].line})")
+            local[name] = node
+            self.declared.setdefault(name, node)
+            self.params.setdefault(name, node.attrs["value"])
+
+    def expand(self, node: Node, chain: tuple[tuple[Path, Node], ...], top: bool) -> None:
+        """Replace every <include> below node by what the included file holds and read every <path>
+        (both in document order, as Mitsuba does).  ``chain``: the includes being expanded, outermost
+        first (for the loop check); ``top``: node is a scene's root (where <path> may appear)."""
+        out: list[Node] = []
+        for child in node.children:
+            if child.tag == "path":
+                if not top:
+                    self.fail(child, "<path> must be a child of <scene> (Mitsuba's rule)")
+                self.check_attrs(child, ("value",), ("value",))
+                self.substitute_attrs(child)
+                self.add_search_path(child)
+            elif child.tag == "include":
+                self.check_attrs(child, ("filename", "name"), ("filename",))
+                self.substitute_attrs(child)
+                out += self.include(child, chain)
+            else:
+                if child.tag != "default":
+                    self.expand(child, chain, False)
+                out.append(child)
+        node.children = out
+
+    def candidates(self, node: Node, p: Path) -> list[Path]:
+        """Where a relative <include> or <path> named in node may be: its own file's folder (Mitsuba prepends
+        it while reading the file), then Mitsuba's resolver (:meth:`lookup_dirs`)."""
+        if p.is_absolute():
+            return [p]
+        return [(node.folder or self.base_dir) / p] + [d / p for d in self.lookup_dirs(node)]
+
+    def add_search_path(self, node: Node) -> None:
+        value = node.attrs["value"]
+        p = Path(value)
+        cands = self.candidates(node, p)
+        for c in cands:
+            if c.is_dir():
+                self.search_paths.append(c)
+                return
+        self.fail(node, f"folder {quoted(value)} not found (searched: {', '.join(str(c) for c in cands)}); "
+                        f"a <path> names a folder, absolute or relative to the scene file")
+
+    def include(self, node: Node, chain: tuple[tuple[Path, Node], ...]) -> list[Node]:
+        """The nodes an <include> stands for: the children of an included <scene> (its <default>s read),
+        or the included file's root element itself (a file holding one <bsdf>, say)."""
+        filename = node.attrs["filename"]
+        p = Path(filename)
+        cands = self.candidates(node, p)
+        path = next((c for c in cands if c.is_file()), None)
+        if path is None:
+            self.fail(node, f"included file {quoted(filename)} not found; searched: "
+                            f"{', '.join(str(c.parent) for c in cands)}; add its folder with <path value=\"...\"/>")
+        key = path.resolve()
+        if any(k == key for k, _ in chain) or key == self.main_file:
+            steps = [f"{self.at(n)} includes {n.attrs['filename']}" for _, n in chain] + \
+                    [f"{self.at(node)} includes {filename}"]
+            self.fail(node, f"include loop: {'; '.join(steps)}, which is already being read; "
+                            f"an included file must not include itself, directly or through others")
+        if len(chain) >= MAX_INCLUDE_DEPTH:
+            self.fail(node, f"includes nest more than {MAX_INCLUDE_DEPTH} deep; at most {MAX_INCLUDE_DEPTH} "
+                            f"levels are allowed")
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            self.fail(node, f"cannot read the included file {quoted(filename)}: {exc.strerror}")
+        root = _parse_xml(data, str(path), path.parent)
+        self.files.append(path)
+        self.file_versions[str(path)] = _version(root.attrs.get("version"))
+        inner = chain + ((key, node),)
+        if root.tag == "scene":
+            self.check_attrs(root, ("version",))
+            self.read_defaults(root)
+            self.expand(root, inner, True)
+            return [c for c in root.children if c.tag != "default"]
+        self.expand(root, inner, False)
+        return [root]
 
     def check_attrs(self, node: Node, allowed: tuple[str, ...], required: tuple[str, ...] = ()):
         for k in node.attrs:
@@ -311,6 +615,8 @@ class _Loader:
                 return tf.check_transform(tf.compose(ops))
             if node.children:
                 self.fail(node.children[0], f"<{tag}> takes no child elements")
+            if tag == "spectrum":
+                return self.spectrum_value(node)
             if tag in ("point", "vector"):
                 self.check_attrs(node, ("name", "value", "x", "y", "z"), ("name",))
                 return tf.xyz_from_attrs({k: v for k, v in node.attrs.items() if k != "name"}, 0.0)
@@ -337,11 +643,44 @@ class _Loader:
             self.fail(node, str(exc))
         raise AssertionError(tag)
 
-    def color(self, props: Props, name: str, default: tuple, nonneg: bool = True) -> tuple:
+    def spectrum_value(self, node: Node) -> Spectrum:
+        """A <spectrum value="..."/> (one number, or wavelength:value pairs) or <spectrum filename="x.spd"/>."""
+        if "type" in node.attrs:
+            self.fail(node, f"a spectrum plugin (<spectrum type={quoted(node.attrs['type'])}>) is not supported",
+                      supported=['<spectrum value="0.5"/>', '<spectrum value="400:0.1, 700:0.9"/>',
+                                 '<spectrum filename="x.spd"/>'])
+        self.check_attrs(node, ("name", "value", "filename"), ("name",))
+        if ("value" in node.attrs) == ("filename" in node.attrs):
+            self.fail(node, "a <spectrum> needs either value= or filename=, not both (as in Mitsuba)")
+        try:
+            if "value" in node.attrs:
+                parsed = spectra.parse_spectrum(node.attrs["value"])
+                if isinstance(parsed, float):
+                    return Spectrum(constant=tf.parse_float(node.attrs["value"].strip().rstrip(",")))
+            else:
+                path = self.find_file(node, node.attrs["filename"], "spectrum file")
+                self.files.append(Path(path))
+                parsed = spectra.read_spd(path)
+        except (ValueError, SceneError) as exc:
+            self.fail(node, str(exc))
+        except OSError as exc:
+            self.fail(node, f"cannot read the spectrum file {quoted(node.attrs['filename'])}: {exc.strerror}")
+        for v in parsed[1]:
+            if abs(v) > tf.MAX_ABS_FLOAT:
+                self.fail(node, f"spectrum value {v:g} is out of range (beyond {tf.MAX_ABS_FLOAT:.3g}, float32)")
+        return Spectrum(wavelengths=parsed[0], values=parsed[1])
+
+    def color(self, props: Props, name: str, default: tuple, nonneg: bool = True, *, emitter: bool = False,
+              unbounded: bool = False) -> tuple:
+        """A colour property as RGB (an <rgb>, a number, or a <spectrum> converted as Mitsuba's RGB variants do:
+        ``emitter`` for radiance and intensity, ``unbounded`` for quantities not limited to [0, 1])."""
         v = props.get(name)
         if v is None:
             return default
-        rgb = (float(v),) * 3 if not isinstance(v, tuple) else tuple(float(c) for c in v)
+        if isinstance(v, Spectrum):
+            rgb = v.rgb(emitter, unbounded)
+        else:
+            rgb = (float(v),) * 3 if not isinstance(v, tuple) else tuple(float(c) for c in v)
         if nonneg and min(rgb) < 0:
             self.fail(props.node_of(name), f"'{name}' must not be negative, got {rgb}")
         return rgb
@@ -388,7 +727,7 @@ class _Loader:
             self.fail(node, "the BSDF refers to itself (a reference cycle)")
         if len(self.in_progress) >= MAX_NESTING_DEPTH:
             self.fail(node, f"BSDFs wrap each other (through twosided and <ref>) more than "
-                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed")
+                            f"{MAX_NESTING_DEPTH} deep; at most {MAX_NESTING_DEPTH} levels are allowed", fatal=True)
         self.in_progress.add(key)
         try:
             return self._build_material(node)
@@ -477,8 +816,8 @@ class _Loader:
         """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults)."""
         props = self.plugin(node, MEDIUM_PROPS, ("phase",))
         scale = float(self.number(props, "scale", 1.0, nonneg=True))
-        sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0))
-        albedo = self.color(props, "albedo", (0.75, 0.75, 0.75))
+        sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0), unbounded=True)
+        albedo = self.color(props, "albedo", (0.75, 0.75, 0.75), unbounded=True)
         if max(albedo) > 1.0:
             self.fail(props.node_of("albedo"), f"'albedo' is sigma_s / sigma_t and must lie in [0, 1], got {albedo}")
         sigma = tuple(c * scale for c in sigma_t)
@@ -494,7 +833,7 @@ class _Loader:
                 phase, g = HENYEY_GREENSTEIN, float(pprops.get("g", 0.8))   # Mitsuba's default g
                 if not -1.0 < g < 1.0:
                     self.fail(pprops.node_of("g"), f"'g' must lie strictly between -1 and 1, got {g}")
-        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=f"{self.source}:{node.line}")
+        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=self.at(node))
 
     def is_medium(self, obj: Node) -> bool:
         """Whether a shape's or sensor's child is a medium: a <medium>, or a <ref> named like one or
@@ -506,7 +845,68 @@ class _Loader:
                                      or (target is not None and target.tag == "medium"))
 
     # -- shapes ----------------------------------------------------------------------
+    def shape_group(self, node: Node) -> list[Shape]:
+        """The shapes of a <shape type="shapegroup"> in its own space, built once (Mitsuba forbids emitters,
+        nested groups and instances in a group)."""
+        key = id(node)
+        if key not in self.groups:
+            self.plugin(node, {"shapegroup": {}}, ("shape",))
+            built = []
+            for child in node.children:
+                kind = child.attrs.get("type")
+                if kind in ("shapegroup", "instance"):
+                    self.fail(child, f"a shapegroup cannot hold a {kind} (nested instancing is not permitted, as in "
+                                     f"Mitsuba)")
+                if any(c.tag == "emitter" or (c.tag == "ref" and self.ids.get(c.attrs.get("id", ""), c).tag
+                                              == "emitter") for c in child.children):
+                    self.fail(child, "a shape in a shapegroup cannot be an emitter (Mitsuba does not instance "
+                                     "emitters)")
+                built.append(self.shape(child))
+            self.groups[key] = built
+        return self.groups[key]
+
+    def instance(self, node: Node) -> list[Shape]:
+        """A <shape type="instance">: a copy of its shapegroup's shapes placed by its to_world (Mitsuba's instance:
+        shading normals through the inverse transpose, so a mirroring to_world keeps each surface's front)."""
+        props = self.plugin(node, {"instance": {"to_world": XFORM}}, ("ref",))
+        if len(props.objects) != 1:
+            self.fail(node, f"an instance takes exactly one <ref> to a shapegroup, found {len(props.objects)}")
+        ref = props.objects[0]
+        target = self.ids.get(ref.attrs.get("id", ""))
+        if target is None or target.tag != "shape" or target.attrs.get("type") != "shapegroup":
+            known = sorted(k for k, n in self.ids.items() if n.tag == "shape" and n.attrs.get("type") == "shapegroup")
+            self.fail(ref, f"an instance needs a <ref> to a <shape type=\"shapegroup\">; "
+                           f"{quoted(ref.attrs.get('id', ''))} is not one", supported=known or None)
+        m = props.get("to_world")
+        m = np.eye(4) if m is None else m
+        out = []
+        for s in self.shape_group(target):
+            placed = copy.copy(s)
+            placed.source = f"{s.source} (instanced at {self.at(node)})"
+            if s.mesh is not None:
+                try:
+                    mesh = to_world_mesh(s.mesh, m)
+                except SceneError as exc:
+                    self.fail(node, str(exc))
+                if np.linalg.det(m[:3, :3]) < 0:   # keep the front side where Mitsuba's instance keeps it
+                    mesh.triangles = np.ascontiguousarray(mesh.triangles[:, ::-1])
+                placed.mesh = mesh
+                placed.to_world = m @ s.to_world
+            else:
+                placed.to_world = self.placement(node, m @ s.to_world, "the instance's to_world with the shape's")
+                if s.kind == SPHERE:
+                    lin = placed.to_world[:3, :3]
+                    gram = lin.T @ lin
+                    s2 = np.trace(gram) / 3.0
+                    if np.abs(gram - s2 * np.eye(3)).max() > 1e-6 * s2:
+                        self.fail(props.node_of("to_world"), "an instanced sphere must stay round: the instance's "
+                                                             "to_world must not shear or scale non-uniformly")
+            out.append(placed)
+        return out
+
     def shape(self, node: Node) -> Shape:
+        if node.attrs.get("type") in ("shapegroup", "instance"):
+            self.fail(node, f"a {node.attrs['type']} belongs at the top level of the scene")
         props = self.plugin(node, SHAPE_PROPS, ("bsdf", "ref", "emitter", "medium"), extra=_SHAPE_COMMON)
         kind = node.attrs["type"]
         to_world = props.get("to_world")
@@ -516,6 +916,10 @@ class _Loader:
         material, radiance = None, None
         media = {}
         for obj in props.objects:
+            target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else None
+            if target is not None and target.tag == "emitter":   # an area emitter declared at the top level
+                self.referenced_emitters.add(id(target))
+                obj = target
             if self.is_medium(obj):
                 name = obj.attrs.get("name")
                 if name not in SHAPE_MEDIUM_NAMES:
@@ -532,15 +936,15 @@ class _Loader:
                 if radiance is not None:
                     self.fail(obj, "a shape takes only one emitter")
                 eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]})
-                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0))
+                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0), emitter=True)
         if material is None:
             material = self.default_material_index(emitter=radiance is not None)
 
-        src = f"{self.source}:{node.line}"
+        src = self.at(node)
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
                       id=node.attrs.get("id", ""), source=src,
                       interior=media.get("interior", -1), exterior=media.get("exterior", -1))
-        if kind in ("rectangle", "cube", "obj", "ply"):
+        if kind in ("rectangle", "cube", "obj", "ply", "serialized"):
             if kind == "rectangle":
                 # Under a mirroring to_world the front side follows the winding, as in
                 # Mitsuba 3 (its rectangle's normal is dp/du x dp/dv; checked in the tests).
@@ -550,10 +954,14 @@ class _Loader:
             else:
                 if not props.has("filename"):
                     self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
+                index = int(self.number(props, "shape_index", 0, nonneg=True))
                 try:
-                    path = find_data_file(props.get("filename"), self.base_dir)
+                    path = self.find_file(props.node_of("filename"), props.get("filename"))
                     self.files.append(Path(path))
-                    local = load_mesh_file(path, kind)
+                    if kind == "serialized":
+                        local = load_serialized(path, index)
+                    else:
+                        local = load_mesh_file(path, kind)
                 except SceneError as exc:
                     self.fail(props.node_of("filename"), str(exc))
                 if props.get("face_normals", False):
@@ -606,24 +1014,38 @@ class _Loader:
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
         props = self.plugin(node, SENSOR_PROPS, ("film", "sampler", "medium", "ref"))
-        if not props.has("fov"):
-            self.fail(node, "the perspective sensor needs <float name=\"fov\" .../> "
-                            "(focal_length is not supported)")
-        fov = float(props.get("fov"))
-        if not 0.0 < fov < 180.0:
-            self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
-        axis = props.get("fov_axis", "x").strip().lower()
-        if axis not in FOV_AXES:
-            self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
-        near = float(self.number(props, "near_clip", 1e-2, positive=True))
+        fov, axis = self.field_of_view(node, props)
+        near = float(self.number(props, "near_clip", DEFAULT_NEAR_CLIP, positive=True))
+        far = float(self.number(props, "far_clip", DEFAULT_FAR_CLIP, positive=True))
+        if not near < far:
+            self.fail(props.node_of("far_clip" if props.has("far_clip") else "near_clip"),
+                      f"near_clip ({near:g}) must be smaller than far_clip ({far:g}), as in Mitsuba")
+        for p in ("principal_point_offset_x", "principal_point_offset_y"):
+            if props.get(p, 0.0) != 0.0:
+                self.fail(props.node_of(p), f"'{p}' other than 0 (an off-centre image) is not supported",
+                          supported=["0"])
+        if node.attrs["type"] == "thinlens":
+            if not props.has("aperture_radius"):
+                self.fail(node, "a thinlens sensor needs <float name=\"aperture_radius\" .../> (as in Mitsuba)")
+            radius = float(self.number(props, "aperture_radius", 0.0, nonneg=True))
+            if radius > 0.0:
+                self.fail(props.node_of("aperture_radius"),
+                          f"a thin lens with aperture_radius={radius:g} (depth of field) is not supported: caustica's "
+                          f"camera is a pinhole",
+                          supported=["perspective", "thinlens with aperture_radius 0"])
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
+        film_where = self.at(node)
         rfilter = ReconstructionFilter()   # caustica's default: a box (Mitsuba's is a gaussian; docs/usage.md)
-        film_line = node.line
+        sample_border = False
         medium = -1
         seen = set()
         for obj in props.objects:
+            if obj.tag == "ref":   # a film or sampler declared at the top level, or a medium
+                target = self.ids.get(obj.attrs.get("id", ""))
+                if target is not None and target.tag in ("film", "sampler"):
+                    obj = target
             tag = "medium" if obj.tag == "ref" else obj.tag
             if tag in seen:
                 self.fail(obj, f"the sensor takes only one <{tag}>")
@@ -631,10 +1053,12 @@ class _Loader:
             if tag == "medium":   # the medium the camera sits in
                 medium = self.medium_index(obj)
             elif obj.tag == "film":
-                film_line = obj.line
+                film_where = self.at(obj)
                 fprops = self.plugin(obj, FILM_PROPS, ("rfilter",))
                 width = int(self.number(fprops, "width", width, positive=True))
                 height = int(self.number(fprops, "height", height, positive=True))
+                sample_border = bool(fprops.get("sample_border", False))
+                self.film_settings(fprops, width, height)
                 if width * height > MAX_FILM_PIXELS:
                     self.fail(obj, f"a {width:,} x {height:,} film has {width * height:,} pixels, more than "
                                    f"the {MAX_FILM_PIXELS:,} (int32) caustica's kernels can index; "
@@ -645,13 +1069,16 @@ class _Loader:
                     rfilter = self.rfilter(rf)
             else:
                 sprops = self.plugin(obj, SAMPLER_PROPS)
-                spp = int(self.number(sprops, "sample_count", spp, positive=True))
+                spp = mitsuba_sample_count(obj.attrs["type"], int(self.number(sprops, "sample_count", spp,
+                                                                                positive=True)))
                 if spp > MAX_SAMPLE_COUNT:
                     self.fail(sprops.node_of("sample_count"), f"sample_count={spp:,} is more than "
                                                               f"{MAX_SAMPLE_COUNT:,} (2^20), the most samples "
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
-                     near_clip=near, film_source=f"{self.source}:{film_line}", medium=medium, rfilter=rfilter)
+                     near_clip=near, far_clip=far, film_source=film_where, medium=medium, rfilter=rfilter,
+                     sample_border=sample_border)
+        self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
 
     def rfilter(self, node: Node) -> ReconstructionFilter:
@@ -665,7 +1092,110 @@ class _Loader:
                 self.fail(props.node_of(name), f"'{name}' must be finite, got {v}")
         return ReconstructionFilter(kind, radius, stddev)
 
+    def film_settings(self, fprops: Props, width: int, height: int) -> None:
+        """Check hdrfilm's settings that change nothing in caustica's image (they are then ignored) and refuse
+        the ones that would: a pixel format other than RGB, a crop window smaller than the film."""
+        for name, allowed, other in (("file_format", FILE_FORMATS, ()), ("component_format", COMPONENT_FORMATS, ()),
+                                     ("pixel_format", PIXEL_FORMATS, OTHER_PIXEL_FORMATS)):
+            if not fprops.has(name):
+                continue
+            v = fprops.get(name).strip().lower()
+            if v in other:
+                self.fail(fprops.node_of(name), f"{name}={quoted(v)} is not supported: caustica's images are "
+                                                f"linear RGB", supported=list(allowed))
+            if v not in allowed:
+                self.fail(fprops.node_of(name), f"unknown {name} {quoted(v)}", supported=list(allowed) + list(other))
+        crop = {}
+        for name, default in (("crop_offset_x", 0), ("crop_offset_y", 0), ("crop_width", width),
+                              ("crop_height", height)):
+            crop[name] = int(self.number(fprops, name, default, nonneg=True))
+        for off, size, full in (("crop_offset_x", "crop_width", width), ("crop_offset_y", "crop_height", height)):
+            if crop[off] + crop[size] > full or crop[size] == 0:
+                self.fail(fprops.node_of(size if fprops.has(size) else off),
+                          f"the crop window ({off}={crop[off]}, {size}={crop[size]}) must lie inside the "
+                          f"{width} x {height} film and not be empty")
+        if tuple(crop.values()) != (0, 0, width, height):
+            given = [n for n in crop if fprops.has(n)]
+            window = ", ".join(f"{n}={crop[n]}" for n in crop)
+            self.fail(fprops.node_of(given[0]),
+                      f"a crop window ({window}) smaller than the {width} x {height} "
+                      f"film is not supported: caustica renders the whole film; remove the crop_* settings",
+                      supported=["a crop window covering the whole film"])
+
+    def field_of_view(self, node: Node, props: Props) -> tuple[float, str]:
+        """(fov in degrees, fov_axis) as Mitsuba 3's parse_fov reads them: ``fov`` along ``fov_axis`` (x by
+        default), or a ``focal_length`` ("<x>mm", 50mm by default) on 35 mm film, along the diagonal."""
+        if props.has("fov") and props.has("focal_length"):
+            self.fail(props.node_of("focal_length"), "give either 'fov' or 'focal_length', not both (as in Mitsuba)")
+        if props.has("fov"):
+            fov = float(props.get("fov"))
+            if not 0.0 < fov < 180.0:
+                self.fail(props.node_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
+            axis = props.get("fov_axis", "x").strip().lower()
+            if axis not in FOV_AXES:
+                self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
+            return fov, axis
+        if props.has("fov_axis"):   # Mitsuba reads it only with fov; check it all the same
+            axis = props.get("fov_axis").strip().lower()
+            if axis not in FOV_AXES:
+                self.fail(props.node_of("fov_axis"), f"unknown fov_axis {quoted(axis)}", supported=list(FOV_AXES))
+        f = props.get("focal_length", f"{DEFAULT_FOCAL_LENGTH_MM:g}mm")
+        text = str(f).strip()
+        text = text[:-2] if text.endswith("mm") else text
+        try:
+            mm = tf.parse_float(text)
+        except ValueError:
+            mm = float("nan")
+        if not mm > 0:
+            self.fail(props.node_of("focal_length"), f"focal_length={quoted(f)} is not a positive length in "
+                                                     f"millimetres; write it as \"<x>mm\", e.g. \"50mm\"")
+        return math.degrees(2.0 * math.atan(FILM_DIAGONAL_MM / (2.0 * mm))), "diagonal"
+
+    def check_far_clip(self, camera: Camera, shapes: list[Shape]) -> None:
+        """caustica's camera rays do not stop at far_clip: accept a far_clip no shape reaches (then it changes
+        nothing), refuse one that would hide part of the scene.  Only a far_clip the file gives is checked
+        (Mitsuba's default, 1e4, cuts only scenes larger than that, which loaded before).  The test is the
+        camera-space depth (the distance along the view axis, where Mitsuba's far plane lies) of each shape's
+        bounds."""
+        if self.far_clip_node is None:
+            return   # Mitsuba's default 1e4: not checked, so that scenes of any size load as before
+        m = np.asarray(camera.to_world, dtype=np.float64)
+        axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+        depth = _farthest_depth(shapes, m[:3, 3], axis)
+        if depth is not None and depth > camera.far_clip:
+            self.fail(self.far_clip_node,
+                      f"far_clip={camera.far_clip:g} would hide the parts of the scene beyond it (they reach "
+                      f"{depth:.4g} along the view axis), and caustica does not clip camera rays at far_clip; "
+                      f"raise far_clip to at least {depth:.4g} or remove it")
+
     # -- integrator -------------------------------------------------------------------
+    def integrator(self, node: Node) -> IntegratorSettings:
+        """The scene's <integrator>, recorded for the methods (not checked against a list: caustica picks its own
+        method).  A wrapper (``moment``, ``aov``, ``stokes``) stands for the integrator it wraps, whose
+        max_depth, rr_depth and hide_emitters are checked as Mitsuba checks them."""
+        self.check_attrs(node, ("type", "id", "name"), ("type",))
+        wrapper, wrapper_node = "", None
+        inner = [c for c in node.children if c.tag == "integrator"]
+        if node.attrs["type"] in INTEGRATOR_WRAPPERS and inner:
+            wrapper, wrapper_node = node.attrs["type"], node
+            node = inner[0]
+            self.check_attrs(node, ("type", "id", "name"), ("type",))
+        props = self.generic_props(node)
+        values = {}
+        for name, (default, kind, rule) in INTEGRATOR_SETTINGS.items():
+            v = props.get(name, default)
+            child = next((c for c in node.children if c.tag in PROPERTY_TAGS and c.attrs.get("name") == name), node)
+            ok = isinstance(v, bool) if kind is bool else (isinstance(v, int) and not isinstance(v, bool))
+            if not ok:
+                self.fail(child, f"'{name}' must be given as <{'boolean' if kind is bool else 'integer'}>")
+            if kind is int and not rule(v):
+                self.fail(child, f"'{name}' must be {'at least -1' if name == 'max_depth' else 'positive'}, got {v} "
+                                 f"(as in Mitsuba)")
+            values[name] = v
+        return IntegratorSettings(type=node.attrs["type"], **values, wrapper=wrapper, props=props,
+                                  source=self.at(node), wrapper_source="" if wrapper_node is None
+                                  else self.at(wrapper_node))
+
     def generic_props(self, node: Node) -> dict:
         """Any properties and nested plugins, for the integrator (recorded, not checked)."""
         out = {}
@@ -682,99 +1212,216 @@ class _Loader:
     # -- the scene ----------------------------------------------------------------------
     def scene(self, root: Node) -> SceneDescription:
         camera, spp = None, 4
-        integrator, integrator_props, integrator_node = "path", {}, None
+        settings, integrator_node = IntegratorSettings(), None
         shapes: list[Shape] = []
         lights: list[PointLight] = []
+        sensor_seen = False
         for node in root.children:
-            tag = node.tag
-            if tag == "default":
-                continue
-            if tag == "integrator":
-                if integrator_node is not None:
-                    self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
-                self.check_attrs(node, ("type", "id", "name"), ("type",))
-                integrator_node = node
-                integrator = node.attrs["type"]
-                integrator_props = self.generic_props(node)
-            elif tag == "sensor":
-                if camera is not None:
-                    self.fail(node, "only one <sensor> is supported")
-                camera, spp = self.sensor(node)
-            elif tag == "bsdf":
-                self.material_index(node)
-            elif tag == "medium":
-                self.medium_index(node)
-            elif tag == "shape":
-                shapes.append(self.shape(node))
-            elif tag == "emitter":
-                if node.attrs.get("type") == "area":
-                    self.fail(node, "an area emitter must be nested inside a <shape>")
-                if node.attrs.get("type") not in (None, "point"):
-                    self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
-                              supported=["point (top level)", "area (inside a <shape>)"])
-                props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
-                if props.has("position") and props.has("to_world"):
-                    self.fail(node, "give either 'position' or 'to_world', not both")
-                if props.has("to_world"):
-                    pos = props.get("to_world")[:3, 3]
-                else:
-                    pos = props.get("position", np.zeros(3))
-                intensity = self.color(props, "intensity", (1.0, 1.0, 1.0))
-                lights.append(PointLight(tuple(float(c) for c in pos), intensity,
-                                         source=f"{self.source}:{node.line}"))
-            else:
-                self.fail(node, "unknown element at the top level of the scene",
-                          supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
-        if camera is None:
-            raise SceneError(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
-                             f"add <sensor type=\"perspective\">")
+            if node.tag == "sensor":
+                sensor_seen = True
+            try:
+                camera, spp, settings, integrator_node = self.top_level(node, camera, spp, settings, integrator_node,
+                                                                        shapes, lights)
+            except SceneError as exc:
+                self.record(exc)
+                self.lint_children(node)
+            except _Abandon:
+                self.lint_children(node)
+        named = {c.attrs.get("id") for n in root.children if n.tag == "shape" for c in n.children if c.tag == "ref"}
+        for n in self.top_level_area.values():
+            # unused, and not because the shape that names it failed (that shape's problem is reported)
+            if id(n) not in self.referenced_emitters and n.attrs["id"] not in named:
+                self.errors.append(f"{self.at(n)}: {n.describe()}: an area emitter must be nested inside a <shape> "
+                                   f"or given to one by <ref id=\"{n.attrs['id']}\"/>; no shape refers to it")
+        if camera is None and not sensor_seen:
+            self.errors.append(f"{self.source}:{root.line}: <scene>: the scene has no <sensor>; "
+                               f"add <sensor type=\"perspective\">")
+        if camera is not None:
+            try:
+                self.check_far_clip(camera, shapes)
+            except SceneError as exc:
+                self.record(exc)
+        self.raise_errors()
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
-                                point_lights=lights, spp=spp, integrator=integrator, media=self.media,
-                                integrator_props=integrator_props, source=self.source,
-                                integrator_source="" if integrator_node is None
-                                else f"{self.source}:{integrator_node.line}")
+                                point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
+                                integrator_props=settings.props, source=self.source,
+                                integrator_source=settings.source, integrator_settings=settings)
+
+    def top_level(self, node: Node, camera, spp, settings, integrator_node, shapes, lights):
+        """Read one element at the top of the scene (what it defines goes into the arguments)."""
+        tag = node.tag
+        if tag == "default":
+            return camera, spp, settings, integrator_node
+        if tag == "integrator":
+            if integrator_node is not None:
+                self.fail(node, f"only one <integrator> is allowed (first on line {integrator_node.line})")
+            integrator_node = node
+            settings = self.integrator(node)
+        elif tag == "sensor":
+            if camera is not None:
+                self.fail(node, "only one <sensor> is supported")
+            camera, spp = self.sensor(node)
+        elif tag == "bsdf":
+            self.material_index(node)
+        elif tag in ("film", "sampler"):   # declared for a <ref> from the sensor, read there
+            if "id" not in node.attrs:
+                self.fail(node, f"a <{tag}> at the top level needs an id= for the sensor's <ref>",
+                          supported=[f"<{tag}> inside the <sensor>",
+                                     f"<{tag} id=...> with <ref id=.../> in the sensor"])
+        elif tag == "medium":
+            self.medium_index(node)
+        elif tag == "shape" and node.attrs.get("type") == "shapegroup":
+            self.check_attrs(node, ("type", "id", "name"), ("type",))
+            if "id" not in node.attrs:
+                self.fail(node, "a shapegroup needs an id= for its instances' <ref>")
+        elif tag == "shape" and node.attrs.get("type") == "instance":
+            shapes.extend(self.instance(node))
+        elif tag == "shape":
+            shapes.append(self.shape(node))
+        elif tag == "emitter":
+            if node.attrs.get("type") == "area":
+                if "id" in node.attrs:   # Mitsuba's area emitter declared once and given to a shape by <ref>
+                    self.top_level_area[id(node)] = node
+                    return camera, spp, settings, integrator_node
+                self.fail(node, "an area emitter must be nested inside a <shape>")
+            if node.attrs.get("type") not in (None, "point"):
+                self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
+                          supported=["point (top level)", "area (inside a <shape>)"])
+            props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
+            if props.has("position") and props.has("to_world"):
+                self.fail(node, "give either 'position' or 'to_world', not both")
+            if props.has("to_world"):
+                pos = props.get("to_world")[:3, 3]
+            else:
+                pos = props.get("position", np.zeros(3))
+            intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
+            lights.append(PointLight(tuple(float(c) for c in pos), intensity,
+                                     source=self.at(node)))
+        else:
+            self.fail(node, "unknown element at the top level of the scene",
+                      supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
+        return camera, spp, settings, integrator_node
+
+
+def mitsuba_sample_count(kind: str, spp: int) -> int:
+    """The samples per pixel a Mitsuba 3 sampler of this kind takes for ``sample_count`` spp: stratified and
+    ldsampler round up to a square (ldsampler: of a power of two), orthogonal to the square of a prime,
+    multijitter to a near-square product (Mitsuba's set_sample_count, src/samplers/)."""
+    if spp > MAX_SAMPLE_COUNT:
+        return spp   # refused by the caller with the bound
+    if kind == "stratified":
+        r = math.isqrt(spp - 1) + 1 if spp > 1 else 1
+        return r * r
+    if kind == "multijitter":
+        ry = max(1, math.isqrt(spp))
+        return -(-spp // ry) * ry
+    if kind == "orthogonal":
+        r = 2
+        while r * r < spp or any(r % k == 0 for k in range(2, math.isqrt(r) + 1)):
+            r += 1
+        return r * r
+    if kind == "ldsampler":
+        r = 2
+        while r * r < spp:
+            r = 1 << (r).bit_length()   # round_to_power_of_two(r + 1) for r >= 2
+        return r * r
+    return spp
+
+
+def _farthest_depth(shapes: list[Shape], origin: np.ndarray, axis: np.ndarray) -> float | None:
+    """The largest depth (distance along ``axis`` from ``origin``) any shape reaches, an upper bound for
+    disks and cylinders (their bounding boxes' corners); None without shapes."""
+    best = None
+    for s in shapes:
+        if s.mesh is not None:
+            d = float(np.max((s.mesh.positions - origin) @ axis)) if len(s.mesh.positions) else None
+        elif s.kind == SPHERE:
+            m = s.to_world
+            d = float((m[:3, 3] - origin) @ axis + np.linalg.norm(m[:3, 0]))
+        else:
+            zs = (0.0, 1.0) if s.kind == CYLINDER else (0.0,)
+            corners = np.array([[x, y, z, 1.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in zs])
+            d = float(np.max(((corners @ s.to_world.T)[:, :3] - origin) @ axis))
+        if d is not None and (best is None or d > best):
+            best = d
+    return best
 
 
 # ----------------------------------------------------------------------------- entry points
 
 def parse_scene_string(text: str | bytes, base_dir: str | Path = ".", defaults: dict | None = None,
-                       source_name: str = "<string>") -> SceneDescription:
-    """Parse Mitsuba XML text; mesh filenames are relative to base_dir.
+                       source_name: str = "<string>", main_file: Path | None = None) -> SceneDescription:
+    """Parse Mitsuba XML text; mesh filenames and <include>s are relative to base_dir.
 
     defaults: values for ``$name`` (Mitsuba's ``-D``), overriding the file's ``<default>``s.
     source_name: the name used in error messages and as ``SceneDescription.source``.
     """
-    root = _parse_xml(text, source_name)
+    root = _parse_xml(text, source_name, Path(base_dir))
     loader = _Loader(source_name, Path(base_dir), {})
+    loader.main_file = main_file
     if root.tag != "scene":
         loader.fail(root, "the root element must be <scene>", supported=["<scene>"])
     loader.check_attrs(root, ("version",))
-    params: dict[str, str] = {}
-    declared: dict[str, Node] = {}
-    for node in root.children:
-        if node.tag == "default":
-            loader.check_attrs(node, ("name", "value"), ("name", "value"))
-            if node.children:
-                loader.fail(node.children[0], "<default> takes no child elements")
-            name = node.attrs["name"]
-            if not _PARAM_NAME.fullmatch(name):
-                loader.fail(node, f"name={quoted(name)} cannot be used as $name: a parameter name is letters, "
-                                  f"digits and _, not starting with a digit")
-            if name in declared:
-                loader.fail(node, f"default {quoted(name)} is given twice (first on line {declared[name].line})")
-            declared[name] = node
-            params[name] = node.attrs["value"]
     given = {str(k): _param_str(v) for k, v in (defaults or {}).items()}
-    params.update(given)
-    loader.params = params
+    loader.params = dict(given)
+    loader.read_defaults(root)
+    loader.file_versions[source_name] = _version(root.attrs.get("version"))
+    loader.expand(root, (), True)
     loader.substitute(root)
-    _check_defines(source_name, given, declared, loader.used_params)
+    loader.aliases(root)
+    loader.raise_errors()    # stop here: nothing can be read with a value missing
+    old = {src for src, v in loader.file_versions.items() if v is not None and v < (2,)}
+    if old:
+        _upgrade_from_v1(root, old)
+    _check_defines(source_name, given, loader.declared, loader.used_params)
     desc = loader.scene(root)
     desc.files = loader.files
     return desc
 
 
 _PARAM_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def camel_to_snake(name: str) -> str:
+    """Mitsuba 3's camel_to_underscore_case (parser.cpp): "toWorld" -> "to_world", "intIOR" -> "int_ior"."""
+    out, i = [], 0
+    while i < len(name):
+        c = name[i]
+        if i > 0 and name[i - 1].islower() and c.isupper():
+            out += ["_", c.lower()]
+            while i + 1 < len(name) and name[i + 1].isupper():
+                i += 1
+                out.append(name[i].lower())
+        else:
+            out.append(c)
+        i += 1
+    return "".join(out)
+
+
+def _version(text: str | None) -> tuple[int, ...] | None:
+    """A file's version="x.y.z" as numbers, None when absent or not numbers."""
+    if text is None:
+        return None
+    try:
+        return tuple(int(p) for p in text.strip().split("."))
+    except ValueError:
+        return None
+
+
+def _upgrade_from_v1(node: Node, old: set[str]) -> None:
+    """Mitsuba 3's upgrade of files older than version 2.0 (parser.cpp, upgrade_from_v1): property names in
+    camelCase become snake_case (toWorld, sampleCount, intIOR, fovAxis...), and a diffuse BSDF's
+    diffuse_reflectance becomes reflectance.  ``old``: the files (sources) whose version is below 2."""
+    if node.source in old:
+        if "name" in node.attrs and (node.tag in PROPERTY_TAGS or node.tag in ("ref",) or node.tag in SUPPORTED):
+            node.attrs["name"] = camel_to_snake(node.attrs["name"])
+        if node.tag == "bsdf" and node.attrs.get("type") == "diffuse":
+            for c in node.children:
+                if c.tag in PROPERTY_TAGS and c.source in old and \
+                        camel_to_snake(c.attrs.get("name", "")) == "diffuse_reflectance":
+                    c.attrs["name"] = "reflectance"
+    for c in node.children:
+        _upgrade_from_v1(c, old)
 
 
 def _check_defines(source: str, given: dict[str, str], declared: dict[str, Node], used: set[str]) -> None:
@@ -813,6 +1460,6 @@ def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) ->
         data = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
-    desc = parse_scene_string(data, path.parent, defaults, str(path))
+    desc = parse_scene_string(data, path.parent, defaults, str(path), main_file=path.resolve())
     desc.files.insert(0, path)
     return desc

@@ -1,0 +1,165 @@
+#!/usr/bin/env python3
+"""Fetch a corpus of published Mitsuba 3 scenes (pinned commits) for scripts/mitsuba_corpus_report.py.
+
+    python scripts/fetch_mitsuba_scenes.py                  # into out/mitsuba-corpus (git over https)
+    python scripts/fetch_mitsuba_scenes.py --dest DIR
+    python scripts/fetch_mitsuba_scenes.py --mirror-root /work/.mirror   # from local clones, offline
+
+Each source is a public GitHub repository at a pinned commit, of which only the folders listed below are
+checked out (git's partial clone and sparse checkout: no history, no other blobs).  Nothing is committed
+to caustica: the scenes, meshes and textures stay in the destination folder, next to the licence files the
+repositories ship and a SOURCES.md saying where each folder came from and under which terms.  A source
+already fetched at its pinned commit is left as it is.
+
+``--mirror-root DIR`` copies from ``DIR/<owner>+<name>/repo`` (a git directory holding the pinned commit)
+instead of fetching https://github.com/<owner>/<name>, for machines without network access; files whose
+contents that copy lacks are skipped and listed in SOURCES.md.
+
+Needs git >= 2.27 (sparse checkout without cone mode, partial clone).  Standard library only.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Source:
+    repo: str            # owner/name on GitHub
+    commit: str          # the pinned commit
+    paths: tuple         # folders and files to check out
+    licence: str         # what the repository says about its terms (checked by hand; see also its LICENSE files)
+
+
+SOURCES = (
+    Source("mitsuba-renderer/mitsuba-data", "01100fa9b0b154492061a92404f26dcd7b784dbb",
+           ("docs/scenes", "tests/scenes", "scenes", "common", "ior", "README.md"),
+           "Mitsuba 3's own data repository (its resources/data submodule: documentation, test and example "
+           "scenes). It states no licence of its own; Mitsuba 3, which ships it, is BSD-3-Clause "
+           "(https://github.com/mitsuba-renderer/mitsuba3/blob/master/LICENSE)."),
+    Source("mitsuba-renderer/mitsuba-tutorials", "a8dbee7e81b1039a983770ce1042f2d78688d0ae",
+           ("scenes", "README.md"),
+           "Mitsuba 3's tutorials. No licence file at the repository's root; scenes/lego/LICENSE.txt: the LEGO "
+           "scene is by BlendSwap user Heinzelnisse under CC-BY-NC (https://www.blendswap.com/blend/11490)."),
+)
+
+
+def run(*args: str, cwd: Path | None = None) -> str:
+    out = subprocess.run(args, cwd=cwd, check=True, capture_output=True, text=True)
+    return out.stdout
+
+
+def copy_from_mirror(src: Source, git_dir: Path, target: Path) -> list[str]:
+    """Write src's paths at its commit from a local git directory into target; the files whose blobs the
+    local copy lacks (a mirror may leave its largest files out) are skipped and returned."""
+    listing = run("git", f"--git-dir={git_dir}", "ls-tree", "-r", "-z", src.commit, "--", *src.paths)
+    entries = []
+    for item in listing.split("\0"):
+        if not item:
+            continue
+        meta, name = item.split("\t", 1)
+        mode, kind, sha = meta.split()
+        if kind == "blob":
+            entries.append((name, sha))
+    batch = subprocess.run(["git", f"--git-dir={git_dir}", "cat-file", "--batch"], check=True, capture_output=True,
+                           input="".join(f"{sha}\n" for _, sha in entries).encode())
+    data, pos, absent = batch.stdout, 0, []
+    for name, sha in entries:
+        end = data.index(b"\n", pos)
+        header = data[pos:end].decode().split()
+        pos = end + 1
+        if header[-1] == "missing":
+            absent.append(name)
+            continue
+        size = int(header[2])
+        out = target / name
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(data[pos:pos + size])
+        pos += size + 1
+    return absent
+
+
+def fetch(src: Source, dest: Path, mirror_root: Path | None) -> Path:
+    """Check out src's paths at its pinned commit into dest/<owner>+<name>; the folder."""
+    target = dest / src.repo.replace("/", "+")
+    stamp = target / ".caustica-commit"
+    if stamp.is_file() and stamp.read_text().strip() == src.commit:
+        print(f"{src.repo}: already at {src.commit[:12]} in {target}")
+        return target
+    if target.exists():
+        shutil.rmtree(target)
+    target.mkdir(parents=True)
+    if mirror_root is not None:
+        git_dir = mirror_root / src.repo.replace("/", "+") / "repo"
+        print(f"{src.repo}: copying {src.commit[:12]} from {git_dir} ({', '.join(src.paths)})", flush=True)
+        absent = copy_from_mirror(src, git_dir, target)
+        (target / ".caustica-absent").write_text("".join(f"{a}\n" for a in absent))
+        if absent:
+            print(f"{src.repo}: {len(absent)} files absent from the local copy: {', '.join(absent)}")
+        stamp.write_text(src.commit + "\n")
+        return target
+    url = f"https://github.com/{src.repo}.git"
+    print(f"{src.repo}: fetching {src.commit[:12]} from {url} ({', '.join(src.paths)})", flush=True)
+    run("git", "init", "-q", cwd=target)
+    run("git", "remote", "add", "origin", url, cwd=target)
+    run("git", "config", "extensions.partialClone", "origin", cwd=target)
+    run("git", "fetch", "-q", "--depth", "1", "--filter=blob:none", "origin", src.commit, cwd=target)
+    run("git", "sparse-checkout", "set", "--no-cone", *[f"/{p}" for p in src.paths], cwd=target)
+    run("git", "checkout", "-q", src.commit, cwd=target)
+    got = run("git", "rev-parse", "HEAD", cwd=target).strip()
+    if got != src.commit:
+        raise SystemExit(f"fetch_mitsuba_scenes: {src.repo}: checked out {got}, expected {src.commit}")
+    stamp.write_text(src.commit + "\n")
+    return target
+
+
+def licence_files(root: Path) -> list[Path]:
+    return sorted(p for p in root.rglob("*") if p.is_file() and p.name.upper().startswith(("LICENSE", "LICENCE",
+                                                                                            "COPYING"))
+                  and ".git" not in p.parts)
+
+
+def write_sources(dest: Path, fetched: dict[Source, Path]) -> None:
+    lines = ["# Where these scenes come from", "",
+             "Fetched by caustica's scripts/fetch_mitsuba_scenes.py; not part of caustica. Each folder is a public "
+             "repository at a pinned commit (only the listed paths are checked out).", ""]
+    for src, folder in fetched.items():
+        lines += [f"## {src.repo}", "", f"- commit: {src.commit}",
+                  f"- https://github.com/{src.repo}/tree/{src.commit}",
+                  f"- paths: {', '.join(src.paths)}", f"- folder: {folder.name}", f"- terms: {src.licence}"]
+        for lic in licence_files(folder):
+            lines.append(f"- licence file in the fetched paths: {lic.relative_to(dest)}")
+        absent = folder / ".caustica-absent"
+        if absent.is_file() and absent.read_text().strip():
+            lines.append(f"- absent (the local copy it came from lacked them): "
+                         f"{', '.join(absent.read_text().split())}")
+        lines.append("")
+    (dest / "SOURCES.md").write_text("\n".join(lines))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--dest", type=Path, default=Path("out/mitsuba-corpus"), help="where to put the scenes")
+    ap.add_argument("--mirror-root", type=Path, default=None,
+                    help="take <DIR>/<owner>+<name>/repo instead of github.com (offline)")
+    args = ap.parse_args(argv)
+    args.dest.mkdir(parents=True, exist_ok=True)
+    fetched = {}
+    for src in SOURCES:
+        try:
+            fetched[src] = fetch(src, args.dest, args.mirror_root)
+        except subprocess.CalledProcessError as exc:
+            print(f"fetch_mitsuba_scenes: {src.repo}: {' '.join(exc.cmd)} failed: {exc.stderr.strip()}",
+                  file=sys.stderr)
+            return 1
+    write_sources(args.dest, fetched)
+    print(f"done: {args.dest}/SOURCES.md lists the sources and their terms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
