@@ -269,7 +269,7 @@ def phase_sample(media, m, d, u1, u2):
 
 @kernel(inline=True)
 def photon_scatter(media, m, d, key, dim, roulette):
-    """A photon (or stream) scattering in medium m: (alive, 1 / q, wo, phase weight); numbers dim .. dim + 2.
+    """A photon (or stream) scattering in medium m: (alive, 1 / q, wo, phase weight, dim + 3); numbers dim .. dim + 2.
 
     With ``roulette`` it survives with q = the medium's mean albedo, to be scaled by 1 / q (else 1 / q
     is 1; the flight's weight already holds the albedo); then wo from the phase function, with its
@@ -279,12 +279,10 @@ def photon_scatter(media, m, d, key, dim, roulette):
     if roulette:
         q = (media.albedo[m, 0] + media.albedo[m, 1] + media.albedo[m, 2]) / 3.0
         if uniform(key, dim) >= q:
-            return False, 1.0, d, 0.0
+            return False, 1.0, d, 0.0, dim + 3
         inv_q = 1.0 / q
     wo, weight, pdf = phase_sample(media, m, d, uniform(key, dim + 1), uniform(key, dim + 2))
-    if not pdf > 0.0:
-        return False, inv_q, wo, 0.0
-    return True, inv_q, wo, weight
+    return pdf > 0.0, inv_q, wo, weight if pdf > 0.0 else 0.0, dim + 3
 
 
 # ----------------------------------------------------------------------------- direct light

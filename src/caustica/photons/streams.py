@@ -332,8 +332,7 @@ def trace_stream(tables, key, start, rules, i, buf):
                 stored += 1
             if bounces >= max_bounces:
                 break
-            alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
-            dim += 3
+            alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
             if not alive:
                 break
             lead = vec.mul(vec.mul(lead, inv_q), weight)

@@ -107,13 +107,12 @@ def trace_one(tables, key, photon, rules, out):
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            alive, inv_q, wo, weight = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
-            dim += 3
+            alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim,
+                                                           termination == TERMINATION_ROULETTE)
             if not alive:
                 break
             power = vec.mul(vec.mul(power, inv_q), weight)
-            o = p
-            d = wo
+            o, d = p, wo
             diffuse_bounces += 1
             scattered = True
             diffuse_like = True
