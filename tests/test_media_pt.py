@@ -45,7 +45,8 @@ def sensor_xml(origin, target, up, fov, width, height, inner="") -> str:
     return f"""<sensor type="perspective">
         <float name="fov" value="{fov}"/>
         <transform name="to_world"><lookat origin="{rgb(origin)}" target="{rgb(target)}" up="{rgb(up)}"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/></film>
+        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/>
+            <rfilter type="box"/></film>
         {inner}
     </sensor>"""
 
@@ -54,7 +55,8 @@ def film_tangents(width, height, fov_x_deg, n_sub=32):
     """(a, b): camera-space x / z and y / z of sub-pixel midpoints, shape (height, width, n_sub²).
 
     A camera ray through film point (sx, sy) has the direction (a, b, 1) (Mitsuba's pinhole,
-    see tests/test_pt.py); the box filter averages over these points.
+    see tests/test_pt.py); the box filter averages over these points (the films of :func:`sensor_xml`
+    say ``<rfilter type="box"/>``: without it a film is Mitsuba's gaussian).
     """
     tan_x = math.tan(math.radians(fov_x_deg) / 2)
     tan_y = tan_x * height / width

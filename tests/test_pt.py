@@ -40,7 +40,8 @@ def sensor_xml(origin, target, up, fov, width, height, fov_axis="x") -> str:
         <string name="fov_axis" value="{fov_axis}"/>
         <float name="fov" value="{fov}"/>
         <transform name="to_world"><lookat origin="{o}" target="{t}" up="{u}"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/></film>
+        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/>
+            <rfilter type="box"/></film>
     </sensor>"""
 
 
@@ -48,8 +49,9 @@ def pixel_footprints(width, height, fov_x_deg, cam_height, n_sub=32):
     """Points where sub-pixel rays of a camera at (0, 0, cam_height) looking down -z meet z = 0.
 
     Returns x, y arrays of shape (height, width, n_sub * n_sub): a midpoint grid over each
-    pixel in film coordinates, which is exactly what the box filter averages.  Written from
-    Mitsuba's pinhole model: film point (sx, sy) in [0, 1]^2 maps to the camera-space
+    pixel in film coordinates, which is exactly what the box filter averages (the films of
+    :func:`sensor_xml` say ``<rfilter type="box"/>``: without it a film is Mitsuba's gaussian).
+    Written from Mitsuba's pinhole model: film point (sx, sy) in [0, 1]^2 maps to the camera-space
     direction (tan_x (1 - 2 sx), tan_y (1 - 2 sy), 1).  The test scenes are symmetric under
     x -> -x and y -> -y, so the camera's handedness does not matter here.
     """

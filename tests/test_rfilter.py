@@ -6,7 +6,8 @@
    monotone (so stratified numbers stay stratified).
 2. Images: a small scene of emitting rectangles with sharp edges (some at the film's edge), where
    a pixel's value is exactly the filter's mass over the emitters, rendered by ``pt`` and by
-   Mitsuba 3 (``scalar_rgb``) from the same XML; per pixel within the noise of both.
+   Mitsuba 3 (``scalar_rgb``) from the same XML; per pixel within the noise of both.  A film
+   without ``<rfilter>`` is Mitsuba's default, a gaussian of stddev 0.5, in both renderers.
 3. Bad input: an unknown filter, a negative or zero radius or stddev, a property the filter does
    not take: one line naming the file and line, exit 2.
 """
@@ -233,6 +234,8 @@ IMAGE_CASES = {
                              "gaussian", 0.0, 0.35),
     "tent": ('<rfilter type="tent"/>', "tent", 1.0, 0.0),
     "tent radius 1.6": ('<rfilter type="tent"><float name="radius" value="1.6"/></rfilter>', "tent", 1.6, 0.0),
+    # no <rfilter>: both renderers take Mitsuba's default, the gaussian of stddev 0.5
+    "no rfilter": ("", "gaussian", 0.0, 0.5),
 }
 SPP = 1024          # caustica, one render
 MI_SEEDS, MI_SPP = 32, 128   # Mitsuba: 32 renders, for a per-pixel standard error from their spread
@@ -330,10 +333,30 @@ def test_every_method_gets_the_filter(case):
     assert z.max() <= 1.0, (case, np.unravel_index(z.argmax(), z.shape), z.max())
 
 
-def test_a_film_without_rfilter_is_a_box():
-    """caustica's default, not Mitsuba's (gaussian): docs/usage.md says why."""
+def test_a_film_without_rfilter_is_mitsubas_gaussian():
+    """Mitsuba 3's default (src/render/film.cpp): a gaussian of stddev 0.5, cut off at radius 2 = 4
+    stddev; for a sensor without a film too.  It renders the same bits as the explicit gaussian."""
+    import caustica
+    from caustica.camera import camera_params
+    from caustica.tables import compile_scene
     d = parse_scene_string(edge_scene_xml(""))
-    assert d.camera.rfilter == ReconstructionFilter("box")
+    assert d.camera.rfilter == ReconstructionFilter("gaussian", stddev=0.5)
+    cam = camera_params(d.camera)
+    assert (cam.filter_kind, cam.filter_radius, cam.filter_stddev) == (GAUSSIAN, 2.0, 0.5)
+    no_film = parse_scene_string('<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="45"/>'
+                                 '</sensor><shape type="rectangle"/></scene>')
+    assert no_film.camera.rfilter == ReconstructionFilter("gaussian", stddev=0.5)
+    implicit, explicit = (caustica.render(compile_scene(parse_scene_string(edge_scene_xml(rf))), "pt", spp=4,
+                                          seed=3, threads=1).image for rf in ("", '<rfilter type="gaussian"/>'))
+    assert implicit.tobytes() == explicit.tobytes()
+
+
+@pytest.mark.mitsuba
+def test_mitsubas_default_filter_is_this_gaussian(mi):
+    """What the test above takes as Mitsuba's default is what Mitsuba 3 builds for a film without one."""
+    rf = mi.load_string(edge_scene_xml("")).sensors()[0].film().rfilter()
+    assert str(rf).startswith("GaussianFilter[stddev=0.50,"), str(rf)
+    assert rf.radius() == pytest.approx(2.0)
 
 
 def test_filters_are_read_with_mitsubas_defaults():
@@ -348,7 +371,8 @@ def test_filters_are_read_with_mitsubas_defaults():
 def test_the_sidecar_records_the_filter():
     import caustica
     from caustica.tables import compile_scene
-    for rf, want in [("", {"type": "box"}),
+    for rf, want in [("", {"type": "gaussian", "stddev": 0.5}),
+                     ('<rfilter type="box"/>', {"type": "box"}),
                      ('<rfilter type="gaussian"/>', {"type": "gaussian", "stddev": 0.5}),
                      ('<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>',
                       {"type": "tent", "radius": 1.5})]:

@@ -129,9 +129,9 @@ class ReconstructionFilter:
     """The film's ``<rfilter>``: ``kind`` box, tent or gaussian (Mitsuba 3's definitions, see
     :mod:`caustica.sampling.filters`); ``radius`` the tent's radius in pixels (Mitsuba's default 1;
     unused by the others: the box's is 1/2, the gaussian's 4 ``stddev``); ``stddev`` the gaussian's
-    standard deviation in pixels (Mitsuba's default 0.5).  A film without ``<rfilter>`` gets a box:
-    caustica's default, not Mitsuba's (a gaussian; docs/usage.md says why)."""
-    kind: str = "box"
+    standard deviation in pixels (Mitsuba's default 0.5).  A film without ``<rfilter>`` (and a sensor
+    without a film) gets Mitsuba 3's default: a gaussian of ``stddev`` 0.5, cut off at radius 2."""
+    kind: str = "gaussian"
     radius: float = 1.0
     stddev: float = 0.5
 

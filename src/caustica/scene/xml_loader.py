@@ -1037,7 +1037,7 @@ class _Loader:
         to_world = np.eye(4) if to_world is None else to_world
         width, height, spp = 768, 576, 4
         film_where = self.at(node)
-        rfilter = ReconstructionFilter()   # caustica's default: a box (Mitsuba's is a gaussian; docs/usage.md)
+        rfilter = ReconstructionFilter()   # Mitsuba's default: a gaussian, stddev 0.5 (docs/usage.md)
         sample_border = False
         medium = -1
         seen = set()
