@@ -45,6 +45,11 @@ MINIMAL_XML = """<scene version="3.0.0">
 """
 
 
+#: A sensor for scenes written to carry one problem only (the loader reports every problem of a scene;
+#: a scene without a sensor has that second one).
+SENSOR_XML = MINIMAL_XML.split("\n", 1)[1].split("    <shape")[0]
+
+
 def _files(directory: Path) -> list[str]:
     return sorted(p.name for p in directory.rglob("*") if p.is_file()) if directory.exists() else []
 
@@ -249,7 +254,7 @@ def _write_mesh_scene(tmp_path: Path, mesh_name: str, kind: str = "obj") -> Path
     xml = tmp_path / "meshy.xml"
     xml.write_text(f'<scene version="3.0.0">\n'
                    f'    <shape type="{kind}"><string name="filename" value="{mesh_name}"/></shape>\n'
-                   f'</scene>\n')
+                   f'{SENSOR_XML}</scene>\n')
     return xml
 
 
@@ -263,7 +268,7 @@ def _bad_input_cases():
         return (tmp / "bad.xml",)
 
     def unknown_element(tmp):
-        (tmp / "unk.xml").write_text('<scene version="3.0.0">\n  <teapot/>\n</scene>\n')
+        (tmp / "unk.xml").write_text(f'<scene version="3.0.0">\n  <teapot/>\n{SENSOR_XML}</scene>\n')
         return (tmp / "unk.xml",)
 
     def garbage_obj(tmp):
