@@ -16,7 +16,7 @@ import numpy as np
 
 from . import checkpoint as ckpt
 from . import driver, methods
-from .errors import ParameterError, RenderError, quoted
+from .errors import ParameterError, RenderError, SceneError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .version import __version__
 from .jit import default_threads
@@ -25,6 +25,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
+from .scene.description import MATERIAL_NAMES
 from .tables import Scene, compile_scene
 
 
@@ -102,6 +103,19 @@ def check_common(*, spp, width, height, seed, threads, film_source: str | None =
     return common
 
 
+def check_bsdfs(cls, scene) -> None:
+    """Refuse a scene with a glossy BSDF (roughconductor, roughdielectric) for a method that does not render
+    them: the photon methods treat every non-delta surface as Lambertian so far (issue 20), which would be a
+    silently wrong image.  Methods that do declare ``renders_glossy = True`` (``pt``)."""
+    if getattr(cls, "renders_glossy", False):
+        return
+    for mat in scene.description.materials:
+        if mat.is_glossy:
+            where = f"{mat.source}: " if mat.source else ""
+            raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
+                             f"glossy BSDFs yet (its photons and visible points are Lambertian); use --method pt")
+
+
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,
                      multi_pass: bool = False, **params):
     """(scene, method class, settings): every render setting checked and defaulted in one place.
@@ -112,6 +126,7 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     cls = methods.get(method)
+    check_bsdfs(cls, scene)
     width, height = _parse_res(res)
     width = scene.width if width is None else width
     height = scene.height if height is None else height

@@ -294,12 +294,13 @@ def power_heuristic(a, b):
 
 
 @kernel(hot=True)
-def light_sample(tables, at, u0, u1, u2):
+def light_sample(tables, at, u, through):
     """One light sample seen from ``at`` through media and null boundaries (next-event estimation).
 
     ``at`` (a :class:`caustica.transport.ShadingPoint`) is a surface point p of ``shape`` (ng, ns its
     normals on the scattering side, ng_front its front normal) or, with shape < 0, a point in ``medium``.  u0 chooses the light (by power),
-    (u1, u2) the point on an area light.  Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
+    (u1, u2) the point on an area light; u = (u0, u1, u2).  ``through``: the surface transmits (a glossy
+    transmission lobe), so a light behind it counts too, with |cos|.  Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
     contrib = L_e T cos_s / pdf at a surface (the caller multiplies by f_r), L_e T / pdf in a medium
     (the caller multiplies by the phase function); wi the unit direction to the light; pdf the
     solid-angle density of choosing it (light choice included; 0 for a point light, a delta); ok
@@ -308,6 +309,7 @@ def light_sample(tables, at, u0, u1, u2):
     """
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium = at
+    u0, u1, u2 = u
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
         return zero, zero, 0.0, 0.0, False, False, 0
@@ -333,7 +335,10 @@ def light_sample(tables, at, u0, u1, u2):
     cos_s = 1.0
     if shape >= 0:
         cos_s = vec.dot(ns, wi)
-        if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        cos_g = vec.dot(ng, wi)
+        if through and cos_s < 0.0 and cos_g < 0.0:
+            cos_s, cos_g = -cos_s, -cos_g
+        if cos_s <= 0.0 or cos_g <= 0.0:
             return zero, wi, 0.0, 0.0, is_area, False, 0
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, to_l)

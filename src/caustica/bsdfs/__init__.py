@@ -1,6 +1,7 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
-A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``) with its ``KIND`` (the code the
+A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughconductor``, ``roughdielectric``;
+the microfacet distribution they share is :mod:`.microfacet`) with its ``KIND`` (the code the
 loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS`` (:mod:`.flags`) and
 its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
@@ -18,7 +19,8 @@ Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf
 below, and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
 walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
 delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
-scaled by 1 / eta² (solid-angle compression); camera paths apply it, photons (importance) do not.
+scaled by 1 / eta² (solid-angle compression); camera paths apply it, photons (importance) do not; for
+:func:`eval_pdf`'s f towards a refracted direction :func:`camera_scale` gives that factor.
 """
 from __future__ import annotations
 
@@ -28,13 +30,14 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, SceneDescription
-from . import conductor, dielectric, diffuse
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SceneDescription
+from . import conductor, dielectric, diffuse, roughconductor, roughdielectric
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
-BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric}
+BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
+         ROUGHDIELECTRIC: roughdielectric}
 
 
 class MaterialTable(NamedTuple):
@@ -44,6 +47,11 @@ class MaterialTable(NamedTuple):
     eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric only)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
     albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
+    distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
+    alpha: np.ndarray      # float64[M]: microfacet roughness (rough BSDFs)
+    fresnel: np.ndarray    # int8[M]: 1 when a conductor has a complex IOR (cond_eta + i cond_k), 0: F = 1
+    cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
+    cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -53,13 +61,19 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     rgb = np.full((m, 3), 0.5)
     eta = np.ones(m)
     twosided = np.zeros(m, np.int8)
+    distribution, alpha = np.zeros(m, np.int32), np.zeros(m)
+    fresnel, cond_eta, cond_k = np.zeros(m, np.int8), np.ones((m, 3)), np.zeros((m, 3))
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
         flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
         rgb[i] = mat.rgb
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
-    return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1))
+        distribution[i], alpha[i] = mat.distribution, mat.alpha
+        if mat.conductor_eta is not None:
+            fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
+    return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
+                         cond_k)
 
 
 @kernel(inline=True)
@@ -86,6 +100,10 @@ def sample(mats, m, d, ng, ns, key, dim):
         return diffuse.sample(mats, m, d, ng, ns, key, dim)
     if kind == CONDUCTOR:
         return conductor.sample(mats, m, d, ng, ns, key, dim)
+    if kind == ROUGHCONDUCTOR:
+        return roughconductor.sample(mats, m, d, ng, ns, key, dim)
+    if kind == ROUGHDIELECTRIC:
+        return roughdielectric.sample(mats, m, d, ng, ns, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, key, dim)
 
 
@@ -93,9 +111,23 @@ def sample(mats, m, d, ng, ns, key, dim):
 def eval_pdf(mats, m, d, ng, ns, wi):
     """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale (0 for a delta
     BSDF, which no direction given in advance can meet), pdf the solid-angle density of :func:`sample`."""
-    if mats.kind[m] == DIFFUSE:
+    kind = mats.kind[m]
+    if kind == DIFFUSE:
         return diffuse.eval_pdf(mats, m, d, ng, ns, wi)
+    if kind == ROUGHCONDUCTOR:
+        return roughconductor.eval_pdf(mats, m, d, ng, ns, wi)
+    if kind == ROUGHDIELECTRIC:
+        return roughdielectric.eval_pdf(mats, m, d, ng, ns, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
+
+
+@kernel(inline=True)
+def camera_scale(mats, m, d, ng, ns, wi):
+    """The factor a camera path (radiance) applies to :func:`eval_pdf`'s f towards wi: 1 / eta² when wi is
+    refracted by a glossy transmission lobe, else 1 (:func:`sample`'s weight leaves it to the caller too)."""
+    if mats.kind[m] == ROUGHDIELECTRIC:
+        return roughdielectric.camera_scale(mats, m, d, ng, ns, wi)
+    return 1.0
 
 
 @kernel(inline=True)

@@ -52,3 +52,26 @@ def refract(d, n, eta, cos_i, cos_t):
     inv = 1.0 / eta
     k = inv * cos_i - cos_t
     return vec.normalize((d[0] * inv + n[0] * k, d[1] * inv + n[1] * k, d[2] * inv + n[2] * k))
+
+
+@kernel
+def fresnel_conductor(cos_i, eta, k):
+    """Unpolarised Fresnel reflectance of a conductor of complex relative IOR eta + i k (one channel).
+
+    cos_i: cosine of the incident angle (> 0).  The exact formula for an absorbing medium (Born & Wolf;
+    as Mitsuba 3's ``fresnel_conductor`` and pbrt's ``FrConductor``): with a² + b² the modulus of
+    (eta + i k)² - sin² θ and a its real square root, r_s = (a²+b² + cos² - 2a cos) / (a²+b² + cos² + 2a cos)
+    and r_p = r_s (cos² (a²+b²) + sin⁴ - 2a cos sin²) / (cos² (a²+b²) + sin⁴ + 2a cos sin²).
+    """
+    c2 = cos_i * cos_i
+    s2 = 1.0 - c2
+    t = eta * eta - k * k - s2
+    a2b2 = math.sqrt(t * t + 4.0 * eta * eta * k * k)
+    a = math.sqrt(max(0.5 * (a2b2 + t), 0.0))
+    t1 = a2b2 + c2
+    t2 = 2.0 * a * cos_i
+    rs = (t1 - t2) / (t1 + t2)
+    t3 = a2b2 * c2 + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / (t3 + t4)
+    return 0.5 * (rs + rp)

@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, eval_pdf, oriented, sample
+from ..bsdfs import DELTA, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, camera_scale, eval_pdf, oriented, sample
 from ..camera import generate_ray
 from ..geometry import vec
 from ..jit import kernel, parallel_for
@@ -155,14 +155,17 @@ def next_event(tables, at, m, d, beta, key, dim):
     phase function's sampling for area lights.  Returns (ok, term, scale, shadow rays, dim): L += term · scale.
     """
     mats, media = tables[1], tables[3]
-    contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(tables, at, uniform(key, dim), uniform(key, dim + 1),
-                                                                 uniform(key, dim + 2))
+    through = at.shape >= 0 and mats.flags[m] & GLOSSY_TRANSMISSION != 0   # lights on either side
+    contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
+                                                                  uniform(key, dim + 2)), through)
     if not ok:
         return False, contrib, 0.0, shadow, dim + 3
     if at.shape < 0:
         w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
         return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
     f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, wi)
+    if through:
+        f_scale *= camera_scale(mats, m, d, at.ng, at.ns, wi)
     w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
     return True, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale, shadow, dim + 3
 
@@ -219,6 +222,7 @@ class PathTracer(IndependentPasses):
     name = "pt"
     summary = "path tracing with next-event estimation and MIS (the unbiased reference), through media too"
     progressive = True
+    renders_glossy = True    # the BSDFs' glossy lobes through eval_pdf and sample (api.check_bsdfs)
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),

@@ -135,7 +135,7 @@ def segment_inscatter(tables, o, d, s, m, beta, u):
     p = vec.madd(o, d, t)
     bw = vec.hadamard(beta, w)
     L = zero
-    contrib, wi, pdf_light, _, is_area, ok, _ = light_sample(tables, in_medium(p, m), u_light, u1, u2)
+    contrib, wi, pdf_light, _, is_area, ok, _ = light_sample(tables, in_medium(p, m), (u_light, u1, u2), False)
     if ok:
         mis = power_heuristic(pdf_light, phase_pdf(media, m, d, wi)) if is_area else 1.0
         L = vec.mul(vec.hadamard(bw, contrib), mis * phase_value(media, m, d, wi))

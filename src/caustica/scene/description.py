@@ -18,7 +18,17 @@ DIFFUSE = 0
 CONDUCTOR = 1
 DIELECTRIC = 2
 NULL = 3  # Mitsuba's null BSDF: an invisible boundary (of a medium) that rays cross unchanged
-MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null"}
+ROUGHCONDUCTOR = 4   # Mitsuba's roughconductor: a microfacet metal (bsdfs/roughconductor.py)
+ROUGHDIELECTRIC = 5  # Mitsuba's roughdielectric: microfacet glass, Walter et al. 2007 (bsdfs/roughdielectric.py)
+MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
+                  ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric"}
+#: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
+GLOSSY_KINDS = (ROUGHCONDUCTOR, ROUGHDIELECTRIC)
+
+# Microfacet distributions (Mitsuba's names; the codes the material table stores).
+BECKMANN = 0
+GGX = 1
+DISTRIBUTIONS = {"beckmann": BECKMANN, "ggx": GGX}
 
 
 @dataclass
@@ -29,6 +39,10 @@ class Material:
     specular_reflectance), DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
     ``rgb`` = specular transmittance/reflectance scale, normally 1) or NULL (no surface:
     rays cross it unchanged; the boundary of a medium, see :class:`Medium`).
+    ROUGHCONDUCTOR and ROUGHDIELECTRIC are the microfacet versions of CONDUCTOR and DIELECTRIC, with
+    ``distribution`` (BECKMANN or GGX) and ``alpha`` (isotropic roughness).  A conductor (smooth or
+    rough) with ``conductor_eta`` / ``conductor_k`` (RGB complex IOR) has their Fresnel reflectance;
+    without them (Mitsuba's ``material="none"``) F = 1.
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -39,10 +53,19 @@ class Material:
     ext_ior: float = 1.000277
     twosided: bool = False
     name: str = ""
+    distribution: int = BECKMANN
+    alpha: float = 0.0
+    conductor_eta: tuple[float, float, float] | None = None
+    conductor_k: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    source: str = ""  # "file:line" for messages
 
     @property
     def is_specular(self) -> bool:
         return self.kind in (CONDUCTOR, DIELECTRIC)
+
+    @property
+    def is_glossy(self) -> bool:
+        return self.kind in GLOSSY_KINDS
 
 
 @dataclass

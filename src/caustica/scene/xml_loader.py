@@ -28,9 +28,10 @@ from ..limits import MAX_PIXELS, MAX_SPP
 from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
-from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, HENYEY_GREENSTEIN, ISOTROPIC, MESH,
-                          NULL, SPHERE, Camera, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
-                          SceneDescription, Shape)
+from .conductors import CONDUCTOR_IOR
+from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS, HENYEY_GREENSTEIN, ISOTROPIC,
+                          MESH, NULL, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SPHERE, Camera, IntegratorSettings, Material,
+                          Medium, PointLight, ReconstructionFilter, SceneDescription, Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 
@@ -65,9 +66,16 @@ SHAPE_PROPS = {
 }
 BSDF_PROPS = {
     "diffuse": {"reflectance": COLOR},
-    "conductor": {"material": STR, "specular_reflectance": COLOR},
+    "conductor": {"material": STR, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR},
     "dielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
                    "specular_reflectance": COLOR, "specular_transmittance": COLOR},
+    "roughconductor": {"material": STR, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR,
+                       "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
+                       "sample_visible": BOOL},
+    "roughdielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
+                        "specular_reflectance": COLOR, "specular_transmittance": COLOR,
+                        "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
+                        "sample_visible": BOOL},
     "twosided": {},
     "null": {},
 }
@@ -740,48 +748,101 @@ class _Loader:
         name = node.attrs.get("id", "")
         if kind == "diffuse":
             return Material(DIFFUSE, self.color(props, "reflectance", DEFAULT_REFLECTANCE), name=name)
-        if kind == "conductor":
-            mat = props.get("material", "none")
-            if mat.strip().lower() != "none":
-                self.fail(props.node_of("material"),
-                          f"conductor material=\"{shorten(mat)}\" is not supported: only material=\"none\" "
-                          f"(a perfect mirror, scaled by specular_reflectance) is supported")
-            return Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name)
+        if kind in ("conductor", "roughconductor"):
+            eta, k = self.conductor_ior(props)
+            mat = Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name,
+                           conductor_eta=eta, conductor_k=k)
+            if kind == "roughconductor":
+                mat.kind, mat.source = ROUGHCONDUCTOR, self.at(node)
+                mat.distribution, mat.alpha = self.microfacet(props)
+            return mat
         if kind == "null":
             return Material(NULL, (1.0, 1.0, 1.0), name=name)
-        if kind == "dielectric":
+        if kind in ("dielectric", "roughdielectric"):
             for p in ("specular_reflectance", "specular_transmittance"):
                 if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
-                    self.fail(props.node_of(p), f"'{p}' other than 1 is not supported (smooth glass only)",
+                    self.fail(props.node_of(p), f"'{p}' other than 1 is not supported (clear glass only)",
                               supported=["1"])
-            iors = []
-            for p, default in (("int_ior", "bk7"), ("ext_ior", "air")):
-                v = props.get(p, default)
-                if isinstance(v, str):
-                    key = v.strip().lower()
-                    if key not in IOR_TABLE:
-                        self.fail(props.node_of(p), f"unknown material name {quoted(v)} for {p}",
-                                  supported=list(IOR_TABLE))
-                    v = IOR_TABLE[key]
-                v = float(v)
-                if not v > 0:
-                    self.fail(props.node_of(p), f"'{p}' must be positive, got {v}")
-                iors.append(v)
-            return Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=iors[0], ext_ior=iors[1], name=name)
+            int_ior, ext_ior = self.dielectric_iors(props)
+            mat = Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=int_ior, ext_ior=ext_ior, name=name)
+            if kind == "roughdielectric":
+                mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
+                mat.distribution, mat.alpha = self.microfacet(props)
+            return mat
         # twosided
         if len(props.objects) != 1:
             self.fail(node, f"twosided must wrap exactly one BSDF, found {len(props.objects)} "
                             f"(different front and back BSDFs are not supported)")
         inner_node = self.resolve(props.objects[0], "bsdf")
         inner = self.build_material(inner_node)
-        if inner.kind in (DIELECTRIC, NULL):
-            self.fail(props.objects[0], f"twosided cannot wrap a {'dielectric' if inner.kind == DIELECTRIC else 'null'} "
+        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, NULL):
+            self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
-                      supported=["diffuse", "conductor"])
+                      supported=["diffuse", "conductor", "roughconductor"])
         out = copy.copy(inner)
         out.twosided = True
         out.name = name or inner.name
         return out
+
+    def dielectric_iors(self, props: Props) -> tuple[float, float]:
+        """(int_ior, ext_ior) of a (rough) dielectric: numbers or Mitsuba's names, defaults bk7 and air."""
+        iors = []
+        for p, default in (("int_ior", "bk7"), ("ext_ior", "air")):
+            v = props.get(p, default)
+            if isinstance(v, str):
+                key = v.strip().lower()
+                if key not in IOR_TABLE:
+                    self.fail(props.node_of(p), f"unknown material name {quoted(v)} for {p}",
+                              supported=list(IOR_TABLE))
+                v = IOR_TABLE[key]
+            v = float(v)
+            if not v > 0:
+                self.fail(props.node_of(p), f"'{p}' must be positive, got {v}")
+            iors.append(v)
+        return iors[0], iors[1]
+
+    def conductor_ior(self, props: Props):
+        """A (rough) conductor's complex IOR as (eta, k) RGB, or (None, 0) for material="none" (F = 1).
+
+        As Mitsuba 3: ``eta`` / ``k`` (defaults 0 and 1) or a named ``material``, not both; neither means
+        "none" (Mitsuba 3's default, a perfect reflector)."""
+        mat = props.get("material")
+        if props.has("eta") or props.has("k"):
+            if mat is not None:
+                self.fail(props.node_of("material"), "give either eta and k or a material, not both (as Mitsuba)")
+            eta = self.color(props, "eta", (0.0, 0.0, 0.0), unbounded=True)
+            k = self.color(props, "k", (1.0, 1.0, 1.0), unbounded=True)
+            if max(eta) == 0.0 and min(k) == 1.0 and max(k) == 1.0:
+                return None, (0.0, 0.0, 0.0)     # Mitsuba's own "none": eta 0, k 1 reflects everything
+            return eta, k
+        if mat is None or mat.strip() == "none":
+            return None, (0.0, 0.0, 0.0)
+        if mat.strip() not in CONDUCTOR_IOR:
+            self.fail(props.node_of("material"), f"unknown conductor material {quoted(mat)}",
+                      supported=["none"] + list(CONDUCTOR_IOR))
+        return CONDUCTOR_IOR[mat.strip()]
+
+    def microfacet(self, props: Props) -> tuple[int, float]:
+        """(distribution code, alpha) of a rough BSDF: Mitsuba's distribution (default beckmann) and isotropic
+        roughness ``alpha`` (default 0.1; ``alpha_u`` = ``alpha_v`` also; clamped to 1e-4 as Mitsuba does)."""
+        dist = props.get("distribution", "beckmann")
+        if dist not in DISTRIBUTIONS:
+            self.fail(props.node_of("distribution"), f"unknown microfacet distribution {quoted(dist)}",
+                      supported=list(DISTRIBUTIONS))
+        if props.has("alpha") and (props.has("alpha_u") or props.has("alpha_v")):
+            self.fail(props.node_of("alpha"), "give either alpha or alpha_u and alpha_v, not both (as Mitsuba)")
+        if props.has("alpha_u") != props.has("alpha_v"):
+            self.fail(props.node_of("alpha_u" if props.has("alpha_u") else "alpha_v"),
+                      "alpha_u and alpha_v must be given together (as Mitsuba)")
+        names = ("alpha_u", "alpha_v") if props.has("alpha_u") else ("alpha",)
+        values = [self.number(props, p, 0.1, nonneg=True) for p in names]
+        for p, v in zip(names, values):
+            if not math.isfinite(v):
+                self.fail(props.node_of(p), f"'{p}' must be finite, got {v}")
+        if values[0] != values[-1]:
+            self.fail(props.node_of("alpha_v"), f"anisotropic roughness (alpha_u {values[0]} != alpha_v "
+                                                f"{values[-1]}) is not supported", supported=["alpha_u = alpha_v"])
+        return DISTRIBUTIONS[dist], max(float(values[0]), 1e-4)
 
     def material_index(self, node: Node) -> int:
         """Index of the Material of a <bsdf> (or <ref> to one); each element becomes one entry."""

@@ -1,0 +1,163 @@
+"""Mitsuba 3's microfacet distribution (isotropic): the normal distribution D, Smith's shadowing G1 and G,
+and the sampling of visible normals with its density.
+
+The definitions are those of Mitsuba 3 (``include/mitsuba/render/microfacet.h``, after Walter et al. 2007
+and Heitz 2014), written here independently:
+
+* ``BECKMANN``: D(m) = exp(-tan²θ_m / α²) / (π α² cos⁴θ_m);
+  ``GGX`` (Trowbridge-Reitz): D(m) = 1 / (π α² ((m_x² + m_y²) / α² + m_z²)²); both 0 below the horizon
+  and, as in Mitsuba, where D cos θ_m <= 1e-20.
+* Smith's G1(v, m) = 1 / (1 + Λ(v)), 0 where v sees the back of the microfacet (v·m and cos θ_v of
+  different sign), 1 at normal incidence; G(wi, wo, m) = G1(wi, m) G1(wo, m) (separable).  GGX:
+  2 / (1 + sqrt(1 + α² tan²θ_v)).  Beckmann: the exact Λ = (e^(-a²) / (a √π) - erfc(a)) / 2 with
+  a = 1 / (α tan θ_v); Mitsuba uses a rational approximation of it (Walter et al.'s, < 0.35 % error),
+  here the exact form so that the density below is exactly the one :func:`sample_visible` draws from.
+* Visible normals (Mitsuba's ``sample_visible=true``, its default): m drawn with density
+  D_wi(m) = G1(wi, m) max(0, wi·m) D(m) / cos θ_wi, by stretching wi to α = 1, drawing the slopes of the
+  visible normals there and unstretching.  GGX: Heitz 2018's exact construction (a point on a
+  hemisphere's projected disc); Beckmann: the slope along wi by inverting its CDF
+  (1 + erf(x) + tan θ e^(-x²) / √π, normalised at x = cot θ) with safeguarded Newton steps to
+  convergence (Mitsuba does three), the other slope a normal deviate with variance 1/2.
+
+Vectors are in the local frame of the macro-surface (z the normal).  Mitsuba's ``sample_visible=false``
+(sampling D cos θ_m) is not implemented; the loader refuses it.
+"""
+from __future__ import annotations
+
+import math
+
+from ..geometry import vec
+from ..jit import kernel
+from ..scene.description import BECKMANN, GGX  # noqa: F401  (the distribution codes)
+
+INV_PI = 1.0 / math.pi
+INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
+#: Mitsuba clamps the roughness to at least this (a smooth surface needs the smooth BSDF).
+ALPHA_MIN = 1e-4
+#: The slope interval searched: the Beckmann CDF of a slope beyond ±SLOPE_MAX is below 1e-30.
+SLOPE_MAX = 8.5
+
+
+@kernel
+def D(dist, alpha, m):
+    """The microfacet distribution at the unit normal m (local frame)."""
+    c = m[2]
+    if c <= 0.0:
+        return 0.0
+    c2 = c * c
+    a2 = alpha * alpha
+    xy2 = m[0] * m[0] + m[1] * m[1]
+    if dist == BECKMANN:
+        r = math.exp(-xy2 / (a2 * c2)) / (math.pi * a2 * c2 * c2)
+    else:
+        t = xy2 / a2 + c2
+        r = 1.0 / (math.pi * a2 * t * t)
+    return r if r * c > 1e-20 else 0.0
+
+
+@kernel
+def smith_g1(dist, alpha, v, m):
+    """Smith's masking of direction v (unit, local frame) for microfacet normal m."""
+    if vec.dot(v, m) * v[2] <= 0.0:
+        return 0.0
+    xy2 = alpha * alpha * (v[0] * v[0] + v[1] * v[1])
+    if xy2 == 0.0:
+        return 1.0
+    t2 = xy2 / (v[2] * v[2])      # α² tan²θ_v
+    if dist == BECKMANN:
+        a = 1.0 / math.sqrt(t2)
+        lam = 0.5 * (math.exp(-a * a) * INV_SQRT_PI / a - math.erfc(a))
+        return 1.0 / (1.0 + lam)
+    return 2.0 / (1.0 + math.sqrt(1.0 + t2))
+
+
+@kernel
+def G(dist, alpha, wi, wo, m):
+    """Smith's separable shadowing-masking."""
+    return smith_g1(dist, alpha, wi, m) * smith_g1(dist, alpha, wo, m)
+
+
+@kernel
+def pdf_visible(dist, alpha, wi, m):
+    """The density of :func:`sample_visible` (per solid angle of m): G1(wi, m) |wi·m| D(m) / cos θ_wi."""
+    if wi[2] <= 0.0:
+        return 0.0
+    return D(dist, alpha, m) * smith_g1(dist, alpha, wi, m) * abs(vec.dot(wi, m)) / wi[2]
+
+
+@kernel
+def beckmann_slope(u, tan_t):
+    """The slope x < cot θ with CDF u of the visible Beckmann slopes along wi at α = 1 (tan_t = tan θ_wi);
+    with tan_t = 0 a normal deviate of variance 1/2 (erf⁻¹(2u - 1))."""
+    hi = SLOPE_MAX
+    if tan_t > 0.0:
+        hi = min(hi, 1.0 / tan_t)
+    lo = -SLOPE_MAX
+    # the CDF's numerator 1 + erf(x) + tan θ e^(-x²)/√π, and its value at hi (the normalisation)
+    z = 1.0 + math.erf(hi) + tan_t * math.exp(-hi * hi) * INV_SQRT_PI
+    target = u * z
+    x = 0.0 if hi > 0.0 else 0.5 * (lo + hi)
+    for _ in range(100):
+        e = math.exp(-x * x) * INV_SQRT_PI
+        f = math.erfc(-x) + tan_t * e - target
+        if f > 0.0:
+            hi = x
+        else:
+            lo = x
+        if abs(f) <= 1e-14 * z or hi - lo <= 1e-14:
+            break
+        deriv = 2.0 * (1.0 - x * tan_t) * e
+        nx = x - f / deriv if deriv > 0.0 else lo - 1.0
+        x = nx if lo < nx < hi else 0.5 * (lo + hi)
+    return x
+
+
+@kernel
+def sample_ggx_11(wi, u1, u2):
+    """Heitz 2018: a visible normal of the α = 1 GGX distribution for the (stretched, unit) wi."""
+    lensq = wi[0] * wi[0] + wi[1] * wi[1]
+    if lensq > 0.0:
+        inv = 1.0 / math.sqrt(lensq)
+        t1v = (-wi[1] * inv, wi[0] * inv, 0.0)
+    else:
+        t1v = (1.0, 0.0, 0.0)
+    t2v = vec.cross(wi, t1v)
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    p1 = r * math.cos(phi)
+    p2 = r * math.sin(phi)
+    s = 0.5 * (1.0 + wi[2])
+    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
+    pz = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
+    return (p1 * t1v[0] + p2 * t2v[0] + pz * wi[0],
+            p1 * t1v[1] + p2 * t2v[1] + pz * wi[1],
+            p1 * t1v[2] + p2 * t2v[2] + pz * wi[2])
+
+
+@kernel
+def sample_visible(dist, alpha, wi, u1, u2):
+    """A microfacet normal m seen from wi (local, cos θ_wi > 0), with density :func:`pdf_visible`."""
+    st = vec.normalize((alpha * wi[0], alpha * wi[1], wi[2]))   # stretched to α = 1
+    if dist == GGX:
+        n = sample_ggx_11(st, u1, u2)
+        return vec.normalize((alpha * n[0], alpha * n[1], max(n[2], 1e-30)))
+    sin_t = math.sqrt(max(0.0, 1.0 - st[2] * st[2]))
+    tan_t = sin_t / st[2]
+    sx = beckmann_slope(u1, tan_t)
+    sy = beckmann_slope(u2, 0.0)
+    if sin_t > 0.0:
+        cp = st[0] / sin_t
+        sp = st[1] / sin_t
+    else:
+        cp = 1.0
+        sp = 0.0
+    # rotate the slopes to wi's azimuth, unstretch; the normal of slope (x, y) is (-x, -y, 1)
+    x = (cp * sx - sp * sy) * alpha
+    y = (sp * sx + cp * sy) * alpha
+    return vec.normalize((-x, -y, 1.0))
+
+
+@kernel
+def to_local(s, t, n, v):
+    """World to local (the s, t, n frame)."""
+    return (vec.dot(v, s), vec.dot(v, t), vec.dot(v, n))

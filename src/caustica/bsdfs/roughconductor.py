@@ -1,0 +1,69 @@
+"""``roughconductor``: Mitsuba 3's rough metal, a microfacet BRDF (:mod:`.microfacet`) with the conductor's Fresnel
+reflectance, f = specular_reflectance · F(wo·h) D(h) G(wo, wi, h) / (4 cos θ_o cos θ_i), h the half vector.
+
+``wo`` = -d is the direction the path came from (Mitsuba's ``wi``).  F is the Fresnel reflectance of the RGB complex
+IOR ``conductor_eta`` + i ``conductor_k`` at the microfacet, or 1 for ``material="none"``.  Sampling draws a visible
+normal from wo and reflects about it, so the weight f cos θ_i / pdf is specular_reflectance · F · G1(wi, h).
+Directions below the shading or the geometric surface are refused (zero f).
+"""
+from __future__ import annotations
+
+from ..geometry import vec
+from ..jit import kernel
+from ..sampling.rng import uniform
+from ..scene.description import ROUGHCONDUCTOR
+from . import microfacet as mf
+from .flags import GLOSSY_REFLECTION
+from .optics import fresnel_conductor
+
+KIND = ROUGHCONDUCTOR
+FLAGS = GLOSSY_REFLECTION
+
+
+@kernel(inline=True)
+def fresnel_rgb(mats, m, cos_i):
+    """The conductor's Fresnel reflectance per channel at incident cosine cos_i: (1, 1, 1) for material "none"."""
+    if mats.fresnel[m] == 0:
+        return (1.0, 1.0, 1.0)
+    return (fresnel_conductor(cos_i, mats.cond_eta[m, 0], mats.cond_k[m, 0]),
+            fresnel_conductor(cos_i, mats.cond_eta[m, 1], mats.cond_k[m, 1]),
+            fresnel_conductor(cos_i, mats.cond_eta[m, 2], mats.cond_k[m, 2]))
+
+
+@kernel(inline=True)
+def sample(mats, m, d, ng, ns, key, dim):
+    """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
+    :func:`caustica.bsdfs.sample`."""
+    dist, alpha = mats.distribution[m], mats.alpha[m]
+    s, t = vec.orthonormal_basis(ns)
+    wo = mf.to_local(s, t, ns, vec.neg(d))
+    zero = (0.0, 0.0, 0.0)
+    if wo[2] <= 0.0:
+        return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
+    h = mf.sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
+    c = vec.dot(wo, h)
+    wl = (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
+    wi = vec.from_local(s, t, ns, wl)
+    if wl[2] <= 0.0 or c <= 0.0 or vec.dot(wi, ng) <= 0.0:
+        return False, wi, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
+    pdf = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) / (4.0 * wo[2])
+    g1 = mf.smith_g1(dist, alpha, wl, h)
+    weight = vec.mul(vec.hadamard(vec.row(mats.rgb, m), fresnel_rgb(mats, m, c)), g1)
+    return pdf > 0.0, wi, weight, pdf, GLOSSY_REFLECTION, 1.0, dim + 2
+
+
+@kernel(inline=True)
+def eval_pdf(mats, m, d, ng, ns, wi):
+    """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
+    dist, alpha = mats.distribution[m], mats.alpha[m]
+    s, t = vec.orthonormal_basis(ns)
+    wo = mf.to_local(s, t, ns, vec.neg(d))
+    wl = mf.to_local(s, t, ns, wi)
+    if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return (0.0, 0.0, 0.0), 0.0, 0.0
+    h = vec.normalize(vec.add(wo, wl))
+    dh = mf.D(dist, alpha, h)
+    g1o = mf.smith_g1(dist, alpha, wo, h)
+    scale = dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
+    pdf = dh * g1o / (4.0 * wo[2])
+    return vec.hadamard(vec.row(mats.rgb, m), fresnel_rgb(mats, m, vec.dot(wo, h))), scale, pdf

@@ -1,0 +1,271 @@
+"""The microfacet BSDFs (roughconductor, roughdielectric; bsdfs/microfacet.py) through the scattering interface.
+
+1. Consistency of the interface: for every sampled direction, ``sample``'s pdf is ``eval_pdf``'s and its weight is
+   f |cos| / pdf (relative 1e-6).
+2. The sampled density is the returned pdf: a chi-square test of the sampled directions' histogram over
+   (cos θ, φ) cells against the pdf integrated over each cell by quadrature; and the probability that ``sample``
+   returns a direction (its success rate) against the pdf's integral over the sphere.
+3. Energy: a white-furnace roughconductor (F = 1) reflects at most 1, a roughdielectric reflects and transmits at most
+   1 together, and tends to 1 as alpha -> 0.
+4. Scenes against Mitsuba 3 (``scalar_rgb``): tests/scenes/glossy.xml (a rough gold sphere, a rough mirror panel, a
+   rough glass slab over a diffuse floor) for beckmann and ggx at alpha 0.05 and 0.3, block by block within the noise
+   of both renderers (tests/imagestats.py); a glossy caustic (a rough glass slab focusing light on the floor) for its
+   mean.
+5. Bad input: negative alpha, an unknown distribution, anisotropic alpha -> one line naming file and line; a photon
+   method refuses a glossy scene.
+
+Tolerances come from the estimators' standard errors (5 sigma) or, for the chi-square, a p-value of 1e-6.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica import bsdfs
+from caustica.bsdfs import MaterialTable
+from caustica.errors import SceneError
+from caustica.jit import kernel
+from caustica.sampling.rng import path_key
+from caustica.scene.conductors import CONDUCTOR_IOR
+from caustica.scene.description import BECKMANN, GGX, ROUGHCONDUCTOR, ROUGHDIELECTRIC
+from imagestats import assert_images_agree
+
+NG = (0.0, 0.0, 1.0)
+
+
+def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):
+    """A one-material table (as build_material_table makes it)."""
+    flags = bsdfs.BSDFS[kind].FLAGS
+    fresnel = 0 if ior is None else 1
+    ce, ck = ior if ior is not None else ((1.0,) * 3, (0.0,) * 3)
+    return MaterialTable(np.array([kind], np.int32), np.array([flags], np.int32), np.array([rgb], np.float64),
+                         np.array([eta]), np.zeros(1, np.int8), np.array([np.mean(rgb)]), np.array([dist], np.int32),
+                         np.array([alpha]), np.array([fresnel], np.int8), np.array([ce], np.float64),
+                         np.array([ck], np.float64))
+
+
+@kernel
+def sample_many(mats, d, n, seed, out):
+    """n samples for a ray along d onto the z = 0 plane (normals +z): out[i] = (ok, wi xyz, weight rgb, pdf,
+    eval's pdf, eval's f·|cos|/pdf rgb, lobe, eta)."""
+    for i in range(n):
+        key = path_key(seed, 7, i)
+        ok, wi, w, pdf, lobe, eta, _ = bsdfs.sample(mats, 0, d, NG, NG, key, 3)
+        f, s, pdf_e = bsdfs.eval_pdf(mats, 0, d, NG, NG, wi)
+        c = abs(wi[2])
+        out[i, 0] = 1.0 if ok else 0.0
+        out[i, 1], out[i, 2], out[i, 3] = wi
+        out[i, 4], out[i, 5], out[i, 6] = w
+        out[i, 7] = pdf
+        out[i, 8] = pdf_e
+        for j in range(3):
+            out[i, 9 + j] = f[j] * s * c / pdf_e if pdf_e > 0.0 else 0.0
+        out[i, 12] = lobe
+        out[i, 13] = eta
+
+
+@kernel
+def eval_many(mats, d, dirs, out):
+    """out[i] = (f·|cos| rgb, pdf) towards dirs[i]."""
+    for i in range(dirs.shape[0]):
+        wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
+        f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, wi)
+        c = abs(wi[2])
+        out[i, 0], out[i, 1], out[i, 2] = f[0] * s * c, f[1] * s * c, f[2] * s * c
+        out[i, 3] = pdf
+
+
+def incident(theta_deg, below=False):
+    t = math.radians(theta_deg)
+    d = (math.sin(t), 0.0, -math.cos(t))      # travelling towards the plane from above
+    return (d[0], d[1], -d[2]) if below else d
+
+
+def draw(mats, d, n=200_000, seed=1):
+    out = np.zeros((n, 14))
+    sample_many(mats, d, n, seed, out)
+    return out
+
+
+CASES = [(kind, dist, alpha, theta) for kind in (ROUGHCONDUCTOR, ROUGHDIELECTRIC) for dist in (BECKMANN, GGX)
+         for alpha, theta in ((0.1, 30.0), (0.3, 70.0), (0.6, 10.0))]
+CASE_IDS = [f"{'cond' if k == ROUGHCONDUCTOR else 'diel'}-{'beckmann' if d == BECKMANN else 'ggx'}-a{a}-t{t:g}"
+            for k, d, a, t in CASES]
+
+
+def material(kind, dist, alpha):
+    if kind == ROUGHCONDUCTOR:
+        return table(kind, dist, alpha, rgb=(0.9, 0.8, 0.7), ior=CONDUCTOR_IOR["Au"])
+    return table(kind, dist, alpha, eta=1.5)
+
+
+@pytest.mark.parametrize("case", CASES, ids=CASE_IDS)
+def test_sample_agrees_with_eval_pdf(case):
+    kind, dist, alpha, theta = case
+    mats = material(kind, dist, alpha)
+    for below in ((False, True) if kind == ROUGHDIELECTRIC else (False,)):
+        out = draw(mats, incident(theta, below), n=20_000)
+        ok = out[:, 0] > 0
+        assert ok.mean() > 0.5
+        np.testing.assert_allclose(out[ok, 8], out[ok, 7], rtol=1e-6)
+        np.testing.assert_allclose(out[ok, 9:12], out[ok, 4:7], rtol=1e-6, atol=1e-12)
+
+
+def sphere_cells(nc=24, nphi=24, sub=12):
+    """Cells in (cos θ in [-1, 1], φ) and, per cell, quadrature points (midpoints of sub x sub) and weights."""
+    cu = (np.arange(nc * sub) + 0.5) / (nc * sub) * 2.0 - 1.0
+    ph = (np.arange(nphi * sub) + 0.5) / (nphi * sub) * 2.0 * math.pi
+    C, P = np.meshgrid(cu, ph, indexing="ij")
+    S = np.sqrt(np.maximum(0.0, 1.0 - C * C))
+    dirs = np.stack([S * np.cos(P), S * np.sin(P), C], axis=-1).reshape(-1, 3)
+    dw = (2.0 / (nc * sub)) * (2.0 * math.pi / (nphi * sub))
+    return dirs, dw, (nc, nphi, sub)
+
+
+@pytest.mark.parametrize("case", CASES, ids=CASE_IDS)
+def test_sampled_density_is_the_pdf(case):
+    """Chi-square of the histogram of sampled directions against N ∫_cell pdf; success rate against ∫ pdf."""
+    from scipy.stats import chi2
+    kind, dist, alpha, theta = case
+    mats = material(kind, dist, alpha)
+    d = incident(theta)
+    n = 400_000
+    out = draw(mats, d, n=n, seed=2)
+    ok = out[:, 0] > 0
+    dirs, dw, (nc, nphi, sub) = sphere_cells()
+    ev = np.zeros((len(dirs), 4))
+    eval_many(mats, d, dirs, ev)
+    expected = ev[:, 3].reshape(nc, sub, nphi, sub).sum(axis=(1, 3)) * dw * n
+    wi = out[ok, 1:4]
+    ci = np.clip(((wi[:, 2] + 1.0) / 2.0 * nc).astype(int), 0, nc - 1)
+    pj = np.clip((np.mod(np.arctan2(wi[:, 1], wi[:, 0]), 2 * math.pi) / (2 * math.pi) * nphi).astype(int), 0,
+                 nphi - 1)
+    observed = np.zeros((nc, nphi))
+    np.add.at(observed, (ci, pj), 1.0)
+    # the success rate: the pdf integrates to P(ok) (binomial standard error; quadrature error well below it)
+    total = expected.sum() / n
+    se = math.sqrt(max(total * (1 - total), 1e-12) / n) + 1e-4
+    assert abs(ok.mean() - total) <= 5 * se + 2e-3, (ok.mean(), total)
+    # chi-square over cells expecting >= 20 samples; the rest pooled into one cell
+    big = expected >= 20
+    obs = np.append(observed[big], observed[~big].sum())
+    exp = np.append(expected[big], expected[~big].sum())
+    keep = exp > 0
+    stat = float(np.sum((obs[keep] - exp[keep]) ** 2 / exp[keep]))
+    dof = int(keep.sum()) - 1
+    assert stat <= chi2.ppf(1 - 1e-6, dof), (stat, dof, chi2.ppf(1 - 1e-6, dof))
+
+
+def albedo(mats, d, n=200_000, seed=3):
+    """(mean weight, standard error) over n samples: the directional albedo, per channel; and per lobe."""
+    out = draw(mats, d, n=n, seed=seed)
+    w = np.where(out[:, :1] > 0, out[:, 4:7], 0.0)
+    refl = (out[:, 12] == bsdfs.GLOSSY_REFLECTION)[:, None]
+    return w.mean(axis=0), w.std(axis=0) / math.sqrt(n), (w * refl).mean(axis=0), (w * ~refl).mean(axis=0)
+
+
+@pytest.mark.parametrize("dist", [BECKMANN, GGX])
+@pytest.mark.parametrize("alpha", [0.05, 0.3, 1.0])
+def test_white_furnace_roughconductor(dist, alpha):
+    """F = 1, reflectance 1: the albedo is at most 1 (single scattering loses energy to masking), near 1 when smooth,
+    and equals the quadrature of f·cos over the hemisphere."""
+    mats = table(ROUGHCONDUCTOR, dist, alpha)
+    for theta in (0.0, 45.0, 80.0):
+        a, se, _, _ = albedo(mats, incident(theta))
+        assert np.all(a <= 1.0 + 5 * se)
+        if alpha <= 0.05 and theta < 60:
+            assert a[0] > 0.98
+        dirs, dw, _ = sphere_cells(48, 48, 6)
+        ev = np.zeros((len(dirs), 4))
+        eval_many(mats, incident(theta), dirs, ev)
+        if alpha >= 0.3:    # a lobe wide enough for the quadrature grid
+            quad = ev[:, 0].sum() * dw
+            assert abs(a[0] - quad) <= 5 * se[0] + 2e-3 * quad, (a[0], quad)
+
+
+@pytest.mark.parametrize("dist", [BECKMANN, GGX])
+def test_roughdielectric_conserves_energy(dist):
+    """R + T <= 1 from either side, and -> 1 (with R -> the smooth Fresnel reflectance) as alpha -> 0."""
+    from caustica.bsdfs.optics import fresnel_dielectric
+    for alpha in (0.001, 0.05, 0.3, 0.8):
+        mats = table(ROUGHDIELECTRIC, dist, alpha, eta=1.5)
+        for theta, below in ((0.0, False), (50.0, False), (30.0, True), (60.0, True)):
+            a, se, refl, _ = albedo(mats, incident(theta, below), n=100_000)
+            assert a[0] <= 1.0 + 5 * se[0], (alpha, theta, below, a[0])
+            if alpha == 0.001:
+                assert a[0] >= 0.995, (theta, below, a[0])
+                eta = 1 / 1.5 if below else 1.5
+                F, _ = fresnel_dielectric(math.cos(math.radians(theta)), eta)
+                assert abs(refl[0] - F) <= 5 * math.sqrt(F * (1 - F) / 100_000) + 2e-3, (theta, below, refl[0], F)
+
+
+# --------------------------------------------------------------------------- 5. bad input, methods that refuse
+
+SENSOR = ('<sensor type="perspective"><float name="fov" value="45"/><transform name="to_world">'
+          '<lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform></sensor>')
+
+
+def write_scene(tmp_path, bsdf: str):
+    path = tmp_path / "g.xml"
+    path.write_text(f'<?xml version="1.0"?>\n<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere">\n{bsdf}\n'
+                    f'</shape>\n<shape type="rectangle"><transform name="to_world"><translate z="3"/></transform>'
+                    f'<emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>\n</scene>\n')
+    return path
+
+
+BAD = {
+    "negative alpha": ('<bsdf type="roughconductor"><float name="alpha" value="-0.1"/></bsdf>', ["alpha", "negative"]),
+    "unknown distribution": ('<bsdf type="roughdielectric"><string name="distribution" value="phong"/></bsdf>',
+                             ["phong", "beckmann, ggx"]),
+    "anisotropic": ('<bsdf type="roughconductor"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/>'
+                    '</bsdf>', ["anisotropic", "alpha_u = alpha_v"]),
+    "alpha and alpha_u": ('<bsdf type="roughconductor"><float name="alpha" value="0.1"/>'
+                          '<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.1"/></bsdf>', ["alpha"]),
+    "unknown material": ('<bsdf type="roughconductor"><string name="material" value="Gold"/></bsdf>', ["Gold", "Au"]),
+    "eta and material": ('<bsdf type="conductor"><string name="material" value="Au"/><rgb name="eta" value="1"/>'
+                         '</bsdf>', ["not both"]),
+    "negative k": ('<bsdf type="conductor"><rgb name="k" value="-1"/></bsdf>', ["'k'", "negative"]),
+    "tinted rough glass": ('<bsdf type="roughdielectric"><rgb name="specular_transmittance" value="0.5"/></bsdf>',
+                           ["specular_transmittance"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_rough_bsdfs_exit_2_one_line(cli, tmp_path, case):
+    body, words = BAD[case]
+    path = write_scene(tmp_path, body)
+    code, _, err = cli("render", path, "--res", "8", "--spp", "1", "-q", "-o", tmp_path / "o.exr")
+    assert code == 2, err
+    line = err.strip()
+    assert "\n" not in line and "g.xml:5:" in line, line
+    for w in words:
+        assert w in line, (w, line)
+
+
+def test_loader_reads_the_rough_bsdfs(tmp_path):
+    from caustica.scene import load_scene_file
+    d = load_scene_file(write_scene(tmp_path, '<bsdf type="roughconductor"><string name="material" value="Cu"/>'
+                                              '<string name="distribution" value="ggx"/></bsdf>'))
+    m = d.materials[d.shapes[0].material]
+    assert (m.kind, m.distribution, m.alpha) == (ROUGHCONDUCTOR, GGX, 0.1)
+    assert (m.conductor_eta, m.conductor_k) == CONDUCTOR_IOR["Cu"]
+    d = load_scene_file(write_scene(tmp_path, '<bsdf type="roughdielectric"><float name="alpha_u" value="0.2"/>'
+                                              '<float name="alpha_v" value="0.2"/><float name="int_ior" value="1.33"/>'
+                                              '<boolean name="sample_visible" value="false"/></bsdf>'))
+    m = d.materials[d.shapes[0].material]
+    assert (m.kind, m.distribution, m.alpha, m.int_ior) == (ROUGHDIELECTRIC, BECKMANN, 0.2, 1.33)
+    d = load_scene_file(write_scene(tmp_path, '<bsdf type="conductor"/>'))       # Mitsuba 3's default: none
+    assert d.materials[d.shapes[0].material].conductor_eta is None
+
+
+@pytest.mark.parametrize("method", ["pm", "spm", "sppm", "pspm"])
+def test_photon_methods_refuse_glossy_scenes(cli, tmp_path, method):
+    path = write_scene(tmp_path, '<bsdf type="roughdielectric"/>')
+    code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
+    assert code == 2, err
+    line = err.strip()
+    assert "\n" not in line and "g.xml:5" in line and "roughdielectric" in line and "--method pt" in line, line
+    assert not (tmp_path / "o.exr").exists()
