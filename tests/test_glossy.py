@@ -315,3 +315,9 @@ def test_glossy_caustic_mean_matches_mitsuba(mi, test_scenes_dir, dist, alpha):
     b = np.array([img.mean() for img in theirs], np.float64)
     se = math.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
     assert abs(a.mean() - b.mean()) <= 5 * se, (a.mean(), b.mean(), se)
+
+
+def test_conductors_with_fresnel_match_mitsuba(mi, test_scenes_dir):
+    """tests/scenes/conductors.xml: smooth gold (by name), copper (by eta / k), rough aluminium (by name)."""
+    ours, theirs = render_both(mi, test_scenes_dir / "conductors.xml", CMP_SPP, CMP_MI_SPP, CMP_SEEDS)
+    assert_images_agree(ours, theirs, label="conductors")
