@@ -373,3 +373,17 @@ def bsdfs_camera_scale(mats, d, wi):
 @kernel
 def camera_scale_kernel(mats, d, wi):
     return bsdfs.camera_scale(mats, 0, d, NG, NG, wi)
+
+
+def test_conductor_eta_k_spectra_convert_as_mitsuba(mi, tmp_path):
+    """eta / k given as wavelength:value spectra become the RGB Mitsuba's scalar_rgb makes of them (unbounded)."""
+    from caustica.scene import load_scene_file
+    bsdf = ('<bsdf type="roughconductor"><spectrum name="eta" value="400:0.2, 500:1.5, 700:3.0"/>'
+            '<spectrum name="k" value="400:2, 550:4.5, 700:5"/></bsdf>')
+    path = write_scene(tmp_path, bsdf)
+    m = load_scene_file(path).materials[0]
+    params = mi.traverse(mi.load_string(path.read_text()))
+    (eta_key,) = [k for k in params.keys() if k.endswith("bsdf.eta.value")]
+    (k_key,) = [k for k in params.keys() if k.endswith("bsdf.k.value")]
+    np.testing.assert_allclose(m.conductor_eta, np.array(params[eta_key]), rtol=1e-5)
+    np.testing.assert_allclose(m.conductor_k, np.array(params[k_key]), rtol=1e-5)
