@@ -125,13 +125,20 @@ def sphere_cells(nc=24, nphi=24, sub=12):
     return dirs, dw, (nc, nphi, sub)
 
 
-@pytest.mark.parametrize("case", CASES, ids=CASE_IDS)
+#: From inside the glass too (at 70 degrees beyond the critical angle: total internal reflection at most facets).
+BELOW = [(ROUGHDIELECTRIC, dist, alpha, theta, True) for dist in (BECKMANN, GGX) for alpha, theta in ((0.1, 30.0),
+                                                                                                     (0.3, 70.0))]
+
+
+@pytest.mark.parametrize("case", [c + (False,) for c in CASES] + BELOW,
+                         ids=CASE_IDS + [f"diel-{'beckmann' if d == BECKMANN else 'ggx'}-a{a}-t{t:g}-inside"
+                                         for _, d, a, t, _ in BELOW])
 def test_sampled_density_is_the_pdf(case):
     """Chi-square of the histogram of sampled directions against N ∫_cell pdf; success rate against ∫ pdf."""
     from scipy.stats import chi2
-    kind, dist, alpha, theta = case
+    kind, dist, alpha, theta, below = case
     mats = material(kind, dist, alpha)
-    d = incident(theta)
+    d = incident(theta, below)
     n = 400_000
     out = draw(mats, d, n=n, seed=2)
     ok = out[:, 0] > 0
