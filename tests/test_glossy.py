@@ -7,10 +7,11 @@
    returns a direction (its success rate) against the pdf's integral over the sphere.
 3. Energy: a white-furnace roughconductor (F = 1) reflects at most 1, a roughdielectric reflects and transmits at most
    1 together, and tends to 1 as alpha -> 0.
-4. Against Mitsuba 3 (``scalar_rgb``): the BSDFs' values and densities at random direction pairs; scenes: tests/scenes/glossy.xml (a rough gold sphere, a rough mirror panel, a
-   rough glass slab over a diffuse floor) for beckmann and ggx at alpha 0.05 and 0.3, block by block within the noise
-   of both renderers (tests/imagestats.py); a glossy caustic (a rough glass slab focusing light on the floor) for its
-   mean.
+4. Against Mitsuba 3 (``scalar_rgb``): the BSDFs' values and densities at random direction pairs; scenes:
+   tests/scenes/glossy.xml (a rough gold sphere, a rough mirror panel, a rough glass slab over a diffuse floor) for
+   beckmann and ggx at alpha 0.05 and 0.3, block by block within the noise of both renderers (tests/imagestats.py);
+   tests/scenes/conductors.xml (smooth conductors with Fresnel); a glossy caustic (tests/scenes/glossy-caustic.xml)
+   for its mean.
 5. Bad input: negative alpha, an unknown distribution, anisotropic alpha -> one line naming file and line; a photon
    method refuses a glossy scene.
 
@@ -26,7 +27,6 @@ import pytest
 import caustica
 from caustica import bsdfs
 from caustica.bsdfs import MaterialTable
-from caustica.errors import SceneError
 from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR

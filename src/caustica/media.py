@@ -300,7 +300,8 @@ def light_sample(tables, at, u, through):
     ``at`` (a :class:`caustica.transport.ShadingPoint`) is a surface point p of ``shape`` (ng, ns its
     normals on the scattering side, ng_front its front normal) or, with shape < 0, a point in ``medium``.  u0 chooses the light (by power),
     (u1, u2) the point on an area light; u = (u0, u1, u2).  ``through``: the surface transmits (a glossy
-    transmission lobe), so a light behind it counts too, with |cos|.  Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
+    transmission lobe), so a light behind it counts too, with |cos|.
+    Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
     contrib = L_e T cos_s / pdf at a surface (the caller multiplies by f_r), L_e T / pdf in a medium
     (the caller multiplies by the phase function); wi the unit direction to the light; pdf the
     solid-angle density of choosing it (light choice included; 0 for a point light, a delta); ok
