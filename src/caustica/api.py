@@ -16,6 +16,7 @@ import numpy as np
 
 from . import checkpoint as ckpt
 from . import driver, methods
+from .bsdfs import GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .errors import ParameterError, RenderError, SceneError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .version import __version__
@@ -109,8 +110,8 @@ def check_bsdfs(cls, scene) -> None:
     silently wrong image.  Methods that do declare ``renders_glossy = True`` (``pt``)."""
     if getattr(cls, "renders_glossy", False):
         return
-    for mat in scene.description.materials:
-        if mat.is_glossy:
+    for mat, flags in zip(scene.description.materials, scene.materials.flags):
+        if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
             where = f"{mat.source}: " if mat.source else ""
             raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
                              f"glossy BSDFs yet (its photons and visible points are Lambertian); use --method pt")

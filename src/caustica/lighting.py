@@ -27,7 +27,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
     fill it evenly).  Point lights exactly.  Each shadow ray's visibility is its transmittance
     (:func:`caustica.media.shadow_transmittance`, from the medium on the light's side of the surface; 0 or 1
-    in vacuum, with the vacuum arithmetic).  ng, ns: normals on the lit side; ng_front: the front.
+    in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on the lit side; ng_front: the front.
     Returns E per channel, before the diffuse BRDF ρ / π.
     """
     geom, mats, lights, media = tables

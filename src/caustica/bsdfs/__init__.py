@@ -31,7 +31,7 @@ import numpy as np
 from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SceneDescription
-from . import conductor, dielectric, diffuse, roughconductor, roughdielectric
+from . import conductor, dielectric, diffuse, microfacet, roughconductor, roughdielectric
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -44,7 +44,7 @@ class MaterialTable(NamedTuple):
     kind: np.ndarray       # int32[M]: the BSDF's KIND (or NULL)
     flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
     rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse), specular reflectance (conductor), scale (glass)
-    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric only)
+    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, roughdielectric)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
     albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
     distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
@@ -69,7 +69,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         rgb[i] = mat.rgb
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
-        distribution[i], alpha[i] = mat.distribution, mat.alpha
+        distribution[i], alpha[i] = mat.distribution, max(mat.alpha, microfacet.ALPHA_MIN)
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,

@@ -20,7 +20,8 @@ and Heitz 2014), written here independently:
   convergence (Mitsuba does three), the other slope a normal deviate with variance 1/2.
 
 Vectors are in the local frame of the macro-surface (z the normal).  Mitsuba's ``sample_visible=false``
-(sampling D cos θ_m) is not implemented; the loader refuses it.
+(sampling D cos θ_m) is not implemented: the loader accepts it and samples visible normals all the same,
+which changes how an image converges, not what it converges to.
 """
 from __future__ import annotations
 
@@ -69,20 +70,6 @@ def smith_g1(dist, alpha, v, m):
         lam = 0.5 * (math.exp(-a * a) * INV_SQRT_PI / a - math.erfc(a))
         return 1.0 / (1.0 + lam)
     return 2.0 / (1.0 + math.sqrt(1.0 + t2))
-
-
-@kernel
-def G(dist, alpha, wi, wo, m):
-    """Smith's separable shadowing-masking."""
-    return smith_g1(dist, alpha, wi, m) * smith_g1(dist, alpha, wo, m)
-
-
-@kernel
-def pdf_visible(dist, alpha, wi, m):
-    """The density of :func:`sample_visible` (per solid angle of m): G1(wi, m) |wi·m| D(m) / cos θ_wi."""
-    if wi[2] <= 0.0:
-        return 0.0
-    return D(dist, alpha, m) * smith_g1(dist, alpha, wi, m) * abs(vec.dot(wi, m)) / wi[2]
 
 
 @kernel
@@ -136,7 +123,8 @@ def sample_ggx_11(wi, u1, u2):
 
 @kernel
 def sample_visible(dist, alpha, wi, u1, u2):
-    """A microfacet normal m seen from wi (local, cos θ_wi > 0), with density :func:`pdf_visible`."""
+    """A microfacet normal m seen from wi (local, cos θ_wi > 0), with density (per solid angle of m)
+    G1(wi, m) |wi·m| D(m) / cos θ_wi, which the BSDFs write out where they need it."""
     st = vec.normalize((alpha * wi[0], alpha * wi[1], wi[2]))   # stretched to α = 1
     if dist == GGX:
         n = sample_ggx_11(st, u1, u2)

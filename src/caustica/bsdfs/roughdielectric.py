@@ -28,24 +28,39 @@ KIND = ROUGHDIELECTRIC
 FLAGS = GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 
 
+#: |wo + eta wi| below this is the degenerate refraction straight through an interface of eta ~ 1, whose
+#: density is unbounded (the loader refuses int_ior == ext_ior, as Mitsuba does; this guards the rest).
+DEGENERATE_HALF_VECTOR = 1e-7
+
+
 @kernel(inline=True)
 def side(d, ng, ns, eta_int_over_ext):
-    """(n, eta): the shading normal on -d's side (the geometric one where they disagree) and the relative IOR
-    crossed (transmitted over incident), as :func:`caustica.bsdfs.dielectric.interface` decides them."""
+    """(n, n_geo, eta): the shading normal on -d's side (the geometric one where they disagree), the geometric
+    normal on that side, and the relative IOR crossed (transmitted over incident), as
+    :func:`caustica.bsdfs.dielectric.interface` decides them."""
     if vec.dot(d, ng) < 0.0:
         n, n_geo, eta = ns, ng, eta_int_over_ext
     else:
         n, n_geo, eta = vec.neg(ns), vec.neg(ng), 1.0 / eta_int_over_ext
     if -vec.dot(d, n) <= 0.0:
         n = n_geo
-    return n, eta
+    return n, n_geo, eta
+
+
+@kernel(inline=True)
+def same_side(wi, n_geo, reflect):
+    """Whether wi leaves by the side of the geometric surface its lobe says (above it for a reflection, below
+    for a refraction): where shading and geometric normals disagree, the shading frame alone would send a
+    reflection through the surface, and light sampling (which tests both normals) could not meet it."""
+    c = vec.dot(wi, n_geo)
+    return c > 0.0 if reflect else c < 0.0
 
 
 @kernel(inline=True)
 def sample(mats, m, d, ng, ns, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
-    n, eta = side(d, ng, ns, mats.eta[m])
+    n, n_geo, eta = side(d, ng, ns, mats.eta[m])
     s, t = vec.orthonormal_basis(n)
     wo = mf.to_local(s, t, n, vec.neg(d))
     zero = (0.0, 0.0, 0.0)
@@ -68,9 +83,10 @@ def sample(mats, m, d, ng, ns, key, dim):
         den = c + eta * ci
         pdf = (1.0 - F) * p_h * eta * eta * abs(ci) / (den * den)
         lobe, eta_out = GLOSSY_TRANSMISSION, eta
-        ok = wl[2] < 0.0
+        ok = wl[2] < 0.0 and abs(den) > DEGENERATE_HALF_VECTOR
     g1 = mf.smith_g1(dist, alpha, wl, h)
     wi = vec.from_local(s, t, n, wl)
+    ok = ok and same_side(wi, n_geo, lobe == GLOSSY_REFLECTION)
     return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(vec.row(mats.rgb, m), g1), pdf, lobe, eta_out, dim + 3
 
 
@@ -78,7 +94,7 @@ def sample(mats, m, d, ng, ns, key, dim):
 def eval_pdf(mats, m, d, ng, ns, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
-    n, eta = side(d, ng, ns, mats.eta[m])
+    n, n_geo, eta = side(d, ng, ns, mats.eta[m])
     s, t = vec.orthonormal_basis(n)
     wo = mf.to_local(s, t, n, vec.neg(d))
     wl = mf.to_local(s, t, n, wi)
@@ -87,7 +103,7 @@ def eval_pdf(mats, m, d, ng, ns, wi):
     e = 1.0 if reflect else eta
     hv = (wo[0] + e * wl[0], wo[1] + e * wl[1], wo[2] + e * wl[2])
     hl = vec.length(hv)
-    if wo[2] <= 0.0 or wl[2] == 0.0 or not hl > 0.0:
+    if wo[2] <= 0.0 or wl[2] == 0.0 or not hl > DEGENERATE_HALF_VECTOR or not same_side(wi, n_geo, reflect):
         return zero, 0.0, 0.0
     h = vec.mul(hv, (1.0 if hv[2] >= 0.0 else -1.0) / hl)
     dh = mf.D(dist, alpha, h)
@@ -109,7 +125,7 @@ def eval_pdf(mats, m, d, ng, ns, wi):
 @kernel(inline=True)
 def camera_scale(mats, m, d, ng, ns, wi):
     """1 / eta² when wi is refracted (radiance's compression into the denser medium), else 1."""
-    n, eta = side(d, ng, ns, mats.eta[m])
+    n, _, eta = side(d, ng, ns, mats.eta[m])
     if vec.dot(wi, n) < 0.0:
         return 1.0 / (eta * eta)
     return 1.0

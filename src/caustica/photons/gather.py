@@ -83,8 +83,8 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 break
             if mats.flags[m] & SMOOTH:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
-                E = direct_stratified(tables, ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], -1),
-                                      key, dim, n_strata, fixed_grid, -1)
+                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0])
+                E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1)
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
                 Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)

@@ -23,7 +23,6 @@ ROUGHDIELECTRIC = 5  # Mitsuba's roughdielectric: microfacet glass, Walter et al
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric"}
 #: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
-GLOSSY_KINDS = (ROUGHCONDUCTOR, ROUGHDIELECTRIC)
 
 # Microfacet distributions (Mitsuba's names; the codes the material table stores).
 BECKMANN = 0
@@ -54,7 +53,7 @@ class Material:
     twosided: bool = False
     name: str = ""
     distribution: int = BECKMANN
-    alpha: float = 0.0
+    alpha: float = 0.1                 # microfacet roughness (Mitsuba's default)
     conductor_eta: tuple[float, float, float] | None = None
     conductor_k: tuple[float, float, float] = (0.0, 0.0, 0.0)
     source: str = ""  # "file:line" for messages
@@ -62,10 +61,6 @@ class Material:
     @property
     def is_specular(self) -> bool:
         return self.kind in (CONDUCTOR, DIELECTRIC)
-
-    @property
-    def is_glossy(self) -> bool:
-        return self.kind in GLOSSY_KINDS
 
 
 @dataclass

@@ -766,6 +766,9 @@ class _Loader:
             int_ior, ext_ior = self.dielectric_iors(props)
             mat = Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=int_ior, ext_ior=ext_ior, name=name)
             if kind == "roughdielectric":
+                if int_ior == ext_ior:
+                    self.fail(node, f"roughdielectric: int_ior and ext_ior are both {int_ior:g}; they must differ, "
+                                    f"as Mitsuba 3 requires (an interface between equal media scatters nothing)")
                 mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
                 mat.distribution, mat.alpha = self.microfacet(props)
             return mat
