@@ -30,7 +30,7 @@ def fresnel_rgb(mats, m, cos_i):
             fresnel_conductor(cos_i, mats.cond_eta[m, 2], mats.cond_k[m, 2]))
 
 
-@kernel(inline=True)
+@kernel
 def sample(mats, m, d, ng, ns, key, dim):
     """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
     :func:`caustica.bsdfs.sample`."""
@@ -52,7 +52,7 @@ def sample(mats, m, d, ng, ns, key, dim):
     return pdf > 0.0, wi, weight, pdf, GLOSSY_REFLECTION, 1.0, dim + 2
 
 
-@kernel(inline=True)
+@kernel
 def eval_pdf(mats, m, d, ng, ns, wi):
     """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]

@@ -56,7 +56,7 @@ def same_side(wi, n_geo, reflect):
     return c > 0.0 if reflect else c < 0.0
 
 
-@kernel(inline=True)
+@kernel
 def sample(mats, m, d, ng, ns, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
@@ -90,7 +90,7 @@ def sample(mats, m, d, ng, ns, key, dim):
     return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(vec.row(mats.rgb, m), g1), pdf, lobe, eta_out, dim + 3
 
 
-@kernel(inline=True)
+@kernel
 def eval_pdf(mats, m, d, ng, ns, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
@@ -122,7 +122,7 @@ def eval_pdf(mats, m, d, ng, ns, wi):
     return vec.row(mats.rgb, m), scale, (1.0 - F) * dh * g1o * c / wo[2] * jac
 
 
-@kernel(inline=True)
+@kernel
 def camera_scale(mats, m, d, ng, ns, wi):
     """1 / eta² when wi is refracted (radiance's compression into the denser medium), else 1."""
     n, _, eta = side(d, ng, ns, mats.eta[m])
