@@ -112,3 +112,14 @@ def interrupt_at_pass(monkeypatch):
 
         monkeypatch.setattr(cls, "run_pass", classmethod(run_pass))
     return install
+
+
+@pytest.fixture(scope="session")
+def mi():
+    """Mitsuba 3 in its scalar_rgb variant, the independent renderer the tests compare with (skipped without it)."""
+    mitsuba = pytest.importorskip("mitsuba")
+    try:
+        mitsuba.set_variant("scalar_rgb")
+    except Exception as exc:  # the variant may not be compiled into this build
+        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
+    return mitsuba

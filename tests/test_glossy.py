@@ -321,16 +321,6 @@ CMP_SEEDS = (1, 2, 3, 4)
 CMP_SPP, CMP_MI_SPP = 128, 512
 
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # the variant may not be compiled into this build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 def render_both(mi, path, spp, mi_spp, seeds, **defaults):
     """caustica pt's and Mitsuba's path integrator's renders of one XML at 32x32, one per seed."""
     scene = caustica.load_scene(path, **defaults)

@@ -317,16 +317,6 @@ CMP_SEEDS = (1, 2, 3, 4)      # independent renders of each image, to measure it
 CMP_SPP = {"media-glass": 256, "cornell-diacaustic-fog": 512}
 
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # the variant may not be compiled into this build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 def media_renders(mi, path, spp, max_depth=-1):
     """caustica's pt and Mitsuba's volpath (the file's integrator) of one XML file, one render per seed."""
     scene = caustica.load_scene(path)

@@ -288,16 +288,6 @@ def renders(scene_paths):
     return _Renders(scene_paths)
 
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # the variant may not be compiled into this build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 # --------------------------------------------------------------------------- 3a. Mitsuba 3 comparison
 
 @pytest.mark.parametrize("name", ["cornell-pyramid", "cornell-diacaustic", "mirror-point", "sphere-area"])

@@ -217,16 +217,6 @@ def expected_image(kind, radius, stddev, steps=0):
     return out
 
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # pragma: no cover - depends on the installed build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 #: name -> (<rfilter> XML, kind, tent radius, gaussian stddev)
 IMAGE_CASES = {
     "gaussian": ('<rfilter type="gaussian"/>', "gaussian", 0.0, 0.5),

@@ -391,16 +391,6 @@ def test_error_lists_supported():
 
 # ----------------------------------------------------------------------------- against Mitsuba
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # pragma: no cover - depends on the installed build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 def analytic_bbox(s):
     m = s.to_world
     lin, c0 = m[:3, :3], m[:3, 3]

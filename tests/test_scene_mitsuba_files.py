@@ -127,16 +127,6 @@ def test_errors_inside_an_included_file_name_that_file(tmp_path):
 
 # ----------------------------------------------------------------------------- the sensor
 
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    try:
-        mitsuba.set_variant("scalar_rgb")
-    except Exception as exc:  # pragma: no cover - depends on the installed build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
-    return mitsuba
-
-
 def sensor(inner: str, kind: str = "perspective", film: str = "") -> str:
     return (f'<sensor type="{kind}">{inner}<transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" '
             f'up="0, 1, 0"/></transform>{film}</sensor>')
