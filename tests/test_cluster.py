@@ -482,3 +482,20 @@ def test_ctrl_c_stops_a_render_on_a_local_cluster_within_a_second(tmp_path):
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert stopped < 1.5, stopped
 
+
+
+def test_quiet_cluster_logs_holds_when_dask_is_imported_after_it():
+    """The command line quiets Dask's loggers before it first imports Dask; Dask's import then set
+    ``distributed`` back to INFO from its config, and after Ctrl-C a "Batched Comm Closed" line with
+    a traceback reached stderr now and then (CI, 2026-12-03). A fresh interpreter, as the CLI is."""
+    import logging
+    import os
+    import subprocess
+    import sys
+    code = ("import logging\nfrom caustica.cluster import quiet_cluster_logs\nquiet_cluster_logs()\n"
+            "import distributed\n"
+            "print(logging.getLogger('distributed.batched').getEffectiveLevel())")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) > logging.CRITICAL, out.stdout

@@ -142,8 +142,14 @@ def quiet_cluster_logs() -> None:
     """Keep Dask's own log lines (worker deaths, closing comms) off a command line's stderr.
 
     What matters reaches the user as caustica's one-line error; the command line calls
-    this, the Python API leaves the caller's logging alone.
+    this, the Python API leaves the caller's logging alone. Dask is imported first: its import sets
+    the level of its loggers from its config (``distributed`` at INFO), which would undo a level set
+    before it, and lines such as "Batched Comm Closed" with a traceback reached stderr after Ctrl-C.
     """
+    try:
+        import distributed  # noqa: F401 - for its logging set-up, see above
+    except ModuleNotFoundError:
+        return   # nothing to quiet; connecting says what to install
     names = ["distributed", "tornado.application", "asyncio"]
     names += [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
     for name in names:   # distributed.client and others have handlers of their own and do not propagate
