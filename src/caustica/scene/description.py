@@ -156,7 +156,7 @@ class ReconstructionFilter:
 
 @dataclass
 class Camera:
-    """A perspective camera in Mitsuba's convention.
+    """A perspective or orthographic camera in Mitsuba's convention.
 
     to_world maps camera space (looking along +z, +y up, +x towards the image's
     left) to the world; fov_deg is measured along ``fov_axis`` (x, y, diagonal, smaller or larger).
@@ -166,6 +166,8 @@ class Camera:
     stop there yet; the loader refuses a ``far_clip`` that any shape reaches beyond, so it changes nothing.
     ``rfilter``: the film's reconstruction filter; ``sample_border``: whether samples may land
     beyond the film's edge (Mitsuba's film ``sample_border``; off: a filter is truncated at the edge).
+    ``projection``: "perspective", or "orthographic" (Mitsuba's: parallel rays along camera +z from the near
+    plane's [-1, 1] x [-1/aspect, 1/aspect], which to_world's scale sizes; no fov).
     """
     to_world: np.ndarray
     fov_deg: float
@@ -178,6 +180,7 @@ class Camera:
     medium: int = -1
     rfilter: ReconstructionFilter = field(default_factory=ReconstructionFilter)
     sample_border: bool = False
+    projection: str = "perspective"
 
 
 @dataclass
