@@ -1,9 +1,9 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
 A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughconductor``, ``roughdielectric``,
-``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its ``KIND`` (the code the
-loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS`` (:mod:`.flags`) and
-its kernels; the transport loops call only the functions below, and decide by flags, never by name:
+``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
+``KIND`` (the code the loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS``
+(:mod:`.flags`) and its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
 * :func:`oriented` — which side of the surface scatters, and its normals turned towards the ray;
 * :func:`sample` — a direction, the weight f |cos| / pdf, its density, the lobe it came from and the
@@ -30,8 +30,8 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, \
-    SceneDescription
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
+    ROUGHPLASTIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)

@@ -4,7 +4,8 @@ normal (wo = -d, the direction the path came from; wi the other; h = normalize(w
 
 * **glossy reflection** off the coating: f = specular_reflectance · F(wo·h) D(h) G(wo, wi, h) / (4 cos θ_o cos θ_i),
   F the dielectric Fresnel reflectance;
-* **diffuse**: f = ρ / (1 - Fdr) · T(cos θ_o) T(cos θ_i) / (π eta²) (ρ / (1 - ρ Fdr) per channel with ``nonlinear``),
+* **diffuse**: f = ρ / (1 - Fdr) · T(cos θ_o) T(cos θ_i) / (π eta²) (ρ / (1 - ρ Fdr) per channel with
+  ``nonlinear``),
   where T(μ) is the rough coating's transmittance from outside at incident cosine μ and Fdr its internal
   reflectance, both precomputed per material as Mitsuba 3 does (:func:`coating_tables`): T at 64 cosines
   (linearly interpolated, the ``transmittance`` column), Fdr = 2 · mean over those cosines of μ R(μ), R the

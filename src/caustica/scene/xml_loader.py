@@ -30,8 +30,9 @@ from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS, HENYEY_GREENSTEIN, ISOTROPIC,
-                          MESH, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, Camera, IntegratorSettings, Material,
-                          Medium, PointLight, ReconstructionFilter, SceneDescription, Shape)
+                          MESH, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, Camera,
+                          IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter, SceneDescription,
+                          Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 
