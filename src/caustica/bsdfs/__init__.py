@@ -160,6 +160,22 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
+def coat(mats, m, d, ng, ns):
+    """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
+    the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
+    (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
+    f = A(d) · :func:`entry` (wi), which lets the photon methods weight a photon (or a light sample) by B where it
+    arrives and a visible point by A."""
+    return plastic.coat(mats, m, d, ng, ns)
+
+
+@kernel(inline=True)
+def entry(mats, m, cos_o):
+    """The factor B of :func:`coat`'s separable diffuse lobe for light arriving at cosine cos_o (shading normal)."""
+    return plastic.entry(mats, m, cos_o)
+
+
+@kernel(inline=True)
 def delta_branches(mats, m, d, ng, ns):
     """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, colour).
 

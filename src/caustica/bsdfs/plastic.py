@@ -112,3 +112,29 @@ def eval_pdf(mats, m, d, ng, ns, wi):
     F_o, _ = fresnel_dielectric(cos_o, eta)
     P = choice(mats, m, F_i)
     return base(mats, m), (1.0 - F_i) * (1.0 - F_o) * INV_PI / (eta * eta), (1.0 - P) * cos_o * INV_PI
+
+
+@kernel
+def coat(mats, m, d, ng, ns):
+    """The two lobes apart, for the photon methods (see :func:`caustica.bsdfs.coat`): (the coating's reflected
+    direction, the probability P that :func:`sample` picks it, its weight F_i · specular / P, the diffuse lobe's
+    outgoing factor A = base (1 - F_i) / (π eta²)); P = 0 and A = 0 seen from below."""
+    zero = (0.0, 0.0, 0.0)
+    wr = mirror_reflect(d, ng, ns)
+    cos_i = -vec.dot(d, ns)
+    if cos_i <= 0.0:
+        return wr, 0.0, zero, zero
+    eta = mats.eta[m]
+    F_i, _ = fresnel_dielectric(cos_i, eta)
+    P = choice(mats, m, F_i)
+    w = vec.mul(vec.row(mats.specular, m), F_i / P) if P > 0.0 else zero
+    return wr, P, w, vec.mul(base(mats, m), (1.0 - F_i) * INV_PI / (eta * eta))
+
+
+@kernel
+def entry(mats, m, cos_o):
+    """The diffuse lobe's factor on the light's side, B = 1 - F(cos θ_o): f = A B (:func:`coat`)."""
+    if cos_o <= 0.0:
+        return 0.0
+    F_o, _ = fresnel_dielectric(cos_o, mats.eta[m])
+    return 1.0 - F_o
