@@ -18,8 +18,10 @@ lobe it picks.  Cosines are about the shading normal (Mitsuba's frame); the back
 directions below the geometric surface are refused.
 
 The flags are ``DELTA_REFLECTION | DIFFUSE_REFLECTION``: ``pt`` gives the surface next-event estimation through
-:func:`eval_pdf` (the diffuse lobe only) and follows the delta lobe as a specular bounce without MIS.  The photon
-methods do not render a BSDF with both a delta and a smooth lobe yet (``api.check_bsdfs``; docs/architecture.md).
+:func:`eval_pdf` (the diffuse lobe only) and follows the delta lobe as a specular bounce without MIS.  For the
+photon methods the lobes come apart (:func:`coat`, :func:`entry`): the diffuse lobe is A(wo) B(wi), the photons
+and shadow rays carry B and the visible point A (docs/architecture.md); ``pm`` and ``sppm`` render it, the stream
+methods refuse it (``api.check_bsdfs``).
 """
 from __future__ import annotations
 
