@@ -11,12 +11,14 @@
 4. Energy (white furnace): a white plastic (base 1, specular 1, clear coating) reflects F_i + (1 - F_i)(1 - Fdr_ext) /
    (eta² (1 - Fdr)), which is 1 with the exact diffuse Fresnel reflectances (their reciprocity) and within the fit's
    error of 1 with Mitsuba's fit; the mean sample weight is that value within 5 standard errors.  A white
-   roughplastic reflects at most 1 + 5 standard errors.
+   roughplastic reflects at most 1 + 5 standard errors, and what Mitsuba's own sampling gives (the rough coating
+   loses energy, as Mitsuba's does).
 5. Scenes against Mitsuba (tests/scenes/plastic.xml: a plastic sphere, a roughplastic sphere, a nonlinear plastic
    panel on a diffuse floor under an area light): pt's image mean within 2 % and every 4x4 block within 5 sigmas of
    both renderers' noise (tests/imagestats.py).
-6. The photon methods: sppm and PM+C render a scene of plastics and glass as Mitsuba does (same criteria); the
-   stream methods refuse plastic, every photon method roughplastic, in one line.
+6. The photon methods: sppm and PM+C render a scene of plastics and glass as Mitsuba does (same criteria); a photon
+   the coating reflects leaves INDIRECT records; the stream methods refuse plastic, every photon method
+   roughplastic, in one line.
 7. Input: bad values fail in one line naming file and line.
 """
 from __future__ import annotations
