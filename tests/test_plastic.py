@@ -32,7 +32,7 @@ import pytest
 import caustica
 from caustica import bsdfs
 from caustica.bsdfs.optics import fresnel_dielectric
-from caustica.bsdfs.plastic import fresnel_diffuse_reflectance
+from caustica.bsdfs.plastic import INTERNAL, TABLE, fresnel_diffuse_reflectance
 from caustica.scene.description import BECKMANN, GGX, PLASTIC, ROUGHPLASTIC, Material
 from imagestats import assert_images_agree
 from test_glossy import draw, eval_many, incident, render_both, sphere_cells, write_scene
@@ -109,11 +109,11 @@ def test_rough_coating_tables_match_mitsuba(mi):
         si = mi.SurfaceInteraction3f()
         si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
         si.wi = mi.Vector3f(0, 0, 1)
-        T = mats.transmittance[0]
+        T = mats.coating[0, TABLE:]
         for j in (1, 10, 30, 50, 63):
             mu = j / 63
             f_mi = float(theirs.eval(ctx, si, mi.Vector3f(math.sqrt(1 - mu * mu), 0, mu))[0])
-            ours = 0.5 / (1 - mats.internal[0]) * T[63] * T[j] * mu / (math.pi * 1.6 ** 2)
+            ours = 0.5 / (1 - mats.coating[0, INTERNAL]) * T[63] * T[j] * mu / (math.pi * 1.6 ** 2)
             assert abs(ours - f_mi) <= 2e-3 * f_mi, (dist, j, ours, f_mi)
 
 

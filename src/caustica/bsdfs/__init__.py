@@ -54,11 +54,8 @@ class MaterialTable(NamedTuple):
     fresnel: np.ndarray    # int8[M]: 1 when a conductor has a complex IOR (cond_eta + i cond_k), 0: F = 1
     cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
-    specular: np.ndarray   # float64[M, 3]: a plastic's specular_reflectance
-    spec_weight: np.ndarray  # float64[M]: a plastic's probability weight of its coating's lobe (Mitsuba's)
-    internal: np.ndarray   # float64[M]: a plastic's coating's internal diffuse reflectance Fdr
-    nonlinear: np.ndarray  # int8[M]: 1 for a plastic with ``nonlinear``
-    transmittance: np.ndarray  # float64[M, 64]: a roughplastic's coating's transmittance at cosines j / 63
+    coating: np.ndarray    # float64[M, plastic.COATING_COLUMNS]: a plastic's parameters (specular_reflectance,
+    #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -70,8 +67,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     twosided = np.zeros(m, np.int8)
     distribution, alpha = np.zeros(m, np.int32), np.zeros(m)
     fresnel, cond_eta, cond_k = np.zeros(m, np.int8), np.ones((m, 3)), np.zeros((m, 3))
-    specular, spec_weight, internal = np.ones((m, 3)), np.full(m, 0.5), np.zeros(m)
-    nonlinear, transmittance = np.zeros(m, np.int8), np.ones((m, roughplastic.TABLE_RES))
+    coating = np.zeros((m, plastic.COATING_COLUMNS))
     coatings = {}    # (distribution, alpha, eta) -> a rough coating's tables, computed once
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
@@ -83,17 +79,19 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
         if mat.kind in (PLASTIC, ROUGHPLASTIC):
-            specular[i], nonlinear[i] = mat.specular, 1 if mat.nonlinear else 0
-            spec_weight[i] = plastic.specular_sampling_weight(mat.rgb, mat.specular)
+            row = coating[i]
+            row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
+            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(mat.rgb, mat.specular)
+            row[plastic.NONLINEAR] = 1.0 if mat.nonlinear else 0.0
             if mat.kind == PLASTIC:
-                internal[i] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
+                row[plastic.INTERNAL] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
             else:
                 c = (int(distribution[i]), float(alpha[i]), float(eta[i]))
                 if c not in coatings:
                     coatings[c] = roughplastic.coating_tables(*c)
-                transmittance[i], internal[i] = coatings[c]
+                row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k, specular, spec_weight, internal, nonlinear, transmittance)
+                         cond_k, coating)
 
 
 @kernel(inline=True)

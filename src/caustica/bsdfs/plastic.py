@@ -38,6 +38,19 @@ from .optics import fresnel_dielectric, mirror_reflect
 KIND = PLASTIC
 FLAGS = DELTA_REFLECTION | DIFFUSE_REFLECTION
 INV_PI = 1.0 / math.pi
+#: The plastics' parameters, columns of the material table's ``coating`` (one array, not one column each: every
+#: kernel that takes the table unpacks its arrays, so fewer arrays compile faster): specular_reflectance (RGB), the
+#: specular sampling weight, the coating's internal reflectance Fdr, nonlinear (1 or 0), and from TABLE on a
+#: roughplastic's coating transmittance at TABLE_RES cosines.
+SPEC, SPEC_WEIGHT, INTERNAL, NONLINEAR, TABLE = 0, 3, 4, 5, 6
+TABLE_RES = 64
+COATING_COLUMNS = TABLE + TABLE_RES
+
+
+@kernel(inline=True)
+def specular(mats, m):
+    """specular_reflectance."""
+    return (mats.coating[m, SPEC], mats.coating[m, SPEC + 1], mats.coating[m, SPEC + 2])
 
 
 def fresnel_diffuse_reflectance(eta: float) -> float:
@@ -56,21 +69,21 @@ def specular_sampling_weight(diffuse, specular) -> float:
     return s / (d + s) if d + s > 0.0 else 0.5
 
 
-@kernel
+@kernel(inline=True)
 def base(mats, m):
     """The diffuse base's colour with the coating's internal reflections, ρ / (1 - Fdr) (or ρ / (1 - ρ Fdr) per
     channel with ``nonlinear``): shared with :mod:`.roughplastic`, whose Fdr is its rough coating's."""
-    fdr = mats.internal[m]
+    fdr = mats.coating[m, INTERNAL]
     r = vec.row(mats.rgb, m)
-    if mats.nonlinear[m] != 0:
+    if mats.coating[m, NONLINEAR] != 0.0:
         return (r[0] / (1.0 - r[0] * fdr), r[1] / (1.0 - r[1] * fdr), r[2] / (1.0 - r[2] * fdr))
     return vec.mul(r, 1.0 / (1.0 - fdr))
 
 
-@kernel
+@kernel(inline=True)
 def choice(mats, m, F_i):
     """The probability of sampling the coating's delta lobe at incident Fresnel reflectance F_i."""
-    w = mats.spec_weight[m]
+    w = mats.coating[m, SPEC_WEIGHT]
     ps = F_i * w
     pd = (1.0 - F_i) * (1.0 - w)
     return ps / (ps + pd) if ps + pd > 0.0 else 0.0
@@ -89,7 +102,7 @@ def sample(mats, m, d, ng, ns, key, dim):
     P = choice(mats, m, F_i)
     if uniform(key, dim) < P:
         wr = mirror_reflect(d, ng, ns)
-        return True, wr, vec.mul(vec.row(mats.specular, m), F_i / P), 0.0, DELTA_REFLECTION, 1.0, dim + 3
+        return True, wr, vec.mul(specular(mats, m), F_i / P), 0.0, DELTA_REFLECTION, 1.0, dim + 3
     local = square_to_cosine_hemisphere(uniform(key, dim + 1), uniform(key, dim + 2))
     s, t = vec.orthonormal_basis(ns)
     wi = vec.from_local(s, t, ns, local)
@@ -129,7 +142,7 @@ def coat(mats, m, d, ng, ns):
     eta = mats.eta[m]
     F_i, _ = fresnel_dielectric(cos_i, eta)
     P = choice(mats, m, F_i)
-    w = vec.mul(vec.row(mats.specular, m), F_i / P) if P > 0.0 else zero
+    w = vec.mul(specular(mats, m), F_i / P) if P > 0.0 else zero
     return wr, P, w, vec.mul(base(mats, m), (1.0 - F_i) * INV_PI / (eta * eta))
 
 

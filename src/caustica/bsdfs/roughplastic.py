@@ -8,8 +8,8 @@ normal (wo = -d, the direction the path came from; wi the other; h = normalize(w
   ``nonlinear``),
   where T(μ) is the rough coating's transmittance from outside at incident cosine μ and Fdr its internal
   reflectance, both precomputed per material as Mitsuba 3 does (:func:`coating_tables`): T at 64 cosines
-  (linearly interpolated, the ``transmittance`` column), Fdr = 2 · mean over those cosines of μ R(μ), R the
-  coating's directional reflectance from inside.  Both are single-scattering Gauss-Legendre quadratures over the
+  (linearly interpolated; columns of the table's ``coating``, :mod:`.plastic`), Fdr = 2 · mean over those cosines
+  of μ R(μ), R the coating's directional reflectance from inside.  Both are single-scattering Gauss-Legendre quadratures over the
   visible normals (32 x 32 nodes from outside, 128 x 128 from inside).
 
 Sampling picks the glossy lobe with probability P = (1 - T(cos θ_o)) w / ((1 - T) w + T (1 - w)), w Mitsuba's
@@ -33,13 +33,11 @@ from ..scene.description import ROUGHPLASTIC
 from . import microfacet as mf
 from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric, refract
-from .plastic import base
+from .plastic import SPEC_WEIGHT, TABLE, TABLE_RES, base, specular
 
 KIND = ROUGHPLASTIC
 FLAGS = GLOSSY_REFLECTION | DIFFUSE_REFLECTION
 INV_PI = 1.0 / math.pi
-#: Cosines at which the coating's transmittance is tabulated (Mitsuba's MI_ROUGH_TRANSMITTANCE_RES).
-TABLE_RES = 64
 
 
 @kernel
@@ -81,19 +79,19 @@ def coating_tables(dist: int, alpha: float, eta: float) -> tuple[np.ndarray, flo
     return T, float(2.0 * np.mean(R * mu))
 
 
-@kernel
+@kernel(inline=True)
 def transmittance(mats, m, mu):
     """The coating's tabulated transmittance at cosine mu, linearly interpolated (Mitsuba's lerp_gather)."""
     x = mu * (TABLE_RES - 1)
     i = min(int(x), TABLE_RES - 2)
     t = x - i
-    return (1.0 - t) * mats.transmittance[m, i] + t * mats.transmittance[m, i + 1]
+    return (1.0 - t) * mats.coating[m, TABLE + i] + t * mats.coating[m, TABLE + i + 1]
 
 
-@kernel
+@kernel(inline=True)
 def choice(mats, m, t_o):
     """The probability of sampling the glossy lobe, given the transmittance t_o towards the path's direction."""
-    w = mats.spec_weight[m]
+    w = mats.coating[m, SPEC_WEIGHT]
     ps = (1.0 - t_o) * w
     pd = t_o * (1.0 - w)
     return ps / (ps + pd) if ps + pd > 0.0 else 0.0
@@ -111,7 +109,7 @@ def local_eval(mats, m, wo, wl):
     F, _ = fresnel_dielectric(vec.dot(wo, h), eta)
     spec = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     diff = t_o * transmittance(mats, m, wl[2]) * INV_PI / (eta * eta)
-    f = vec.add(vec.mul(vec.row(mats.specular, m), spec), vec.mul(base(mats, m), diff))
+    f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m), diff))
     pdf = P * dh * g1o / (4.0 * wo[2]) + (1.0 - P) * wl[2] * INV_PI
     return f, pdf
 
