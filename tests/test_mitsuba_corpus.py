@@ -20,6 +20,9 @@ CORPUS = Path(os.environ.get("CAUSTICA_MITSUBA_CORPUS", REPO / "out" / "mitsuba-
 LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_depth_1.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_depth_inf.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_direct_both.xml",     # plastic and roughplastic
+    "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_direct_bsdf.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/integrator_direct_lum.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/variants_cbox_rgb.xml",
     "mitsuba-renderer+mitsuba-data/scenes/cbox/cbox-rgb.xml",
     "mitsuba-renderer+mitsuba-data/scenes/cbox/cbox.xml",

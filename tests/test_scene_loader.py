@@ -338,7 +338,7 @@ ERROR_CASES = {
     "wrong property type": ("<shape type=\"sphere\"><string name=\"radius\" value=\"1\"/></shape>", 4, "<float>"),
     "undefined parameter": ("<shape type=\"sphere\"><float name=\"radius\" value=\"$r\"/></shape>", 4, "$r"),
     "unknown ref": ("<shape type=\"cube\"><ref id=\"nothing\"/></shape>", 4, "nothing"),
-    "unknown bsdf": ("<bsdf type=\"roughplastic\"/>", 4, "roughplastic"),
+    "unknown bsdf": ("<bsdf type=\"blendbsdf\"/>", 4, "blendbsdf"),
     "environment emitter": ("<emitter type=\"envmap\"/>", 4, "envmap"),
     "area at top level": ("<emitter type=\"area\"/>", 4, "inside a <shape>"),
     "unknown ior": ("<bsdf type=\"dielectric\"><string name=\"int_ior\" value=\"glass\"/></bsdf>", 4, "glass"),

@@ -414,11 +414,11 @@ MANY = """<sensor type="perspective"><float name="fov" value="45"/>
 <film type="hdrfilm"><string name="pixel_format" value="rgb"/><boolean name="banner" value="no"/>
 <rfilter type="mitchell"/></film></sensor>
 <texture type="checkerboard" id="checks"/>
-<bsdf type="roughplastic" id="plastic"/>
+<bsdf type="blendbsdf" id="blend"/>
 <shape type="torus"/>
 <shape type="sphere"><float name="radius" value="1"/><float name="smoothness" value="1"/>
 <bsdf type="diffuse"><spectrum name="reflectance" value="600:1, 500:1"/></bsdf></shape>
-<shape type="cube"><ref id="plastic"/></shape>
+<shape type="cube"><ref id="blend"/></shape>
 <emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>
 <include filename="more.xml"/>
 <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
@@ -436,7 +436,7 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
         (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
         (4, "<rfilter type=\"mitchell\">: unknown rfilter type 'mitchell'; supported: box, tent, gaussian"),
         (5, "<texture type=\"checkerboard\" id=\"checks\">: unknown element at the top level of the scene; supported: "),
-        (6, "<bsdf type=\"roughplastic\" id=\"plastic\">: unknown bsdf type 'roughplastic'; supported: diffuse,"),
+        (6, "<bsdf type=\"blendbsdf\" id=\"blend\">: unknown bsdf type 'blendbsdf'; supported: diffuse,"),
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
         (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),
         (9, "<spectrum name=\"reflectance\">: wavelengths must increase, but 500 follows 600"),

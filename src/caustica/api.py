@@ -16,7 +16,7 @@ import numpy as np
 
 from . import checkpoint as ckpt
 from . import driver, methods
-from .bsdfs import GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
+from .bsdfs import DELTA, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION, SMOOTH
 from .errors import ParameterError, RenderError, SceneError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .version import __version__
@@ -105,16 +105,22 @@ def check_common(*, spp, width, height, seed, threads, film_source: str | None =
 
 
 def check_bsdfs(cls, scene) -> None:
-    """Refuse a scene with a glossy BSDF (roughconductor, roughdielectric) for a method that does not render
-    them: the photon methods treat every non-delta surface as Lambertian so far (issue 20), which would be a
-    silently wrong image.  Methods that do declare ``renders_glossy = True`` (``pt``)."""
+    """Refuse a scene with a glossy BSDF (roughconductor, roughdielectric, roughplastic) or one with both a delta and
+    a diffuse lobe (plastic) for a method that does not render them: the photon methods treat every non-delta
+    surface as Lambertian so far (issue 20), which would be a silently wrong image.  Methods that do declare
+    ``renders_glossy = True`` (``pt``: both) or ``renders_coated = True`` (``pm``, ``sppm``: plastic; the stream
+    methods' loop does not separate its lobes)."""
     if getattr(cls, "renders_glossy", False):
         return
     for mat, flags in zip(scene.description.materials, scene.materials.flags):
+        where = f"{mat.source}: " if mat.source else ""
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
-            where = f"{mat.source}: " if mat.source else ""
             raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
                              f"glossy BSDFs yet (its photons and visible points are Lambertian); use --method pt")
+        if flags & DELTA and flags & SMOOTH and not getattr(cls, "renders_coated", False):
+            raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
+                             f"a delta coating over a diffuse lobe yet (its streams would lose the coating's "
+                             f"reflection); use --method pt, pm or sppm")
 
 
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+from .bsdfs import entry
 from .emitters import AREA, sample_area_emitter
 from .geometry import vec
 from .jit import kernel
@@ -17,7 +18,7 @@ from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 
 
 @kernel
-def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
+def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, coated):
     """Irradiance E = Σ_lights ∫ L T cos θ dω at ``at`` (a :class:`caustica.transport.ShadingPoint` on a
     surface), every light sampled (SPEC §2).
 
@@ -28,7 +29,9 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
     fill it evenly).  Point lights exactly.  Each shadow ray's visibility is its transmittance
     (:func:`caustica.media.shadow_transmittance`, from the medium on the light's side of the surface; 0 or 1
     in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on the lit side; ng_front: the front.
-    Returns E per channel, before the diffuse BRDF ρ / π.
+    ``coated``: -1, or a material with a delta coating over a diffuse lobe (:func:`caustica.bsdfs.coat`), whose
+    factor B on the light's side (:func:`caustica.bsdfs.entry`) then weights each shadow ray.
+    Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
     """
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium = at
@@ -63,7 +66,10 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
                 T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
                                      vec.offset_origin(q, nq, vec.neg(to_l)),
                                      medium_after(media, shape, ng_front, wi, medium))
-                acc = vec.madd(acc, T, cos_s * cos_l / dist2)
+                g = cos_s * cos_l / dist2
+                if coated >= 0:
+                    g *= entry(mats, coated, cos_s)
+                acc = vec.madd(acc, T, g)
             area = lights.area[li]
             E = (E[0] + rad[0] * (acc[0] * area / n_total), E[1] + rad[1] * (acc[1] * area / n_total),
                  E[2] + rad[2] * (acc[2] * area / n_total))
@@ -79,5 +85,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
                 continue
             T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                  medium_after(media, shape, ng_front, wi, medium))
-            E = vec.madd(E, vec.hadamard(rad, T), cos_s / dist2)
+            g = cos_s / dist2
+            if coated >= 0:
+                g *= entry(mats, coated, cos_s)
+            E = vec.madd(E, vec.hadamard(rad, T), g)
     return E

@@ -1,9 +1,9 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
-A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughconductor``, ``roughdielectric``;
-the microfacet distribution they share is :mod:`.microfacet`) with its ``KIND`` (the code the
-loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS`` (:mod:`.flags`) and
-its kernels; the transport loops call only the functions below, and decide by flags, never by name:
+A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughconductor``, ``roughdielectric``,
+``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
+``KIND`` (the code the loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS``
+(:mod:`.flags`) and its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
 * :func:`oriented` — which side of the surface scatters, and its normals turned towards the ray;
 * :func:`sample` — a direction, the weight f |cos| / pdf, its density, the lobe it came from and the
@@ -30,21 +30,23 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SceneDescription
-from . import conductor, dielectric, diffuse, microfacet, roughconductor, roughdielectric
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
+    ROUGHPLASTIC, SceneDescription
+from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
-         ROUGHDIELECTRIC: roughdielectric}
+         ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic}
 
 
 class MaterialTable(NamedTuple):
     kind: np.ndarray       # int32[M]: the BSDF's KIND (or NULL)
     flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
-    rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse), specular reflectance (conductor), scale (glass)
-    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, roughdielectric)
+    rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse, a plastic's base), specular reflectance
+    #                        (conductor), scale (glass)
+    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, roughdielectric, a plastic's coating)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
     albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
     distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
@@ -52,6 +54,8 @@ class MaterialTable(NamedTuple):
     fresnel: np.ndarray    # int8[M]: 1 when a conductor has a complex IOR (cond_eta + i cond_k), 0: F = 1
     cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
+    coating: np.ndarray    # float64[M, plastic.COATING_COLUMNS]: a plastic's parameters (specular_reflectance,
+    #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -63,6 +67,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     twosided = np.zeros(m, np.int8)
     distribution, alpha = np.zeros(m, np.int32), np.zeros(m)
     fresnel, cond_eta, cond_k = np.zeros(m, np.int8), np.ones((m, 3)), np.zeros((m, 3))
+    coating = np.zeros((m, plastic.COATING_COLUMNS))
+    coatings = {}    # (distribution, alpha, eta) -> a rough coating's tables, computed once
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
         flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
@@ -72,8 +78,20 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         distribution[i], alpha[i] = mat.distribution, max(mat.alpha, microfacet.ALPHA_MIN)
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
+        if mat.kind in (PLASTIC, ROUGHPLASTIC):
+            row = coating[i]
+            row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
+            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(mat.rgb, mat.specular)
+            row[plastic.NONLINEAR] = 1.0 if mat.nonlinear else 0.0
+            if mat.kind == PLASTIC:
+                row[plastic.INTERNAL] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
+            else:
+                c = (int(distribution[i]), float(alpha[i]), float(eta[i]))
+                if c not in coatings:
+                    coatings[c] = roughplastic.coating_tables(*c)
+                row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k)
+                         cond_k, coating)
 
 
 @kernel(inline=True)
@@ -104,13 +122,18 @@ def sample(mats, m, d, ng, ns, key, dim):
         return roughconductor.sample(mats, m, d, ng, ns, key, dim)
     if kind == ROUGHDIELECTRIC:
         return roughdielectric.sample(mats, m, d, ng, ns, key, dim)
+    if kind == PLASTIC:
+        return plastic.sample(mats, m, d, ng, ns, key, dim)
+    if kind == ROUGHPLASTIC:
+        return roughplastic.sample(mats, m, d, ng, ns, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, key, dim)
 
 
 @kernel(inline=True)
 def eval_pdf(mats, m, d, ng, ns, wi):
-    """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale (0 for a delta
-    BSDF, which no direction given in advance can meet), pdf the solid-angle density of :func:`sample`."""
+    """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale of its smooth lobes
+    (0 for a delta lobe, which no direction given in advance can meet), pdf the solid-angle density with which
+    :func:`sample` returns wi (its lobe choice included)."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
         return diffuse.eval_pdf(mats, m, d, ng, ns, wi)
@@ -118,6 +141,10 @@ def eval_pdf(mats, m, d, ng, ns, wi):
         return roughconductor.eval_pdf(mats, m, d, ng, ns, wi)
     if kind == ROUGHDIELECTRIC:
         return roughdielectric.eval_pdf(mats, m, d, ng, ns, wi)
+    if kind == PLASTIC:
+        return plastic.eval_pdf(mats, m, d, ng, ns, wi)
+    if kind == ROUGHPLASTIC:
+        return roughplastic.eval_pdf(mats, m, d, ng, ns, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 
@@ -128,6 +155,22 @@ def camera_scale(mats, m, d, ng, ns, wi):
     if mats.kind[m] == ROUGHDIELECTRIC:
         return roughdielectric.camera_scale(mats, m, d, ng, ns, wi)
     return 1.0
+
+
+@kernel(inline=True)
+def coat(mats, m, d, ng, ns):
+    """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
+    the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
+    (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
+    f = A(d) · :func:`entry` (wi), which lets the photon methods weight a photon (or a light sample) by B where it
+    arrives and a visible point by A."""
+    return plastic.coat(mats, m, d, ng, ns)
+
+
+@kernel(inline=True)
+def entry(mats, m, cos_o):
+    """The factor B of :func:`coat`'s separable diffuse lobe for light arriving at cosine cos_o (shading normal)."""
+    return plastic.entry(mats, m, cos_o)
 
 
 @kernel(inline=True)

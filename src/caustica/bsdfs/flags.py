@@ -2,7 +2,8 @@
 
 The transport loops decide by these, never by a BSDF's name: a surface with a ``SMOOTH`` lobe
 (non-delta) gets next-event estimation and stores photons; a purely delta one (mirror, glass) is
-followed as a specular bounce.
+followed as a specular bounce.  A BSDF may have both (``plastic``: a delta coating over a diffuse base);
+:func:`caustica.bsdfs.sample` reports which lobe it sampled.
 """
 from __future__ import annotations
 

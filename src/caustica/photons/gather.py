@@ -13,7 +13,11 @@ radiance is
 
 with E_direct from shadow rays to every emitter (n x n stratified samples on
 area lights) and the photon-map sums of :mod:`caustica.photons.estimate`.
-Emitters seen directly or through mirrors and glass add their radiance.
+Emitters seen directly or through mirrors and glass add their radiance.  At a delta coating over a diffuse
+lobe (plastic, :func:`caustica.bsdfs.coat`) the diffuse lobe's estimate is made there, f_r = A and the
+photons and shadow rays weighted by the lobe's other factor B, and the coating's reflection is split off
+as a glass's reflection is (at the first SPLIT_DEPTH bounces; deeper, one of the two with the BSDF's
+sampling probability).
 """
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import SMOOTH, delta_branches, oriented
+from ..bsdfs import DELTA, SMOOTH, coat, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -83,8 +87,35 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 break
             if mats.flags[m] & SMOOTH:
                 fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
+                lobe_b = -1
+                if mats.flags[m] & DELTA:
+                    # a delta coating over a diffuse lobe (plastic): the diffuse lobe's estimate here, f = A B (the
+                    # photons and shadow rays carry B); the coating's reflection split off as glass's branches are,
+                    # or chosen with its sampling probability P (the estimate then weighted 1 / (1 - P))
+                    wc, P, w_coat, A = coat(mats, m, d, ng, ns)
+                    fr = A
+                    lobe_b = m
+                    if depth < max_specular and P > 0.0:
+                        if depth < SPLIT_DEPTH and top < st_o.shape[0]:
+                            o_r = vec.offset_origin(p, ng, wc)
+                            for c in range(3):
+                                st_o[top, c] = o_r[c]
+                                st_d[top, c] = wc[c]
+                                st_beta[top, c] = beta[c] * w_coat[c] * P
+                            st_depth[top] = depth + 1
+                            top += 1
+                        else:
+                            u = uniform(key, dim)
+                            dim += 1
+                            if u < P:
+                                depth += 1
+                                beta = vec.hadamard(beta, w_coat)
+                                o = vec.offset_origin(p, ng, wc)
+                                d = wc
+                                continue
+                            fr = vec.mul(A, 1.0 / (1.0 - P))
                 at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0])
-                E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1)
+                E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b)
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
                 Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)

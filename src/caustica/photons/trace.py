@@ -16,6 +16,9 @@ own fixed slots, so the maps are identical for any thread count.
   does.
 * At every diffuse hit a surface record is stored; mirrors and glass reflect or refract, up to
   their own cap (:data:`SPECULAR_CAP`).  ``max_bounces`` (mr) counts diffuse and medium bounces.
+  At a BSDF with a delta coating over a diffuse lobe (plastic) the photon is stored with its power times
+  the lobe's factor B on the light's side (:func:`caustica.bsdfs.coat`), then continues by sampling a lobe:
+  the coating's reflection is a specular event, but the records after it are INDIRECT.
 
 What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
@@ -24,7 +27,7 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdfs import DELTA, SMOOTH, oriented, sample
+from ..bsdfs import DELTA, SMOOTH, entry, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
@@ -131,7 +134,10 @@ def trace_one(tables, key, photon, rules, out):
             break  # the black back of a one-sided surface absorbs
         if mats.flags[m] & SMOOTH:
             if scattered and stored < slots:
-                store_record(slot0 + stored, p, d, power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
+                stored_power = power
+                if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
+                    stored_power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
+                store_record(slot0 + stored, p, d, stored_power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
@@ -143,6 +149,10 @@ def trace_one(tables, key, photon, rules, out):
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
+            if mats.flags[m] & SMOOTH:
+                # a coating's reflection (plastic): no caustic caster (tables.py), so the caustic photons never carry
+                # what follows; its records are INDIRECT, though it is no diffuse bounce
+                diffuse_like = True
         else:
             diffuse_bounces += 1
             diffuse_like = True

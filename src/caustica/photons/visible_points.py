@@ -18,6 +18,14 @@ same expectation, without the rare spike of a light's reflection seen in a few p
 diacaustic scene the brightest noise of the caustic's pixels was the area light glinting in the
 sphere's silhouette).  It costs one or two rays at each glass hit of a camera path.
 
+**A delta coating over a diffuse lobe** (plastic, :func:`caustica.bsdfs.coat`).  The path takes the
+coating's reflection with the probability P that the BSDF's own sampling gives it (the number as glass's,
+stratified over the passes at the path's first choice), weight β F_i specular / P, and otherwise makes its
+visible point there with weight W = β A / (1 − P), A the diffuse lobe's outgoing factor; the photons
+gathered there carry the lobe's other factor B (:mod:`caustica.photons.trace`), and so does each shadow ray
+of its direct light.  The emitters the coating reflects are added in expectation, β F_i specular Le, as
+glass's are.  Each pass is an unbiased sample of both lobes, as of glass's two branches.
+
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
 estimate, so the numbers that matter most are drawn from low-discrepancy sequences
 indexed by the pass, each randomised per pixel (keys of ``STREAM_CAMERA_SCRAMBLE``):
@@ -49,7 +57,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import SMOOTH, TRANSMISSION, delta_branches, oriented
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, coat, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -164,18 +172,47 @@ def visible_point(tables, o, d, numbers, params, out):
         scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             return False, zero, zero, zero, L, n_seg
-        if mats.flags[m] & SMOOTH:
-            w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
-            at = ShadingPoint(p, ng, ns, ng_front, shape, medium)
-            if fixed_grid:
-                E = direct_stratified(tables, at, key, dim, n_strata, True, -1)
+        flags = mats.flags[m]
+        coated = flags & SMOOTH != 0 and flags & DELTA != 0
+        take_coat = False
+        wc, P, w_coat, A = zero, 0.0, zero, zero
+        if coated:
+            # a delta coating over a diffuse lobe (plastic): the coating with its sampling probability P (the
+            # emitters it reflects added in expectation, as glass's), else the visible point here, weight / (1 - P)
+            wc, P, w_coat, A = coat(mats, m, d, ng, ns)
+            if depth >= max_specular:
+                P = 0.0
+            if P > 0.0:
+                u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
+                first_glass = False
+                dim += 1
+                Lr = emitted_along(tables, vec.offset_origin(p, ng, wc), wc, medium_after(media, shape, ng_front, wc,
+                                                                                          medium))
+                L = vec.add(L, vec.mul(vec.hadamard(beta, vec.hadamard(w_coat, Lr)), P))
+                take_coat = u < P
+        if flags & SMOOTH and not take_coat:
+            if coated:
+                w = vec.mul(vec.hadamard(beta, A), 1.0 / (1.0 - P))
             else:
-                E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index)
+                w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
+            at = ShadingPoint(p, ng, ns, ng_front, shape, medium)
+            lobe_b = m if coated else -1
+            if fixed_grid:
+                E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b)
+            else:
+                E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b)
             L = vec.add(L, vec.hadamard(w, E))
             return True, p, ns, w, L, n_seg
         depth += 1
         if depth > max_specular:
             return False, zero, zero, zero, L, n_seg
+        if take_coat:
+            medium = medium_after(media, shape, ng_front, wc, medium)
+            o = vec.offset_origin(p, ng, wc)
+            d = wc
+            beta = vec.hadamard(beta, w_coat)
+            counted = True   # the reflection's first hit's emission was added above
+            continue
         wr, wt, F, eta, colour = delta_branches(mats, m, d, ng, ns)
         beta = vec.hadamard(beta, colour)
         wi = wr

@@ -20,8 +20,11 @@ DIELECTRIC = 2
 NULL = 3  # Mitsuba's null BSDF: an invisible boundary (of a medium) that rays cross unchanged
 ROUGHCONDUCTOR = 4   # Mitsuba's roughconductor: a microfacet metal (bsdfs/roughconductor.py)
 ROUGHDIELECTRIC = 5  # Mitsuba's roughdielectric: microfacet glass, Walter et al. 2007 (bsdfs/roughdielectric.py)
+PLASTIC = 6          # Mitsuba's plastic: a smooth dielectric coating over a diffuse base (bsdfs/plastic.py)
+ROUGHPLASTIC = 7     # Mitsuba's roughplastic: a microfacet coating over a diffuse base (bsdfs/roughplastic.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
-                  ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric"}
+                  ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
+                  ROUGHPLASTIC: "roughplastic"}
 #: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
 
 # Microfacet distributions (Mitsuba's names; the codes the material table stores).
@@ -42,6 +45,9 @@ class Material:
     ``distribution`` (BECKMANN or GGX) and ``alpha`` (isotropic roughness).  A conductor (smooth or
     rough) with ``conductor_eta`` / ``conductor_k`` (RGB complex IOR) has their Fresnel reflectance;
     without them (Mitsuba's ``material="none"``) F = 1.
+    PLASTIC and ROUGHPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, the
+    coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
+    ``distribution`` and ``alpha``.
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -56,6 +62,8 @@ class Material:
     alpha: float = 0.1                 # microfacet roughness (Mitsuba's default)
     conductor_eta: tuple[float, float, float] | None = None
     conductor_k: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    specular: tuple[float, float, float] = (1.0, 1.0, 1.0)   # a plastic's specular_reflectance
+    nonlinear: bool = False            # a plastic's nonlinear colour shift (Mitsuba's ``nonlinear``)
     source: str = ""  # "file:line" for messages
 
     @property

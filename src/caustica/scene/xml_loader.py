@@ -30,8 +30,9 @@ from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS, HENYEY_GREENSTEIN, ISOTROPIC,
-                          MESH, NULL, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SPHERE, Camera, IntegratorSettings, Material,
-                          Medium, PointLight, ReconstructionFilter, SceneDescription, Shape)
+                          MESH, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, Camera,
+                          IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter, SceneDescription,
+                          Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 
@@ -76,6 +77,12 @@ BSDF_PROPS = {
                         "specular_reflectance": COLOR, "specular_transmittance": COLOR,
                         "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
                         "sample_visible": BOOL},
+    "plastic": {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": FLOAT + STR,
+                "ext_ior": FLOAT + STR, "nonlinear": BOOL},
+    "roughplastic": {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": FLOAT + STR,
+                     "ext_ior": FLOAT + STR, "nonlinear": BOOL,
+                     "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
+                     "sample_visible": BOOL},
     "twosided": {},
     "null": {},
 }
@@ -775,6 +782,18 @@ class _Loader:
                 mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
                 mat.distribution, mat.alpha = self.microfacet(props)
             return mat
+        if kind in ("plastic", "roughplastic"):
+            int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
+            mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE), int_ior=int_ior,
+                           ext_ior=ext_ior, name=name, specular=self.color(props, "specular_reflectance", (1.0,) * 3),
+                           nonlinear=bool(props.get("nonlinear", False)), source=self.at(node))
+            if kind == "roughplastic":
+                if int_ior == ext_ior:
+                    self.fail(node, f"roughplastic: int_ior and ext_ior are both {int_ior:g}; they must differ, "
+                                    f"as Mitsuba 3 requires")
+                mat.kind = ROUGHPLASTIC
+                mat.distribution, mat.alpha = self.microfacet(props)
+            return mat
         # twosided
         if len(props.objects) != 1:
             self.fail(node, f"twosided must wrap exactly one BSDF, found {len(props.objects)} "
@@ -784,16 +803,17 @@ class _Loader:
         if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, NULL):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
-                      supported=["diffuse", "conductor", "roughconductor"])
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
         out = copy.copy(inner)
         out.twosided = True
         out.name = name or inner.name
         return out
 
-    def dielectric_iors(self, props: Props) -> tuple[float, float]:
-        """(int_ior, ext_ior) of a (rough) dielectric: numbers or Mitsuba's names, defaults bk7 and air."""
+    def dielectric_iors(self, props: Props, interior: str = "bk7") -> tuple[float, float]:
+        """(int_ior, ext_ior) of a (rough) dielectric or plastic: numbers or Mitsuba's names, defaults ``interior``
+        (bk7 for glass, polypropylene for plastic, as Mitsuba) and air."""
         iors = []
-        for p, default in (("int_ior", "bk7"), ("ext_ior", "air")):
+        for p, default in (("int_ior", interior), ("ext_ior", "air")):
             v = props.get(p, default)
             if isinstance(v, str):
                 key = v.strip().lower()
