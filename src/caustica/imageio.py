@@ -32,6 +32,7 @@ __all__ = [
     "check_exposure",
     "write_exr",
     "read_exr",
+    "read_radiance_image",
     "to_srgb8",
     "encode_png",
     "write_png",
@@ -627,3 +628,52 @@ def output_paths(path: str | os.PathLike[str]) -> tuple[Path, Path, Path]:
         )
     stem = p.with_suffix("") if suffix else p
     return stem.with_name(stem.name + ".exr"), stem.with_name(stem.name + ".png"), stem.with_name(stem.name + ".json")
+
+
+# --------------------------------------------------------------------------- radiance images (envmaps)
+
+#: The image files :func:`read_radiance_image` reads: OpenEXR (linear), and 8/16-bit images through Pillow
+#: (sRGB-encoded, as Mitsuba 3 takes them).
+RADIANCE_IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg", ".bmp", ".tga")
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The exact piecewise sRGB decoding of values in [0, 1]."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, np.power((np.maximum(c, 0.04045) + 0.055) / 1.055, 2.4))
+
+
+def read_radiance_image(path: str | os.PathLike[str]) -> np.ndarray:
+    """Linear RGB float64 H×W×3 from an image file, as Mitsuba 3's Bitmap reads it for an emitter.
+
+    OpenEXR as stored (:func:`read_exr`); PNG, JPEG, BMP and TGA through Pillow, their 8- or 16-bit values
+    decoded from sRGB (grey replicated, alpha dropped).  Raises CausticaError naming the file when it is
+    missing, not an image, or of a kind not read here (Radiance .hdr, PFM).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CausticaError(f"cannot read image '{p}': no such file")
+    suffix = p.suffix.lower()
+    if suffix == ".exr":
+        return read_exr(p).astype(np.float64)
+    if suffix not in RADIANCE_IMAGE_SUFFIXES:
+        raise CausticaError(f"cannot read image '{p}': {quoted(suffix or 'no suffix')} images are not supported; "
+                            f"supported: {', '.join(RADIANCE_IMAGE_SUFFIXES)} (convert .hdr/.pfm to OpenEXR)")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(p) as im:
+            im.load()
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                data = np.asarray(im, dtype=np.float64) / 65535.0
+            else:
+                if im.mode not in ("L", "RGB"):
+                    im = im.convert("RGBA" if "A" in im.getbands() or im.mode == "P" else "RGB")
+                data = np.asarray(im, dtype=np.float64) / 255.0
+    except UnidentifiedImageError:
+        raise CausticaError(f"cannot read image '{p}': not an image file Pillow recognises") from None
+    except (OSError, ValueError) as exc:
+        raise CausticaError(f"cannot read image '{p}': {exc}") from None
+    if data.ndim == 2:
+        data = np.repeat(data[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(srgb_to_linear(data[:, :, :3]))
