@@ -378,13 +378,19 @@ def env_light_sample(tables, at, sel_pdf, u, through):
             return zero, wi, 0.0, 0.0, True, False, 0
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, wi)
-    sphere = lights.env_sphere
-    to_c = (p[0] - sphere[0], p[1] - sphere[1], p[2] - sphere[2])
-    dist = 2.0 * max(sphere[3], vec.length(to_c))
-    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, dist), medium)
+    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, True, False, rays
     return vec.mul(vec.hadamard(Le, T), cos_s / pdf), wi, pdf, cos_s, True, True, rays
+
+
+@kernel(inline=True)
+def env_shadow_length(lights, p):
+    """How far a shadow ray from p towards the environment goes: 2 max(R, |p - c|), (c, R) the scene's bounding
+    sphere (Mitsuba 3's distance to an infinite emitter)."""
+    sphere = lights.env_sphere
+    to_c = (p[0] - sphere[0], p[1] - sphere[1], p[2] - sphere[2])
+    return 2.0 * max(sphere[3], vec.length(to_c))
 
 
 @kernel
@@ -481,10 +487,15 @@ def light_medium(geom, lights, media, e):
     """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe).
 
     An area light on a shape with media emits into that shape's exterior (its front side, as
-    Mitsuba); otherwise a probe from just in front of the light's middle, along its normal
+    Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first;
+    otherwise a probe from just in front of the light's middle, along its normal
     (:func:`medium_at`), says where it is.  A point light is probed from its position.
     """
     fallback = media.camera[0]
+    if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
+        d = vec.normalize((0.3, 0.5, 0.81))
+        c = (lights.env_sphere[0], lights.env_sphere[1], lights.env_sphere[2])
+        return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_sphere[3]), d, fallback)
     if lights.kind[e] == AREA:
         shape = geom.prim_shape[lights.prims[lights.prim_first[e]]]
         if media.interior[shape] >= 0 or media.exterior[shape] >= 0:
