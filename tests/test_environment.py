@@ -287,3 +287,19 @@ def test_photon_methods_envmap_mean_matches_mitsuba(envmap_sun_mitsuba, method, 
     ours = caustica.render(str(path), method, threads=2, seed=1, **params).image.mean(axis=(0, 1))
     ref = np.mean(theirs, axis=0).mean(axis=(0, 1))
     assert np.all(np.abs(ours / ref - 1) < 0.02), (method, params, ours, ref)
+
+
+def test_envmap_to_world_is_a_rotation_to_exporters_precision(tmp_path):
+    """A 6-digit rotation matrix (as in Mitsuba's own scenes) is read; a non-uniform scale is refused."""
+    from caustica.errors import SceneError
+    sun_map(tmp_path / "sky.exr")
+    m = ("-0.224951 -0.000001 -0.974370 0 -0.974370 0.000000 0.224951 0 0.000000 1.000000 -0.000001 8.87 "
+         "0 0 0 1")
+    body = ('<emitter type="envmap"><string name="filename" value="sky.exr"/><transform name="to_world">'
+            f'<matrix value="{m}"/></transform></emitter>')
+    d = load_scene_description(str(write_scene(tmp_path, body)))
+    assert np.allclose(d.environment.to_world @ d.environment.to_world.T, np.eye(3), atol=1e-12)
+    body = ('<emitter type="envmap"><string name="filename" value="sky.exr"/><transform name="to_world">'
+            '<scale x="2"/></transform></emitter>')
+    with pytest.raises(SceneError, match="must be a rotation"):
+        load_scene_description(str(write_scene(tmp_path, body, "bad.xml")))

@@ -1356,9 +1356,11 @@ class _Loader:
             # directions only: the rotation part (Mitsuba applies the linear part to unit directions)
             u, _, vt = np.linalg.svd(m)
             rot = u @ vt
-            if not np.allclose(m, rot * np.cbrt(np.linalg.det(m)), rtol=1e-6, atol=1e-9) or np.linalg.det(rot) < 0:
-                self.fail(props.node_of("to_world"), "an envmap's to_world must be a rotation (optionally with a "
-                                                     "uniform scale, which changes nothing)")
+            # a rotation to the precision scene files write matrices in (Mitsuba's exporters: 6 digits)
+            if not np.allclose(m, rot, rtol=0.0, atol=1e-5) or np.linalg.det(rot) < 0:
+                self.fail(props.node_of("to_world"), "an envmap's to_world must be a rotation (its 3x3 part "
+                                                     "orthonormal, determinant 1)", supported=["rotate", "lookat",
+                                                                                              "matrix of a rotation"])
         return Environment("envmap", image=np.ascontiguousarray(image), to_world=rot, filename=filename,
                            source=self.at(node))
 
