@@ -44,13 +44,16 @@ ENVMAP = ('<emitter type="envmap"><string name="filename" value="{f}"/><float na
      "not an image file"),
     ("negative scale", '<emitter type="envmap"><string name="filename" value="sky.exr"/>'
                        '<float name="scale" value="-1"/></emitter>', "'scale' must not be negative"),
-    ("hdr", '<emitter type="envmap"><string name="filename" value="sky.hdr"/></emitter>', "'.hdr' images are not"),
+    ("broken hdr", '<emitter type="envmap"><string name="filename" value="sky.hdr"/></emitter>',
+     "the header ends before the resolution line"),
+    ("pfm", '<emitter type="envmap"><string name="filename" value="sky.pfm"/></emitter>', "'.pfm' images are not"),
     ("two", '<emitter type="constant"/>\n<emitter type="constant"/>', "only one environment emitter"),
 ])
 def test_bad_environment_is_one_line_exit_2(tmp_path, capsys, case, body, expected):
     from caustica.cli import main
     (tmp_path / "junk.png").write_text("not a png")
     (tmp_path / "sky.hdr").write_text("#?RADIANCE\n")
+    (tmp_path / "sky.pfm").write_text("PF\n")
     sun_map(tmp_path / "sky.exr")
     path = write_scene(tmp_path, body)
     code = main(["render", str(path), "--method", "pt", "-q", "-o", str(tmp_path / "x.exr")])
@@ -303,3 +306,15 @@ def test_envmap_to_world_is_a_rotation_to_exporters_precision(tmp_path):
             '<scale x="2"/></transform></emitter>')
     with pytest.raises(SceneError, match="must be a rotation"):
         load_scene_description(str(write_scene(tmp_path, body, "bad.xml")))
+
+
+def test_rgbe_files_read_as_mitsuba_reads_them(mi, tmp_path):
+    """Radiance .hdr files Mitsuba writes (run-length encoded at 53 wide, flat at 6 wide) read to Mitsuba's own
+    values, bit for bit."""
+    from caustica.imageio import read_radiance_image
+    rng = np.random.default_rng(0)
+    for shape in ((37, 53, 3), (5, 6, 3)):
+        img = (rng.random(shape) ** 4 * 50).astype(np.float32)
+        img[3, 4] = 0
+        mi.Bitmap(img).write(str(tmp_path / "t.hdr"))
+        assert np.array_equal(read_radiance_image(tmp_path / "t.hdr"), np.array(mi.Bitmap(str(tmp_path / "t.hdr"))))
