@@ -94,9 +94,9 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
     ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
     dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
-    fill it evenly).  Point lights exactly; the environment by :func:`env_direct`.  Each shadow ray's visibility is its transmittance
-    (:func:`caustica.media.shadow_transmittance`, from the medium on the light's side of the surface; 0 or 1
-    in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on the lit side; ng_front: the front.
+    fill it evenly).  Point lights exactly; the environment by :func:`env_direct`.  Each shadow ray's
+    visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
+    light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on the lit side; ng_front: the front.
     Returns E per channel, before the diffuse BRDF ρ / π.
     """
     geom, mats, lights, media = tables
