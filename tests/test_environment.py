@@ -66,8 +66,8 @@ def test_constant_and_envmap_are_read_into_the_light_table(tmp_path):
     scene = compile_scene(load_scene_description(str(write_scene(
         tmp_path, '<emitter type="constant"><rgb name="radiance" value="0.5, 1, 2"/></emitter>'))))
     lights = scene.lights
-    assert list(lights.kind) == [ENV] and lights.env[0] == 0 and lights.env_constant[0] == 1
-    r = lights.env_sphere[3]
+    assert list(lights.kind) == [ENV] and lights.env[0] == 0 and lights.env[1] == 1
+    r = lights.env_data[3]
     assert r == pytest.approx(math.sqrt(3), rel=1e-3)   # the unit sphere's box, as Mitsuba bounds it
     assert np.allclose(lights.power[0], np.pi * r * r * 4 * np.pi * np.array([0.5, 1, 2]))
     assert env_radiance(lights, (0.0, 1.0, 0.0)) == (0.5, 1.0, 2.0)
@@ -75,7 +75,7 @@ def test_constant_and_envmap_are_read_into_the_light_table(tmp_path):
     sun_map(tmp_path / "sky.exr")
     scene = compile_scene(load_scene_description(str(write_scene(
         tmp_path, ENVMAP.format(f="sky.exr", s=2, a=30)))))
-    assert scene.lights.env_constant[0] == 0 and scene.lights.env_image.shape == (16, 32, 3)
+    assert scene.lights.env[1] == 0 and scene.lights.env_image.shape == (16, 32, 3)
     assert scene.lights.env_image.max() == pytest.approx(400.0)   # scale applied
 
 
@@ -248,7 +248,7 @@ def test_environment_photons_carry_the_flux_that_crosses_a_sphere(tmp_path, aime
         expected = math.pi * a * a * flux_L
         assert np.all(np.abs(est - expected) <= 5 * se), (aimed, est, expected, se)
         if not aimed:   # every origin lies outside the bounding sphere, on its far side
-            assert np.all(np.linalg.norm(o - scene.lights.env_sphere[:3], axis=1) >= scene.lights.env_sphere[3]
+            assert np.all(np.linalg.norm(o - scene.lights.env_data[:3], axis=1) >= scene.lights.env_data[3]
                           * (1 - 1e-9))
 
 

@@ -36,6 +36,8 @@ from .scene.description import SceneDescription
 AREA = 0
 POINT = 1
 ENV = 2
+ENV_TO_WORLD = 4   # offsets into LightTable.env_data
+ENV_CDF = 13
 INV_4PI = 1.0 / (4.0 * math.pi)
 
 #: Mitsuba 3's luminance of linear sRGB (its sampling weight for an envmap's texels).
@@ -60,14 +62,13 @@ class LightTable(NamedTuple):
     edge2: np.ndarray         # float64[L, 3]
     normal: np.ndarray        # float64[L, 3]: the parallelogram's front normal
     # the environment (one entry of kind ENV, or none; arrays of size 1 without one)
-    env: np.ndarray           # int32[1]: its index, -1 without one
-    env_constant: np.ndarray  # int8[1]: 1 for a constant environment (radiance[env] everywhere)
+    # (few arrays: every call that passes the tables passes each array's fields)
+    env: np.ndarray           # int32[2]: its index (-1 without one), 1 if constant (radiance[env] everywhere)
     env_image: np.ndarray     # float64[H, W, 3]: a map's radiance (scale applied), Mitsuba's lat-long layout
-    env_to_world: np.ndarray  # float64[3, 3]: rotation from the map's frame to the world
-    env_row_cdf: np.ndarray   # float64[H - 1]: CDF over the rows of bilinear patches
-    env_col_cdf: np.ndarray   # float64[(H - 1) W]: CDF over each row's patches
-    env_density: np.ndarray   # float64[(H - 1) W]: each patch's density in (u, v) (probability x W (H - 1))
-    env_sphere: np.ndarray    # float64[4]: the scene's bounding sphere (centre, radius R)
+    env_data: np.ndarray      # float64[*]: the scene's bounding sphere (centre, radius R) at 0..3, then a map's
+    #                           rotation to the world (3 x 3, row-major) at ENV_TO_WORLD, then from ENV_CDF
+    #                           its CDF over rows of bilinear patches (H - 1), each row's CDF over its patches
+    #                           ((H - 1) W) and each patch's density in (u, v) (probability x W (H - 1))
 
 
 def _parallelogram(shape):
@@ -168,18 +169,16 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
     """
     envd = desc.environment
     one = np.zeros(1)
-    out = dict(env=np.array([-1], np.int32), env_constant=np.zeros(1, np.int8), env_image=np.zeros((1, 1, 3)),
-               env_to_world=np.eye(3), env_row_cdf=np.ones(1), env_col_cdf=np.ones(1), env_density=np.ones(1),
-               env_sphere=np.zeros(4), radiance=np.zeros(3), power=np.zeros(3))
+    out = dict(env=np.array([-1, 0], np.int32), env_image=np.zeros((1, 1, 3)), env_data=np.zeros(ENV_CDF),
+               radiance=np.zeros(3), power=np.zeros(3))
     if envd is None:
         return out
     centre, radius = scene_bounding_sphere(geom)
     n_lights = sum(1 for s in desc.shapes if s.emitter_radiance is not None) + len(desc.point_lights)
-    out["env"] = np.array([n_lights], np.int32)
-    out["env_sphere"] = np.array([*centre, radius])
+    out["env"] = np.array([n_lights, 1 if envd.kind == "constant" else 0], np.int32)
+    out["env_data"] = np.concatenate([centre, [radius], np.eye(3).reshape(-1)])
     disc = math.pi * radius * radius
     if envd.kind == "constant":
-        out["env_constant"] = np.ones(1, np.int8)
         out["radiance"] = np.asarray(envd.radiance, np.float64)
         out["power"] = disc * 4.0 * math.pi * out["radiance"]
         return out
@@ -200,9 +199,9 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
     row_cdf[-1] = 1.0
     col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
     col_cdf[:, -1] = 1.0
-    out.update(env_image=img, env_to_world=np.ascontiguousarray(envd.to_world, dtype=np.float64),
-               env_row_cdf=row_cdf, env_col_cdf=np.ascontiguousarray(col_cdf.reshape(-1)),
-               env_density=np.ascontiguousarray((prob * w * (h - 1)).reshape(-1)))
+    rot = np.asarray(envd.to_world, np.float64).reshape(-1)
+    out.update(env_image=img, env_data=np.concatenate([centre, [radius], rot, row_cdf, col_cdf.reshape(-1),
+                                                       (prob * w * (h - 1)).reshape(-1)]))
     out["power"] = disc * (corners * (band[:, None, None] * 2.0 * math.pi / w)).sum(axis=(0, 1))
     out["radiance"] = out["power"] / (disc * 4.0 * math.pi)   # the mean radiance (for messages)
     return out
@@ -319,11 +318,10 @@ def env_lookup(lights, u, v):
 def env_uv(lights, d):
     """Mitsuba 3's (u, v) of world direction d on the map, and sin θ: u = atan2(x, -z) / 2π, v = acos(y) / π in
     the map's frame (y up)."""
-    m = lights.env_to_world
-    # the inverse of a rotation is its transpose
-    x = m[0, 0] * d[0] + m[1, 0] * d[1] + m[2, 0] * d[2]
-    y = m[0, 1] * d[0] + m[1, 1] * d[1] + m[2, 1] * d[2]
-    z = m[0, 2] * d[0] + m[1, 2] * d[1] + m[2, 2] * d[2]
+    m = lights.env_data   # the rotation m[ENV_TO_WORLD + 3 i + j]; its inverse is its transpose
+    x = m[ENV_TO_WORLD] * d[0] + m[ENV_TO_WORLD + 3] * d[1] + m[ENV_TO_WORLD + 6] * d[2]
+    y = m[ENV_TO_WORLD + 1] * d[0] + m[ENV_TO_WORLD + 4] * d[1] + m[ENV_TO_WORLD + 7] * d[2]
+    z = m[ENV_TO_WORLD + 2] * d[0] + m[ENV_TO_WORLD + 5] * d[1] + m[ENV_TO_WORLD + 8] * d[2]
     u = math.atan2(x, -z) / (2.0 * math.pi)
     return u - math.floor(u), math.acos(min(max(y, -1.0), 1.0)) / math.pi, math.sqrt(x * x + z * z)
 
@@ -331,7 +329,7 @@ def env_uv(lights, d):
 @kernel
 def env_radiance(lights, d):
     """The environment's radiance arriving from world direction d (unit, pointing away from the scene)."""
-    if lights.env_constant[0] == 1:
+    if lights.env[1] == 1:
         return vec.row(lights.radiance, lights.env[0])
     u, v, _ = env_uv(lights, d)
     return env_lookup(lights, u, v)
@@ -340,7 +338,7 @@ def env_radiance(lights, d):
 @kernel
 def env_pdf(lights, d):
     """The solid-angle density with which :func:`env_sample` gives direction d (light choice excluded)."""
-    if lights.env_constant[0] == 1:
+    if lights.env[1] == 1:
         return INV_4PI
     u, v, sin_t = env_uv(lights, d)
     h = lights.env_image.shape[0]
@@ -351,7 +349,7 @@ def env_pdf(lights, d):
     i = min(int(v * (h - 1)), h - 2)
     if not sin_t > 0.0:
         return 0.0
-    return lights.env_density[i * w + j] / (2.0 * math.pi * math.pi * sin_t)
+    return lights.env_data[ENV_CDF + h - 1 + (h - 1) * w + i * w + j] / (2.0 * math.pi * math.pi * sin_t)
 
 
 @kernel
@@ -361,17 +359,19 @@ def env_sample(lights, u1, u2):
     A map: a patch by its CDFs (u1 the row, u2 the column), uniform in (u, v) within it; density
     p(u, v) / (2 π² sin θ).  A constant environment: uniform over the sphere.  Density 0: no sample.
     """
-    if lights.env_constant[0] == 1:
+    if lights.env[1] == 1:
         return square_to_uniform_sphere(u1, u2), INV_4PI, vec.row(lights.radiance, lights.env[0])
     h = lights.env_image.shape[0]
     w = lights.env_image.shape[1]
-    i = find_cdf(lights.env_row_cdf, 0, h - 1, u1)
-    lo = lights.env_row_cdf[i - 1] if i > 0 else 0.0
-    width = lights.env_row_cdf[i] - lo
+    cdf = lights.env_data
+    i = find_cdf(cdf, ENV_CDF, h - 1, u1) - ENV_CDF
+    lo = cdf[ENV_CDF + i - 1] if i > 0 else 0.0
+    width = cdf[ENV_CDF + i] - lo
     u1 = min(max((u1 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
-    k = find_cdf(lights.env_col_cdf, i * w, w, u2)
-    lo = lights.env_col_cdf[k - 1] if k > i * w else 0.0
-    width = lights.env_col_cdf[k] - lo
+    cols = ENV_CDF + h - 1      # row i's column CDF at cols + i w .. cols + i w + w - 1
+    k = find_cdf(cdf, cols + i * w, w, u2) - cols
+    lo = cdf[cols + k - 1] if k > i * w else 0.0
+    width = cdf[cols + k] - lo
     u2 = min(max((u2 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
     v = (i + u1) / (h - 1)
     u = (k - i * w + u2 + 0.5) / w
@@ -382,8 +382,9 @@ def env_sample(lights, u1, u2):
     if not sin_t > 0.0:
         return zero, 0.0, zero
     local = (math.sin(phi) * sin_t, math.cos(theta), -math.cos(phi) * sin_t)
-    m = lights.env_to_world
-    d = (m[0, 0] * local[0] + m[0, 1] * local[1] + m[0, 2] * local[2],
-         m[1, 0] * local[0] + m[1, 1] * local[1] + m[1, 2] * local[2],
-         m[2, 0] * local[0] + m[2, 1] * local[1] + m[2, 2] * local[2])
-    return d, lights.env_density[k] / (2.0 * math.pi * math.pi * sin_t), env_lookup(lights, u, v)
+    m = lights.env_data
+    r = ENV_TO_WORLD
+    d = (m[r] * local[0] + m[r + 1] * local[1] + m[r + 2] * local[2],
+         m[r + 3] * local[0] + m[r + 4] * local[1] + m[r + 5] * local[2],
+         m[r + 6] * local[0] + m[r + 7] * local[1] + m[r + 8] * local[2])
+    return d, m[ENV_CDF + h - 1 + (h - 1) * w + k] / (2.0 * math.pi * math.pi * sin_t), env_lookup(lights, u, v)

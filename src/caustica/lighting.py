@@ -50,7 +50,7 @@ def env_direct(tables, at, key, dim, strata):
     n_strata, fixed_grid, pass_index = strata
     p, ng, ns, ng_front, shape, medium = at
     n_total = n_strata * n_strata
-    constant = lights.env_constant[0] == 1
+    constant = lights.env[1] == 1
     s_axis, t_axis = vec.orthonormal_basis(ns)
     acc = (0.0, 0.0, 0.0)
     for s in range(n_total):

@@ -388,7 +388,7 @@ def env_light_sample(tables, at, sel_pdf, u, through):
 def env_shadow_length(lights, p):
     """How far a shadow ray from p towards the environment goes: 2 max(R, |p - c|), (c, R) the scene's bounding
     sphere (Mitsuba 3's distance to an infinite emitter)."""
-    sphere = lights.env_sphere
+    sphere = lights.env_data
     to_c = (p[0] - sphere[0], p[1] - sphere[1], p[2] - sphere[2])
     return 2.0 * max(sphere[3], vec.length(to_c))
 
@@ -494,8 +494,8 @@ def light_medium(geom, lights, media, e):
     fallback = media.camera[0]
     if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
         d = vec.normalize((0.3, 0.5, 0.81))
-        c = (lights.env_sphere[0], lights.env_sphere[1], lights.env_sphere[2])
-        return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_sphere[3]), d, fallback)
+        c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+        return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)
     if lights.kind[e] == AREA:
         shape = geom.prim_shape[lights.prims[lights.prim_first[e]]]
         if media.interior[shape] >= 0 or media.exterior[shape] >= 0:

@@ -126,8 +126,8 @@ def emit_env_photon(lights, sel_pdf, key, n_paths):
     with no normal.  Direction from numbers 3, 4; the disc point from 1, 2."""
     towards, pdf, Le = env_sample(lights, uniform(key, 3), uniform(key, 4))
     d = vec.neg(towards)
-    c = (lights.env_sphere[0], lights.env_sphere[1], lights.env_sphere[2])
-    r = lights.env_sphere[3]
+    c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+    r = lights.env_data[3]
     zero = (0.0, 0.0, 0.0)
     if not pdf > 0.0:
         return c, (0.0, 0.0, 1.0), zero, zero
@@ -168,6 +168,6 @@ def emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths):
     density /= m
     if not density > 0.0:
         return q, d, zero, False
-    c = (lights.env_sphere[0], lights.env_sphere[1], lights.env_sphere[2])
-    o = vec.madd(q, d, -(vec.dot(vec.sub(q, c), d) + lights.env_sphere[3]))
+    c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+    o = vec.madd(q, d, -(vec.dot(vec.sub(q, c), d) + lights.env_data[3]))
     return o, d, vec.mul(Le, 1.0 / (pdf * density * sel_pdf * n_paths)), True
