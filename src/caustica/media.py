@@ -364,9 +364,9 @@ def env_light_sample(tables, at, sel_pdf, u, through):
     p, ng, ns, ng_front, shape, medium = at
     zero = (0.0, 0.0, 0.0)
     wi, pdf_dir, Le = env_sample(lights, u[0], u[1])
-    if not pdf_dir > 0.0:
-        return zero, wi, 0.0, 0.0, True, False, 0
     pdf = sel_pdf * pdf_dir
+    if not pdf > 0.0:   # a direction of zero density, or an environment that emits nothing (never chosen)
+        return zero, wi, 0.0, 0.0, True, False, 0
     o = p
     cos_s = 1.0
     if shape >= 0:
