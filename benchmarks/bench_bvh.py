@@ -17,8 +17,23 @@ import time
 import numpy as np
 import numba
 
-from caustica.geometry.scene_geometry import build_geometry, intersect_rays, intersect_rays_parallel
+from caustica.geometry.scene_geometry import build_geometry, intersect, intersect_rays
+from caustica.jit import parallel_kernel
 from caustica.scene import description as sd
+
+
+@parallel_kernel
+def intersect_rays_parallel(geom, origins, dirs, tmax):
+    """``intersect_rays`` with a ``prange`` over rays (for this comparison only: renders use a thread pool)."""
+    n = origins.shape[0]
+    prim = np.empty(n, dtype=np.int64)
+    tt = np.empty(n)
+    for i in numba.prange(n):
+        p, t, _, _ = intersect(geom, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                               (dirs[i, 0], dirs[i, 1], dirs[i, 2]), tmax)
+        prim[i] = p
+        tt[i] = t
+    return prim, tt
 
 
 def _rot_x(deg):
@@ -99,7 +114,7 @@ def timed_build(desc, repeat=3):
 def rays_per_second(fn, geom, o, d):
     fn(geom, o[:1000], d[:1000], np.inf)  # warm-up
     t = time.perf_counter()
-    prim, _, _, _ = fn(geom, o, d, np.inf)
+    prim = fn(geom, o, d, np.inf)[0]
     dt = time.perf_counter() - t
     return len(o) / dt, float(np.mean(prim >= 0))
 

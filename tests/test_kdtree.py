@@ -50,7 +50,7 @@ def run_knn(tree, normals, qp, qn, k, r_max):
     out_idx = np.full(max(k, 1), -7, np.int64)
     out_d2 = np.full(max(k, 1), np.nan)
     count, r2 = knn(tree, normals, bounds_for(tree, normals), tuple(float(x) for x in qp), tuple(float(x) for x in qn),
-                    k, r_max, out_idx, out_d2)
+                    k, r_max, (out_idx, out_d2))
     return count, r2, out_idx[:count].copy(), out_d2[:count].copy()
 
 
@@ -228,7 +228,7 @@ def test_out_arrays_too_small():
     tree = build_kdtree(np.random.default_rng(2).random((50, 3)))
     with pytest.raises(ValueError):
         knn(tree, np.ones((50, 3)), NO_BOUNDS, (0.5, 0.5, 0.5), (1.0, 0.0, 0.0), 10, 1.0,
-            np.empty(5, np.int64), np.empty(10))
+            (np.empty(5, np.int64), np.empty(10)))
 
 
 def test_balanced_depth():
@@ -267,7 +267,7 @@ def test_big_case_against_brute_force():
 def _knn_prange(tree, normals, bounds, qps, qns, k, r_max, out_idx, out_d2, counts, r2s):
     for q in prange(qps.shape[0]):
         c, r2 = knn(tree, normals, bounds, (qps[q, 0], qps[q, 1], qps[q, 2]),
-                    (qns[q, 0], qns[q, 1], qns[q, 2]), k, r_max, out_idx[q], out_d2[q])
+                    (qns[q, 0], qns[q, 1], qns[q, 2]), k, r_max, (out_idx[q], out_d2[q]))
         counts[q] = c
         r2s[q] = r2
 

@@ -417,7 +417,6 @@ def test_bad_filter_exits_2_with_one_line(tmp_path):
 def test_gaussian_table_is_close_to_the_filter():
     """The tabulated inverse CDF samples a CDF within 2e-7 of the filter's, against the CDF written out
     here by quadrature: the sampled CDF at z is the fraction u whose tabulated position is z."""
-    from caustica.sampling import filters
     z = np.linspace(-4.0, 4.0, 160_001)
     f = density("gaussian", 0.0, 1.0, z)
     exact = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(z))])

@@ -142,7 +142,7 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     common = check_common(spp=spp, width=width, height=height, seed=seed, threads=threads,
                           film_source=scene.description.camera.film_source if res is None else None,
                           bytes_per_pixel=per_pixel)
-    settings = methods.params.resolve(method, cls.params, params)
+    settings = methods.params.resolve(method, cls.params, methods.scene_params(cls, scene.description, params))
     # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
     for p in cls.params:
         if p.scratch and settings[p.name]:

@@ -1,9 +1,11 @@
-"""The perspective camera, in Mitsuba 3's conventions (same XML, same framing).
+"""The perspective and orthographic cameras, in Mitsuba 3's conventions (same XML, same framing).
 
 Camera space looks along +z with +y up and +x towards the image's *left* (that is
 what Mitsuba's ``lookat`` builds: its first column is ``cross(up, dir)``).  The
 field of view is given along one axis (``fov_axis`` x, y, smaller or larger) and
-converted to the half-angle tangents of both axes.  Pixels integrate the film's
+converted to the half-angle tangents of both axes.  The orthographic camera sends
+parallel rays along camera +z from the near plane's [-1, 1] x [-1/aspect, 1/aspect]
+(to_world's scale sizes the view: Mitsuba 3's orthographic sensor).  Pixels integrate the film's
 reconstruction filter (box, tent or gaussian, as Mitsuba 3 defines them): each sample's
 sub-pixel position is drawn from the filter by :func:`caustica.sampling.filters.film_position`
 from the two uniform numbers the caller passes (box: uniform inside the pixel).
@@ -34,6 +36,8 @@ class CameraParams(NamedTuple):
     filter_radius: float   # the filter's support radius in pixels
     filter_stddev: float   # the gaussian's standard deviation in pixels (0 for the others)
     sample_border: bool    # sample beyond the film's edge (Mitsuba's film sample_border)
+    orthographic: bool     # parallel rays; tan_half_x / tan_half_y are then the view's half-extents
+    inv_basis: np.ndarray  # float64[3, 3]: the inverse of basis (world to camera space, for projecting)
 
 
 def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> tuple[float, float]:
@@ -58,14 +62,15 @@ def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> t
 def camera_params(cam: Camera, width: int | None = None, height: int | None = None) -> CameraParams:
     w = int(width or cam.width)
     h = int(height or cam.height)
-    tx, ty = tan_half_angles(cam.fov_deg, cam.fov_axis, w, h)
+    ortho = cam.projection == "orthographic"
+    tx, ty = (1.0, h / w) if ortho else tan_half_angles(cam.fov_deg, cam.fov_axis, w, h)
     m = np.asarray(cam.to_world, dtype=np.float64)
     rf = cam.rfilter
     kind = FILTER_KINDS[rf.kind]
     return CameraParams(m[:3, 3].copy(), m[:3, :3].copy(), tx, ty, w, h, float(cam.near_clip),
                         kind, float(filter_radius(kind, rf.radius, rf.stddev)),
                         float(rf.stddev) if kind == GAUSSIAN else 0.0,
-                        bool(cam.sample_border))
+                        bool(cam.sample_border), ortho, np.linalg.inv(m[:3, :3]))
 
 
 @kernel
@@ -79,8 +84,10 @@ def generate_ray(cam, px, py, u1, u2):
                        px, cam.width, u1) / cam.width
     sy = film_position(cam.filter_kind, cam.filter_radius, cam.filter_stddev, cam.sample_border,
                        py, cam.height, u2) / cam.height
-    local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
     b = cam.basis
+    if cam.orthographic:
+        return _orthographic_ray(cam, sx, sy)
+    local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
     d = vec.normalize((b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],
                        b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
                        b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2]))
@@ -89,3 +96,14 @@ def generate_ray(cam, px, py, u1, u2):
     o = (cam.origin[0], cam.origin[1], cam.origin[2])
     o = vec.madd(o, d, cam.near_clip * zlen)
     return o, d
+
+
+@kernel
+def _orthographic_ray(cam, sx, sy):
+    """The ray of film position (sx, sy) in [0, 1)^2: from the near plane's point, along camera +z."""
+    local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), cam.near_clip)
+    b = cam.basis
+    o = (cam.origin[0] + b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],
+         cam.origin[1] + b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
+         cam.origin[2] + b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2])
+    return o, vec.normalize((b[0, 2], b[1, 2], b[2, 2]))

@@ -217,8 +217,9 @@ def _build_parser():
 def _note_integrator(scene, method: str, params: dict) -> None:
     """One line on stderr when the scene's <integrator> is not what this render does."""
     from . import methods
-    note = scene.description.integrator_note(method, methods.params.resolve(method, methods.get(method).params,
-                                                                            params))
+    cls = methods.get(method)
+    note = scene.description.integrator_note(
+        method, methods.params.resolve(method, cls.params, methods.scene_params(cls, scene.description, params)))
     if note:
         print(f"caustica: note: {note}", file=sys.stderr)
 

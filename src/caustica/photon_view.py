@@ -49,16 +49,30 @@ def splat_records(geom, mats, cam, position, power, image):
     for i in range(position.shape[0]):
         p = (float(position[i, 0]), float(position[i, 1]), float(position[i, 2]))
         rel = vec.sub(p, o)
-        vx = b[0, 0] * rel[0] + b[1, 0] * rel[1] + b[2, 0] * rel[2]
-        vy = b[0, 1] * rel[0] + b[1, 1] * rel[1] + b[2, 1] * rel[2]
-        vz = b[0, 2] * rel[0] + b[1, 2] * rel[1] + b[2, 2] * rel[2]
-        if vz <= 0.0:
-            continue
-        sx = 0.5 * (1.0 - vx / (vz * cam.tan_half_x))
-        sy = 0.5 * (1.0 - vy / (vz * cam.tan_half_y))
+        if cam.orthographic:   # camera space through the inverse (to_world scales an orthographic view)
+            ib = cam.inv_basis
+            vx = ib[0, 0] * rel[0] + ib[0, 1] * rel[1] + ib[0, 2] * rel[2]
+            vy = ib[1, 0] * rel[0] + ib[1, 1] * rel[1] + ib[1, 2] * rel[2]
+            vz = ib[2, 0] * rel[0] + ib[2, 1] * rel[1] + ib[2, 2] * rel[2]
+            if vz <= cam.near_clip:
+                continue
+            sx = 0.5 * (1.0 - vx / cam.tan_half_x)
+            sy = 0.5 * (1.0 - vy / cam.tan_half_y)
+            eye = (o[0] + b[0, 0] * vx + b[0, 1] * vy + b[0, 2] * cam.near_clip,   # where its ray starts
+                   o[1] + b[1, 0] * vx + b[1, 1] * vy + b[1, 2] * cam.near_clip,
+                   o[2] + b[2, 0] * vx + b[2, 1] * vy + b[2, 2] * cam.near_clip)
+        else:
+            vx = b[0, 0] * rel[0] + b[1, 0] * rel[1] + b[2, 0] * rel[2]
+            vy = b[0, 1] * rel[0] + b[1, 1] * rel[1] + b[2, 1] * rel[2]
+            vz = b[0, 2] * rel[0] + b[1, 2] * rel[1] + b[2, 2] * rel[2]
+            if vz <= 0.0:
+                continue
+            sx = 0.5 * (1.0 - vx / (vz * cam.tan_half_x))
+            sy = 0.5 * (1.0 - vy / (vz * cam.tan_half_y))
+            eye = o
         if sx < 0.0 or sx >= 1.0 or sy < 0.0 or sy >= 1.0:
             continue
-        if not seen(geom, mats, o, p):
+        if not seen(geom, mats, eye, p):
             continue
         px = int(sx * cam.width)
         py = int(sy * cam.height)

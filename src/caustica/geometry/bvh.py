@@ -408,25 +408,29 @@ def _hit_box(box, k, o, inv, tmax):
 
 
 @kernel(inline=True)
+def _arrays(geom):
+    """Borrowed views of the arrays a traversal reads (no reference counts touched per ray)."""
+    return (borrow(geom.bvh_box), borrow(geom.bvh_node), borrow(geom.bvh_order), borrow(geom.prim_kind),
+            borrow(geom.prim_index), borrow(geom.tri_p0), borrow(geom.tri_e1), borrow(geom.tri_e2),
+            borrow(geom.ana_to_local))
+
+
+@kernel(inline=True)
 def bvh_closest_hit(geom, o, d, tmax):
     """Closest primitive hit with ``t`` in (0, tmax): ``(prim, t, b1, b2)``; ``prim = -1``, ``t = tmax`` on a miss.
 
     ``geom`` is a :class:`~caustica.geometry.scene_geometry.Geometry` (its
     ``bvh_box``, ``bvh_node``, ``bvh_order`` and primitive tables).  Inlined: it
     only hands borrowed views of the arrays it needs to the (compiled once,
-    cached) traversal, so no reference counts are touched per ray.
+    cached) traversal.
     """
-    return _closest_hit(borrow(geom.bvh_box), borrow(geom.bvh_node), borrow(geom.bvh_order),
-                        borrow(geom.prim_kind), borrow(geom.prim_index), borrow(geom.tri_p0),
-                        borrow(geom.tri_e1), borrow(geom.tri_e2), borrow(geom.ana_to_local), o, d, tmax)
+    return _traverse(_arrays(geom), o, d, tmax, False)
 
 
 @kernel(inline=True)
 def bvh_any_hit(geom, o, d, tmax):
     """True when some primitive is hit with ``t`` in (0, tmax) (shadow rays; stops at the first hit)."""
-    return _any_hit(borrow(geom.bvh_box), borrow(geom.bvh_node), borrow(geom.bvh_order),
-                    borrow(geom.prim_kind), borrow(geom.prim_index), borrow(geom.tri_p0),
-                    borrow(geom.tri_e1), borrow(geom.tri_e2), borrow(geom.ana_to_local), o, d, tmax)
+    return _traverse(_arrays(geom), o, d, tmax, True)[0] >= 0
 
 
 @kernel
@@ -440,7 +444,14 @@ def _near_first(axis, d):
 
 
 @kernel(hot=True)
-def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
+def _traverse(arrays, o, d, tmax, any_hit):
+    """The BVH walk for both queries: the closest hit ``(prim, t, b1, b2)`` in (0, tmax), or with
+    ``any_hit`` the first hit found (its ``prim`` >= 0; a miss is ``prim = -1``, ``t = tmax``).
+
+    ``arrays`` as :func:`_arrays` gives them.  Compiled once by Numba; LLVM inlines it into each
+    caller (``hot``), where the constant ``any_hit`` folds away.
+    """
+    box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local = arrays
     best_prim = -1
     best_t = tmax
     best_b1 = 0.0
@@ -465,6 +476,8 @@ def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2
                         best_prim = prim
                         best_b1 = b1
                         best_b2 = b2
+                        if any_hit:
+                            return best_prim, best_t, best_b1, best_b2
                 if sp == 0:
                     break
                 sp -= 1
@@ -483,41 +496,3 @@ def _closest_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2
             sp -= 1
             k = stack[sp]
     return best_prim, best_t, best_b1, best_b2
-
-
-@kernel(hot=True)
-def _any_hit(box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, o, d, tmax):
-    if node.shape[0] == 0:
-        return False
-    inv = (_safe_inv(d[0]), _safe_inv(d[1]), _safe_inv(d[2]))
-    stack = _traversal_stack()
-    sp = 0
-    k = 0
-    while True:
-        if _hit_box(box, k, o, inv, tmax):
-            cnt = node[k, 1]
-            if cnt > 0:
-                first = node[k, 0]
-                for s in range(first, first + cnt):
-                    t, b1, b2 = intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2,
-                                                           ana_to_local, order[s], o, d, tmax)
-                    if t < tmax:
-                        return True
-                if sp == 0:
-                    break
-                sp -= 1
-                k = stack[sp]
-            else:
-                if _near_first(node[k, 2], d):
-                    stack[sp] = k + 1
-                    k = node[k, 0]
-                else:
-                    stack[sp] = node[k, 0]
-                    k = k + 1
-                sp += 1
-        else:
-            if sp == 0:
-                break
-            sp -= 1
-            k = stack[sp]
-    return False

@@ -63,10 +63,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from ..errors import SceneError
-from ..jit import borrowed, kernel, parallel_kernel
+from ..jit import borrowed, kernel
 from ..scene.description import CYLINDER as SHAPE_CYLINDER
 from ..scene.description import DISK as SHAPE_DISK
 from ..scene.description import MESH as SHAPE_MESH
@@ -506,25 +505,6 @@ def intersect_rays(geom, origins, dirs, tmax):
     bb1 = np.empty(n)
     bb2 = np.empty(n)
     for i in range(n):
-        o = (origins[i, 0], origins[i, 1], origins[i, 2])
-        d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        p, t, b1, b2 = intersect(geom, o, d, tmax)
-        prim[i] = p
-        tt[i] = t
-        bb1[i] = b1
-        bb2[i] = b2
-    return prim, tt, bb1, bb2
-
-
-@parallel_kernel
-def intersect_rays_parallel(geom, origins, dirs, tmax):
-    """:func:`intersect_rays` with a ``prange`` over rays."""
-    n = origins.shape[0]
-    prim = np.empty(n, dtype=np.int64)
-    tt = np.empty(n)
-    bb1 = np.empty(n)
-    bb2 = np.empty(n)
-    for i in prange(n):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
         p, t, b1, b2 = intersect(geom, o, d, tmax)

@@ -10,7 +10,9 @@ passes) and the pass as its unit of work:
 * ``image(scene, settings, state)`` — the image the state holds;
 * ``final_stats(scene, settings, state)`` — what the sidecar adds after the last pass;
 * progressive methods also ``state_from_arrays`` (checkpoints; ``state.to_arrays()``)
-  and may offer ``aovs`` (names) with ``aov(scene, settings, state, name)``.
+  and may offer ``aovs`` (names) with ``aov(scene, settings, state, name)``;
+* optionally ``scene_defaults(description)`` — the parameters a scene file's
+  ``<integrator>`` sets (a value given when rendering wins): :func:`scene_params`.
 
 :mod:`caustica.driver` runs the passes (count, time budget, progress, checkpoints,
 Ctrl-C); one-shot methods (pm, spm) are the one-pass case.  Every module of this
@@ -51,3 +53,12 @@ def get(name: str):
     if name not in methods:
         raise ParameterError(f"unknown method '{name}'; available: {', '.join(sorted(methods))}")
     return methods[name]
+
+
+def scene_params(cls, description, given: dict) -> dict:
+    """The parameters a render of method ``cls`` runs with before defaults: the scene's
+    ``<integrator>`` settings the method reads (``cls.scene_defaults``), overridden by those
+    ``given`` (None = not given)."""
+    given = {k: v for k, v in given.items() if v is not None}
+    defaults = getattr(cls, "scene_defaults", None)
+    return {**(defaults(description) if defaults else {}), **given}

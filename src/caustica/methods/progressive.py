@@ -373,18 +373,7 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         first_build = not grid_compiled()
         volume = stats.pop("volume_photons", None)
-        position, power, normal, valid = events
-        if radius_caustic is None:
-            grid = build_grid(position, power, normal, valid, scene.geometry.scene_box, CELL_PER_RADIUS * typical)
-            grid_c = None
-        else:
-            grid = build_grid(position, power, normal, (valid == 1).view(np.int8), scene.geometry.scene_box,
-                              CELL_PER_RADIUS * typical)
-            # the caustic radii shrink only where caustic events land: size the cells by those pixels
-            seen_c = radius_caustic[vp_found & (radius_caustic < radius_caustic.max())]
-            typical_c = float(np.median(seen_c)) if seen_c.size else typical
-            grid_c = build_grid(position, power, normal, (valid == 2).view(np.int8), scene.geometry.scene_box,
-                                CELL_PER_RADIUS * typical_c)
+        grid, grid_c = _event_grids(scene, events, radius_caustic, vp_found, typical)
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:
@@ -405,27 +394,9 @@ class ProgressivePhotonMethod(IndependentPasses):
                                                    ((flux, count), (flux_c, count_c))), threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0
-        if scene.has_media:
-            # 4. the volume: the beam radiance estimate along the camera segments, within this pass's radius
-            r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
-            t1 = time.perf_counter()
-            first_build = not volume_grid_compiled()
-            vgrid = build_volume_grid(*volume, r_v)
-            if first_build:
-                c3 += time.perf_counter() - t1
-            else:
-                timings["volume_grid_s"] = time.perf_counter() - t1
-            vol = np.empty((n, 3))
-            vfound = np.empty(n, np.int64)
-            t1 = time.perf_counter()
-            c4 = parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, vfound)),
-                              threads=threads)
-            timings["volume_gather_s"] = time.perf_counter() - t1 - c4
-            c3 += c4
+        if scene.has_media:   # 4. the volume: the beam radiance estimate along the camera segments
+            vol, c3 = _volume_estimate(scene, settings, pass_index, volume, segments, timings, stats)
             direct += vol
-            stats["volume_photons"] = vgrid.count
-            stats["volume_grid_entries"] = vgrid.entries
-            stats["volume_photons_gathered"] = int(vfound.sum())
         timings["compile_s"] = c0 + c1 + c2 + c3
         stats["events_gathered"] = int(count.sum()) + (int(count_c.sum()) if count_c is not None else 0)
         stats["timings"] = timings
@@ -526,3 +497,43 @@ class ProgressivePhotonMethod(IndependentPasses):
                                                "max": float(rc.max())}
                 out["caustic_photons_kept_mean"] = float(state.n_caustic.mean())
         return out
+
+
+def _event_grids(scene, events, radius_caustic, vp_found, typical):
+    """The hash grids over a pass's photon events: one for all (kind != 0), or with ``radius_caustic``
+    the caustic events (kind 2) in a grid of their own, its cells sized by the caustic radii."""
+    position, power, normal, valid = events
+    box = scene.geometry.scene_box
+    if radius_caustic is None:
+        return build_grid(position, power, normal, valid, box, CELL_PER_RADIUS * typical), None
+    grid = build_grid(position, power, normal, (valid == 1).view(np.int8), box, CELL_PER_RADIUS * typical)
+    # the caustic radii shrink only where caustic events land: size the cells by those pixels
+    seen_c = radius_caustic[vp_found & (radius_caustic < radius_caustic.max())]
+    typical_c = float(np.median(seen_c)) if seen_c.size else typical
+    grid_c = build_grid(position, power, normal, (valid == 2).view(np.int8), box, CELL_PER_RADIUS * typical_c)
+    return grid, grid_c
+
+
+def _volume_estimate(scene, settings, pass_index, volume, segments, timings, stats):
+    """The beam radiance estimate of a pass's volume photons along the camera segments, within the
+    pass's volume radius (docs/media.md): (radiance float64[n, 3], compile seconds)."""
+    n = settings["width"] * settings["height"]
+    r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
+    compile_s = 0.0
+    t1 = time.perf_counter()
+    first_build = not volume_grid_compiled()
+    vgrid = build_volume_grid(*volume, r_v)
+    if first_build:
+        compile_s += time.perf_counter() - t1
+    else:
+        timings["volume_grid_s"] = time.perf_counter() - t1
+    vol = np.empty((n, 3))
+    vfound = np.empty(n, np.int64)
+    t1 = time.perf_counter()
+    c = parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, vfound)),
+                     threads=settings["threads"])
+    timings["volume_gather_s"] = time.perf_counter() - t1 - c
+    stats["volume_photons"] = vgrid.count
+    stats["volume_grid_entries"] = vgrid.entries
+    stats["volume_photons_gathered"] = int(vfound.sum())
+    return vol, compile_s + c

@@ -34,6 +34,7 @@ import numpy as np
 from ..bsdfs import DELTA, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, camera_scale, eval_pdf, oriented, sample
 from ..camera import generate_ray
 from ..emitters import env_pdf, env_radiance
+from ..errors import ParameterError
 from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..media import escape_transmittance, free_flight, light_sample, medium_after, phase_pdf, phase_sample, \
@@ -46,6 +47,10 @@ from .params import Param
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
+#: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults
+#: (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights, to
+#: the same image).
+SCENE_INTEGRATORS = ("path", "volpath", "ptracer", "direct")
 
 
 @kernel(hot=True)
@@ -246,11 +251,26 @@ class PathTracer(IndependentPasses):
     progressive = True
     renders_glossy = True    # the BSDFs' glossy lobes through eval_pdf and sample (api.check_bsdfs)
     params = (
-        Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited",
+        Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited; a scene's "
+              "path/volpath integrator sets the default",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=DEPTH_CAP),
-        Param("rr_depth", int, 5, "vertices before Russian roulette starts", lambda v: v >= 1, ">= 1",
+        Param("rr_depth", int, 5, "vertices before Russian roulette starts (a scene's integrator sets the "
+              "default)", lambda v: v >= 1, ">= 1",
               max=DEPTH_CAP),
     )
+
+    @staticmethod
+    def scene_defaults(description) -> dict:
+        """The scene's ``<integrator>`` settings pt takes (Mitsuba's conventions, which pt's follow)."""
+        s = description.integrator_settings
+        if not description.integrator_source or s.type not in SCENE_INTEGRATORS:
+            return {}
+        if s.type == "direct":
+            return {"max_depth": 2}
+        if s.max_depth == 0:
+            raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even the "
+                                 f"emitters); give -1 (unlimited) or a depth of at least 1")
+        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth}
 
     @staticmethod
     def pass_output(scene, settings, pass_index, progress):

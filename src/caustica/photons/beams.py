@@ -145,24 +145,12 @@ def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
                       np.ascontiguousarray(direction, np.float32), np.ascontiguousarray(power, np.float32))
 
 
-@kernel
-def segment_estimate(vg, media, o, d, s, m):
-    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces.
-
-    Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
-    """
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
-    found = 0
-    if vg.position.shape[0] == 0:
-        return (a0, a1, a2), found
-    r = vg.radius[0]
-    r2 = r * r
+@kernel(inline=True)
+def _clip_to_grid(vg, o, d, s):
+    """The part (t0, t1) of the segment (o, d, [0, s]) inside the grid's box; none when not t0 < t1."""
     c = vg.cell[0]
     lo = vg.lo
     dims = vg.dims
-    # clip [0, s] to the grid's box
     t0 = 0.0
     t1 = s
     for k in range(3):
@@ -175,14 +163,21 @@ def segment_estimate(vg, media, o, d, s, m):
             t0 = max(t0, ta)
             t1 = min(t1, tb)
         elif o[k] < lo[k] or o[k] > hi:
-            return (a0, a1, a2), found
-    if not t0 < t1:
-        return (a0, a1, a2), found
+            return 0.0, -1.0
+    return t0, t1
+
+
+@kernel(inline=True)
+def _dda_start(vg, o, d, t0):
+    """A 3-D DDA from the point at t0 (Amanatides & Woo): per axis the cell, the step, the t of the
+    next cell boundary and the t between boundaries."""
+    c = vg.cell[0]
+    lo = vg.lo
+    dims = vg.dims
     inv = 1.0 / c
     ix = _index(o[0] + d[0] * t0, lo[0], inv, dims[0])   # the cell where the clipped segment starts
     iy = _index(o[1] + d[1] * t0, lo[1], inv, dims[1])
     iz = _index(o[2] + d[2] * t0, lo[2], inv, dims[2])
-    # the DDA's state per axis: step, t of the next boundary, t between boundaries
     sx = 1 if d[0] > 0.0 else -1
     sy = 1 if d[1] > 0.0 else -1
     sz = 1 if d[2] > 0.0 else -1
@@ -192,42 +187,75 @@ def segment_estimate(vg, media, o, d, s, m):
     dx = c / abs(d[0]) if d[0] != 0.0 else np.inf
     dy = c / abs(d[1]) if d[1] != 0.0 else np.inf
     dz = c / abs(d[2]) if d[2] != 0.0 else np.inf
+    return (ix, iy, iz), (sx, sy, sz), (nx, ny, nz), (dx, dy, dz)
+
+
+@kernel(inline=True)
+def _add_cell(vg, media, seg, k, span, acc):
+    """Add to ``acc`` = (a0, a1, a2, found) the photons of grid cell k whose spheres the segment pierces
+    with its closest approach t in ``span`` = [t_enter, t_exit); ``seg`` = (o, d, m, r2)."""
+    o, d, m, r2 = seg
+    t_enter, t_exit = span
+    a0, a1, a2, found = acc
     st0 = media.sigma_t[m, 0]
     st1 = media.sigma_t[m, 1]
     st2 = media.sigma_t[m, 2]
     grey = st0 == st1 and st1 == st2   # one exponential per photon (the same bits as three)
     wo = (-d[0], -d[1], -d[2])
-    mask = vg.start.shape[0] - 2
+    b = k & (vg.start.shape[0] - 2)
+    for j in range(vg.start[b], vg.start[b + 1]):
+        if vg.key[j] != k:
+            continue
+        i = vg.photon[j]
+        vx = vg.position[i, 0] - o[0]
+        vy = vg.position[i, 1] - o[1]
+        vz = vg.position[i, 2] - o[2]
+        ti = vx * d[0] + vy * d[1] + vz * d[2]
+        if ti < t_enter or ti >= t_exit:
+            continue
+        d2 = vx * vx + vy * vy + vz * vz - ti * ti
+        if d2 > r2:
+            continue
+        wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
+        ph = phase_value(media, m, wi, wo)
+        if grey:
+            w = math.exp(-st0 * ti) * ph
+            a0 += w * vg.power[i, 0]
+            a1 += w * vg.power[i, 1]
+            a2 += w * vg.power[i, 2]
+        else:
+            a0 += math.exp(-st0 * ti) * ph * vg.power[i, 0]
+            a1 += math.exp(-st1 * ti) * ph * vg.power[i, 1]
+            a2 += math.exp(-st2 * ti) * ph * vg.power[i, 2]
+        found += 1
+    return a0, a1, a2, found
+
+
+@kernel
+def segment_estimate(vg, media, o, d, s, m):
+    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces.
+
+    Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
+    The segment walks the grid's cells in order (a DDA), each photon counted in the cell of its
+    closest approach.
+    """
+    acc = (0.0, 0.0, 0.0, 0)
+    if vg.position.shape[0] == 0:
+        return (0.0, 0.0, 0.0), 0
+    t0, t1 = _clip_to_grid(vg, o, d, s)
+    if not t0 < t1:
+        return (0.0, 0.0, 0.0), 0
+    dims = vg.dims
+    cell, step, nxt, delta = _dda_start(vg, o, d, t0)
+    ix, iy, iz = cell
+    sx, sy, sz = step
+    nx, ny, nz = nxt
+    dx, dy, dz = delta
+    seg = (o, d, m, vg.radius[0] * vg.radius[0])
     t_enter = t0
     while t_enter < t1:
         t_exit = min(min(nx, ny), min(nz, t1))
-        k = (ix * dims[1] + iy) * dims[2] + iz
-        b = k & mask
-        for j in range(vg.start[b], vg.start[b + 1]):
-            if vg.key[j] != k:
-                continue
-            i = vg.photon[j]
-            vx = vg.position[i, 0] - o[0]
-            vy = vg.position[i, 1] - o[1]
-            vz = vg.position[i, 2] - o[2]
-            ti = vx * d[0] + vy * d[1] + vz * d[2]
-            if ti < t_enter or ti >= t_exit:
-                continue
-            d2 = vx * vx + vy * vy + vz * vz - ti * ti
-            if d2 > r2:
-                continue
-            wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
-            ph = phase_value(media, m, wi, wo)
-            if grey:
-                w = math.exp(-st0 * ti) * ph
-                a0 += w * vg.power[i, 0]
-                a1 += w * vg.power[i, 1]
-                a2 += w * vg.power[i, 2]
-            else:
-                a0 += math.exp(-st0 * ti) * ph * vg.power[i, 0]
-                a1 += math.exp(-st1 * ti) * ph * vg.power[i, 1]
-                a2 += math.exp(-st2 * ti) * ph * vg.power[i, 2]
-            found += 1
+        acc = _add_cell(vg, media, seg, (ix * dims[1] + iy) * dims[2] + iz, (t_enter, t_exit), acc)
         if t_exit >= t1:
             break
         if nx <= ny and nx <= nz:
@@ -246,7 +274,7 @@ def segment_estimate(vg, media, o, d, s, m):
                 break
             nz += dz
         t_enter = t_exit
-    return (a0, a1, a2), found
+    return (acc[0], acc[1], acc[2]), acc[3]
 
 
 @kernel

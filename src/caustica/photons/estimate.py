@@ -54,7 +54,7 @@ def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2):
     if pmap.position.shape[0] == 0 or k <= 0:
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
-    count, r2 = knn(tree, pmap.normal, pmap.tree_normal_bounds, p, n, k, r_max, scratch_idx, scratch_d2)
+    count, r2 = knn(tree, pmap.normal, pmap.tree_normal_bounds, p, n, k, r_max, (scratch_idx, scratch_d2))
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0

@@ -123,6 +123,25 @@ def _select(pts, idx, lo, hi, kth, ax):
             break
 
 
+@kernel(inline=True)
+def _push_children(stk_lo, stk_hi, sp, split, leaf_size):
+    """Push the children of node m = split[1] over [lo, hi) that are not leaves; returns the new sp.
+
+    The tree is implicit: node m of range [lo, hi) is its median, its children are [lo, m)
+    and [m + 1, hi), and a range of at most ``leaf_size`` points is a leaf.
+    """
+    lo, m, hi = split
+    if hi - (m + 1) > leaf_size:
+        stk_lo[sp] = m + 1
+        stk_hi[sp] = hi
+        sp += 1
+    if m - lo > leaf_size:
+        stk_lo[sp] = lo
+        stk_hi[sp] = m
+        sp += 1
+    return sp
+
+
 @kernel
 def _build(pts, idx, axis, leaf_size):
     n = pts.shape[0]
@@ -130,7 +149,6 @@ def _build(pts, idx, axis, leaf_size):
         return
     stk_lo = np.empty(2 * STACK_SIZE, dtype=np.int64)
     stk_hi = np.empty(2 * STACK_SIZE, dtype=np.int64)
-    sp = 0
     stk_lo[0] = 0
     stk_hi[0] = n
     sp = 1
@@ -171,14 +189,7 @@ def _build(pts, idx, axis, leaf_size):
         m = (lo + hi) >> 1
         _select(pts, idx, lo, hi, m, ax)
         axis[m] = ax
-        if hi - (m + 1) > leaf_size:
-            stk_lo[sp] = m + 1
-            stk_hi[sp] = hi
-            sp += 1
-        if m - lo > leaf_size:
-            stk_lo[sp] = lo
-            stk_hi[sp] = m
-            sp += 1
+        sp = _push_children(stk_lo, stk_hi, sp, (lo, m, hi), leaf_size)
 
 
 def build_kdtree(points: np.ndarray) -> KdTree:
@@ -224,14 +235,7 @@ def _normal_bounds(index, normals, leaf_size, out):
             # quantised outwards, so the box of normals only ever grows
             out[m, a] = max(-127, int(np.floor(mn * 127.0)))
             out[m, 3 + a] = min(127, int(np.ceil(mx * 127.0)))
-        if hi - (m + 1) > leaf_size:
-            stk_lo[sp] = m + 1
-            stk_hi[sp] = hi
-            sp += 1
-        if m - lo > leaf_size:
-            stk_lo[sp] = lo
-            stk_hi[sp] = m
-            sp += 1
+        sp = _push_children(stk_lo, stk_hi, sp, (lo, m, hi), leaf_size)
 
 
 def normal_bounds(tree: KdTree, normals: np.ndarray) -> np.ndarray:
@@ -294,8 +298,16 @@ def _heap_replace_top(out_idx, out_d2, count, i, d2):
 
 
 @kernel(inline=True)
-def _offer(pts, index, normals, j, qx, qy, qz, nx, ny, nz, k, count, bound, out_idx, out_d2):
-    """Consider tree point j for the heap; returns the new (count, bound)."""
+def _offer(arrays, j, query, heap, out):
+    """Consider tree point j for the heap; returns the new heap (count, bound).
+
+    ``arrays`` = (points, index, normals), ``query`` = (qx, qy, qz, nx, ny, nz, k),
+    ``heap`` = (count, bound), ``out`` = (out_idx, out_d2).
+    """
+    pts, index, normals = arrays
+    qx, qy, qz, nx, ny, nz, k = query
+    count, bound = heap
+    out_idx, out_d2 = out
     dx = pts[j, 0] - qx
     dy = pts[j, 1] - qy
     dz = pts[j, 2] - qz
@@ -315,8 +327,66 @@ def _offer(pts, index, normals, j, qx, qy, qz, nx, ny, nz, k, count, bound, out_
     return count, bound
 
 
+@kernel(inline=True)
+def _faces_away(bounds, m, query):
+    """Whether every normal below node m faces away from the query's (the largest dot over its box, x127)."""
+    nx, ny, nz = query[3], query[4], query[5]
+    facing = (max(nx * bounds[m, 0], nx * bounds[m, 3])
+              + max(ny * bounds[m, 1], ny * bounds[m, 4])
+              + max(nz * bounds[m, 2], nz * bounds[m, 5]))
+    return facing <= FACING_COS * 127.0
+
+
+@kernel(inline=True)
+def _split(pts, axis, m, query, cell):
+    """Where the query lies against node m's splitting plane: (diff, the far child's cell).
+
+    ``cell`` = (nb, o0, o1, o2): the squared distance bound of node m's cell and its offsets from
+    the query along x, y, z (Arya & Mount's incremental distance); the far child's cell differs
+    along the splitting axis only.
+    """
+    nb, o0, o1, o2 = cell
+    ax = axis[m]
+    if ax == 0:
+        diff = query[0] - pts[m, 0]
+        old = o0
+    elif ax == 1:
+        diff = query[1] - pts[m, 1]
+        old = o1
+    else:
+        diff = query[2] - pts[m, 2]
+        old = o2
+    fb = nb - old * old + diff * diff
+    ad = abs(diff)
+    if ax == 0:
+        return diff, (fb, ad, o1, o2)
+    if ax == 1:
+        return diff, (fb, o0, ad, o2)
+    return diff, (fb, o0, o1, ad)
+
+
+@kernel(inline=True)
+def _push(stk, sp, lo, hi, cell):
+    """Push the range [lo, hi) with its cell (nb, o0, o1, o2); returns sp + 1."""
+    e = 6 * sp
+    stk[e] = lo
+    stk[e + 1] = hi
+    stk[e + 2] = cell[0]
+    stk[e + 3] = cell[1]
+    stk[e + 4] = cell[2]
+    stk[e + 5] = cell[3]
+    return sp + 1
+
+
+@kernel(inline=True)
+def _pop(stk, sp):
+    """The range and cell at stack entry sp: (lo, hi, cell)."""
+    e = 6 * sp
+    return int(stk[e]), int(stk[e + 1]), (stk[e + 2], stk[e + 3], stk[e + 4], stk[e + 5])
+
+
 @kernel
-def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
+def knn(tree, normals, bounds, qp, qn, k, r_max, out):
     """The k nearest points to qp within distance r_max whose normal faces qn.
 
     tree    -- a KdTree
@@ -328,8 +398,8 @@ def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
     k       -- heap capacity (out_idx and out_d2 need at least k entries, else
                ValueError)
     r_max   -- maximum search distance, >= 0 (points with d^2 <= r_max^2 qualify)
-    out_idx -- int64 array, receives ORIGINAL indices of the found points
-    out_d2  -- float64 array, receives their squared distances
+    out     -- (out_idx, out_d2): an int64 array that receives the ORIGINAL indices
+               of the found points, a float64 array their squared distances
 
     Returns (count, r2): count <= k points are in out_idx[:count] / out_d2[:count]
     (in heap order, not sorted; out_d2[0] is the largest when count > 0), and r2 is
@@ -340,86 +410,39 @@ def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
     r2max = r_max * r_max
     pts = tree.points
     n = pts.shape[0]
+    out_idx, out_d2 = out
     if k > out_idx.shape[0] or k > out_d2.shape[0]:
         raise ValueError("knn: out_idx and out_d2 need at least k entries")
     if k <= 0 or n == 0:
         return 0, r2max
-    index = tree.index
+    arrays = (pts, tree.index, normals)
     axis = tree.axis
-    qx = float(qp[0])
-    qy = float(qp[1])
-    qz = float(qp[2])
-    nx = float(qn[0])
-    ny = float(qn[1])
-    nz = float(qn[2])
-
+    query = (float(qp[0]), float(qp[1]), float(qp[2]), float(qn[0]), float(qn[1]), float(qn[2]), k)
     use_bounds = bounds.shape[0] == n
-    # Stack entries: (lo, hi, lower bound, offsets to the cell along x, y, z).
+    # Stack entries: (lo, hi, and the cell: lower bound, offsets to the cell along x, y, z).
     stk = np.empty(6 * STACK_SIZE, dtype=np.float64)
     sp = 0
-
-    count = 0
-    bound = r2max  # squared search radius: r_max^2 until the heap is full
+    heap = (0, r2max)  # (count, squared search radius: r_max^2 until the heap is full)
     lo = 0
     hi = n
-    # Incremental distance (Arya & Mount): the cell of [lo, hi) lies at least
-    # (o0, o1, o2) away from the query along each axis, nb = o0^2 + o1^2 + o2^2.
-    nb = 0.0
-    o0 = 0.0
-    o1 = 0.0
-    o2 = 0.0
+    cell = (0.0, 0.0, 0.0, 0.0)  # the root's cell holds the query: distance bound 0
     while True:
-        if nb <= bound:
+        if cell[0] <= heap[1]:
             if hi - lo <= LEAF_SIZE:
                 for j in range(lo, hi):
-                    count, bound = _offer(pts, index, normals, j, qx, qy, qz, nx, ny, nz,
-                                          k, count, bound, out_idx, out_d2)
+                    heap = _offer(arrays, j, query, heap, out)
             else:
                 m = (lo + hi) >> 1
-                if use_bounds:
-                    # the largest dot(n, qn) over the node's box of normals (x127)
-                    facing = (max(nx * bounds[m, 0], nx * bounds[m, 3])
-                              + max(ny * bounds[m, 1], ny * bounds[m, 4])
-                              + max(nz * bounds[m, 2], nz * bounds[m, 5]))
-                    if facing <= FACING_COS * 127.0:
-                        lo = hi  # an empty range: the loop goes on to the stack
-                        continue
-                count, bound = _offer(pts, index, normals, m, qx, qy, qz, nx, ny, nz,
-                                      k, count, bound, out_idx, out_d2)
-                ax = axis[m]
-                if ax == 0:
-                    diff = qx - pts[m, 0]
-                    old = o0
-                elif ax == 1:
-                    diff = qy - pts[m, 1]
-                    old = o1
-                else:
-                    diff = qz - pts[m, 2]
-                    old = o2
-                fb = nb - old * old + diff * diff  # the far child's bound
-                if fb <= bound:
-                    f0 = o0
-                    f1 = o1
-                    f2 = o2
-                    ad = abs(diff)
-                    if ax == 0:
-                        f0 = ad
-                    elif ax == 1:
-                        f1 = ad
-                    else:
-                        f2 = ad
-                    e = 6 * sp
+                if use_bounds and _faces_away(bounds, m, query):
+                    lo = hi  # an empty range: the loop goes on to the stack
+                    continue
+                heap = _offer(arrays, m, query, heap, out)
+                diff, far = _split(pts, axis, m, query, cell)
+                if far[0] <= heap[1]:
                     if diff < 0.0:  # near child [lo, m), far child [m + 1, hi)
-                        stk[e] = m + 1
-                        stk[e + 1] = hi
+                        sp = _push(stk, sp, m + 1, hi, far)
                     else:
-                        stk[e] = lo
-                        stk[e + 1] = m
-                    stk[e + 2] = fb
-                    stk[e + 3] = f0
-                    stk[e + 4] = f1
-                    stk[e + 5] = f2
-                    sp += 1
+                        sp = _push(stk, sp, lo, m, far)
                 if diff < 0.0:
                     hi = m
                 else:
@@ -428,14 +451,9 @@ def knn(tree, normals, bounds, qp, qn, k, r_max, out_idx, out_d2):
         if sp == 0:
             break
         sp -= 1
-        e = 6 * sp
-        lo = int(stk[e])
-        hi = int(stk[e + 1])
-        nb = stk[e + 2]
-        o0 = stk[e + 3]
-        o1 = stk[e + 4]
-        o2 = stk[e + 5]
+        lo, hi, cell = _pop(stk, sp)
 
+    count = heap[0]
     if count == k:
         return count, out_d2[0]
     return count, r2max

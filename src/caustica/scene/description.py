@@ -173,7 +173,7 @@ class ReconstructionFilter:
 
 @dataclass
 class Camera:
-    """A perspective camera in Mitsuba's convention.
+    """A perspective or orthographic camera in Mitsuba's convention.
 
     to_world maps camera space (looking along +z, +y up, +x towards the image's
     left) to the world; fov_deg is measured along ``fov_axis`` (x, y, diagonal, smaller or larger).
@@ -183,6 +183,8 @@ class Camera:
     stop there yet; the loader refuses a ``far_clip`` that any shape reaches beyond, so it changes nothing.
     ``rfilter``: the film's reconstruction filter; ``sample_border``: whether samples may land
     beyond the film's edge (Mitsuba's film ``sample_border``; off: a filter is truncated at the edge).
+    ``projection``: "perspective", or "orthographic" (Mitsuba's: parallel rays along camera +z from the near
+    plane's [-1, 1] x [-1/aspect, 1/aspect], which to_world's scale sizes; no fov).
     """
     to_world: np.ndarray
     fov_deg: float
@@ -195,6 +197,7 @@ class Camera:
     medium: int = -1
     rfilter: ReconstructionFilter = field(default_factory=ReconstructionFilter)
     sample_border: bool = False
+    projection: str = "perspective"
 
 
 @dataclass
@@ -226,8 +229,9 @@ class SceneDescription:
     """A whole scene.  ``integrator_settings`` is the file's ``<integrator>`` (:class:`IntegratorSettings`:
     type, max_depth, rr_depth, hide_emitters; Mitsuba's defaults when the file has none).
     ``integrator`` / ``integrator_props`` / ``integrator_source`` repeat its type, properties and "file:line"
-    ("" when the file has none).  The methods do not read them yet: the method is chosen when rendering (see
-    :meth:`integrator_note` and docs/methods.md)."""
+    ("" when the file has none).  The method is chosen when rendering; ``pt`` takes the depths of the
+    integrators whose image it renders (its ``scene_defaults``; :meth:`integrator_note` says what else is
+    not read, docs/methods.md)."""
     camera: Camera
     shapes: list[Shape] = field(default_factory=list)
     materials: list[Material] = field(default_factory=list)
@@ -254,29 +258,38 @@ class SceneDescription:
         """What a render with ``method`` and its ``parameters`` does with the scene's
         ``<integrator>``, when that differs from what the file asks; None otherwise.
 
-        caustica never reads the element.  Mitsuba's ``path`` is what ``pt`` is, and so is
-        ``volpath`` (``pt`` follows rays through media, docs/media.md), so they go without
-        a word unless the render is ``pt`` with settings other than the file's (e.g.
-        ``max_depth``), or ``path`` on a scene with media (Mitsuba's ``path`` ignores
-        them, ``pt`` does not); any other integrator (``bdpt``, ...), and ``volpath``
-        with another method, gets a note, so a scene never renders differently from
-        what it asks without the user being told.
+        ``pt`` renders what Mitsuba's ``path`` and ``volpath`` render, and takes their
+        ``max_depth`` and ``rr_depth`` (a value given to pt wins: then a note); ``direct`` is
+        pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path`` on
+        a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not); any
+        other integrator (``bdpt``, ...), and ``volpath`` or ``direct`` with another method, gets a
+        note, so a scene never renders differently from what it asks without the user being told.
         """
         if not self.integrator_source:
             return None
         kind, where = self.integrator, self.integrator_source
-        if kind not in ("path", "volpath") or (kind == "volpath" and method != "pt"):
+        if method != "pt":
+            if kind != "path":
+                return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
+                        f"('caustica methods' lists them)")
+            depth = self.integrator_settings.max_depth
+            return None if depth == -1 else (
+                f"integrator 'path' in {where} asks for max_depth={depth}, which --method {method} does not "
+                f"read (its paths are as long as its own settings allow)")
+        if kind not in ("path", "volpath", "direct", "ptracer"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
-        if method != "pt":
-            return None
         if kind == "path" and self.has_media:
             return (f"integrator 'path' in {where} would ignore the scene's media in Mitsuba; pt renders them "
                     f"(as Mitsuba's volpath does)")
+        if kind == "direct":
+            return (f"integrator 'direct' in {where}: pt renders the same image as paths of at most two segments "
+                    f"(max_depth {parameters.get('max_depth')})")
         differ = {k: v for k, v in self.integrator_props.items() if parameters.get(k, object()) != v}
         if not differ:
-            return None
+            return None if kind != "ptracer" else (
+                f"integrator 'ptracer' in {where}: pt renders the same image from the camera")
         asked = ", ".join(f"{k}={v}" for k, v in differ.items())
         ran = ", ".join(f"{k}={parameters[k]}" if k in parameters else f"no {k}" for k in differ)
-        return (f"integrator '{kind}' in {where} asks for {asked}, which is not read; pt runs with {ran} "
-                f"(set pt's own flags, e.g. --max-depth, to change it)")
+        return (f"integrator '{kind}' in {where} asks for {asked}; pt runs with {ran} (a setting given to pt "
+                f"wins over the scene's; pt has no other)")

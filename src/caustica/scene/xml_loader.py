@@ -104,7 +104,10 @@ _PERSPECTIVE = {"fov": FLOAT, "focal_length": STR + FLOAT, "fov_axis": STR, "nea
                 "principal_point_offset_x": FLOAT, "principal_point_offset_y": FLOAT}
 SENSOR_PROPS = {"perspective": _PERSPECTIVE,
                 # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
-                "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT}}
+                "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT},
+                # parallel rays from the near plane's [-1, 1] x [-1/aspect, 1/aspect], placed by to_world
+                "orthographic": {"near_clip": FLOAT, "far_clip": FLOAT, "to_world": XFORM,
+                                 "shutter_open": FLOAT, "shutter_close": FLOAT}}
 FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT,
                            # samples beyond the film's edge reach its pixels through the filter (read)
                            "sample_border": BOOL,
@@ -1086,7 +1089,8 @@ class _Loader:
     # -- sensor -----------------------------------------------------------------------
     def sensor(self, node: Node) -> tuple[Camera, int]:
         props = self.plugin(node, SENSOR_PROPS, ("film", "sampler", "medium", "ref"))
-        fov, axis = self.field_of_view(node, props)
+        projection = "orthographic" if node.attrs["type"] == "orthographic" else "perspective"
+        fov, axis = self.field_of_view(node, props) if projection == "perspective" else (0.0, "x")
         near = float(self.number(props, "near_clip", DEFAULT_NEAR_CLIP, positive=True))
         far = float(self.number(props, "far_clip", DEFAULT_FAR_CLIP, positive=True))
         if not near < far:
@@ -1149,7 +1153,7 @@ class _Loader:
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
                      near_clip=near, far_clip=far, film_source=film_where, medium=medium, rfilter=rfilter,
-                     sample_border=sample_border)
+                     sample_border=sample_border, projection=projection)
         self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
 
