@@ -30,6 +30,11 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/tests/scenes/instancing/test_instancing_path.xml",
     "mitsuba-renderer+mitsuba-tutorials/scenes/cbox.xml",
     "mitsuba-renderer+mitsuba-tutorials/scenes/simple.xml",
+    # with environment emitters (constant, envmap)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_twosided_cbox.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_twosided_cbox_onesided.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/infinite_mirrors/scene_path.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_dielectric_envmap_volpath.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),

@@ -339,7 +339,7 @@ ERROR_CASES = {
     "undefined parameter": ("<shape type=\"sphere\"><float name=\"radius\" value=\"$r\"/></shape>", 4, "$r"),
     "unknown ref": ("<shape type=\"cube\"><ref id=\"nothing\"/></shape>", 4, "nothing"),
     "unknown bsdf": ("<bsdf type=\"blendbsdf\"/>", 4, "blendbsdf"),
-    "environment emitter": ("<emitter type=\"envmap\"/>", 4, "envmap"),
+    "envmap without a file": ("<emitter type=\"envmap\"/>", 4, "an envmap needs a 'filename'"),
     "area at top level": ("<emitter type=\"area\"/>", 4, "inside a <shape>"),
     "unknown ior": ("<bsdf type=\"dielectric\"><string name=\"int_ior\" value=\"glass\"/></bsdf>", 4, "glass"),
 }

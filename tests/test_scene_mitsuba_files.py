@@ -440,7 +440,7 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
         (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),
         (9, "<spectrum name=\"reflectance\">: wavelengths must increase, but 500 follows 600"),
-        (11, "<emitter type=\"envmap\">: unknown emitter type 'envmap'; supported: point (top level), area"),
+        (11, "<string name=\"filename\">: environment map 'sky.exr' not found; searched: "),
     ]
     assert len(items) == 9
     for item, (line, words) in zip(items, expected):

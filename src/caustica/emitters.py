@@ -1,12 +1,18 @@
-"""Emitters: area lights (one-sided Lambertian, on any shape) and point lights.
+"""Emitters: area lights (one-sided Lambertian, on any shape), point lights and an environment.
 
 A :class:`LightTable` lists every emitter once: area emitters first (one per
 emissive shape, in scene order, matching ``Geometry.prim_emitter``), then point
-lights.  Lights are chosen in proportion to their power (mean over RGB), both for
+lights, then the environment if the scene has one (``env[0]`` its index, else -1).  Lights are chosen in proportion to their power (mean over RGB), both for
 next-event estimation and for photon emission.
 
 Power of a one-sided Lambertian area emitter of radiance L and area A is
 Φ = π L A; of a point light of intensity I it is Φ = 4 π I (watts per channel).
+
+The environment (Mitsuba 3's ``constant`` or ``envmap``) is light from infinitely far away.  Its power is
+Φ = π R² ∫ L dω, R the radius of the scene's bounding sphere (Mitsuba's convention; for a map the integral
+is the sum over its bilinear patches of their mean radiance times their solid angle).  A map is looked up
+as Mitsuba 3 does (:func:`env_lookup`) and sampled by luminance (:func:`env_sample`); a constant one
+uniformly over the sphere.
 
 Points on an area emitter are sampled uniformly by area.  A rectangle (a
 parallelogram of two triangles) is sampled through its own (u, v) parametrisation,
@@ -24,10 +30,18 @@ import numpy as np
 from .geometry import vec
 from .geometry.scene_geometry import Geometry, sample_on_primitive
 from .jit import kernel
+from .sampling.warps import square_to_uniform_sphere
 from .scene.description import SceneDescription
 
 AREA = 0
 POINT = 1
+ENV = 2
+ENV_TO_WORLD = 4   # offsets into LightTable.env_data
+ENV_CDF = 13
+INV_4PI = 1.0 / (4.0 * math.pi)
+
+#: Mitsuba 3's luminance of linear sRGB (its sampling weight for an envmap's texels).
+LUMINANCE = (0.212671, 0.715160, 0.072169)
 
 
 class LightTable(NamedTuple):
@@ -47,6 +61,14 @@ class LightTable(NamedTuple):
     edge1: np.ndarray         # float64[L, 3]
     edge2: np.ndarray         # float64[L, 3]
     normal: np.ndarray        # float64[L, 3]: the parallelogram's front normal
+    # the environment (one entry of kind ENV, or none; arrays of size 1 without one)
+    # (few arrays: every call that passes the tables passes each array's fields)
+    env: np.ndarray           # int32[2]: its index (-1 without one), 1 if constant (radiance[env] everywhere)
+    env_image: np.ndarray     # float64[H, W, 3]: a map's radiance (scale applied), Mitsuba's lat-long layout
+    env_data: np.ndarray      # float64[*]: the scene's bounding sphere (centre, radius R) at 0..3, then a map's
+    #                           rotation to the world (3 x 3, row-major) at ENV_TO_WORLD, then from ENV_CDF
+    #                           its CDF over rows of bilinear patches (H - 1), each row's CDF over its patches
+    #                           ((H - 1) W) and each patch's density in (u, v) (probability x W (H - 1))
 
 
 def _parallelogram(shape):
@@ -102,6 +124,21 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
         radiance[i] = light.intensity
         position[i] = light.position
         power[i] = 4.0 * math.pi * np.asarray(light.intensity)
+    env = _environment_tables(desc, geom)
+    if desc.environment is not None:
+        kind = np.append(kind, np.int32(ENV))
+        radiance = np.vstack([radiance, env.pop("radiance")])
+        power = np.vstack([power, env.pop("power")])
+        position, edge1, edge2, corner, normal = (np.vstack([a, np.zeros((1, 3))]) for a in
+                                                  (position, edge1, edge2, corner, normal))
+        area = np.append(area, 0.0)
+        first = np.append(first, np.int32(0))
+        count = np.append(count, np.int32(0))
+        is_para = np.append(is_para, np.int8(0))
+        n += 1
+    else:
+        env.pop("radiance")
+        env.pop("power")
     scalar = power.mean(axis=1)
     total_power = scalar.sum()
     select_pdf = scalar / total_power if total_power > 0 else np.zeros(n)
@@ -111,7 +148,63 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     return LightTable(kind, radiance, position, area, power, select_pdf, select_cdf,
                       first, count, geom.emitter_prim_ids.astype(np.int32),
                       geom.emitter_cdf.astype(np.float64), is_para,
-                      corner, edge1, edge2, normal)
+                      corner, edge1, edge2, normal, **env)
+
+
+def scene_bounding_sphere(geom: Geometry) -> tuple[np.ndarray, float]:
+    """(centre, radius) of the sphere about the scene's bounding box, as Mitsuba 3 takes it for an environment."""
+    box = geom.scene_box
+    centre = 0.5 * (box[:3] + box[3:])
+    radius = float(np.linalg.norm(box[3:] - centre))
+    return centre, max(radius * (1.0 + 1e-4), 1e-4)
+
+
+def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
+    """The LightTable columns of the environment (with its radiance and power rows): a map's patch CDFs.
+
+    A map of H x W texels is looked up bilinearly between texel centres (columns periodic, rows from pole to
+    pole, :func:`env_lookup`), so its radiance is bilinear on (H - 1) x W patches: patch (i, j) spans rows
+    i, i + 1 and columns j, j + 1 (mod W).  Each is sampled with probability ∝ the mean luminance of its four
+    corners times its solid angle, and uniformly in (u, v) within it; a patch of zero weight has zero radiance.
+    """
+    envd = desc.environment
+    one = np.zeros(1)
+    out = dict(env=np.array([-1, 0], np.int32), env_image=np.zeros((1, 1, 3)), env_data=np.zeros(ENV_CDF),
+               radiance=np.zeros(3), power=np.zeros(3))
+    if envd is None:
+        return out
+    centre, radius = scene_bounding_sphere(geom)
+    n_lights = sum(1 for s in desc.shapes if s.emitter_radiance is not None) + len(desc.point_lights)
+    out["env"] = np.array([n_lights, 1 if envd.kind == "constant" else 0], np.int32)
+    out["env_data"] = np.concatenate([centre, [radius], np.eye(3).reshape(-1)])
+    disc = math.pi * radius * radius
+    if envd.kind == "constant":
+        out["radiance"] = np.asarray(envd.radiance, np.float64)
+        out["power"] = disc * 4.0 * math.pi * out["radiance"]
+        return out
+    img = np.ascontiguousarray(envd.image, dtype=np.float64)
+    h, w = img.shape[:2]
+    theta = np.linspace(0.0, math.pi, h)
+    band = np.cos(theta[:-1]) - np.cos(theta[1:])           # ∫ sin θ dθ over each row of patches
+    corners = 0.25 * (img[:-1] + img[1:] + np.roll(img[:-1], -1, axis=1) + np.roll(img[1:], -1, axis=1))
+    lum = corners @ np.asarray(LUMINANCE)
+    weight = lum * band[:, None]
+    total = weight.sum()
+    if not total > 0.0:
+        weight = np.ones_like(weight) * band[:, None]
+        total = weight.sum()
+    prob = weight / total
+    rows = prob.sum(axis=1)
+    row_cdf = np.cumsum(rows)
+    row_cdf[-1] = 1.0
+    col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
+    col_cdf[:, -1] = 1.0
+    rot = np.asarray(envd.to_world, np.float64).reshape(-1)
+    out.update(env_image=img, env_data=np.concatenate([centre, [radius], rot, row_cdf, col_cdf.reshape(-1),
+                                                       (prob * w * (h - 1)).reshape(-1)]))
+    out["power"] = disc * (corners * (band[:, None, None] * 2.0 * math.pi / w)).sum(axis=(0, 1))
+    out["radiance"] = out["power"] / (disc * 4.0 * math.pi)   # the mean radiance (for messages)
+    return out
 
 
 @kernel
@@ -184,3 +277,114 @@ def total_power(lights):
         s1 += lights.power[i, 1]
         s2 += lights.power[i, 2]
     return (s0, s1, s2)
+
+
+# ----------------------------------------------------------------------------- the environment
+
+@kernel
+def env_lookup(lights, u, v):
+    """A map's radiance at (u, v) as Mitsuba 3 looks it up: bilinear, texel centres at u = (j + 1/2) / W
+    (periodic in u), rows at v = i / (H - 1) (pole to pole)."""
+    img = lights.env_image
+    h = img.shape[0]
+    w = img.shape[1]
+    u = u - math.floor(u)
+    v = min(max(v, 0.0), 1.0)
+    x = u * w - 0.5
+    x0f = math.floor(x)
+    fx = x - x0f
+    x0 = int(x0f) % w
+    x1 = (x0 + 1) % w
+    y = v * (h - 1)
+    y0 = min(int(y), h - 2)
+    fy = y - y0
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
+    for c in range(3):
+        top = (1.0 - fx) * img[y0, x0, c] + fx * img[y0, x1, c]
+        bottom = (1.0 - fx) * img[y0 + 1, x0, c] + fx * img[y0 + 1, x1, c]
+        val = (1.0 - fy) * top + fy * bottom
+        if c == 0:
+            out0 = val
+        elif c == 1:
+            out1 = val
+        else:
+            out2 = val
+    return (out0, out1, out2)
+
+
+@kernel
+def env_uv(lights, d):
+    """Mitsuba 3's (u, v) of world direction d on the map, and sin θ: u = atan2(x, -z) / 2π, v = acos(y) / π in
+    the map's frame (y up)."""
+    m = lights.env_data   # the rotation m[ENV_TO_WORLD + 3 i + j]; its inverse is its transpose
+    x = m[ENV_TO_WORLD] * d[0] + m[ENV_TO_WORLD + 3] * d[1] + m[ENV_TO_WORLD + 6] * d[2]
+    y = m[ENV_TO_WORLD + 1] * d[0] + m[ENV_TO_WORLD + 4] * d[1] + m[ENV_TO_WORLD + 7] * d[2]
+    z = m[ENV_TO_WORLD + 2] * d[0] + m[ENV_TO_WORLD + 5] * d[1] + m[ENV_TO_WORLD + 8] * d[2]
+    u = math.atan2(x, -z) / (2.0 * math.pi)
+    return u - math.floor(u), math.acos(min(max(y, -1.0), 1.0)) / math.pi, math.sqrt(x * x + z * z)
+
+
+@kernel
+def env_radiance(lights, d):
+    """The environment's radiance arriving from world direction d (unit, pointing away from the scene)."""
+    if lights.env[1] == 1:
+        return vec.row(lights.radiance, lights.env[0])
+    u, v, _ = env_uv(lights, d)
+    return env_lookup(lights, u, v)
+
+
+@kernel
+def env_pdf(lights, d):
+    """The solid-angle density with which :func:`env_sample` gives direction d (light choice excluded)."""
+    if lights.env[1] == 1:
+        return INV_4PI
+    u, v, sin_t = env_uv(lights, d)
+    h = lights.env_image.shape[0]
+    w = lights.env_image.shape[1]
+    up = u - 0.5 / w
+    up -= math.floor(up)
+    j = min(int(up * w), w - 1)
+    i = min(int(v * (h - 1)), h - 2)
+    if not sin_t > 0.0:
+        return 0.0
+    return lights.env_data[ENV_CDF + h - 1 + (h - 1) * w + i * w + j] / (2.0 * math.pi * math.pi * sin_t)
+
+
+@kernel
+def env_sample(lights, u1, u2):
+    """A direction towards the environment: (world unit direction, its solid-angle density, radiance).
+
+    A map: a patch by its CDFs (u1 the row, u2 the column), uniform in (u, v) within it; density
+    p(u, v) / (2 π² sin θ).  A constant environment: uniform over the sphere.  Density 0: no sample.
+    """
+    if lights.env[1] == 1:
+        return square_to_uniform_sphere(u1, u2), INV_4PI, vec.row(lights.radiance, lights.env[0])
+    h = lights.env_image.shape[0]
+    w = lights.env_image.shape[1]
+    cdf = lights.env_data
+    i = find_cdf(cdf, ENV_CDF, h - 1, u1) - ENV_CDF
+    lo = cdf[ENV_CDF + i - 1] if i > 0 else 0.0
+    width = cdf[ENV_CDF + i] - lo
+    u1 = min(max((u1 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
+    cols = ENV_CDF + h - 1      # row i's column CDF at cols + i w .. cols + i w + w - 1
+    k = find_cdf(cdf, cols + i * w, w, u2) - cols
+    lo = cdf[cols + k - 1] if k > i * w else 0.0
+    width = cdf[cols + k] - lo
+    u2 = min(max((u2 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
+    v = (i + u1) / (h - 1)
+    u = (k - i * w + u2 + 0.5) / w
+    theta = v * math.pi
+    phi = 2.0 * math.pi * u
+    sin_t = math.sin(theta)
+    zero = (0.0, 0.0, 0.0)
+    if not sin_t > 0.0:
+        return zero, 0.0, zero
+    local = (math.sin(phi) * sin_t, math.cos(theta), -math.cos(phi) * sin_t)
+    m = lights.env_data
+    r = ENV_TO_WORLD
+    d = (m[r] * local[0] + m[r + 1] * local[1] + m[r + 2] * local[2],
+         m[r + 3] * local[0] + m[r + 4] * local[1] + m[r + 5] * local[2],
+         m[r + 6] * local[0] + m[r + 7] * local[1] + m[r + 8] * local[2])
+    return d, m[ENV_CDF + h - 1 + (h - 1) * w + k] / (2.0 * math.pi * math.pi * sin_t), env_lookup(lights, u, v)

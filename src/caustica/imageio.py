@@ -32,6 +32,7 @@ __all__ = [
     "check_exposure",
     "write_exr",
     "read_exr",
+    "read_radiance_image",
     "to_srgb8",
     "encode_png",
     "write_png",
@@ -627,3 +628,123 @@ def output_paths(path: str | os.PathLike[str]) -> tuple[Path, Path, Path]:
         )
     stem = p.with_suffix("") if suffix else p
     return stem.with_name(stem.name + ".exr"), stem.with_name(stem.name + ".png"), stem.with_name(stem.name + ".json")
+
+
+# --------------------------------------------------------------------------- radiance images (envmaps)
+
+#: The image files :func:`read_radiance_image` reads: OpenEXR and Radiance RGBE (linear), and 8/16-bit images
+#: through Pillow (sRGB-encoded, as Mitsuba 3 takes them).
+RADIANCE_IMAGE_SUFFIXES = (".exr", ".hdr", ".rgbe", ".png", ".jpg", ".jpeg", ".bmp", ".tga")
+
+
+def read_rgbe(path: Path) -> np.ndarray:
+    """A Radiance RGBE (.hdr) file as linear RGB float64 H×W×3, read as Mitsuba 3 reads it (Bitmap::read_rgbe):
+    a "#?" header, FORMAT=32-bit_rle_rgbe, the resolution "-Y H +X W"; scanlines flat or new-style run-length
+    encoded; a pixel (r, g, b, e) is (r, g, b) 2^(e - 136), 0 when e = 0.  Raises ValueError on a malformed file."""
+    data = path.read_bytes()
+    pos = data.find(b"\n")
+    if not data.startswith(b"#?") or pos < 0:
+        raise ValueError("not a Radiance RGBE file (no '#?' header)")
+    fmt = None
+    width = height = None
+    while width is None:
+        end = data.find(b"\n", pos + 1)
+        if end < 0:
+            raise ValueError("the header ends before the resolution line")
+        line = data[pos + 1:end].decode("latin-1").strip()
+        pos = end
+        if line.startswith("FORMAT="):
+            fmt = line[len("FORMAT="):]
+        tokens = line.split()
+        if len(tokens) == 4 and tokens[0] in ("-Y", "+Y") and tokens[2] in ("+X", "-X"):
+            if (tokens[0], tokens[2]) != ("-Y", "+X"):
+                raise ValueError(f"orientation {quoted(line)} is not supported (only '-Y H +X W', as in Mitsuba)")
+            height, width = int(tokens[1]), int(tokens[3])
+    if fmt != "32-bit_rle_rgbe":
+        raise ValueError(f"format {quoted(fmt or 'none')} is not supported (only 32-bit_rle_rgbe)")
+    if width <= 0 or height <= 0 or width * height > 1 << 28:
+        raise ValueError(f"bad size {width}x{height}")
+    body = np.frombuffer(data, np.uint8, offset=pos + 1)
+    out = np.empty((height, width, 4), np.uint8)
+    raw = body.tobytes()
+    i = 0
+    for y in range(height):
+        head = body[i:i + 4]
+        if width < 8 or width > 0x7FFF or len(head) < 4 or head[0] != 2 or head[1] != 2 or head[2] & 0x80:
+            flat = body[i:i + 4 * width * (height - y)]   # not run-length encoded: the rest is flat
+            if flat.size != 4 * width * (height - y):
+                raise ValueError("the file is truncated")
+            out[y:] = flat.reshape(height - y, width, 4)
+            break
+        if (int(head[2]) << 8 | int(head[3])) != width:
+            raise ValueError("wrong scanline width")
+        i += 4
+        for c in range(4):
+            x = 0
+            row = out[y, :, c]
+            while x < width:
+                if i + 2 > len(raw):
+                    raise ValueError("the file is truncated")
+                count = raw[i]
+                if count > 128:
+                    count -= 128
+                    if count > width - x:
+                        raise ValueError("bad scanline data")
+                    row[x:x + count] = raw[i + 1]
+                    i += 2
+                else:
+                    if count == 0 or count > width - x or i + 1 + count > len(raw):
+                        raise ValueError("bad scanline data")
+                    row[x:x + count] = np.frombuffer(raw, np.uint8, count, i + 1)
+                    i += 1 + count
+                x += count
+    e = out[..., 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0)
+    return out[..., :3].astype(np.float64) * scale[..., None]
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The exact piecewise sRGB decoding of values in [0, 1]."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, np.power((np.maximum(c, 0.04045) + 0.055) / 1.055, 2.4))
+
+
+def read_radiance_image(path: str | os.PathLike[str]) -> np.ndarray:
+    """Linear RGB float64 H×W×3 from an image file, as Mitsuba 3's Bitmap reads it for an emitter.
+
+    OpenEXR as stored (:func:`read_exr`), Radiance RGBE (:func:`read_rgbe`); PNG, JPEG, BMP and TGA through
+    Pillow, their 8- or 16-bit values decoded from sRGB (grey replicated, alpha dropped).  Raises CausticaError
+    naming the file when it is missing, not an image, or of a kind not read here (PFM).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CausticaError(f"cannot read image '{p}': no such file")
+    suffix = p.suffix.lower()
+    if suffix == ".exr":
+        return read_exr(p).astype(np.float64)
+    if suffix in (".hdr", ".rgbe"):
+        try:
+            return read_rgbe(p)
+        except (ValueError, OSError) as exc:
+            raise CausticaError(f"cannot read image '{p}': {exc}") from None
+    if suffix not in RADIANCE_IMAGE_SUFFIXES:
+        raise CausticaError(f"cannot read image '{p}': {quoted(suffix or 'no suffix')} images are not supported; "
+                            f"supported: {', '.join(RADIANCE_IMAGE_SUFFIXES)} (convert others to OpenEXR)")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(p) as im:
+            im.load()
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                data = np.asarray(im, dtype=np.float64) / 65535.0
+            else:
+                if im.mode not in ("L", "RGB"):
+                    im = im.convert("RGBA" if "A" in im.getbands() or im.mode == "P" else "RGB")
+                data = np.asarray(im, dtype=np.float64) / 255.0
+    except UnidentifiedImageError:
+        raise CausticaError(f"cannot read image '{p}': not an image file Pillow recognises") from None
+    except (OSError, ValueError) as exc:
+        raise CausticaError(f"cannot read image '{p}': {exc}") from None
+    if data.ndim == 2:
+        data = np.repeat(data[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(srgb_to_linear(data[:, :, :3]))

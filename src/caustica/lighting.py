@@ -10,11 +10,84 @@ from __future__ import annotations
 import math
 
 from .bsdfs import entry
-from .emitters import AREA, sample_area_emitter
+from .emitters import AREA, ENV, env_pdf, env_radiance, env_sample, sample_area_emitter
 from .geometry import vec
 from .jit import kernel
-from .media import medium_after, shadow_transmittance
+from .media import env_shadow_length, medium_after, power_heuristic, shadow_transmittance
 from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
+from .sampling.warps import square_to_cosine_hemisphere
+
+INV_PI = 1.0 / math.pi
+
+
+@kernel(inline=True)
+def stratum_point(s, key, dim, n_strata, fixed_grid, pass_index):
+    """(u1, u2) of stratum s = (i, j) of n_strata x n_strata, as :func:`direct_stratified` says."""
+    i = s % n_strata
+    j = s // n_strata
+    if fixed_grid:
+        u1 = (i + 0.5) / n_strata
+        u2 = (j + 0.5) / n_strata
+    elif pass_index < 0:
+        u1 = (i + uniform(key, dim + 2 * s)) / n_strata
+        u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
+    else:
+        u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(key, dim + 2 * s))) / n_strata
+        u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(key, dim + 2 * s + 1))) / n_strata
+    return u1, u2
+
+
+@kernel
+def env_direct(tables, at, key, dim, strata, coated):
+    """The environment's share of :func:`direct_stratified`: E = ∫ L T cos θ dω over the hemisphere of ``at``.
+
+    ``strata`` = (n_strata, fixed_grid, pass_index) give n² stratified points (u1, u2) as for an area light.
+    A constant environment: each is a cosine-weighted direction about the shading normal (L T π each: exact
+    where nothing occludes).  A map: each gives a direction by the map's importance and one by the cosine,
+    combined by MIS (power heuristic), so a small bright sun and a dim wide sky are both found.  Shadow rays
+    as :func:`caustica.media.env_light_sample` traces them.  ``coated`` as for :func:`direct_stratified`.
+    """
+    _, mats, lights, _ = tables
+    n_strata, fixed_grid, pass_index = strata
+    p, ng, ns, ng_front, shape, medium = at
+    n_total = n_strata * n_strata
+    constant = lights.env[1] == 1
+    s_axis, t_axis = vec.orthonormal_basis(ns)
+    acc = (0.0, 0.0, 0.0)
+    for s in range(n_total):
+        u1, u2 = stratum_point(s, key, dim, n_strata, fixed_grid, pass_index)
+        wc = vec.normalize(vec.from_local(s_axis, t_axis, ns, square_to_cosine_hemisphere(u1, u2)))
+        cos_c = vec.dot(ns, wc)
+        if cos_c > 0.0 and vec.dot(ng, wc) > 0.0:
+            w = 1.0
+            if not constant:
+                w = power_heuristic(cos_c * INV_PI, env_pdf(lights, wc))
+            if coated >= 0:
+                w *= entry(mats, coated, cos_c)
+            T = env_transmittance(tables, at, wc)
+            acc = vec.madd(acc, vec.hadamard(env_radiance(lights, wc), T), math.pi * w)
+        if constant:
+            continue
+        we, pdf_e, Le = env_sample(lights, u1, u2)
+        cos_e = vec.dot(ns, we)
+        if pdf_e > 0.0 and cos_e > 0.0 and vec.dot(ng, we) > 0.0:
+            w = power_heuristic(pdf_e, cos_e * INV_PI)
+            if coated >= 0:
+                w *= entry(mats, coated, cos_e)
+            T = env_transmittance(tables, at, we)
+            acc = vec.madd(acc, vec.hadamard(Le, T), cos_e * w / pdf_e)
+    return vec.mul(acc, 1.0 / n_total)
+
+
+@kernel
+def env_transmittance(tables, at, wi):
+    """T along a shadow ray from surface point ``at`` towards the environment in direction wi."""
+    geom, mats, lights, media = tables
+    p, ng, _, ng_front, shape, medium = at
+    T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, wi),
+                                vec.madd(p, wi, env_shadow_length(lights, p)),
+                                medium_after(media, shape, ng_front, wi, medium))
+    return T
 
 
 @kernel
@@ -26,12 +99,12 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
     dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
-    fill it evenly).  Point lights exactly.  Each shadow ray's visibility is its transmittance
-    (:func:`caustica.media.shadow_transmittance`, from the medium on the light's side of the surface; 0 or 1
-    in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on the lit side; ng_front: the front.
-    ``coated``: -1, or a material with a delta coating over a diffuse lobe (:func:`caustica.bsdfs.coat`), whose
-    factor B on the light's side (:func:`caustica.bsdfs.entry`) then weights each shadow ray.
-    Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
+    fill it evenly).  Point lights exactly; the environment by :func:`env_direct`.  Each shadow ray's
+    visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
+    light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on
+    the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta coating over a diffuse lobe
+    (:func:`caustica.bsdfs.coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
+    weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
     """
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium = at
@@ -39,20 +112,12 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):
         rad = vec.row(lights.radiance, li)
-        if lights.kind[li] == AREA:
+        if lights.kind[li] == ENV:
+            E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated))
+        elif lights.kind[li] == AREA:
             acc = (0.0, 0.0, 0.0)
             for s in range(n_total):
-                i = s % n_strata
-                j = s // n_strata
-                if fixed_grid:
-                    u1 = (i + 0.5) / n_strata
-                    u2 = (j + 0.5) / n_strata
-                elif pass_index < 0:
-                    u1 = (i + uniform(key, dim + 2 * s)) / n_strata
-                    u2 = (j + uniform(key, dim + 2 * s + 1)) / n_strata
-                else:
-                    u1 = (i + kronecker(pass_index, KRONECKER_ALPHA[1], uniform(key, dim + 2 * s))) / n_strata
-                    u2 = (j + kronecker(pass_index, KRONECKER_ALPHA[2], uniform(key, dim + 2 * s + 1))) / n_strata
+                u1, u2 = stratum_point(s, key, dim, n_strata, fixed_grid, pass_index)
                 q, nq = sample_area_emitter(lights, geom, li, u1, u2)
                 to_l = vec.sub(q, p)
                 dist2 = vec.dot(to_l, to_l)

@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .emitters import AREA, choose_light, sample_area_emitter
+from .emitters import AREA, ENV, choose_light, env_sample, sample_area_emitter
 from .geometry import vec
 from .geometry.scene_geometry import intersect, occluded, surface_at
 from .jit import kernel
@@ -315,6 +315,8 @@ def light_sample(tables, at, u, through):
     if lights.kind.shape[0] == 0:
         return zero, zero, 0.0, 0.0, False, False, 0
     li, sel_pdf, _ = choose_light(lights, u0)
+    if lights.kind[li] == ENV:
+        return env_light_sample(tables, at, sel_pdf, (u1, u2), through)
     is_area = lights.kind[li] == AREA
     if is_area:
         q, nq = sample_area_emitter(lights, geom, li, u1, u2)
@@ -350,6 +352,57 @@ def light_sample(tables, at, u, through):
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
     return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \
         rays
+
+
+@kernel
+def env_light_sample(tables, at, sel_pdf, u, through):
+    """:func:`light_sample` of the environment (chosen with probability sel_pdf): a direction by
+    :func:`caustica.emitters.env_sample` (u = (u1, u2)), its shadow ray to 2 max(R, |p - c|) along it (c, R
+    the scene's bounding sphere, as Mitsuba 3 does), through media and null boundaries.  Returns what
+    light_sample does, ``is_area`` True (not a delta: MIS applies)."""
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium = at
+    zero = (0.0, 0.0, 0.0)
+    wi, pdf_dir, Le = env_sample(lights, u[0], u[1])
+    pdf = sel_pdf * pdf_dir
+    if not pdf > 0.0:   # a direction of zero density, or an environment that emits nothing (never chosen)
+        return zero, wi, 0.0, 0.0, True, False, 0
+    o = p
+    cos_s = 1.0
+    if shape >= 0:
+        cos_s = vec.dot(ns, wi)
+        cos_g = vec.dot(ng, wi)
+        if through and cos_s < 0.0 and cos_g < 0.0:
+            cos_s, cos_g = -cos_s, -cos_g
+        if cos_s <= 0.0 or cos_g <= 0.0:
+            return zero, wi, 0.0, 0.0, True, False, 0
+        medium = medium_after(media, shape, ng_front, wi, medium)
+        o = vec.offset_origin(p, ng, wi)
+    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
+    if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
+        return zero, wi, 0.0, 0.0, True, False, rays
+    return vec.mul(vec.hadamard(Le, T), cos_s / pdf), wi, pdf, cos_s, True, True, rays
+
+
+@kernel(inline=True)
+def env_shadow_length(lights, p):
+    """How far a shadow ray from p towards the environment goes: 2 max(R, |p - c|), (c, R) the scene's bounding
+    sphere (Mitsuba 3's distance to an infinite emitter)."""
+    sphere = lights.env_data
+    to_c = (p[0] - sphere[0], p[1] - sphere[1], p[2] - sphere[2])
+    return 2.0 * max(sphere[3], vec.length(to_c))
+
+
+@kernel
+def escape_transmittance(media, medium):
+    """Per channel, the transmittance of an unbounded ray in ``medium``: 1 in vacuum or where sigma_t is 0, else 0.
+
+    An environment seen from inside a medium that nothing bounds is attenuated to nothing, except in
+    channels that do not attenuate (docs/media.md)."""
+    if medium < 0:
+        return (1.0, 1.0, 1.0)
+    return (1.0 if media.sigma_t[medium, 0] <= 0.0 else 0.0, 1.0 if media.sigma_t[medium, 1] <= 0.0 else 0.0,
+            1.0 if media.sigma_t[medium, 2] <= 0.0 else 0.0)
 
 
 # ----------------------------------------------------------------------------- distances within a segment
@@ -434,10 +487,15 @@ def light_medium(geom, lights, media, e):
     """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe).
 
     An area light on a shape with media emits into that shape's exterior (its front side, as
-    Mitsuba); otherwise a probe from just in front of the light's middle, along its normal
+    Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first;
+    otherwise a probe from just in front of the light's middle, along its normal
     (:func:`medium_at`), says where it is.  A point light is probed from its position.
     """
     fallback = media.camera[0]
+    if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
+        d = vec.normalize((0.3, 0.5, 0.81))
+        c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+        return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)
     if lights.kind[e] == AREA:
         shape = geom.prim_shape[lights.prims[lights.prim_first[e]]]
         if media.interior[shape] >= 0 or media.exterior[shape] >= 0:

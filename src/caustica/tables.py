@@ -97,7 +97,7 @@ def compile_scene(desc: SceneDescription) -> Scene:
     lights = build_light_table(desc, geom)
     if lights.kind.shape[0] == 0:
         raise SceneError(f"{desc.source}: the scene has no emitter; add an <emitter type=\"area\"> "
-                         f"inside a shape or an <emitter type=\"point\">")
+                         f"inside a shape, an <emitter type=\"point\">, \"constant\" or \"envmap\"")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
     media = build_medium_table(desc)
@@ -113,12 +113,15 @@ def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:
     point lights.
     """
     sources = ([s.source for s in desc.shapes if s.emitter_radiance is not None]
-               + [p.source for p in desc.point_lights])
+               + [p.source for p in desc.point_lights]
+               + ([desc.environment.source] if desc.environment is not None else []))
     total = lights.power.sum(axis=0)
     if np.all(total <= MAX_ABS_FLOAT):
         return
     i = int(np.argmax(lights.power.max(axis=1)))
-    what = "pi x radiance x area" if i < len(sources) - len(desc.point_lights) else "4 pi x intensity"
+    n_area = len(sources) - len(desc.point_lights) - (desc.environment is not None)
+    what = ("pi x radiance x area" if i < n_area else "4 pi x intensity" if i < len(sources) - (desc.environment is not None)
+            else "pi R^2 x the radiance's integral over the sphere, R the scene's bounding radius")
     raise SceneError(f"{sources[i] or desc.source}: the emitter's power ({what}) is "
                      f"{float(lights.power[i].max()):.3g} W, and the scene's lights emit "
                      f"{float(total.max()):.3g} W in all, beyond {MAX_ABS_FLOAT:.3g} (float32, in which photon "

@@ -33,11 +33,12 @@ import numpy as np
 
 from ..bsdfs import DELTA, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, camera_scale, eval_pdf, oriented, sample
 from ..camera import generate_ray
+from ..emitters import env_pdf, env_radiance
 from ..errors import ParameterError
 from ..geometry import vec
 from ..jit import kernel, parallel_for
-from ..media import free_flight, light_sample, medium_after, phase_pdf, phase_sample, phase_value, \
-    power_heuristic
+from ..media import escape_transmittance, free_flight, light_sample, medium_after, phase_pdf, phase_sample, \
+    phase_value, power_heuristic
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
 from . import register
@@ -76,6 +77,8 @@ def radiance(tables, o, d, key, max_depth, rr_depth):
         n_ext += 1
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
+            if lights.env[0] >= 0:
+                L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, (specular, pdf_last))))
             break
         if medium >= 0:
             beta = vec.hadamard(beta, w)
@@ -190,6 +193,25 @@ def emission_mis(lights, e, last, cos_l, t, crossings, p):
         to_p = vec.sub(p, p_last)
         pdf_light = lights.select_pdf[e] * vec.dot(to_p, to_p) / (lights.area[e] * cos_l)
     return power_heuristic(pdf_last, pdf_light)
+
+
+@kernel
+def environment_mis(lights, media, d, medium, last):
+    """The environment's radiance along an escaping ray d, MIS-weighted against light sampling from the last
+    scattering, ``last`` = (specular, pdf_last): weight 1 from the camera or after a delta bounce.  A ray
+    that escapes from inside a medium (one that nothing bounds) escaped in the channels that do not
+    attenuate: their radiance is divided by the probability of escaping, the others' is 0 (docs/media.md)."""
+    specular, pdf_last = last
+    Le = env_radiance(lights, d)
+    if medium >= 0:
+        T = escape_transmittance(media, medium)
+        p = (T[0] + T[1] + T[2]) / 3.0
+        if not p > 0.0:
+            return (0.0, 0.0, 0.0)
+        Le = vec.mul(vec.hadamard(Le, T), 1.0 / p)
+    if specular:
+        return Le
+    return vec.mul(Le, power_heuristic(pdf_last, lights.select_pdf[lights.env[0]] * env_pdf(lights, d)))
 
 
 @kernel

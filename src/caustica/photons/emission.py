@@ -13,16 +13,26 @@ Caustic photons are aimed at bounding spheres of the specular shapes: the
 direction is drawn from the mixture (uniform over spheres) of uniform cones that
 the spheres subtend, and the photon's power divides by that mixture pdf, so the
 estimate stays unbiased wherever cones overlap.
+
+The environment emits parallel rays: a direction d by its importance sampling (density p(ω) towards
+-d) and an origin uniform on the disc of the scene's bounding sphere (radius R) perpendicular to d, on
+the sphere's far side from where the light goes (Mitsuba 3's ``sample_ray``):
+
+    env:   Φ_p = L(ω) π R² / (p(ω) · p_select · N)
+
+Its caustic photons take the origin on the disc of one specular sphere's radius instead (chosen
+uniformly), and divide by the mixture of those discs' area densities.
 """
 from __future__ import annotations
 
 import math
 
-from ..emitters import AREA, choose_light, sample_area_emitter
+from ..emitters import AREA, ENV, choose_light, env_sample, sample_area_emitter
 from ..geometry import vec
 from ..jit import kernel
 from ..sampling.rng import uniform
-from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_sphere
+from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_disk, \
+    square_to_uniform_sphere
 
 FOUR_PI = 4.0 * math.pi
 
@@ -31,6 +41,8 @@ FOUR_PI = 4.0 * math.pi
 def emit_photon(geom, lights, key, n_paths):
     """A photon leaving a light: (origin, unit direction, power RGB in W, front normal or zero)."""
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
+    if lights.kind[li] == ENV:
+        return emit_env_photon(lights, sel_pdf, key, n_paths)
     if lights.kind[li] == AREA:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
         local = square_to_cosine_hemisphere(uniform(key, 3), uniform(key, 4))
@@ -72,6 +84,8 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
     one-sided emitter sends nothing there); such a photon still counts in n_paths.
     """
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
+    if lights.kind[li] == ENV:
+        return emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths)
     is_area = lights.kind[li] == AREA
     if is_area:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
@@ -104,3 +118,56 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
                 (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True)
     w = 1.0 / (pdf_dir * sel_pdf * n_paths)
     return p, d, (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True
+
+
+@kernel
+def emit_env_photon(lights, sel_pdf, key, n_paths):
+    """A photon from the environment (chosen with probability sel_pdf): as :func:`emit_photon` returns it,
+    with no normal.  Direction from numbers 3, 4; the disc point from 1, 2."""
+    towards, pdf, Le = env_sample(lights, uniform(key, 3), uniform(key, 4))
+    d = vec.neg(towards)
+    c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+    r = lights.env_data[3]
+    zero = (0.0, 0.0, 0.0)
+    if not pdf > 0.0:
+        return c, (0.0, 0.0, 1.0), zero, zero
+    s, t = vec.orthonormal_basis(d)
+    x, y = square_to_uniform_disk(uniform(key, 1), uniform(key, 2))
+    o = vec.madd(vec.madd(vec.madd(c, s, x * r), t, y * r), d, -r)
+    w = math.pi * r * r / (pdf * sel_pdf * n_paths)
+    return o, d, vec.mul(Le, w), zero
+
+
+@kernel
+def emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths):
+    """A photon from the environment aimed at a specular sphere: (origin, direction, power, ok).
+
+    Direction by the environment's importance (numbers 1, 2); sphere j uniformly (number 3); the origin
+    uniform on the disc of sphere j's radius about its centre, across the direction (numbers 4, 5), moved
+    back to the plane that touches the scene's bounding sphere behind it.  Its power divides by the
+    mixture of the spheres' disc densities at that line.
+    """
+    towards, pdf, Le = env_sample(lights, uniform(key, 1), uniform(key, 2))
+    d = vec.neg(towards)
+    zero = (0.0, 0.0, 0.0)
+    if not pdf > 0.0:
+        return zero, (0.0, 0.0, 1.0), zero, False
+    m = spheres.shape[0]
+    j = min(int(uniform(key, 3) * m), m - 1)
+    s, t = vec.orthonormal_basis(d)
+    x, y = square_to_uniform_disk(uniform(key, 4), uniform(key, 5))
+    cj = (spheres[j, 0], spheres[j, 1], spheres[j, 2])
+    q = vec.madd(vec.madd(cj, s, x * spheres[j, 3]), t, y * spheres[j, 3])
+    density = 0.0
+    for k in range(m):
+        to_k = (spheres[k, 0] - q[0], spheres[k, 1] - q[1], spheres[k, 2] - q[2])
+        across = vec.madd(to_k, d, -vec.dot(to_k, d))
+        r2 = spheres[k, 3] * spheres[k, 3]
+        if vec.dot(across, across) <= r2 and r2 > 0.0:
+            density += 1.0 / (math.pi * r2)
+    density /= m
+    if not density > 0.0:
+        return q, d, zero, False
+    c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+    o = vec.madd(q, d, -(vec.dot(vec.sub(q, c), d) + lights.env_data[3]))
+    return o, d, vec.mul(Le, 1.0 / (pdf * density * sel_pdf * n_paths)), True

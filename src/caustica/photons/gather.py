@@ -27,6 +27,7 @@ import numpy as np
 
 from ..bsdfs import DELTA, SMOOTH, coat, delta_branches, oriented
 from ..camera import generate_ray
+from ..emitters import env_radiance
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import borrowed, kernel
@@ -74,6 +75,8 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
             if prim < 0:
+                if lights.env[0] >= 0:   # the environment, seen directly or through mirrors and glass
+                    L = vec.add(L, vec.hadamard(beta, env_radiance(lights, d)))
                 break
             p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
             front = vec.dot(d, ng) < 0.0

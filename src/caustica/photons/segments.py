@@ -21,11 +21,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..emitters import env_pdf, env_radiance
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import kernel
-from ..media import NULL_CROSSINGS_CAP, attenuation, light_sample, medium_after, phase_pdf, phase_sample, \
-    phase_value, power_heuristic, sample_distance_within, within_weight
+from ..media import NULL_CROSSINGS_CAP, attenuation, escape_transmittance, light_sample, medium_after, phase_pdf, \
+    phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
 from ..memory import check_budget
 from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 from ..scene.description import NULL
@@ -79,7 +80,8 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
     d was sampled with solid-angle density pdf_dir (the phase function); an area emitter met at
     distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
     select_pdf r² / (area cos_l), as :func:`caustica.media.light_sample` samples it.
-    pdf_dir < 0: no MIS (weight 1).  Emitters on null surfaces crossed count, as in the path
+    pdf_dir < 0: no MIS (weight 1).  A ray that meets nothing sees the environment (weighted likewise against
+    its light sampling).  Emitters on null surfaces crossed count, as in the path
     tracer; the first other surface ends the ray (its emission counts if it is an emitter's front).
     """
     geom, mats, lights, media = tables
@@ -89,6 +91,11 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
     for _ in range(NULL_CROSSINGS_CAP):
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if prim < 0:
+            if lights.env[0] >= 0:
+                w = 1.0
+                if pdf_dir >= 0.0:
+                    w = power_heuristic(pdf_dir, lights.select_pdf[lights.env[0]] * env_pdf(lights, d))
+                L = vec.madd(L, vec.hadamard(T, escaped_radiance(lights, media, d, medium)), w)
             return L
         if medium >= 0:
             T = vec.hadamard(T, attenuation(media, medium, t))
@@ -107,6 +114,13 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
     return L
+
+
+@kernel
+def escaped_radiance(lights, media, d, medium):
+    """The environment's radiance along a ray d that meets nothing, attenuated by the unbounded ``medium`` it
+    is in (:func:`caustica.media.escape_transmittance`: nothing, except in channels that do not attenuate)."""
+    return vec.hadamard(env_radiance(lights, d), escape_transmittance(media, medium))
 
 
 @kernel

@@ -4,7 +4,8 @@ Each pass, pixel i sends one camera ray through a new jittered position.  It is
 followed through mirrors and glass — glass picks reflection or refraction with the
 Fresnel probability, as in the path tracer, so each pass sees one branch and the
 passes average them — until it reaches a diffuse surface, escapes, or exceeds
-``max_specular`` bounces.  Along the way the radiance of emitters it sees is added;
+``max_specular`` bounces.  Along the way the radiance of emitters it sees is added (the environment's
+too, where it escapes);
 at the diffuse point the direct light from every emitter is added (n × n stratified
 shadow rays per area light), and that point becomes the pixel's *visible point*:
 position, shading normal on the viewed side, and weight W = β · ρ / π (the
@@ -67,7 +68,7 @@ from ..media import attenuation, medium_after
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
-from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, \
+from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, escaped_radiance, \
     first_segment_numbers, segment_inscatter, store_segment
 
 INV_PI = 1.0 / math.pi
@@ -157,6 +158,8 @@ def visible_point(tables, o, d, numbers, params, out):
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
+            if lights.env[0] >= 0 and not counted:
+                L = vec.add(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)))
             return False, zero, zero, zero, L, n_seg
         p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)

@@ -151,6 +151,23 @@ class PointLight:
 
 
 @dataclass
+class Environment:
+    """An environment emitter: light from infinitely far away, in every direction (Mitsuba 3's ``constant``
+    and ``envmap``).
+
+    ``kind`` "constant" (``radiance`` RGB from every direction) or "envmap": ``image`` float64 (H, W, 3) of
+    linear RGB radiance, ``scale`` already applied, in Mitsuba's latitude-longitude layout, mapped to the
+    world by the rotation ``to_world`` (3x3, the emitter's ``to_world`` without translation).
+    """
+    kind: str
+    radiance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    image: np.ndarray | None = None
+    to_world: np.ndarray | None = None
+    filename: str = ""
+    source: str = ""  # "file:line" for messages
+
+
+@dataclass
 class ReconstructionFilter:
     """The film's ``<rfilter>``: ``kind`` box, tent or gaussian (Mitsuba 3's definitions, see
     :mod:`caustica.sampling.filters`); ``radius`` the tent's radius in pixels (Mitsuba's default 1;
@@ -235,6 +252,7 @@ class SceneDescription:
     files: list = field(default_factory=list)  # the scene file and every mesh file it read (Paths)
     media: list[Medium] = field(default_factory=list)
     integrator_settings: IntegratorSettings = field(default_factory=IntegratorSettings)
+    environment: Environment | None = None   # at most one (as in Mitsuba)
 
     @property
     def has_media(self) -> bool:

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError, quoted, shorten
+from ..errors import CausticaError, SceneError, quoted, shorten
+from ..imageio import read_radiance_image
 from ..limits import MAX_PIXELS, MAX_SPP
 from . import spectra
 from . import transforms as tf
@@ -31,8 +32,8 @@ from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS, HENYEY_GREENSTEIN, ISOTROPIC,
                           MESH, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, Camera,
-                          IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter, SceneDescription,
-                          Shape)
+                          Environment, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
+                          SceneDescription, Shape)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 
@@ -89,7 +90,12 @@ BSDF_PROPS = {
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
+    "constant": {"radiance": COLOR},
+    # mis_compensation only changes how Mitsuba samples the map (its noise), not the image it converges to
+    "envmap": {"filename": STR, "scale": FLOAT, "to_world": XFORM, "mis_compensation": BOOL},
 }
+#: Environment emitters (at most one per scene, as in Mitsuba).
+ENVIRONMENT_TYPES = ("constant", "envmap")
 MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
                                  # how Mitsuba samples the medium (shadow rays from inside it, a spectral
                                  # majorant): accepted, they change the noise, not the image's expectation
@@ -373,6 +379,8 @@ class _Loader:
         self.search_paths: list[Path] = []   # the <path> folders, in the order declared
         self.file_versions: dict[str, tuple | None] = {}   # each file's version= (Mitsuba upgrades < 2.0)
         self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
+        self.environment_node: Node | None = None   # the scene's environment emitter, if any
+        self.environment_emitter: Environment | None = None
 
     # -- files ------------------------------------------------------------------------
     def lookup_dirs(self, node: Node) -> list[Path]:
@@ -1333,7 +1341,52 @@ class _Loader:
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
                                 integrator_props=settings.props, source=self.source,
-                                integrator_source=settings.source, integrator_settings=settings)
+                                integrator_source=settings.source, integrator_settings=settings,
+                                environment=self.environment_emitter)
+
+    def environment(self, node: Node) -> Environment:
+        """A ``constant`` or ``envmap`` emitter (Mitsuba 3's): uniform radiance, or a latitude-longitude image."""
+        kind = node.attrs["type"]
+        props = self.plugin(node, {kind: EMITTER_PROPS[kind]})
+        if kind == "constant":
+            return Environment("constant", radiance=self.color(props, "radiance", (1.0, 1.0, 1.0), emitter=True),
+                               source=self.at(node))
+        if not props.has("filename"):
+            self.fail(node, "an envmap needs a 'filename' (a latitude-longitude image)")
+        scale = self.number(props, "scale", 1.0, nonneg=True)
+        filename = props.get("filename")
+        where = props.node_of("filename")
+        try:
+            path = self.find_file(where, filename, "environment map")
+            self.files.append(Path(path))
+            image = read_radiance_image(path)
+        except CausticaError as exc:   # SceneError too
+            self.fail(where, str(exc))
+        if not np.all(np.isfinite(image)):
+            self.fail(where, f"environment map {quoted(filename)} has NaN or infinite pixels")
+        if image.min() < 0.0:
+            self.fail(where, f"environment map {quoted(filename)} has negative pixels (down to {image.min():g}); "
+                             f"radiance must not be negative")
+        # Mitsuba pads a map to at least 2 x 3 pixels, repeating its last column and row (Bitmap::pad_to)
+        h, w = image.shape[:2]
+        image = np.pad(image, ((0, max(0, 3 - h)), (0, max(0, 2 - w)), (0, 0)), mode="edge")
+        image = image * scale
+        if image.max() > tf.MAX_ABS_FLOAT:
+            self.fail(node, f"environment map radiance up to {image.max():.3g} (with scale {scale:g}) is beyond "
+                            f"{tf.MAX_ABS_FLOAT:.3g} (float32)")
+        rot = np.eye(3)
+        if props.has("to_world"):
+            m = np.asarray(props.get("to_world"), dtype=np.float64)[:3, :3]
+            # directions only: the rotation part (Mitsuba applies the linear part to unit directions)
+            u, _, vt = np.linalg.svd(m)
+            rot = u @ vt
+            # a rotation to the precision scene files write matrices in (Mitsuba's exporters: 6 digits)
+            if not np.allclose(m, rot, rtol=0.0, atol=1e-5) or np.linalg.det(rot) < 0:
+                self.fail(props.node_of("to_world"), "an envmap's to_world must be a rotation (its 3x3 part "
+                                                     "orthonormal, determinant 1)", supported=["rotate", "lookat",
+                                                                                              "matrix of a rotation"])
+        return Environment("envmap", image=np.ascontiguousarray(image), to_world=rot, filename=filename,
+                           source=self.at(node))
 
     def top_level(self, node: Node, camera, spp, settings, integrator_node, shapes, lights):
         """Read one element at the top of the scene (what it defines goes into the arguments)."""
@@ -1372,9 +1425,17 @@ class _Loader:
                     self.top_level_area[id(node)] = node
                     return camera, spp, settings, integrator_node
                 self.fail(node, "an area emitter must be nested inside a <shape>")
+            if node.attrs.get("type") in ENVIRONMENT_TYPES:
+                env = self.environment(node)
+                if self.environment_node is not None:
+                    self.fail(node, f"only one environment emitter is allowed (as in Mitsuba; the first is on line "
+                                    f"{self.environment_node.line})")
+                self.environment_node = node
+                self.environment_emitter = env
+                return camera, spp, settings, integrator_node
             if node.attrs.get("type") not in (None, "point"):
                 self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
-                          supported=["point (top level)", "area (inside a <shape>)"])
+                          supported=["point (top level)", "area (inside a <shape>)", "constant", "envmap"])
             props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
             if props.has("position") and props.has("to_world"):
                 self.fail(node, "give either 'position' or 'to_world', not both")
