@@ -168,7 +168,6 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
     corners times its solid angle, and uniformly in (u, v) within it; a patch of zero weight has zero radiance.
     """
     envd = desc.environment
-    one = np.zeros(1)
     out = dict(env=np.array([-1, 0], np.int32), env_image=np.zeros((1, 1, 3)), env_data=np.zeros(ENV_CDF),
                radiance=np.zeros(3), power=np.zeros(3))
     if envd is None:
