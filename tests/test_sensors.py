@@ -1,10 +1,12 @@
-"""Sensors other than the perspective pinhole: Mitsuba 3's orthographic sensor.
+"""Sensors other than the perspective pinhole: Mitsuba 3's orthographic sensor and thin lens.
 
 1. Geometry: an orthographic camera's rays are parallel (along to_world's camera +z) and start on the
    near plane, inside [-1, 1] x [-1/aspect, 1/aspect] scaled by to_world.
 2. Against Mitsuba 3 (``scalar_rgb``): tests/scenes/ortho.xml (a 32 x 24 film, a scaled view) rendered by
    ``pt`` and by Mitsuba's path integrator, block by block within the noise of both (tests/imagestats.py).
 3. Bad input: a zero scale (a flat view) is one line naming the file and line (the loader's transform check).
+4. Thin lens: the rays of one film position through every point of the lens meet on the plane in focus;
+   tests/scenes/thinlens.xml against Mitsuba 3 as in 2; a scaled to_world is refused as Mitsuba refuses it.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def rays_of(cam, n, out):
     k = 0
     for j in range(n):
         for i in range(n):
-            o, d = generate_ray(cam, (i * cam.width) // n, (j * cam.height) // n, 0.5, 0.5)
+            o, d = generate_ray(cam, (i * cam.width) // n, (j * cam.height) // n, 0.5, 0.5, np.uint64(k))
             out[k, 0], out[k, 1], out[k, 2] = o
             out[k, 3], out[k, 4], out[k, 5] = d
             k += 1
@@ -64,4 +66,53 @@ def test_a_flat_orthographic_view_is_refused(tmp_path):
                     '<transform name="to_world"><scale x="0" y="1"/></transform>\n</sensor>\n'
                     '<shape type="sphere"><emitter type="area"/></shape>\n</scene>\n')
     with pytest.raises(SceneError, match=r"flat\.xml:3: <transform name=\"to_world\">: the transform is degenerate"):
+        caustica.load_scene(path)
+
+
+def test_thin_lens_rays_of_one_film_position_meet_in_the_plane_in_focus(test_scenes_dir):
+    scene = caustica.load_scene(test_scenes_dir / "thinlens.xml")
+    cam = scene.camera()
+    assert cam.aperture_radius == 0.25 and cam.focus_distance == 6.0
+    out = np.zeros((64, 6))
+    lens_rays(cam, 64, out)
+    m = np.asarray(scene.description.camera.to_world)
+    axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+    o, d = out[:, :3], out[:, 3:]
+    t = (6.0 - (o - m[:3, 3]) @ axis) / (d @ axis)     # to the plane at depth 6
+    hits = o + t[:, None] * d
+    assert np.ptp(hits, axis=0).max() < 1e-9, np.ptp(hits, axis=0)
+    # the lens points (where the rays cross depth 0) spread over the disc of radius 0.25
+    t0 = -((o - m[:3, 3]) @ axis) / (d @ axis)
+    r = np.linalg.norm(o + t0[:, None] * d - m[:3, 3], axis=1)
+    assert r.max() <= 0.25 + 1e-12 and r.max() > 0.15
+
+
+@kernel
+def lens_rays(cam, n, out):
+    """n rays of pixel (10, 20)'s centre, with n sample keys: out[i] = (origin xyz, direction xyz)."""
+    for k in range(n):
+        o, d = generate_ray(cam, 10, 20, 0.5, 0.5, np.uint64(1000 + k))
+        out[k, 0], out[k, 1], out[k, 2] = o
+        out[k, 3], out[k, 4], out[k, 5] = d
+
+
+@pytest.mark.parametrize("focus", ["6", "3"])
+def test_thin_lens_matches_mitsuba(mi, test_scenes_dir, focus):
+    """tests/scenes/thinlens.xml in focus on the ball, then in front of it: block by block within the noise."""
+    path = test_scenes_dir / "thinlens.xml"
+    scene = caustica.load_scene(path, focus=focus)
+    seeds = (1, 2, 3, 4)
+    ours = [caustica.render(scene, "pt", spp=128, seed=s).image for s in seeds]
+    theirs_scene = mi.load_file(str(path), spp=512, focus=float(focus))
+    theirs = [np.array(mi.render(theirs_scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in seeds]
+    assert_images_agree(ours, theirs, label=f"thin lens, focus {focus}")
+
+
+def test_a_scaled_thin_lens_is_refused(tmp_path):
+    from caustica.errors import SceneError
+    path = tmp_path / "lens.xml"
+    path.write_text('<scene version="3.0.0">\n<sensor type="thinlens"><float name="aperture_radius" value="0.1"/>\n'
+                    '<transform name="to_world"><scale value="2"/></transform>\n</sensor>\n'
+                    '<shape type="sphere"><emitter type="area"/></shape>\n</scene>\n')
+    with pytest.raises(SceneError, match=r"lens\.xml:3: <transform name=\"to_world\">: a thin lens's to_world must not"):
         caustica.load_scene(path)

@@ -21,6 +21,8 @@ from .errors import SceneError
 from .geometry import vec
 from .jit import kernel
 from .sampling.filters import FILTER_KINDS, GAUSSIAN, film_position, filter_radius
+from .sampling.rng import lens_key, uniform
+from .sampling.warps import square_to_uniform_disk
 from .scene.description import Camera
 
 
@@ -38,6 +40,8 @@ class CameraParams(NamedTuple):
     sample_border: bool    # sample beyond the film's edge (Mitsuba's film sample_border)
     orthographic: bool     # parallel rays; tan_half_x / tan_half_y are then the view's half-extents
     inv_basis: np.ndarray  # float64[3, 3]: the inverse of basis (world to camera space, for projecting)
+    aperture_radius: float  # a thin lens's radius, 0 for a pinhole
+    focus_distance: float   # a thin lens's plane in focus (camera-space depth)
 
 
 def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> tuple[float, float]:
@@ -70,15 +74,18 @@ def camera_params(cam: Camera, width: int | None = None, height: int | None = No
     return CameraParams(m[:3, 3].copy(), m[:3, :3].copy(), tx, ty, w, h, float(cam.near_clip),
                         kind, float(filter_radius(kind, rf.radius, rf.stddev)),
                         float(rf.stddev) if kind == GAUSSIAN else 0.0,
-                        bool(cam.sample_border), ortho, np.linalg.inv(m[:3, :3]))
+                        bool(cam.sample_border), ortho, np.linalg.inv(m[:3, :3]), float(cam.aperture_radius),
+                        float(cam.focus_distance))
 
 
 @kernel
-def generate_ray(cam, px, py, u1, u2):
+def generate_ray(cam, px, py, u1, u2, key):
     """The primary ray of a sample of pixel (px, py) drawn with the uniform numbers (u1, u2): (origin, unit direction).
 
     The sample's film position comes from the film's reconstruction filter centred on the pixel (box:
     (px + u1, py + u2), uniform inside the pixel).  Pixel (0, 0) is the top-left corner of the image.
+    A thin lens takes its point on the lens from the sample's ``key`` (:func:`caustica.sampling.rng.lens_key`:
+    numbers of their own, so a pinhole camera reads nothing from it).
     """
     sx = film_position(cam.filter_kind, cam.filter_radius, cam.filter_stddev, cam.sample_border,
                        px, cam.width, u1) / cam.width
@@ -88,6 +95,8 @@ def generate_ray(cam, px, py, u1, u2):
     if cam.orthographic:
         return _orthographic_ray(cam, sx, sy)
     local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
+    if cam.aperture_radius > 0.0:
+        return _thin_lens_ray(cam, local, key)
     d = vec.normalize((b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],
                        b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
                        b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2]))
@@ -107,3 +116,22 @@ def _orthographic_ray(cam, sx, sy):
          cam.origin[1] + b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
          cam.origin[2] + b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2])
     return o, vec.normalize((b[0, 2], b[1, 2], b[2, 2]))
+
+
+@kernel
+def _thin_lens_ray(cam, local, key):
+    """Mitsuba's thin lens: from a uniform point a of the lens disc (camera z = 0) through the point f where the
+    pinhole ray ``local`` (camera space, z = 1) meets the plane in focus; starting at the near plane."""
+    lk = lens_key(key)
+    dx, dy = square_to_uniform_disk(uniform(lk, 0), uniform(lk, 1))
+    a = (cam.aperture_radius * dx, cam.aperture_radius * dy, 0.0)
+    f = vec.mul(local, cam.focus_distance)
+    dc = vec.normalize(vec.sub(f, a))
+    b = cam.basis
+    d = vec.normalize((b[0, 0] * dc[0] + b[0, 1] * dc[1] + b[0, 2] * dc[2],
+                       b[1, 0] * dc[0] + b[1, 1] * dc[1] + b[1, 2] * dc[2],
+                       b[2, 0] * dc[0] + b[2, 1] * dc[1] + b[2, 2] * dc[2]))
+    o = (cam.origin[0] + b[0, 0] * a[0] + b[0, 1] * a[1],
+         cam.origin[1] + b[1, 0] * a[0] + b[1, 1] * a[1],
+         cam.origin[2] + b[2, 0] * a[0] + b[2, 1] * a[1])
+    return vec.madd(o, d, cam.near_clip / dc[2]), d

@@ -232,7 +232,7 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
         acc = (0.0, 0.0, 0.0)
         for s in range(spp):
             key = path_key(seed, stream, (y * width + x) * spp + s)
-            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
+            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
             L, n_ext, n_shadow = radiance(tables, o, d, key, max_depth, rr_depth)
             rays[i, 0] += n_ext
             rays[i, 1] += n_shadow

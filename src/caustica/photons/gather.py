@@ -188,7 +188,7 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
         nq = 0
         for s in range(spp):
             key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
-            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1))
+            o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
             L, q = gather_radiance(tables, maps, estimate, params, o, d, key, (st_o, st_d, st_beta, st_depth, idx, d2))
             nq += q
             if math.isfinite(L[0] + L[1] + L[2]):

@@ -252,7 +252,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
         qkey = path_key(seed, STREAM_CAMERA_SCRAMBLE, i)
         vkey = path_key(seed, vstream, i)
         u1, u2 = sobol02(pass_index, qkey)
-        o, d = generate_ray(cam, x, y, u1, u2)
+        o, d = generate_ray(cam, x, y, u1, u2, key)
         found, p, n, w, L, n_seg = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
                                                  (i * MEDIUM_SEGMENTS, segments))
         if not math.isfinite(L[0] + L[1] + L[2]):

@@ -51,6 +51,7 @@ def pass_stream(phase: int, pass_index: int) -> int:
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
+_LENS_SALT = np.uint64(0x6C656E73A5A5A5A5)   # "lens"
 _S30 = np.uint64(30)
 _S27 = np.uint64(27)
 _S31 = np.uint64(31)
@@ -72,6 +73,12 @@ def path_key(seed, stream, index):
     """The key of random path ``index`` in phase ``stream`` for render ``seed``."""
     k = mix64(np.uint64(seed) * _GOLDEN + np.uint64(stream))
     return mix64(k ^ (np.uint64(index) * _GOLDEN + _M2))
+
+
+@kernel(inline=True)
+def lens_key(key):
+    """The key of a camera sample's lens numbers: a stream of its own, so a pinhole's path keeps its numbers."""
+    return mix64(key ^ _LENS_SALT)
 
 
 @kernel(inline=True)

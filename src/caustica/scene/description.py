@@ -192,7 +192,9 @@ class Camera:
     ``rfilter``: the film's reconstruction filter; ``sample_border``: whether samples may land
     beyond the film's edge (Mitsuba's film ``sample_border``; off: a filter is truncated at the edge).
     ``projection``: "perspective", or "orthographic" (Mitsuba's: parallel rays along camera +z from the near
-    plane's [-1, 1] x [-1/aspect, 1/aspect], which to_world's scale sizes; no fov).
+    plane's [-1, 1] x [-1/aspect, 1/aspect], which to_world's scale sizes; no fov).  ``aperture_radius`` > 0:
+    Mitsuba's thin lens, rays from a uniform point of the lens disc through the point of the plane at depth
+    ``focus_distance`` that the pinhole ray of the same film position meets.
     """
     to_world: np.ndarray
     fov_deg: float
@@ -206,6 +208,8 @@ class Camera:
     rfilter: ReconstructionFilter = field(default_factory=ReconstructionFilter)
     sample_border: bool = False
     projection: str = "perspective"
+    aperture_radius: float = 0.0   # a thin lens's radius (0: a pinhole)
+    focus_distance: float = 1e4    # a thin lens's plane in focus, along camera +z (Mitsuba's default: far_clip)
 
 
 @dataclass

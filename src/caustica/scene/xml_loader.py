@@ -110,7 +110,7 @@ _PERSPECTIVE = {"fov": FLOAT, "focal_length": STR + FLOAT, "fov_axis": STR, "nea
                 # accepted when 0 (Mitsuba's default), refused otherwise
                 "principal_point_offset_x": FLOAT, "principal_point_offset_y": FLOAT}
 SENSOR_PROPS = {"perspective": _PERSPECTIVE,
-                # a thin lens with aperture_radius 0 is a pinhole; depth of field is not supported
+                # a thin lens: depth of field through aperture_radius and focus_distance (0: a pinhole)
                 "thinlens": {**_PERSPECTIVE, "aperture_radius": FLOAT},
                 # parallel rays from the near plane's [-1, 1] x [-1/aspect, 1/aspect], placed by to_world
                 "orthographic": {"near_clip": FLOAT, "far_clip": FLOAT, "to_world": XFORM,
@@ -1120,17 +1120,17 @@ class _Loader:
             if props.get(p, 0.0) != 0.0:
                 self.fail(props.node_of(p), f"'{p}' other than 0 (an off-centre image) is not supported",
                           supported=["0"])
+        to_world = props.get("to_world")
+        to_world = np.eye(4) if to_world is None else to_world
+        radius, focus = 0.0, far
         if node.attrs["type"] == "thinlens":
             if not props.has("aperture_radius"):
                 self.fail(node, "a thinlens sensor needs <float name=\"aperture_radius\" .../> (as in Mitsuba)")
             radius = float(self.number(props, "aperture_radius", 0.0, nonneg=True))
-            if radius > 0.0:
-                self.fail(props.node_of("aperture_radius"),
-                          f"a thin lens with aperture_radius={radius:g} (depth of field) is not supported: caustica's "
-                          f"camera is a pinhole",
-                          supported=["perspective", "thinlens with aperture_radius 0"])
-        to_world = props.get("to_world")
-        to_world = np.eye(4) if to_world is None else to_world
+            focus = float(self.number(props, "focus_distance", far, positive=True))
+            if radius > 0.0 and not np.allclose(to_world[:3, :3].T @ to_world[:3, :3], np.eye(3), atol=1e-5):
+                self.fail(props.node_of("to_world"), "a thin lens's to_world must not scale (as in Mitsuba: the "
+                                                     "lens and the focus distance are in world units)")
         width, height, spp = 768, 576, 4
         film_where = self.at(node)
         rfilter = ReconstructionFilter()   # Mitsuba's default: a gaussian, stddev 0.5 (docs/usage.md)
@@ -1173,7 +1173,8 @@ class _Loader:
                                                               f"per pixel caustica takes")
         cam = Camera(to_world=to_world, fov_deg=fov, fov_axis=axis, width=width, height=height,
                      near_clip=near, far_clip=far, film_source=film_where, medium=medium, rfilter=rfilter,
-                     sample_border=sample_border, projection=projection)
+                     sample_border=sample_border, projection=projection, aperture_radius=radius,
+                     focus_distance=focus)
         self.far_clip_node = props.node_of("far_clip") if props.has("far_clip") else None
         return cam, spp
 
