@@ -196,12 +196,11 @@ def test_settings_that_change_nothing_in_a_pinhole_image_are_accepted():
     plain = parse_scene_string(scene("", sensor('<float name="fov" value="45"/>'))).camera
     cam = parse_scene_string(scene("", sensor(inner))).camera
     assert (cam.fov_deg, cam.fov_axis, cam.near_clip) == (plain.fov_deg, plain.fov_axis, plain.near_clip)
-    # a thin lens of aperture 0 is a pinhole; a real aperture is refused
+    # a thin lens of aperture 0 is a pinhole; a real aperture is read (depth of field: tests/test_sensors.py)
     lens = parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0"/>', "thinlens"))).camera
-    assert np.array_equal(lens.to_world, plain.to_world) and lens.fov_deg == plain.fov_deg
-    with pytest.raises(SceneError, match=r'<float name="aperture_radius">: a thin lens with aperture_radius=0.1 '
-                                         r'\(depth of field\) is not supported'):
-        parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0.1"/>', "thinlens")))
+    assert np.array_equal(lens.to_world, plain.to_world) and lens.fov_deg == plain.fov_deg and lens.aperture_radius == 0
+    lens = parse_scene_string(scene("", sensor(inner + '<float name="aperture_radius" value="0.1"/>', "thinlens"))).camera
+    assert (lens.aperture_radius, lens.focus_distance) == (0.1, 3.0)
 
 
 # ----------------------------------------------------------------------------- film and sampler
