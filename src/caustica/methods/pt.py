@@ -54,12 +54,16 @@ SCENE_INTEGRATORS = ("path", "volpath", "ptracer", "direct")
 
 
 @kernel(hot=True)
-def radiance(tables, o, d, key, max_depth, rr_depth):
+def radiance(tables, o, d, key, depths):
     """Radiance arriving at o from direction -d, estimated along one random path (from the camera's medium).
+
+    ``depths`` = (max_depth, rr_depth, hide_emitters): Mitsuba's settings (hide_emitters: emitters and the
+    environment the camera ray meets before any scattering add nothing).
 
     Returns (L, extension rays, shadow rays): the rays traced, counted where they are traced.
     """
     geom, mats, lights, media = tables
+    max_depth, rr_depth, hide_emitters = depths
     zero = (0.0, 0.0, 0.0)
     n_ext = 0
     n_shadow = 0
@@ -77,7 +81,7 @@ def radiance(tables, o, d, key, max_depth, rr_depth):
         n_ext += 1
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
-            if lights.env[0] >= 0:
+            if lights.env[0] >= 0 and not (hide_emitters and depth == 0):
                 L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, (specular, pdf_last))))
             break
         if medium >= 0:
@@ -99,7 +103,7 @@ def radiance(tables, o, d, key, max_depth, rr_depth):
             p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
                 tables, (prim, t, b1, b2), o, d, medium, crossings)
             e = geom.prim_emitter[prim]
-            if e >= 0 and front:
+            if e >= 0 and front and not (hide_emitters and depth == 0):
                 L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
                              emission_mis(lights, e, (specular, pdf_last, p_last), -vec.dot(d, ng), t, crossed, p))
             if nxt == CROSSED:
@@ -219,11 +223,11 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
     """Average ``spp`` jittered paths per pixel for pixels [i0, i1) in row-major order into ``out`` = (image, rays).
 
     Sample s of pixel i is random path (i * spp + s) of ``keys`` = (seed, the pass's camera stream);
-    ``params`` = (spp, max_depth, rr_depth).  rays[i] receives pixel i's (extension, shadow) ray counts.
+    ``params`` = (spp, max_depth, rr_depth, hide_emitters).  rays[i] receives pixel i's (extension, shadow) ray counts.
     """
     tables = borrow_tables(tables)
     seed, stream = keys
-    spp, max_depth, rr_depth = params
+    spp, max_depth, rr_depth, hide_emitters = params
     image, rays = out
     width = cam.width
     for i in range(i0, i1):
@@ -233,7 +237,7 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
         for s in range(spp):
             key = path_key(seed, stream, (y * width + x) * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
-            L, n_ext, n_shadow = radiance(tables, o, d, key, max_depth, rr_depth)
+            L, n_ext, n_shadow = radiance(tables, o, d, key, (max_depth, rr_depth, hide_emitters))
             rays[i, 0] += n_ext
             rays[i, 1] += n_shadow
             if math.isfinite(L[0] + L[1] + L[2]):
@@ -257,6 +261,8 @@ class PathTracer(IndependentPasses):
         Param("rr_depth", int, 5, "vertices before Russian roulette starts (a scene's integrator sets the "
               "default)", lambda v: v >= 1, ">= 1",
               max=DEPTH_CAP),
+        Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
+              "black, as Mitsuba's hide_emitters (a scene's integrator sets the default)"),
     )
 
     @staticmethod
@@ -266,11 +272,11 @@ class PathTracer(IndependentPasses):
         if not description.integrator_source or s.type not in SCENE_INTEGRATORS:
             return {}
         if s.type == "direct":
-            return {"max_depth": 2}
+            return {"max_depth": 2, "hide_emitters": s.hide_emitters}
         if s.max_depth == 0:
             raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even the "
                                  f"emitters); give -1 (unlimited) or a depth of at least 1")
-        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth}
+        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth, "hide_emitters": s.hide_emitters}
 
     @staticmethod
     def pass_output(scene, settings, pass_index, progress):
@@ -284,7 +290,7 @@ class PathTracer(IndependentPasses):
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        params = (settings["spp"], max_depth, settings["rr_depth"])
+        params = (settings["spp"], max_depth, settings["rr_depth"], settings["hide_emitters"])
         compile_s = parallel_for(render_pixels, n, (scene.tables, cam, (settings["seed"], stream), params, (image, rays)),
                                  threads=settings["threads"], progress=bar)
         bar.close()

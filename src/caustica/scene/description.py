@@ -271,11 +271,12 @@ class SceneDescription:
         ``<integrator>``, when that differs from what the file asks; None otherwise.
 
         ``pt`` renders what Mitsuba's ``path`` and ``volpath`` render, and takes their
-        ``max_depth`` and ``rr_depth`` (a value given to pt wins: then a note); ``direct`` is
-        pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path`` on
-        a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not); any
-        other integrator (``bdpt``, ...), and ``volpath`` or ``direct`` with another method, gets a
-        note, so a scene never renders differently from what it asks without the user being told.
+        ``max_depth``, ``rr_depth`` and ``hide_emitters`` (a value given to pt wins: then a note);
+        ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
+        on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not), and so do
+        a ``path``'s max_depth and hide_emitters under a photon method; any other integrator (``bdpt``,
+        ...), and ``volpath`` or ``direct`` with another method, gets a note, so a scene never renders
+        differently from what it asks without the user being told.
         """
         if not self.integrator_source:
             return None
@@ -284,10 +285,13 @@ class SceneDescription:
             if kind != "path":
                 return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                         f"('caustica methods' lists them)")
-            depth = self.integrator_settings.max_depth
-            return None if depth == -1 else (
-                f"integrator 'path' in {where} asks for max_depth={depth}, which --method {method} does not "
-                f"read (its paths are as long as its own settings allow)")
+            st = self.integrator_settings
+            asked = ([(f"max_depth={st.max_depth}", "its paths are as long as its own settings allow")]
+                     if st.max_depth != -1 else []) + (
+                [("hide_emitters", "the emitters the camera sees show")] if st.hide_emitters else [])
+            return None if not asked else (
+                f"integrator 'path' in {where} asks for {' and '.join(a for a, _ in asked)}, which --method "
+                f"{method} does not read ({'; '.join(why for _, why in asked)})")
         if kind not in ("path", "volpath", "direct", "ptracer"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
