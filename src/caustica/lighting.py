@@ -31,7 +31,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index):
     Returns E per channel, before the diffuse BRDF ρ / π.
     """
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     E = (0.0, 0.0, 0.0)
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):

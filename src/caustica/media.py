@@ -309,7 +309,7 @@ def light_sample(tables, at, u, through):
     In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     u0, u1, u2 = u
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:

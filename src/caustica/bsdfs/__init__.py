@@ -10,6 +10,8 @@ its kernels; the transport loops call only the functions below, and decide by fl
   relative IOR crossed, and the path's dimension past the random numbers it used (no caller counts);
 * :func:`eval_pdf` — f towards a given direction (a colour times a scalar, so next-event estimation
   keeps one multiplication order) and the density :func:`sample` would give it;
+* :func:`colour` — material m's colour at surface coordinates uv (its texture's, or ``rgb[m]``), which every
+  BSDF and loop reads rather than ``rgb`` (:mod:`.textures`);
 * :func:`delta_branches` — for a BSDF with only delta lobes: both directions and the reflection
   probability, for the loops that follow both branches of glass (the photon-map gather) or add what
   each branch sees in expectation (the visible-point pass).
@@ -32,6 +34,7 @@ from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, roughconductor, roughdielectric
+from .textures import albedo_mean, colour, texture_columns  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -52,6 +55,14 @@ class MaterialTable(NamedTuple):
     fresnel: np.ndarray    # int8[M]: 1 when a conductor has a complex IOR (cond_eta + i cond_k), 0: F = 1
     cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
+    # Textures (bsdfs/textures.py), X of them: the one giving material m's rgb, and each texture's columns.
+    texture: np.ndarray    # int32[M]: the texture that gives rgb at each surface point, -1 for none
+    tex_kind: np.ndarray   # int32[X]: CHECKERBOARD or BITMAP
+    tex_mode: np.ndarray   # int32[X, 2]: filter (NEAREST, BILINEAR), wrap (REPEAT, MIRROR, CLAMP)
+    tex_size: np.ndarray   # int64[X, 3]: a bitmap's width, height and first row in texels
+    tex_to_uv: np.ndarray  # float64[X, 2, 3]: the affine map applied to (u, v) first
+    tex_colours: np.ndarray  # float64[X, 2, 3]: a checkerboard's color0, color1
+    texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -73,7 +84,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k)
+                         cond_k, *texture_columns(desc.materials))
 
 
 @kernel(inline=True)
@@ -92,32 +103,33 @@ def oriented(mats, m, front, ng, ns):
 
 
 @kernel(inline=True)
-def sample(mats, m, d, ng, ns, key, dim):
-    """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`), with numbers
-    (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers used)."""
+def sample(mats, m, d, ng, ns, uv, key, dim):
+    """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`, surface coordinates
+    uv for its textures), with numbers (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers
+    used)."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
-        return diffuse.sample(mats, m, d, ng, ns, key, dim)
+        return diffuse.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == CONDUCTOR:
-        return conductor.sample(mats, m, d, ng, ns, key, dim)
+        return conductor.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHCONDUCTOR:
-        return roughconductor.sample(mats, m, d, ng, ns, key, dim)
+        return roughconductor.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHDIELECTRIC:
-        return roughdielectric.sample(mats, m, d, ng, ns, key, dim)
-    return dielectric.sample(mats, m, d, ng, ns, key, dim)
+        return roughdielectric.sample(mats, m, d, ng, ns, uv, key, dim)
+    return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
 
 
 @kernel(inline=True)
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale (0 for a delta
     BSDF, which no direction given in advance can meet), pdf the solid-angle density of :func:`sample`."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
-        return diffuse.eval_pdf(mats, m, d, ng, ns, wi)
+        return diffuse.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHCONDUCTOR:
-        return roughconductor.eval_pdf(mats, m, d, ng, ns, wi)
+        return roughconductor.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHDIELECTRIC:
-        return roughdielectric.eval_pdf(mats, m, d, ng, ns, wi)
+        return roughdielectric.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 
@@ -131,7 +143,7 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def delta_branches(mats, m, d, ng, ns):
+def delta_branches(mats, m, d, ng, ns, uv):
     """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, colour).
 
     F is the probability :func:`sample` reflects (1 for a mirror, and under total internal reflection,
@@ -140,5 +152,5 @@ def delta_branches(mats, m, d, ng, ns):
     with number u.
     """
     if mats.kind[m] == CONDUCTOR:
-        return conductor.delta_branches(mats, m, d, ng, ns)
-    return dielectric.delta_branches(mats, m, d, ng, ns)
+        return conductor.delta_branches(mats, m, d, ng, ns, uv)
+    return dielectric.delta_branches(mats, m, d, ng, ns, uv)

@@ -49,7 +49,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import SMOOTH, TRANSMISSION, delta_branches, oriented
+from ..bsdfs import SMOOTH, TRANSMISSION, colour, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -150,7 +150,7 @@ def visible_point(tables, o, d, numbers, params, out):
             n_seg += 1
         if prim < 0:
             return False, zero, zero, zero, L, n_seg
-        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
@@ -165,8 +165,8 @@ def visible_point(tables, o, d, numbers, params, out):
         if not scatters:
             return False, zero, zero, zero, L, n_seg
         if mats.flags[m] & SMOOTH:
-            w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
-            at = ShadingPoint(p, ng, ns, ng_front, shape, medium)
+            w = vec.mul(vec.hadamard(beta, colour(mats, m, uv)), INV_PI)
+            at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
             if fixed_grid:
                 E = direct_stratified(tables, at, key, dim, n_strata, True, -1)
             else:
@@ -176,8 +176,8 @@ def visible_point(tables, o, d, numbers, params, out):
         depth += 1
         if depth > max_specular:
             return False, zero, zero, zero, L, n_seg
-        wr, wt, F, eta, colour = delta_branches(mats, m, d, ng, ns)
-        beta = vec.hadamard(beta, colour)
+        wr, wt, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
+        beta = vec.hadamard(beta, tint)
         wi = wr
         if mats.flags[m] & TRANSMISSION:
             u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
