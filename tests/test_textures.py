@@ -7,7 +7,7 @@
 3. Surface coordinates: Mitsuba's (u, v) at the same hits, for the rectangle, cube, sphere, disk, cylinder, an OBJ
    (v flipped, a vertex with two texture coordinates), a PLY and a .serialized mesh.
 4. Renders against Mitsuba 3 of one small scene (a checkerboard floor and sphere, a bitmap on an OBJ wall and on a
-   rectangle, under an area light), ``pt`` and ``sppm``: image mean within 2 % and every block within 5 sigmas of
+   rectangle, a checkerboard mirror, under an area light), ``pt`` and ``sppm``: image mean within 2 % and every block within 5 sigmas of
    both renders' noise (tests/imagestats.py, as tests/test_glossy.py compares).
 5. Bad input: a missing texture file, a file that is not an image, an unknown wrap mode, a texture where it is not
    supported -> one line naming file and line, exit 2.
@@ -284,7 +284,7 @@ def test_surface_coordinates_match_mitsuba(mi, tmp_path, kind):
 
 def textured_scene(tmp_path, filter_type="bilinear") -> Path:
     """A checkerboard floor and sphere, a bitmap (a generated 6 x 4 PNG) on an OBJ wall and on a rectangle facing
-    it, under an area light."""
+    it, a mirror whose specular_reflectance is a checkerboard, under an area light."""
     rng = np.random.default_rng(11)
     png(tmp_path / "t.png", rng.integers(20, 256, size=(4, 6, 3)))
     obj_file(tmp_path / "wall.obj")
@@ -311,6 +311,10 @@ def textured_scene(tmp_path, filter_type="bilinear") -> Path:
     <string name="filename" value="t.png"/><string name="wrap_mode" value="mirror"/>
     <transform name="to_uv"><scale x="2" y="1.5"/></transform>
   </texture></bsdf></bsdf></shape>
+<shape type="rectangle"><transform name="to_world"><scale x="0.5" y="0.35"/><rotate x="1" angle="90"/>
+  <translate x="0.1" y="0.9" z="0.4"/></transform>
+  <bsdf type="conductor"><texture name="specular_reflectance" type="checkerboard">
+    <rgb name="color0" value="0.9, 0.8, 0.3"/><rgb name="color1" value="0.3, 0.3, 0.9"/></texture></bsdf></shape>
 <shape type="rectangle"><transform name="to_world"><scale value="0.6"/><rotate x="1" angle="180"/>
   <translate z="3"/></transform><emitter type="area"><rgb name="radiance" value="12"/></emitter></shape>
 </scene>
