@@ -7,8 +7,8 @@
 3. Surface coordinates: Mitsuba's (u, v) at the same hits, for the rectangle, cube, sphere, disk, cylinder, an OBJ
    (v flipped, a vertex with two texture coordinates), a PLY and a .serialized mesh.
 4. Renders against Mitsuba 3 of one small scene (a checkerboard floor and sphere, a bitmap on an OBJ wall and on a
-   rectangle, a checkerboard mirror, under an area light), ``pt`` and ``sppm``: image mean within 2 % and every block within 5 sigmas of
-   both renders' noise (tests/imagestats.py, as tests/test_glossy.py compares).
+   rectangle, a checkerboard mirror, under an area light), ``pt`` and ``sppm``: image mean within 2 % and every
+   block within 5 sigmas of both renders' noise (tests/imagestats.py, as tests/test_glossy.py compares).
 5. Bad input: a missing texture file, a file that is not an image, an unknown wrap mode, a texture where it is not
    supported -> one line naming file and line, exit 2.
 """
@@ -357,6 +357,8 @@ BAD = {
                      '</texture>', 6, ["nowhere.png", "not found"]),
     "not an image": ('<texture name="reflectance" type="bitmap"><string name="filename" value="notes.png"/>'
                      '</texture>', 6, ["notes.png", "not an image"]),
+    "not an EXR": ('<texture name="reflectance" type="bitmap"><string name="filename" value="notes.exr"/>'
+                   '</texture>', 6, ["notes.exr", "cannot read EXR image"]),
     "unknown wrap mode": ('<texture name="reflectance" type="bitmap"><string name="filename" value="ok.png"/>'
                           '<string name="wrap_mode" value="wrap"/></texture>', 6, ["wrap_mode", "'wrap'",
                                                                                   "repeat, mirror, clamp"]),
@@ -373,6 +375,7 @@ BAD = {
 def test_bad_textures_exit_2_one_line(cli, tmp_path, case):
     body, line, words = BAD[case]
     (tmp_path / "notes.png").write_text("these are not pixels\n")
+    (tmp_path / "notes.exr").write_text("these are not pixels either\n")
     png(tmp_path / "ok.png", np.full((2, 2, 3), 100))
     bsdf = "dielectric" if case == "textured glass" else "diffuse"
     path = tmp_path / "bad.xml"

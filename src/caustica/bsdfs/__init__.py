@@ -57,11 +57,8 @@ class MaterialTable(NamedTuple):
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
     # Textures (bsdfs/textures.py), X of them: the one giving material m's rgb, and each texture's columns.
     texture: np.ndarray    # int32[M]: the texture that gives rgb at each surface point, -1 for none
-    tex_kind: np.ndarray   # int32[X]: CHECKERBOARD or BITMAP
-    tex_mode: np.ndarray   # int32[X, 2]: filter (NEAREST, BILINEAR), wrap (REPEAT, MIRROR, CLAMP)
-    tex_size: np.ndarray   # int64[X, 3]: a bitmap's width, height and first row in texels
-    tex_to_uv: np.ndarray  # float64[X, 2, 3]: the affine map applied to (u, v) first
-    tex_colours: np.ndarray  # float64[X, 2, 3]: a checkerboard's color0, color1
+    tex_int: np.ndarray    # int64[X, 6]: kind, filter, wrap mode, a bitmap's width, height, first row in texels
+    tex_float: np.ndarray  # float64[X, 12]: to_uv (2 x 3, row by row), a checkerboard's color0, color1
     texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
 
 

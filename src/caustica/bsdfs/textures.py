@@ -1,10 +1,11 @@
 """Textures in the material table: a material's colour looked up at the surface point's (u, v).
 
-The table's texture columns (:func:`texture_columns`) hold every texture of the scene once: its kind, filter
-and wrap mode, size and first texel, ``to_uv`` and a checkerboard's two colours; the bitmaps' texels are one
-flat float32 array of RGB rows.  ``MaterialTable.texture[m]`` is the texture that gives material m's colour
-(-1: none, the colour is ``rgb[m]``).  :func:`colour` is what every BSDF and loop reads; :func:`texture_rgb`, the
-lookup, is one called kernel, compiled once.
+The table's texture columns (:func:`texture_columns`) hold every texture of the scene once: ``tex_int`` its
+kind, filter and wrap mode, a bitmap's width, height and first texel row; ``tex_float`` its ``to_uv`` and a
+checkerboard's two colours; the bitmaps' texels are one flat float32 array of RGB rows, ``texels``.
+``MaterialTable.texture[m]`` is the texture that gives material m's colour (-1: none, the colour is ``rgb[m]``).
+:func:`colour` is what every BSDF and loop reads; :func:`texture_rgb`, the lookup, is one called kernel, compiled
+once.
 
 The lookups follow Mitsuba 3 (src/textures/checkerboard.cpp, bitmap.cpp and Dr.Jit's texture): (u, v) goes
 through ``to_uv`` first.  A checkerboard is ``color0`` where the fractional parts of u and v are both above 1/2
@@ -27,9 +28,14 @@ NEAREST, BILINEAR = 0, 1
 REPEAT, MIRROR, CLAMP = 0, 1, 2
 
 
+#: Columns of ``tex_int`` and ``tex_float``.
+KIND, FILTER, WRAP, WIDTH, HEIGHT, ROW0 = range(6)
+TO_UV, COLOR0, COLOR1 = 0, 6, 9
+
+
 def texture_columns(materials) -> tuple:
-    """The material table's texture columns for a list of Materials: (texture, tex_kind, tex_mode, tex_size,
-    tex_to_uv, tex_colours, texels); a texture shared by several materials is stored once."""
+    """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels); a
+    texture shared by several materials is stored once."""
     index, textures = {}, []
     texture = np.full(max(1, len(materials)), -1, np.int32)
     for i, mat in enumerate(materials):
@@ -41,24 +47,21 @@ def texture_columns(materials) -> tuple:
             textures.append(tex)
         texture[i] = index[id(tex)]
     x = max(1, len(textures))
-    kind = np.zeros(x, np.int32)
-    mode = np.zeros((x, 2), np.int32)
-    size = np.zeros((x, 3), np.int64)      # width, height, first texel row in texels
-    to_uv = np.zeros((x, 2, 3))
-    colours = np.zeros((x, 2, 3))
+    ints = np.zeros((x, 6), np.int64)
+    floats = np.zeros((x, 12))
     chunks, rows = [], 0
     for t, tex in enumerate(textures):
-        kind[t] = tex.kind
-        mode[t] = tex.filter, tex.wrap
-        to_uv[t] = tex.to_uv
-        colours[t] = tex.color0, tex.color1
+        ints[t, KIND], ints[t, FILTER], ints[t, WRAP] = tex.kind, tex.filter, tex.wrap
+        floats[t, TO_UV:TO_UV + 6] = np.asarray(tex.to_uv, dtype=np.float64).reshape(6)
+        floats[t, COLOR0:COLOR0 + 3] = tex.color0
+        floats[t, COLOR1:COLOR1 + 3] = tex.color1
         if tex.texels is not None:
             h, w = tex.texels.shape[:2]
-            size[t] = w, h, rows
+            ints[t, WIDTH], ints[t, HEIGHT], ints[t, ROW0] = w, h, rows
             chunks.append(tex.texels.reshape(-1, 3))
             rows += w * h
     texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
-    return texture, kind, mode, size, to_uv, colours, texels
+    return texture, ints, floats, texels
 
 
 @kernel(inline=True)
@@ -72,9 +75,10 @@ def wrap(i, n, mode):
     return i % n
 
 
-@kernel(inline=True)
+@kernel
 def texel(mats, row0, w, h, mode, x, y):
-    """The texel at column x, row y (wrapped) as a float64 RGB tuple."""
+    """The texel at column x, row y (wrapped) as a float64 RGB tuple (called, not inlined: a bilinear lookup reads
+    four; inlined, they cost texture_rgb ~3 s of compile time)."""
     r = row0 + wrap(y, h, mode) * w + wrap(x, w, mode)
     return float(mats.texels[r, 0]), float(mats.texels[r, 1]), float(mats.texels[r, 2])
 
@@ -82,19 +86,19 @@ def texel(mats, row0, w, h, mode, x, y):
 @kernel
 def texture_rgb(mats, t, uv):
     """Texture t's RGB at surface coordinates uv (see the module's docstring); black where uv is not finite."""
-    a = mats.tex_to_uv
-    u = a[t, 0, 0] * uv[0] + a[t, 0, 1] * uv[1] + a[t, 0, 2]
-    v = a[t, 1, 0] * uv[0] + a[t, 1, 1] * uv[1] + a[t, 1, 2]
+    a = mats.tex_float
+    u = a[t, TO_UV] * uv[0] + a[t, TO_UV + 1] * uv[1] + a[t, TO_UV + 2]
+    v = a[t, TO_UV + 3] * uv[0] + a[t, TO_UV + 4] * uv[1] + a[t, TO_UV + 5]
     if not (abs(u) < 1e15 and abs(v) < 1e15):
         return 0.0, 0.0, 0.0
-    if mats.tex_kind[t] == CHECKERBOARD:
-        k = 0 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else 1
-        return mats.tex_colours[t, k, 0], mats.tex_colours[t, k, 1], mats.tex_colours[t, k, 2]
-    w = mats.tex_size[t, 0]
-    h = mats.tex_size[t, 1]
-    row0 = mats.tex_size[t, 2]
-    mode = mats.tex_mode[t, 1]
-    if mats.tex_mode[t, 0] == NEAREST:
+    if mats.tex_int[t, KIND] == CHECKERBOARD:
+        c = COLOR0 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR1
+        return a[t, c], a[t, c + 1], a[t, c + 2]
+    w = mats.tex_int[t, WIDTH]
+    h = mats.tex_int[t, HEIGHT]
+    row0 = mats.tex_int[t, ROW0]
+    mode = mats.tex_int[t, WRAP]
+    if mats.tex_int[t, FILTER] == NEAREST:
         return texel(mats, row0, w, h, mode, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)))
     px = u * w - 0.5
     py = v * h - 0.5

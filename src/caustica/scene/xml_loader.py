@@ -30,9 +30,9 @@ from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
-                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, ROUGHCONDUCTOR, ROUGHDIELECTRIC, SPHERE,
-                          WRAP_MODES, Camera, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
-                          SceneDescription, Shape, Texture)
+                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, ROUGHCONDUCTOR, ROUGHDIELECTRIC,
+                          SPHERE, WRAP_MODES, Camera, IntegratorSettings, Material, Medium, PointLight,
+                          ReconstructionFilter, SceneDescription, Shape, Texture)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 from .textures import read_texels
