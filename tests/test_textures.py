@@ -36,7 +36,7 @@ from imagestats import assert_images_agree
 def lookup_many(mats, t, uvs, out):
     """out[i] = texture t's RGB at uvs[i]."""
     for i in range(uvs.shape[0]):
-        c = textures.texture_rgb(mats, t, (uvs[i, 0], uvs[i, 1]))
+        c = textures.colour(mats, 0, (uvs[i, 0], uvs[i, 1]))
         out[i, 0], out[i, 1], out[i, 2] = c
 
 

@@ -76,30 +76,32 @@ def wrap(i, n, mode):
 
 
 @kernel
-def texel(mats, row0, w, h, mode, x, y):
+def texel(texels, row0, w, h, mode, x, y):
     """The texel at column x, row y (wrapped) as a float64 RGB tuple (called, not inlined: a bilinear lookup reads
     four; inlined, they cost texture_rgb ~3 s of compile time)."""
     r = row0 + wrap(y, h, mode) * w + wrap(x, w, mode)
-    return float(mats.texels[r, 0]), float(mats.texels[r, 1]), float(mats.texels[r, 2])
+    return float(texels[r, 0]), float(texels[r, 1]), float(texels[r, 2])
 
 
 @kernel
-def texture_rgb(mats, t, uv):
-    """Texture t's RGB at surface coordinates uv (see the module's docstring); black where uv is not finite."""
-    a = mats.tex_float
+def texture_rgb(table, t, uv):
+    """Texture t's RGB at surface coordinates uv (see the module's docstring); black where uv is not finite.
+    ``table`` = (tex_int, tex_float, texels) of the material table: these three arrays, not the whole table, so
+    that each call site passes little."""
+    ints, a, texels = table
     u = a[t, TO_UV] * uv[0] + a[t, TO_UV + 1] * uv[1] + a[t, TO_UV + 2]
     v = a[t, TO_UV + 3] * uv[0] + a[t, TO_UV + 4] * uv[1] + a[t, TO_UV + 5]
     if not (abs(u) < 1e15 and abs(v) < 1e15):
         return 0.0, 0.0, 0.0
-    if mats.tex_int[t, KIND] == CHECKERBOARD:
+    if ints[t, KIND] == CHECKERBOARD:
         c = COLOR0 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR1
         return a[t, c], a[t, c + 1], a[t, c + 2]
-    w = mats.tex_int[t, WIDTH]
-    h = mats.tex_int[t, HEIGHT]
-    row0 = mats.tex_int[t, ROW0]
-    mode = mats.tex_int[t, WRAP]
-    if mats.tex_int[t, FILTER] == NEAREST:
-        return texel(mats, row0, w, h, mode, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)))
+    w = ints[t, WIDTH]
+    h = ints[t, HEIGHT]
+    row0 = ints[t, ROW0]
+    mode = ints[t, WRAP]
+    if ints[t, FILTER] == NEAREST:
+        return texel(texels, row0, w, h, mode, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)))
     px = u * w - 0.5
     py = v * h - 0.5
     fx = math.floor(px)
@@ -108,10 +110,10 @@ def texture_rgb(mats, t, uv):
     y0 = np.int64(fy)
     ax = px - fx
     ay = py - fy
-    c00 = texel(mats, row0, w, h, mode, x0, y0)
-    c10 = texel(mats, row0, w, h, mode, x0 + 1, y0)
-    c01 = texel(mats, row0, w, h, mode, x0, y0 + 1)
-    c11 = texel(mats, row0, w, h, mode, x0 + 1, y0 + 1)
+    c00 = texel(texels, row0, w, h, mode, x0, y0)
+    c10 = texel(texels, row0, w, h, mode, x0 + 1, y0)
+    c01 = texel(texels, row0, w, h, mode, x0, y0 + 1)
+    c11 = texel(texels, row0, w, h, mode, x0 + 1, y0 + 1)
     top = vec.add(vec.mul(c00, 1.0 - ax), vec.mul(c10, ax))
     bottom = vec.add(vec.mul(c01, 1.0 - ax), vec.mul(c11, ax))
     return vec.add(vec.mul(top, 1.0 - ay), vec.mul(bottom, ay))
@@ -124,7 +126,7 @@ def colour(mats, m, uv):
     t = mats.texture[m]
     if t < 0:
         return vec.row(mats.rgb, m)
-    return texture_rgb(mats, t, uv)
+    return texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, uv)
 
 
 @kernel(inline=True)

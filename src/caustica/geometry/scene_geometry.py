@@ -451,18 +451,28 @@ def surface_at(geom, prim, o, d, t, b1, b2):
     return p, ng, ng
 
 
-@kernel
+@kernel(inline=True)
 def surface_uv(geom, prim, o, d, t, b1, b2):
     """Mitsuba's surface coordinates (u, v) at a hit from :func:`intersect`: a triangle's corner coordinates
     interpolated with the barycentrics, an analytic shape's parametrisation
     (:func:`caustica.geometry.primitives.analytic_uv`).  Only for scenes with a texture (``tri_uv`` is empty
     otherwise)."""
-    j = geom.prim_index[prim]
-    if geom.prim_kind[prim] == TRIANGLE:
+    return hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (o, d, t), (b1, b2))
+
+
+@kernel
+def hit_uv(arrays, prim, ray, bary):
+    """:func:`surface_uv` on the four arrays it reads, ``arrays`` = (prim_kind, prim_index, tri_uv, ana_to_local),
+    ``ray`` = (o, d, t), ``bary`` = (b1, b2): called with these, not the whole Geometry, so that each call site
+    passes little."""
+    prim_kind, prim_index, w, to_local = arrays
+    o, d, t = ray
+    b1, b2 = bary
+    j = prim_index[prim]
+    if prim_kind[prim] == TRIANGLE:
         b0 = 1.0 - b1 - b2
-        w = geom.tri_uv
         return (b0 * w[j, 0] + b1 * w[j, 2] + b2 * w[j, 4], b0 * w[j, 1] + b1 * w[j, 3] + b2 * w[j, 5])
-    return pr.analytic_uv(geom.prim_kind[prim], geom.ana_to_local, j, o, d, t)
+    return pr.analytic_uv(prim_kind[prim], to_local, j, o, d, t)
 
 
 @kernel(inline=True)
