@@ -27,6 +27,7 @@ import pytest
 import caustica
 from caustica import bsdfs
 from caustica.bsdfs import MaterialTable
+from caustica.bsdfs.textures import texture_columns
 from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR
@@ -34,6 +35,7 @@ from caustica.scene.description import BECKMANN, GGX, ROUGHCONDUCTOR, ROUGHDIELE
 from imagestats import assert_images_agree
 
 NG = (0.0, 0.0, 1.0)
+UV = (0.0, 0.0)
 
 
 def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):
@@ -44,7 +46,8 @@ def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):
     return MaterialTable(np.array([kind], np.int32), np.array([flags], np.int32), np.array([rgb], np.float64),
                          np.array([eta]), np.zeros(1, np.int8), np.array([np.mean(rgb)]), np.array([dist], np.int32),
                          np.array([alpha]), np.array([fresnel], np.int8), np.array([ce], np.float64),
-                         np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)))
+                         np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)),
+                         *texture_columns([]))
 
 
 @kernel
@@ -53,8 +56,8 @@ def sample_many(mats, d, n, seed, out):
     eval's pdf, eval's f·|cos|/pdf rgb, lobe, eta)."""
     for i in range(n):
         key = path_key(seed, 7, i)
-        ok, wi, w, pdf, lobe, eta, _ = bsdfs.sample(mats, 0, d, NG, NG, key, 3)
-        f, s, pdf_e = bsdfs.eval_pdf(mats, 0, d, NG, NG, wi)
+        ok, wi, w, pdf, lobe, eta, _ = bsdfs.sample(mats, 0, d, NG, NG, UV, key, 3)
+        f, s, pdf_e = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wi)
         c = abs(wi[2])
         out[i, 0] = 1.0 if ok else 0.0
         out[i, 1], out[i, 2], out[i, 3] = wi
@@ -72,7 +75,7 @@ def eval_many(mats, d, dirs, out):
     """out[i] = (f·|cos| rgb, pdf) towards dirs[i]."""
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, wi)
+        f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wi)
         c = abs(wi[2])
         out[i, 0], out[i, 1], out[i, 2] = f[0] * s * c, f[1] * s * c, f[2] * s * c
         out[i, 3] = pdf
@@ -171,8 +174,8 @@ def sides_many(mats, d, ng, ns, n, seed, out):
     """n samples with a shading normal ns tilted from the geometric ng: out[i] = (ok, wi·ng, lobe, eval's pdf)."""
     for i in range(n):
         key = path_key(seed, 11, i)
-        ok, wi, _, _, lobe, _, _ = bsdfs.sample(mats, 0, d, ng, ns, key, 3)
-        _, _, pdf_e = bsdfs.eval_pdf(mats, 0, d, ng, ns, wi)
+        ok, wi, _, _, lobe, _, _ = bsdfs.sample(mats, 0, d, ng, ns, UV, key, 3)
+        _, _, pdf_e = bsdfs.eval_pdf(mats, 0, d, ng, ns, UV, wi)
         out[i, 0] = 1.0 if ok else 0.0
         out[i, 1] = wi[0] * ng[0] + wi[1] * ng[1] + wi[2] * ng[2]
         out[i, 2] = lobe

@@ -49,7 +49,7 @@ def env_direct(tables, at, key, dim, strata, coated):
     """
     _, mats, lights, _ = tables
     n_strata, fixed_grid, pass_index = strata
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     n_total = n_strata * n_strata
     constant = lights.env[1] == 1
     s_axis, t_axis = vec.orthonormal_basis(ns)
@@ -83,7 +83,7 @@ def env_direct(tables, at, key, dim, strata, coated):
 def env_transmittance(tables, at, wi):
     """T along a shadow ray from surface point ``at`` towards the environment in direction wi."""
     geom, mats, lights, media = tables
-    p, ng, _, ng_front, shape, medium = at
+    p, ng, _, ng_front, shape, medium, _ = at
     T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, wi),
                                 vec.madd(p, wi, env_shadow_length(lights, p)),
                                 medium_after(media, shape, ng_front, wi, medium))
@@ -107,7 +107,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
     """
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     E = (0.0, 0.0, 0.0)
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):

@@ -309,7 +309,7 @@ def light_sample(tables, at, u, through):
     In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     u0, u1, u2 = u
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
@@ -361,7 +361,7 @@ def env_light_sample(tables, at, sel_pdf, u, through):
     the scene's bounding sphere, as Mitsuba 3 does), through media and null boundaries.  Returns what
     light_sample does, ``is_area`` True (not a delta: MIS applies)."""
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium = at
+    p, ng, ns, ng_front, shape, medium, _ = at
     zero = (0.0, 0.0, 0.0)
     wi, pdf_dir, Le = env_sample(lights, u[0], u[1])
     pdf = sel_pdf * pdf_dir

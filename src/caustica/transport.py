@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from .geometry import vec
-from .geometry.scene_geometry import surface_at
+from .geometry.scene_geometry import surface_at, surface_uv
 from .jit import borrowed, kernel
 from .media import cross_null
 from .scene.description import NULL
@@ -26,13 +26,14 @@ class ShadingPoint(NamedTuple):
     ng_front: tuple   # the front geometric normal: which side leads to the exterior medium
     shape: int        # the shape, or -1 for a point in a medium
     medium: int       # the medium the path is in
+    uv: tuple = (0.0, 0.0)   # surface coordinates, for the material's textures (0, 0 when it has none)
 
 
 @kernel(inline=True)
 def in_medium(p, medium):
     """A :class:`ShadingPoint` at p inside ``medium``: no surface, no normals."""
     zero = (0.0, 0.0, 0.0)
-    return ShadingPoint(p, zero, zero, zero, -1, medium)
+    return ShadingPoint(p, zero, zero, zero, -1, medium, (0.0, 0.0))
 
 
 @kernel(inline=True)
@@ -53,8 +54,9 @@ TRAPPED = 2   # more null crossings in a row than NULL_CROSSINGS_CAP: the path e
 def surface_interaction(tables, hit, o, d, medium, crossings):
     """A ray from o along d (in ``medium``) meets ``hit`` = (primitive, t, barycentrics b1, b2).
 
-    Returns (p, ng, ns, front, m, kind, shape, medium, o, crossings, next): the hit point, its front
-    geometric and shading normals (not turned towards the ray), whether the ray arrives on the front,
+    Returns (p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, next): the hit point, its front
+    geometric and shading normals (not turned towards the ray), its surface coordinates (u, v) when the
+    material is textured ((0, 0) otherwise), whether the ray arrives on the front,
     the material and its kind, the shape; then the medium, origin and null crossings in a row for
     the ray's continuation, and ``next`` (SCATTER, CROSSED or TRAPPED).  At a real surface the
     crossings start again from 0 and medium and o are unchanged (the loop's scattering decides them).
@@ -66,7 +68,10 @@ def surface_interaction(tables, hit, o, d, medium, crossings):
     m = geom.prim_material[prim]
     kind = mats.kind[m]
     shape = geom.prim_shape[prim]
+    uv = (0.0, 0.0)
     if kind == NULL:
         medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
-        return p, ng, ns, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED
-    return p, ng, ns, front, m, kind, shape, medium, o, 0, SCATTER
+        return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED
+    if mats.texture[m] >= 0:
+        uv = surface_uv(geom, prim, o, d, t, b1, b2)
+    return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER

@@ -10,6 +10,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughco
   relative IOR crossed, and the path's dimension past the random numbers it used (no caller counts);
 * :func:`eval_pdf` — f towards a given direction (a colour times a scalar, so next-event estimation
   keeps one multiplication order) and the density :func:`sample` would give it;
+* :func:`colour` — material m's colour at surface coordinates uv (its texture's, or ``rgb[m]``), which every
+  BSDF and loop reads rather than ``rgb`` (:mod:`.textures`);
 * :func:`delta_branches` — for a BSDF with only delta lobes: both directions and the reflection
   probability, for the loops that follow both branches of glass (the photon-map gather) or add what
   each branch sees in expectation (the visible-point pass).
@@ -33,6 +35,7 @@ from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
     ROUGHPLASTIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic
+from .textures import albedo_mean, colour, texture_columns  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -56,6 +59,11 @@ class MaterialTable(NamedTuple):
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
     coating: np.ndarray    # float64[M, plastic.COATING_COLUMNS]: a plastic's parameters (specular_reflectance,
     #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py)
+    # Textures (bsdfs/textures.py), X of them: the one giving material m's rgb, and each texture's columns.
+    texture: np.ndarray    # int32[M]: the texture that gives rgb at each surface point, -1 for none
+    tex_int: np.ndarray    # int64[X, 6]: kind, filter, wrap mode, a bitmap's width, height, first row in texels
+    tex_float: np.ndarray  # float64[X, 12]: to_uv (2 x 3, row by row), a checkerboard's color0, color1
+    texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -91,7 +99,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                     coatings[c] = roughplastic.coating_tables(*c)
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k, coating)
+                         cond_k, coating, *texture_columns(desc.materials))
 
 
 @kernel(inline=True)
@@ -110,41 +118,42 @@ def oriented(mats, m, front, ng, ns):
 
 
 @kernel(inline=True)
-def sample(mats, m, d, ng, ns, key, dim):
-    """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`), with numbers
-    (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers used)."""
+def sample(mats, m, d, ng, ns, uv, key, dim):
+    """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`, surface coordinates
+    uv for its textures), with numbers (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers
+    used)."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
-        return diffuse.sample(mats, m, d, ng, ns, key, dim)
+        return diffuse.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == CONDUCTOR:
-        return conductor.sample(mats, m, d, ng, ns, key, dim)
+        return conductor.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHCONDUCTOR:
-        return roughconductor.sample(mats, m, d, ng, ns, key, dim)
+        return roughconductor.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHDIELECTRIC:
-        return roughdielectric.sample(mats, m, d, ng, ns, key, dim)
+        return roughdielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == PLASTIC:
-        return plastic.sample(mats, m, d, ng, ns, key, dim)
+        return plastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHPLASTIC:
-        return roughplastic.sample(mats, m, d, ng, ns, key, dim)
-    return dielectric.sample(mats, m, d, ng, ns, key, dim)
+        return roughplastic.sample(mats, m, d, ng, ns, uv, key, dim)
+    return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
 
 
 @kernel(inline=True)
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale of its smooth lobes
     (0 for a delta lobe, which no direction given in advance can meet), pdf the solid-angle density with which
     :func:`sample` returns wi (its lobe choice included)."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
-        return diffuse.eval_pdf(mats, m, d, ng, ns, wi)
+        return diffuse.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHCONDUCTOR:
-        return roughconductor.eval_pdf(mats, m, d, ng, ns, wi)
+        return roughconductor.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHDIELECTRIC:
-        return roughdielectric.eval_pdf(mats, m, d, ng, ns, wi)
+        return roughdielectric.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == PLASTIC:
-        return plastic.eval_pdf(mats, m, d, ng, ns, wi)
+        return plastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHPLASTIC:
-        return roughplastic.eval_pdf(mats, m, d, ng, ns, wi)
+        return roughplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 
@@ -158,7 +167,7 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def coat(mats, m, d, ng, ns):
+def coat(mats, m, d, ng, ns, uv):
     """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
     the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
     (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
@@ -174,7 +183,7 @@ def entry(mats, m, cos_o):
 
 
 @kernel(inline=True)
-def delta_branches(mats, m, d, ng, ns):
+def delta_branches(mats, m, d, ng, ns, uv):
     """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, colour).
 
     F is the probability :func:`sample` reflects (1 for a mirror, and under total internal reflection,
@@ -183,5 +192,5 @@ def delta_branches(mats, m, d, ng, ns):
     with number u.
     """
     if mats.kind[m] == CONDUCTOR:
-        return conductor.delta_branches(mats, m, d, ng, ns)
-    return dielectric.delta_branches(mats, m, d, ng, ns)
+        return conductor.delta_branches(mats, m, d, ng, ns, uv)
+    return dielectric.delta_branches(mats, m, d, ng, ns, uv)

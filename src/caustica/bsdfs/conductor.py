@@ -8,15 +8,17 @@ from ..jit import kernel
 from ..scene.description import CONDUCTOR
 from .flags import DELTA_REFLECTION
 from .optics import fresnel_conductor, mirror_reflect
+from .textures import colour
 
 KIND = CONDUCTOR
 FLAGS = DELTA_REFLECTION
 
 
 @kernel(inline=True)
-def colour(mats, m, d, wr):
-    """specular_reflectance, times the Fresnel reflectance of the reflection d -> wr when the IOR is given."""
-    rgb = vec.row(mats.rgb, m)
+def reflectance(mats, m, uv, d, wr):
+    """specular_reflectance (at surface coordinates uv), times the Fresnel reflectance of the reflection d -> wr
+    when the IOR is given."""
+    rgb = colour(mats, m, uv)
     if mats.fresnel[m] == 0:
         return rgb
     h = vec.normalize(vec.sub(wr, d))
@@ -27,15 +29,15 @@ def colour(mats, m, d, wr):
 
 
 @kernel(inline=True)
-def delta_branches(mats, m, d, ng, ns):
+def delta_branches(mats, m, d, ng, ns, uv):
     """The one reflected direction, as both branches with F = 1 (see :func:`caustica.bsdfs.delta_branches`)."""
     wr = mirror_reflect(d, ng, ns)
-    return wr, wr, 1.0, 1.0, colour(mats, m, d, wr)
+    return wr, wr, 1.0, 1.0, reflectance(mats, m, uv, d, wr)
 
 
 @kernel(inline=True)
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """The reflection, weight ``specular_reflectance`` (times F).  Like every delta BSDF it takes one number (its
     lobe choice, of one lobe here), so a mirror and a glass advance a path's numbers alike."""
     wr = mirror_reflect(d, ng, ns)
-    return True, wr, colour(mats, m, d, wr), 0.0, DELTA_REFLECTION, 1.0, dim + 1
+    return True, wr, reflectance(mats, m, uv, d, wr), 0.0, DELTA_REFLECTION, 1.0, dim + 1

@@ -8,6 +8,7 @@ from ..sampling.rng import uniform
 from ..scene.description import DIELECTRIC
 from .flags import DELTA_REFLECTION, DELTA_TRANSMISSION
 from .optics import fresnel_dielectric, reflect, refract
+from .textures import colour
 
 KIND = DIELECTRIC
 FLAGS = DELTA_REFLECTION | DELTA_TRANSMISSION
@@ -33,21 +34,21 @@ def interface(d, ng, ns, eta_int_over_ext):
 
 
 @kernel(inline=True)
-def delta_branches(mats, m, d, ng, ns):
+def delta_branches(mats, m, d, ng, ns, uv):
     """Both branches (see :func:`caustica.bsdfs.delta_branches`): the refracted direction is meaningless
     under total internal reflection (F = 1), where it repeats the reflected one."""
     n, eta, cos_i, F, cos_t = interface(d, ng, ns, mats.eta[m])
     wr = reflect(d, n)
     if F >= 1.0:
-        return wr, wr, 1.0, eta, vec.row(mats.rgb, m)
-    return wr, refract(d, n, eta, cos_i, cos_t), F, eta, vec.row(mats.rgb, m)
+        return wr, wr, 1.0, eta, colour(mats, m, uv)
+    return wr, refract(d, n, eta, cos_i, cos_t), F, eta, colour(mats, m, uv)
 
 
 @kernel(inline=True)
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """Reflection with probability F, else refraction (number dim); the weight is the scale colour, as the
     choice's probability cancels the Fresnel factor.  ``eta`` is the relative IOR crossed (1 when reflecting)."""
     n, eta, cos_i, F, cos_t = interface(d, ng, ns, mats.eta[m])
     if uniform(key, dim) < F:
-        return True, reflect(d, n), vec.row(mats.rgb, m), 0.0, DELTA_REFLECTION, 1.0, dim + 1
-    return True, refract(d, n, eta, cos_i, cos_t), vec.row(mats.rgb, m), 0.0, DELTA_TRANSMISSION, eta, dim + 1
+        return True, reflect(d, n), colour(mats, m, uv), 0.0, DELTA_REFLECTION, 1.0, dim + 1
+    return True, refract(d, n, eta, cos_i, cos_t), colour(mats, m, uv), 0.0, DELTA_TRANSMISSION, eta, dim + 1

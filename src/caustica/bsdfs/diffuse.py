@@ -9,6 +9,7 @@ from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import DIFFUSE
 from .flags import DIFFUSE_REFLECTION
+from .textures import colour
 
 KIND = DIFFUSE
 FLAGS = DIFFUSE_REFLECTION
@@ -16,7 +17,7 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel(inline=True)
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """A cosine-weighted direction about ns (numbers dim, dim + 1): see :func:`caustica.bsdfs.sample`.
 
     The weight f cos / pdf is ρ exactly; a direction below the geometric surface is refused.
@@ -25,13 +26,13 @@ def sample(mats, m, d, ng, ns, key, dim):
     s, t = vec.orthonormal_basis(ns)
     wi = vec.from_local(s, t, ns, local)
     ok = not (vec.dot(wi, ng) <= 0.0 or local[2] <= 0.0)
-    return ok, wi, vec.row(mats.rgb, m), local[2] * INV_PI, DIFFUSE_REFLECTION, 1.0, dim + 2
+    return ok, wi, colour(mats, m, uv), local[2] * INV_PI, DIFFUSE_REFLECTION, 1.0, dim + 2
 
 
 @kernel(inline=True)
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f = ρ · (1 / π) towards wi (zero below the surface) and the sampling density cos θ / π."""
     cos_i = vec.dot(ns, wi)
     if cos_i <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0
-    return vec.row(mats.rgb, m), INV_PI, cos_i * INV_PI
+    return colour(mats, m, uv), INV_PI, cos_i * INV_PI

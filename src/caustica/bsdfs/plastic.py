@@ -90,9 +90,10 @@ def choice(mats, m, F_i):
 
 
 @kernel
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """The coating's reflection with probability P (number dim), else a cosine-weighted direction about ns (numbers
-    dim + 1, dim + 2): see :func:`caustica.bsdfs.sample` and the module's docstring."""
+    dim + 1, dim + 2): see :func:`caustica.bsdfs.sample` and the module's docstring (uv is not read: a plastic's
+    colours are not textured)."""
     zero = (0.0, 0.0, 0.0)
     cos_i = -vec.dot(d, ns)
     if cos_i <= 0.0:
@@ -115,7 +116,7 @@ def sample(mats, m, d, ng, ns, key, dim):
 
 
 @kernel
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """The diffuse lobe towards wi, f = (base colour, (1 - F_i)(1 - F_o) / (π eta²)), and its density (1 - P) cos θ_o
     / π; zero below the shading or the geometric surface, or seen from below."""
     cos_i = -vec.dot(d, ns)

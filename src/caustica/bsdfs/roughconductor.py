@@ -15,6 +15,7 @@ from ..scene.description import ROUGHCONDUCTOR
 from . import microfacet as mf
 from .flags import GLOSSY_REFLECTION
 from .optics import fresnel_conductor
+from .textures import colour
 
 KIND = ROUGHCONDUCTOR
 FLAGS = GLOSSY_REFLECTION
@@ -31,7 +32,7 @@ def fresnel_rgb(mats, m, cos_i):
 
 
 @kernel
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
     :func:`caustica.bsdfs.sample`."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
@@ -48,12 +49,12 @@ def sample(mats, m, d, ng, ns, key, dim):
         return False, wi, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
     pdf = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) / (4.0 * wo[2])
     g1 = mf.smith_g1(dist, alpha, wl, h)
-    weight = vec.mul(vec.hadamard(vec.row(mats.rgb, m), fresnel_rgb(mats, m, c)), g1)
+    weight = vec.mul(vec.hadamard(colour(mats, m, uv), fresnel_rgb(mats, m, c)), g1)
     return pdf > 0.0, wi, weight, pdf, GLOSSY_REFLECTION, 1.0, dim + 2
 
 
 @kernel
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
     s, t = vec.orthonormal_basis(ns)
@@ -66,4 +67,4 @@ def eval_pdf(mats, m, d, ng, ns, wi):
     g1o = mf.smith_g1(dist, alpha, wo, h)
     scale = dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     pdf = dh * g1o / (4.0 * wo[2])
-    return vec.hadamard(vec.row(mats.rgb, m), fresnel_rgb(mats, m, vec.dot(wo, h))), scale, pdf
+    return vec.hadamard(colour(mats, m, uv), fresnel_rgb(mats, m, vec.dot(wo, h))), scale, pdf

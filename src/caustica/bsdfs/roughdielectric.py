@@ -23,6 +23,7 @@ from ..scene.description import ROUGHDIELECTRIC
 from . import microfacet as mf
 from .flags import GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric, refract
+from .textures import colour
 
 KIND = ROUGHDIELECTRIC
 FLAGS = GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
@@ -57,7 +58,7 @@ def same_side(wi, n_geo, reflect):
 
 
 @kernel
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
@@ -87,11 +88,11 @@ def sample(mats, m, d, ng, ns, key, dim):
     g1 = mf.smith_g1(dist, alpha, wl, h)
     wi = vec.from_local(s, t, n, wl)
     ok = ok and same_side(wi, n_geo, lobe == GLOSSY_REFLECTION)
-    return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(vec.row(mats.rgb, m), g1), pdf, lobe, eta_out, dim + 3
+    return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(colour(mats, m, uv), g1), pdf, lobe, eta_out, dim + 3
 
 
 @kernel
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
@@ -114,12 +115,12 @@ def eval_pdf(mats, m, d, ng, ns, wi):
     c = vec.dot(wo, h)
     F, _ = fresnel_dielectric(c, eta)
     if reflect:
-        return vec.row(mats.rgb, m), F * dh * g / (4.0 * wo[2] * wl[2]), F * dh * g1o / (4.0 * wo[2])
+        return colour(mats, m, uv), F * dh * g / (4.0 * wo[2] * wl[2]), F * dh * g1o / (4.0 * wo[2])
     ci = vec.dot(wl, h)
     den = c + eta * ci
     jac = eta * eta * abs(ci) / (den * den)
     scale = (1.0 - F) * dh * g * c * jac / (wo[2] * abs(wl[2]))
-    return vec.row(mats.rgb, m), scale, (1.0 - F) * dh * g1o * c / wo[2] * jac
+    return colour(mats, m, uv), scale, (1.0 - F) * dh * g1o * c / wo[2] * jac
 
 
 @kernel

@@ -115,9 +115,10 @@ def local_eval(mats, m, wo, wl):
 
 
 @kernel
-def sample(mats, m, d, ng, ns, key, dim):
+def sample(mats, m, d, ng, ns, uv, key, dim):
     """The glossy lobe with probability P (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
-    direction): see :func:`caustica.bsdfs.sample` and the module's docstring."""
+    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv is not read: a plastic's colours
+    are not textured)."""
     zero = (0.0, 0.0, 0.0)
     s, t = vec.orthonormal_basis(ns)
     wo = mf.to_local(s, t, ns, vec.neg(d))
@@ -143,7 +144,7 @@ def sample(mats, m, d, ng, ns, key, dim):
 
 
 @kernel
-def eval_pdf(mats, m, d, ng, ns, wi):
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
     s, t = vec.orthonormal_basis(ns)
     wo = mf.to_local(s, t, ns, vec.neg(d))

@@ -266,6 +266,28 @@ def analytic_surface(kind, to_world, to_local, i, o, d, t):
 
 
 @kernel(inline=True)
+def analytic_uv(kind, to_local, i, o, d, t):
+    """Mitsuba 3's surface coordinates (u, v) of analytic record ``i`` at ray parameter ``t``: for the sphere
+    (azimuth / 2 pi, polar angle from +z / pi), the disk (radius, azimuth / 2 pi), the cylinder (azimuth / 2 pi,
+    height), azimuths in [0, 2 pi) from the local +x axis (src/shapes/sphere.cpp, disk.cpp, cylinder.cpp)."""
+    ol = xform_point(to_local, i, o)
+    dl = xform_vector(to_local, i, d)
+    x = ol[0] + t * dl[0]
+    y = ol[1] + t * dl[1]
+    z = ol[2] + t * dl[2]
+    phi = math.atan2(y, x)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    if kind == SPHERE:
+        r = math.sqrt(x * x + y * y + z * z)
+        c = z / r if r > 0.0 else 1.0
+        return phi / (2.0 * math.pi), math.acos(min(1.0, max(-1.0, c))) / math.pi
+    if kind == CYLINDER:
+        return phi / (2.0 * math.pi), z
+    return math.sqrt(x * x + y * y), phi / (2.0 * math.pi)
+
+
+@kernel(inline=True)
 def sample_analytic(kind, to_world, to_local, i, u1, u2):
     """Point and unit front-side (unflipped) normal, uniform by object-space area.
 

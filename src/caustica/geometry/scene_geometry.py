@@ -7,6 +7,7 @@ and builds its BVH.  The kernels
 * :func:`intersect`           closest hit,
 * :func:`occluded`            any hit (shadow rays),
 * :func:`surface_at`          hit point, geometric and shading normal,
+* :func:`surface_uv`          surface coordinates (u, v) at a hit, for textures,
 * :func:`sample_on_primitive` a point uniform by area on one primitive,
 * :func:`sample_on_emitter`   a point uniform by area on one area emitter,
 
@@ -117,6 +118,9 @@ class Geometry(NamedTuple):
     # Bounds: per shape (S, 6) and of the whole scene (6,): xmin, ymin, zmin, xmax, ymax, zmax.
     shape_box: np.ndarray
     scene_box: np.ndarray
+    # Texture coordinates at each triangle's corners (T, 6): u0, v0, u1, v1, u2, v2 (a mesh without them has
+    # (0, 0), (1, 0), (0, 1): uv = the barycentrics, as in Mitsuba); (0, 6) when no material is textured.
+    tri_uv: np.ndarray
 
     @property
     def n_prims(self) -> int:
@@ -176,7 +180,11 @@ def _mesh_triangles(shape: Shape):
         ns = [_unit_rows(nrm[tri[:, k]], ng) for k in range(3)]
     else:
         ns = [ng, ng, ng]
-    return p0, e1, e2, ng, ns[0], ns[1], ns[2], area
+    if mesh.uvs is not None and len(mesh.uvs) == len(pos):
+        uv = np.asarray(mesh.uvs, dtype=np.float64)[tri].reshape(-1, 6)
+    else:
+        uv = np.tile([0.0, 0.0, 1.0, 0.0, 0.0, 1.0], (len(tri), 1))
+    return p0, e1, e2, ng, ns[0], ns[1], ns[2], area, uv
 
 
 def _affine(shape: Shape):
@@ -301,6 +309,9 @@ def build_geometry(desc: SceneDescription) -> Geometry:
     tri_p0, tri_e1, tri_e2, tri_ng = cat(1), cat(2), cat(3), cat(4)
     tri_n0, tri_n1, tri_n2 = cat(5), cat(6), cat(7)
     tri_area = np.concatenate([p[8] for p in tri_parts]) if tri_parts else np.zeros(0)
+    textured = any(getattr(m, "texture", None) is not None for m in desc.materials)
+    tri_uv = (_f64(np.concatenate([p[9] for p in tri_parts]), (6,)) if textured and tri_parts
+              else np.zeros((0, 6)))
     tri_shape = (np.concatenate([np.full(len(p[1]), p[0]) for p in tri_parts])
                  if tri_parts else np.zeros(0, dtype=np.int64))
 
@@ -373,6 +384,7 @@ def build_geometry(desc: SceneDescription) -> Geometry:
         emitter_shape=_i32(em_shape),
         shape_box=np.ascontiguousarray(shape_box),
         scene_box=np.ascontiguousarray(scene_box.astype(np.float64)),
+        tri_uv=tri_uv,
     )
 
 
@@ -436,6 +448,30 @@ def surface_at(geom, prim, o, d, t, b1, b2):
     f = geom.ana_flip[j]
     ng = (n[0] * f, n[1] * f, n[2] * f)
     return p, ng, ng
+
+
+@kernel(inline=True)
+def surface_uv(geom, prim, o, d, t, b1, b2):
+    """Mitsuba's surface coordinates (u, v) at a hit from :func:`intersect`: a triangle's corner coordinates
+    interpolated with the barycentrics, an analytic shape's parametrisation
+    (:func:`caustica.geometry.primitives.analytic_uv`).  Only for scenes with a texture (``tri_uv`` is empty
+    otherwise)."""
+    return hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (o, d, t), (b1, b2))
+
+
+@kernel
+def hit_uv(arrays, prim, ray, bary):
+    """:func:`surface_uv` on the four arrays it reads, ``arrays`` = (prim_kind, prim_index, tri_uv, ana_to_local),
+    ``ray`` = (o, d, t), ``bary`` = (b1, b2): called with these, not the whole Geometry, so that each call site
+    passes little."""
+    prim_kind, prim_index, w, to_local = arrays
+    o, d, t = ray
+    b1, b2 = bary
+    j = prim_index[prim]
+    if prim_kind[prim] == TRIANGLE:
+        b0 = 1.0 - b1 - b2
+        return (b0 * w[j, 0] + b1 * w[j, 2] + b2 * w[j, 4], b0 * w[j, 1] + b1 * w[j, 3] + b2 * w[j, 5])
+    return pr.analytic_uv(prim_kind[prim], to_local, j, o, d, t)
 
 
 @kernel(inline=True)

@@ -95,12 +95,13 @@ def radiance(tables, o, d, key, depths):
             if depth >= max_depth:
                 break
             ng = ns = ng_front = zero
+            uv = (0.0, 0.0)
             shape = -1
             m = 0
         else:
             # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
-            p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+            p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
                 tables, (prim, t, b1, b2), o, d, medium, crossings)
             e = geom.prim_emitter[prim]
             if e >= 0 and front and not (hide_emitters and depth == 0):
@@ -119,7 +120,7 @@ def radiance(tables, o, d, key, depths):
                 break
         in_medium = prim < 0
         if in_medium or mats.flags[m] & SMOOTH:
-            ok, term, scale, shadow, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium), m, d,
+            ok, term, scale, shadow, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium, uv), m, d,
                                                       beta, key, dim)
             n_shadow += shadow
             if ok:
@@ -137,7 +138,7 @@ def radiance(tables, o, d, key, depths):
             specular = False
             crossings = 0
         else:
-            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, key, dim)
+            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, uv, key, dim)
             if not alive:
                 break
             beta = vec.hadamard(beta, weight)
@@ -175,7 +176,7 @@ def next_event(tables, at, m, d, beta, key, dim):
     if at.shape < 0:
         w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
         return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
-    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, wi)
+    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
     if through:
         f_scale *= camera_scale(mats, m, d, at.ng, at.ns, wi)
     w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0

@@ -25,11 +25,11 @@ import math
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, coat, delta_branches, oriented
+from ..bsdfs import DELTA, SMOOTH, coat, colour, delta_branches, oriented
 from ..camera import generate_ray
 from ..emitters import env_radiance
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
+from ..geometry.scene_geometry import intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
@@ -84,12 +84,13 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             if e >= 0 and front:
                 L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
             m = geom.prim_material[prim]
+            uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 else (0.0, 0.0)
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
             if mats.flags[m] & SMOOTH:
-                fr = vec.mul(vec.row(mats.rgb, m), INV_PI)
+                fr = vec.mul(colour(mats, m, uv), INV_PI)
                 lobe_b = -1
                 if mats.flags[m] & DELTA:
                     # a delta coating over a diffuse lobe (plastic): the diffuse lobe's estimate here, f = A B (the
@@ -117,7 +118,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                                 d = wc
                                 continue
                             fr = vec.mul(A, 1.0 / (1.0 - P))
-                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0])
+                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
                 E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b)
                 dim += 2 * n_strata * n_strata
                 Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
@@ -130,8 +131,8 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             if depth > max_specular:
                 break
             # a mirror or glass: glass splits into reflection and refraction, weighted by Fresnel
-            d_r, d_t, F, eta, colour = delta_branches(mats, m, d, ng, ns)
-            beta = vec.hadamard(beta, colour)
+            d_r, d_t, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
+            beta = vec.hadamard(beta, tint)
             if F >= 1.0:
                 o = vec.offset_origin(p, ng, d_r)
                 d = d_r

@@ -41,7 +41,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import SMOOTH, oriented
+from ..bsdfs import SMOOTH, albedo_mean, colour, oriented
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -85,15 +85,17 @@ def split_off(tables, key, o, d, power, split_path, k, split):
 
 
 @kernel(inline=True)
-def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
-    """The associated photons after a diffuse bounce on material m: (how many survive, their power, dim).
+def associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination):
+    """The associated photons after a diffuse bounce on material m, at the leading photon's surface coordinates uv:
+    (how many survive, their power, dim).
 
     Each survives with p = mean albedo, its power scaled by albedo / p (numbers key, dim + j).
     With roulette the leading photon has already survived with probability p, and the stream
     lives or dies with it: a second, per-photon roulette would leave the associated photons
     alive with probability p^2 while compensating only 1 / p, so they all survive, scaled.
     """
-    q = mats.albedo_mean[m]
+    rgb = colour(mats, m, uv)
+    q = albedo_mean(mats, m, rgb)
     if termination == TERMINATION_ROULETTE:
         survivors = n_alive
     else:
@@ -102,7 +104,7 @@ def associated_decay(mats, m, key, dim, n_alive, p_assoc, termination):
             if uniform(key, dim + j) < q:
                 survivors += 1
     if q > 0.0:
-        p_assoc = vec.mul(vec.hadamard(p_assoc, vec.row(mats.rgb, m)), 1.0 / q)
+        p_assoc = vec.mul(vec.hadamard(p_assoc, rgb), 1.0 / q)
     return survivors, p_assoc
 
 
@@ -343,7 +345,7 @@ def trace_stream(tables, key, start, rules, i, buf):
             crossings = 0
             continue
         # ---- a surface
-        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         if nxt == CROSSED:
             n_from = zero
@@ -380,7 +382,7 @@ def trace_stream(tables, key, start, rules, i, buf):
                 stored += 1
             if bounces >= max_bounces:
                 break
-        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, ng, ns, key, dim, termination)
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
         if not alive:
             break
         lead = vec.mul(vec.hadamard(lead, weight), inv_q)
@@ -391,7 +393,7 @@ def trace_stream(tables, key, start, rules, i, buf):
             n_from = zero     # associated photons are placed from here only after a split
         else:
             # stream decay
-            n_alive, p_assoc = associated_decay(mats, m, key, dim, n_alive, p_assoc, termination)
+            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination)
             dim += n_assoc
             bounces += 1
             diffuse_like = True

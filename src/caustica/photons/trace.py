@@ -27,7 +27,7 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdfs import DELTA, SMOOTH, entry, oriented, sample
+from ..bsdfs import DELTA, SMOOTH, albedo_mean, colour, entry, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
@@ -54,21 +54,23 @@ def store_record(s, p, d, power, n, kind, buf):
 
 
 @kernel(inline=True)
-def bounce(mats, m, d, ng, ns, key, dim, termination):
-    """Continue a photon from material m (normals from :func:`caustica.bsdfs.oriented`): its BSDF sampled, then,
-    after a non-delta lobe, Russian roulette with the mean albedo (``TERMINATION_ROULETTE``: survive with
-    probability p, power scaled by 1 / p) on the number after the sample's.
+def bounce(mats, m, d, at, key, dim, termination):
+    """Continue a photon from material m at ``at`` = (ng, ns, uv) (normals from :func:`caustica.bsdfs.oriented`,
+    surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette with the mean albedo
+    there (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p) on the number after the
+    sample's.
 
     Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
     was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
     """
-    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, key, dim)
+    ng, ns, uv = at
+    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, uv, key, dim)
     if lobe & DELTA:
         return ok, wi, weight, 1.0, True, dim
     u = uniform(key, dim)
     dim += 1
     if termination == TERMINATION_ROULETTE:
-        q = mats.albedo_mean[m]
+        q = albedo_mean(mats, m, colour(mats, m, uv))
         return ok and u < q, wi, weight, 1.0 / q, False, dim
     return ok, wi, weight, 1.0, False, dim
 
@@ -122,7 +124,7 @@ def trace_one(tables, key, photon, rules, out):
             crossings = 0
             continue
         # ---- a surface
-        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         if nxt == CROSSED:
             continue
@@ -141,7 +143,7 @@ def trace_one(tables, key, photon, rules, out):
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, ng, ns, key, dim, termination)
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)

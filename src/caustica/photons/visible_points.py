@@ -58,7 +58,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, coat, delta_branches, oriented
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -161,7 +161,7 @@ def visible_point(tables, o, d, numbers, params, out):
             if lights.env[0] >= 0 and not counted:
                 L = vec.add(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)))
             return False, zero, zero, zero, L, n_seg
-        p, ng, ns, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
@@ -197,8 +197,8 @@ def visible_point(tables, o, d, numbers, params, out):
             if coated:
                 w = vec.mul(vec.hadamard(beta, A), 1.0 / (1.0 - P))
             else:
-                w = vec.mul(vec.hadamard(beta, vec.row(mats.rgb, m)), INV_PI)
-            at = ShadingPoint(p, ng, ns, ng_front, shape, medium)
+                w = vec.mul(vec.hadamard(beta, colour(mats, m, uv)), INV_PI)
+            at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
             lobe_b = m if coated else -1
             if fixed_grid:
                 E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b)
@@ -216,8 +216,8 @@ def visible_point(tables, o, d, numbers, params, out):
             beta = vec.hadamard(beta, w_coat)
             counted = True   # the reflection's first hit's emission was added above
             continue
-        wr, wt, F, eta, colour = delta_branches(mats, m, d, ng, ns)
-        beta = vec.hadamard(beta, colour)
+        wr, wt, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
+        beta = vec.hadamard(beta, tint)
         wi = wr
         if mats.flags[m] & TRANSMISSION:
             u = glass_branch_number(first_glass, pass_index, qkey, key, dim)

@@ -48,6 +48,8 @@ class Material:
     PLASTIC and ROUGHPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, the
     coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
     ``distribution`` and ``alpha``.
+    texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
+    a conductor's ``specular_reflectance``); ``rgb`` is then unused.
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -65,6 +67,7 @@ class Material:
     specular: tuple[float, float, float] = (1.0, 1.0, 1.0)   # a plastic's specular_reflectance
     nonlinear: bool = False            # a plastic's nonlinear colour shift (Mitsuba's ``nonlinear``)
     source: str = ""  # "file:line" for messages
+    texture: "Texture | None" = None   # varies ``rgb`` over the surface (the diffuse or specular reflectance)
 
     @property
     def is_specular(self) -> bool:
@@ -77,11 +80,43 @@ class Mesh:
 
     positions (n, 3) float64; triangles (m, 3) int64 vertex indices, counter-clockwise
     seen from the front (the side the geometric normal points to); normals (n, 3)
-    float64 unit shading normals or None (then the geometric normal shades).
+    float64 unit shading normals or None (then the geometric normal shades); uvs (n, 2)
+    float64 texture coordinates as Mitsuba has them (an OBJ's v already flipped), or None
+    (then a triangle's uv is its barycentric coordinates (b1, b2), as in Mitsuba).
     """
     positions: np.ndarray
     triangles: np.ndarray
     normals: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+
+
+# Texture kinds (the codes of the material table's texture columns).
+CHECKERBOARD = 0
+BITMAP = 1
+TEXTURE_NAMES = {CHECKERBOARD: "checkerboard", BITMAP: "bitmap"}
+FILTER_TYPES = {"nearest": 0, "bilinear": 1}
+WRAP_MODES = {"repeat": 0, "mirror": 1, "clamp": 2}
+
+
+@dataclass
+class Texture:
+    """A ``<texture>``: Mitsuba 3's ``checkerboard`` or ``bitmap``, looked up at a surface point's (u, v).
+
+    ``to_uv`` (2, 3): the affine map applied to (u, v) first (Mitsuba's ``to_uv``: a 4x4 transform's rows and
+    columns x, y and translation).  CHECKERBOARD: ``color0`` where the fractional parts of u and v are both above
+    1/2 or both not, ``color1`` elsewhere.  BITMAP: ``texels`` (height, width, 3) float32, linear RGB (sRGB
+    already decoded), row 0 at v = 0 (the image's top row); ``filter`` and ``wrap`` are codes of
+    :data:`FILTER_TYPES` and :data:`WRAP_MODES`.
+    """
+    kind: int
+    to_uv: np.ndarray = field(default_factory=lambda: np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    color0: tuple[float, float, float] = (0.4, 0.4, 0.4)
+    color1: tuple[float, float, float] = (0.2, 0.2, 0.2)
+    texels: np.ndarray | None = None
+    filter: int = 1
+    wrap: int = 0
+    id: str = ""
+    source: str = ""  # "file:line" for messages
 
 
 # Phase functions of a medium.

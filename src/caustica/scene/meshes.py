@@ -9,6 +9,7 @@ world the way Mitsuba does: points by the matrix, normals by its inverse transpo
 from __future__ import annotations
 
 import io
+import re
 import warnings
 from pathlib import Path
 
@@ -22,6 +23,9 @@ from .transforms import INT32_MAX, MAX_ABS_FLOAT, check_transform, transform_nor
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
               "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4,
               "double": 8, "float64": 8}
+
+
+_OBJ_VT = re.compile(r"^[ \t]*vt[ \t]", re.M)
 
 
 def _triangulate(faces) -> np.ndarray:
@@ -38,6 +42,12 @@ def _triangulate(faces) -> np.ndarray:
     return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
 
 
+def _uv_of(geom: dict):
+    """The per-vertex texture coordinates trimesh read (its TextureVisuals' uv), or None."""
+    uv = getattr(geom.get("visual"), "uv", None)
+    return None if uv is None or len(uv) == 0 else np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+
+
 def _single_geometry(loaded: dict, path: Path) -> dict:
     """trimesh's loaders return either one mesh's kwargs or a dict of named geometries."""
     if "geometry" in loaded:
@@ -47,17 +57,21 @@ def _single_geometry(loaded: dict, path: Path) -> dict:
         if not geoms:
             return {}
         # Several OBJ groups/materials: concatenate them into one mesh.
-        verts, faces, normals, offset = [], [], [], 0
+        verts, faces, normals, uvs, offset = [], [], [], [], 0
         has_n = all(g.get("vertex_normals") is not None for g in geoms)
+        has_uv = all(_uv_of(g) is not None and len(_uv_of(g)) == len(g["vertices"]) for g in geoms)
         for g in geoms:
             v = np.asarray(g["vertices"], dtype=np.float64)
             verts.append(v)
             faces.append(_triangulate(g["faces"]) + offset)
             if has_n:
                 normals.append(np.asarray(g["vertex_normals"], dtype=np.float64))
+            if has_uv:
+                uvs.append(_uv_of(g))
             offset += len(v)
         return {"vertices": np.concatenate(verts), "faces": np.concatenate(faces),
-                "vertex_normals": np.concatenate(normals) if has_n else None}
+                "vertex_normals": np.concatenate(normals) if has_n else None,
+                "uv": np.concatenate(uvs) if has_uv else None}
     return loaded
 
 
@@ -132,11 +146,12 @@ def _ply_checked(data: bytes, path: Path) -> bytes:
     return head + body
 
 
-def load_mesh_file(path: str | Path, kind: str | None = None) -> Mesh:
+def load_mesh_file(path: str | Path, kind: str | None = None, flip_tex_coords: bool | None = None) -> Mesh:
     """Read an OBJ or PLY file into an object-space :class:`Mesh`.
 
-    kind: "obj" or "ply" (default: from the suffix).  Raises SceneError naming the
-    file when it is missing, unreadable, or holds no triangles.
+    kind: "obj" or "ply" (default: from the suffix).  Texture coordinates are kept as Mitsuba keeps them: v
+    becomes 1 - v when ``flip_tex_coords`` (by default for OBJ, not for PLY, as in Mitsuba 3).  Raises
+    SceneError naming the file when it is missing, unreadable, or holds no triangles.
     """
     path = Path(path)
     kind = (kind or path.suffix.lstrip(".")).lower()
@@ -159,7 +174,12 @@ def load_mesh_file(path: str | Path, kind: str | None = None) -> Mesh:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", RuntimeWarning)
             if kind == "obj":
-                loaded = load_obj(io.StringIO(_obj_text(data)), maintain_order=True, skip_materials=True)
+                text = _obj_text(data)
+                # With texture coordinates, a vertex may take a different vt in different faces: trimesh keeps
+                # one per vertex when it keeps the file's order, so such a file is read unordered (each distinct
+                # v/vt/vn corner its own vertex, as Mitsuba makes them; the triangles are the same).
+                ordered = _OBJ_VT.search(text) is None
+                loaded = load_obj(io.StringIO(text), maintain_order=ordered, skip_materials=True)
             else:
                 loaded = load_ply(io.BytesIO(data))
         geom = _single_geometry(loaded, path)
@@ -194,14 +214,29 @@ def load_mesh_file(path: str | Path, kind: str | None = None) -> Mesh:
                 normals = None
             else:
                 normals = np.ascontiguousarray(normals / lengths)
-    return Mesh(positions, triangles, normals)
+    uvs = geom["uv"] if "uv" in geom else _uv_of(geom)
+    if uvs is not None:
+        uvs = np.asarray(uvs, dtype=np.float64).reshape(-1, 2)
+        if len(uvs) != len(positions) or not np.all(np.isfinite(uvs)):
+            uvs = None
+        elif flip_tex_coords if flip_tex_coords is not None else kind == "obj":
+            uvs = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]])
+    return Mesh(positions, triangles, normals, None if uvs is None else np.ascontiguousarray(uvs))
 
 
 def rectangle_mesh() -> Mesh:
-    """Mitsuba's rectangle: [-1, 1]^2 in the z = 0 plane, front side +z, 2 triangles."""
+    """Mitsuba's rectangle: [-1, 1]^2 in the z = 0 plane, front side +z, 2 triangles; uv = ((x + 1) / 2, (y + 1) / 2)
+    (Mitsuba 3's src/shapes/rectangle.cpp)."""
     p = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
     t = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
-    return Mesh(p, t, None)
+    return Mesh(p, t, None, (p[:, :2] + 1.0) / 2.0)
+
+
+#: Mitsuba 3's cube (src/shapes/cube.cpp) maps each face onto [0, 1]^2: per outward normal (axis, sign), the
+#: coordinate that gives u and the one that gives v, each as (axis, sign): u = (1 + sign * p[axis]) / 2.
+_CUBE_UV = {(0, -1.0): ((1, 1.0), (2, 1.0)), (0, 1.0): ((1, 1.0), (2, -1.0)),
+            (1, -1.0): ((2, 1.0), (0, 1.0)), (1, 1.0): ((0, -1.0), (2, -1.0)),
+            (2, -1.0): ((1, -1.0), (0, 1.0)), (2, 1.0): ((1, 1.0), (0, 1.0))}
 
 
 def cube_mesh() -> Mesh:
@@ -210,7 +245,7 @@ def cube_mesh() -> Mesh:
     Each face has its own 4 vertices (24 in all, as Mitsuba's cube), so nothing is shared
     across the cube's edges.
     """
-    positions, tris = [], []
+    positions, tris, uvs = [], [], []
     for axis in range(3):
         for sign in (-1.0, 1.0):
             n = np.zeros(3)
@@ -220,9 +255,13 @@ def cube_mesh() -> Mesh:
             v = np.cross(n, u)  # (u, v, n) right-handed, so u x v = n: CCW seen from outside
             c = n
             base = len(positions)
-            positions += [c - u - v, c + u - v, c + u + v, c - u + v]
+            corners = [c - u - v, c + u - v, c + u + v, c - u + v]
+            positions += corners
+            (ua, us), (va, vs) = _CUBE_UV[(axis, sign)]
+            uvs += [((1.0 + us * q[ua]) / 2.0, (1.0 + vs * q[va]) / 2.0) for q in corners]
             tris += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
-    return Mesh(np.array(positions, dtype=np.float64), np.array(tris, dtype=np.int64), None)
+    return Mesh(np.array(positions, dtype=np.float64), np.array(tris, dtype=np.int64), None,
+                np.array(uvs, dtype=np.float64))
 
 
 def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = False) -> Mesh:
@@ -249,4 +288,4 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
         if normals is not None:
             normals = -normals
     return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles),
-                None if normals is None else np.ascontiguousarray(normals))
+                None if normals is None else np.ascontiguousarray(normals), mesh.uvs)

@@ -45,7 +45,8 @@ def _offset(data: bytes, version: int, index: int, path: Path) -> int:
 
 
 def load_serialized(path: str | Path, shape_index: int = 0) -> Mesh:
-    """Mesh ``shape_index`` of a Mitsuba ``.serialized`` file (positions, triangles, vertex normals if stored);
+    """Mesh ``shape_index`` of a Mitsuba ``.serialized`` file (positions, triangles, vertex normals and texture
+    coordinates if stored, as stored);
     SceneError naming the file for anything it cannot read."""
     path = Path(path)
     try:
@@ -98,8 +99,7 @@ def _parse(body: bytes, version: int, path: Path) -> Mesh:
 
     positions = take(3 * n_vertices, dtype).astype(np.float64).reshape(-1, 3)
     normals = take(3 * n_vertices, dtype).astype(np.float64).reshape(-1, 3) if flags & HAS_NORMALS else None
-    if flags & HAS_TEXCOORDS:
-        take(2 * n_vertices, dtype)
+    uvs = take(2 * n_vertices, dtype).astype(np.float64).reshape(-1, 2) if flags & HAS_TEXCOORDS else None
     if flags & HAS_COLORS:
         take(3 * n_vertices, dtype)
     triangles = take(3 * n_triangles, np.dtype("<u4")).astype(np.int64).reshape(-1, 3)
@@ -118,4 +118,7 @@ def _parse(body: bytes, version: int, path: Path) -> Mesh:
             normals = None
         else:
             normals = np.ascontiguousarray(normals / lengths)
-    return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles), normals)
+    if uvs is not None and not np.all(np.isfinite(uvs)):
+        uvs = None
+    return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles), normals,
+                None if uvs is None else np.ascontiguousarray(uvs))

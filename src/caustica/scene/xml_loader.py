@@ -30,19 +30,20 @@ from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
-from .description import (CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS, HENYEY_GREENSTEIN, ISOTROPIC,
-                          MESH, NULL, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, Camera,
-                          Environment, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
-                          SceneDescription, Shape)
+from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
+                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, PLASTIC, ROUGHCONDUCTOR,
+                          ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, WRAP_MODES, Camera, Environment, IntegratorSettings,
+                          Material, Medium, PointLight, ReconstructionFilter, SceneDescription, Shape, Texture)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
+from .textures import read_texels
 
 # ----------------------------------------------------------------------------- the subset
 
 #: Property tags and plugin tags this loader knows.
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform")
-TOP_LEVEL_TAGS = ("default", "include", "path", "alias", "integrator", "sensor", "bsdf", "shape", "emitter", "medium",
-                  "film (with an id)", "sampler (with an id)")
+TOP_LEVEL_TAGS = ("default", "include", "path", "alias", "integrator", "sensor", "bsdf", "texture", "shape", "emitter",
+                  "medium", "film (with an id)", "sampler (with an id)")
 
 FLOAT = ("float", "integer")
 INT = ("integer",)
@@ -60,7 +61,7 @@ SHAPE_PROPS = {
     "disk": {},
     "cylinder": {"p0": POINT, "p1": POINT, "radius": FLOAT},
     "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
-    "ply": {"filename": STR, "face_normals": BOOL},
+    "ply": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
     # shapes declared once and placed by instances (each instance becomes copies of them)
     "shapegroup": {},
@@ -87,6 +88,17 @@ BSDF_PROPS = {
     "twosided": {},
     "null": {},
 }
+#: Mitsuba 3's textures (src/textures/): ``format`` and ``accel`` only choose how Mitsuba stores and filters the
+#: texels on a GPU (the values are checked, the texels are float32 here).
+TEXTURE_PROPS = {
+    "checkerboard": {"color0": COLOR, "color1": COLOR, "to_uv": XFORM},
+    "bitmap": {"filename": STR, "filter_type": STR, "wrap_mode": STR, "raw": BOOL, "to_uv": XFORM, "format": STR,
+               "accel": BOOL},
+}
+BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
+#: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
+TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
+                   "roughconductor": ("specular_reflectance",)}
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
@@ -175,11 +187,11 @@ DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
 #: The plugin tables and nested elements the one report checks in elements it cannot build.
 LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
-                 "film": ("rfilter",), "medium": ("phase",)}
+                 "film": ("rfilter",), "medium": ("phase",), "bsdf": ("texture", "ref")}
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
-             "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS}
+             "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS, "texture": TEXTURE_PROPS}
 
 
 LINT_TABLES = SUPPORTED
@@ -368,6 +380,7 @@ class _Loader:
         self.referenced_emitters: set[int] = set()
         self.materials: list[Material] = []
         self.material_of_node: dict[int, int] = {}
+        self.texture_of_node: dict[int, Texture] = {}
         self.in_progress: set[int] = set()
         self.default_materials: dict[bool, int] = {}   # emitter or not -> index of Mitsuba's default BSDF
         self.media: list[Medium] = []
@@ -761,15 +774,20 @@ class _Loader:
             self.in_progress.discard(key)
 
     def _build_material(self, node: Node) -> Material:
-        props = self.plugin(node, BSDF_PROPS, ("bsdf", "ref") if node.attrs.get("type") == "twosided" else ())
+        props = self.plugin(node, BSDF_PROPS, ("bsdf", "ref") if node.attrs.get("type") == "twosided"
+                            else ("texture", "ref"))
         kind = node.attrs["type"]
         name = node.attrs.get("id", "")
+        textures = {} if kind == "twosided" else self.bsdf_textures(props, kind)
         if kind == "diffuse":
-            return Material(DIFFUSE, self.color(props, "reflectance", DEFAULT_REFLECTANCE), name=name)
+            tex = textures.get("reflectance")
+            return Material(DIFFUSE, self.color(props, "reflectance", DEFAULT_REFLECTANCE) if tex is None
+                            else texture_mean(tex), name=name, texture=tex)
         if kind in ("conductor", "roughconductor"):
             eta, k = self.conductor_ior(props)
-            mat = Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)), name=name,
-                           conductor_eta=eta, conductor_k=k)
+            tex = textures.get("specular_reflectance")
+            mat = Material(CONDUCTOR, self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)) if tex is None
+                           else texture_mean(tex), name=name, conductor_eta=eta, conductor_k=k, texture=tex)
             if kind == "roughconductor":
                 mat.kind, mat.source = ROUGHCONDUCTOR, self.at(node)
                 mat.distribution, mat.alpha = self.microfacet(props)
@@ -816,6 +834,63 @@ class _Loader:
         out.twosided = True
         out.name = name or inner.name
         return out
+
+    def bsdf_textures(self, props: Props, kind: str) -> dict[str, Texture]:
+        """The textures among a BSDF's children (nested ``<texture name=...>`` or ``<ref name=... id=...>``), by the
+        parameter each gives; only the colours of :data:`TEXTURED_PARAMS` may be textured."""
+        out: dict[str, Texture] = {}
+        allowed = TEXTURED_PARAMS.get(kind, ())
+        for obj in props.objects:
+            name = obj.attrs.get("name")
+            if name is None:
+                self.fail(obj, "a texture inside a BSDF needs name= (the parameter it gives)",
+                          supported=[f"name=\"{p}\"" for p in allowed] or None)
+            if name not in allowed:
+                what = " (clear glass only)" if kind in ("dielectric", "roughdielectric") else ""
+                self.fail(obj, f"a texture for '{name}' of a {kind} BSDF is not supported{what}",
+                          supported=[f"a texture for '{p}'" for p in allowed] + [f"a constant '{name}'"])
+            if name in props.props or name in out:
+                self.fail(obj, f"'{name}' is given twice")
+            out[name] = self.texture(obj)
+        return out
+
+    def texture(self, node: Node) -> Texture:
+        """The Texture of a <texture> (or a <ref> to one), built once per element."""
+        node = self.resolve(node, "texture")
+        if id(node) not in self.texture_of_node:
+            self.texture_of_node[id(node)] = self.build_texture(node)
+        return self.texture_of_node[id(node)]
+
+    def build_texture(self, node: Node) -> Texture:
+        """A <texture type="checkerboard"> or <texture type="bitmap">, with Mitsuba's defaults."""
+        props = self.plugin(node, TEXTURE_PROPS, ("texture", "ref"))
+        if props.objects:
+            self.fail(props.objects[0], "a texture inside a texture is not supported",
+                      supported=["<rgb>, <float> or <spectrum> colours"])
+        m = props.get("to_uv")
+        to_uv = np.eye(4)[np.ix_([0, 1], [0, 1, 3])] if m is None else np.asarray(m)[np.ix_([0, 1], [0, 1, 3])]
+        common = dict(to_uv=np.ascontiguousarray(to_uv, dtype=np.float64), id=node.attrs.get("id", ""),
+                      source=self.at(node))
+        if node.attrs["type"] == "checkerboard":
+            return Texture(CHECKERBOARD, color0=self.color(props, "color0", (0.4, 0.4, 0.4)),
+                           color1=self.color(props, "color1", (0.2, 0.2, 0.2)), **common)
+        modes = {}
+        for p, table, default in (("filter_type", FILTER_TYPES, "bilinear"), ("wrap_mode", WRAP_MODES, "repeat"),
+                                  ("format", dict.fromkeys(BITMAP_FORMATS), "auto")):
+            v = props.get(p, default)
+            if v not in table:
+                self.fail(props.node_of(p), f"unknown {p} {quoted(v)}", supported=list(table))
+            modes[p] = table[v]
+        if not props.has("filename"):
+            self.fail(node, "a bitmap texture needs <string name=\"filename\" .../>")
+        where = props.node_of("filename")
+        try:
+            path = self.find_file(where, props.get("filename"), "texture file")
+            self.files.append(Path(path))
+            texels = read_texels(path, bool(props.get("raw", False)))
+        except SceneError as exc:
+            self.fail(where, str(exc))
+        return Texture(BITMAP, texels=texels, filter=modes["filter_type"], wrap=modes["wrap_mode"], **common)
 
     def dielectric_iors(self, props: Props, interior: str = "bk7") -> tuple[float, float]:
         """(int_ior, ext_ior) of a (rough) dielectric or plastic: numbers or Mitsuba's names, defaults ``interior``
@@ -1056,7 +1131,7 @@ class _Loader:
                     if kind == "serialized":
                         local = load_serialized(path, index)
                     else:
-                        local = load_mesh_file(path, kind)
+                        local = load_mesh_file(path, kind, props.get("flip_tex_coords", kind == "obj"))
                 except SceneError as exc:
                     self.fail(props.node_of("filename"), str(exc))
                 if props.get("face_normals", False):
@@ -1405,6 +1480,8 @@ class _Loader:
             camera, spp = self.sensor(node)
         elif tag == "bsdf":
             self.material_index(node)
+        elif tag == "texture":   # declared for a BSDF's <ref>; read (and checked) here
+            self.texture(node)
         elif tag in ("film", "sampler"):   # declared for a <ref> from the sensor, read there
             if "id" not in node.attrs:
                 self.fail(node, f"a <{tag}> at the top level needs an id= for the sensor's <ref>",
@@ -1451,6 +1528,14 @@ class _Loader:
             self.fail(node, "unknown element at the top level of the scene",
                       supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
         return camera, spp, settings, integrator_node
+
+
+def texture_mean(tex: Texture) -> tuple[float, float, float]:
+    """A texture's mean colour (its checkerboard colours' or its texels' mean): the material's ``rgb`` for what
+    reads one colour per material."""
+    if tex.kind == CHECKERBOARD:
+        return tuple(0.5 * (a + b) for a, b in zip(tex.color0, tex.color1))
+    return tuple(float(c) for c in tex.texels.reshape(-1, 3).astype(np.float64).mean(axis=0))
 
 
 def mitsuba_sample_count(kind: str, spp: int) -> int:

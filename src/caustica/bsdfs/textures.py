@@ -1,0 +1,137 @@
+"""Textures in the material table: a material's colour looked up at the surface point's (u, v).
+
+The table's texture columns (:func:`texture_columns`) hold every texture of the scene once: ``tex_int`` its
+kind, filter and wrap mode, a bitmap's width, height and first texel row; ``tex_float`` its ``to_uv`` and a
+checkerboard's two colours; the bitmaps' texels are one flat float32 array of RGB rows, ``texels``.
+``MaterialTable.texture[m]`` is the texture that gives material m's colour (-1: none, the colour is ``rgb[m]``).
+:func:`colour` is what every BSDF and loop reads; :func:`texture_rgb`, the lookup, is one called kernel, compiled
+once.
+
+The lookups follow Mitsuba 3 (src/textures/checkerboard.cpp, bitmap.cpp and Dr.Jit's texture): (u, v) goes
+through ``to_uv`` first.  A checkerboard is ``color0`` where the fractional parts of u and v are both above 1/2
+or both not, else ``color1``.  A bitmap of w x h texels has texel (i, j) (column, row; row 0 the image's top)
+centred at ((i + 1/2) / w, (j + 1/2) / h): ``nearest`` takes the texel holding (u w, v h), ``bilinear``
+interpolates the four texels around (u w - 1/2, v h - 1/2).  Texel indices beyond the image wrap (``repeat``:
+modulo the size), reflect (``mirror``: -1 -> 0, w -> w - 1, period 2w) or ``clamp`` to the edge.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..geometry import vec
+from ..jit import kernel
+from ..scene.description import CHECKERBOARD
+
+NEAREST, BILINEAR = 0, 1
+REPEAT, MIRROR, CLAMP = 0, 1, 2
+
+
+#: Columns of ``tex_int`` and ``tex_float``.
+KIND, FILTER, WRAP, WIDTH, HEIGHT, ROW0 = range(6)
+TO_UV, COLOR0, COLOR1 = 0, 6, 9
+
+
+def texture_columns(materials) -> tuple:
+    """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels); a
+    texture shared by several materials is stored once."""
+    index, textures = {}, []
+    texture = np.full(max(1, len(materials)), -1, np.int32)
+    for i, mat in enumerate(materials):
+        tex = getattr(mat, "texture", None)
+        if tex is None:
+            continue
+        if id(tex) not in index:
+            index[id(tex)] = len(textures)
+            textures.append(tex)
+        texture[i] = index[id(tex)]
+    x = max(1, len(textures))
+    ints = np.zeros((x, 6), np.int64)
+    floats = np.zeros((x, 12))
+    chunks, rows = [], 0
+    for t, tex in enumerate(textures):
+        ints[t, KIND], ints[t, FILTER], ints[t, WRAP] = tex.kind, tex.filter, tex.wrap
+        floats[t, TO_UV:TO_UV + 6] = np.asarray(tex.to_uv, dtype=np.float64).reshape(6)
+        floats[t, COLOR0:COLOR0 + 3] = tex.color0
+        floats[t, COLOR1:COLOR1 + 3] = tex.color1
+        if tex.texels is not None:
+            h, w = tex.texels.shape[:2]
+            ints[t, WIDTH], ints[t, HEIGHT], ints[t, ROW0] = w, h, rows
+            chunks.append(tex.texels.reshape(-1, 3))
+            rows += w * h
+    texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
+    return texture, ints, floats, texels
+
+
+@kernel(inline=True)
+def wrap(i, n, mode):
+    """Texel index i of a row or column of n texels, wrapped by ``mode`` into [0, n)."""
+    if mode == CLAMP:
+        return min(max(i, 0), n - 1)
+    if mode == MIRROR:
+        j = i % (2 * n)
+        return 2 * n - 1 - j if j >= n else j
+    return i % n
+
+
+@kernel
+def texel(texels, row0, w, h, mode, x, y):
+    """The texel at column x, row y (wrapped) as a float64 RGB tuple (called, not inlined: a bilinear lookup reads
+    four; inlined, they cost texture_rgb ~3 s of compile time)."""
+    r = row0 + wrap(y, h, mode) * w + wrap(x, w, mode)
+    return float(texels[r, 0]), float(texels[r, 1]), float(texels[r, 2])
+
+
+@kernel
+def texture_rgb(table, t, uv):
+    """Texture t's RGB at surface coordinates uv (see the module's docstring); black where uv is not finite.
+    ``table`` = (tex_int, tex_float, texels) of the material table: these three arrays, not the whole table, so
+    that each call site passes little."""
+    ints, a, texels = table
+    u = a[t, TO_UV] * uv[0] + a[t, TO_UV + 1] * uv[1] + a[t, TO_UV + 2]
+    v = a[t, TO_UV + 3] * uv[0] + a[t, TO_UV + 4] * uv[1] + a[t, TO_UV + 5]
+    if not (abs(u) < 1e15 and abs(v) < 1e15):
+        return 0.0, 0.0, 0.0
+    if ints[t, KIND] == CHECKERBOARD:
+        c = COLOR0 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR1
+        return a[t, c], a[t, c + 1], a[t, c + 2]
+    w = ints[t, WIDTH]
+    h = ints[t, HEIGHT]
+    row0 = ints[t, ROW0]
+    mode = ints[t, WRAP]
+    if ints[t, FILTER] == NEAREST:
+        return texel(texels, row0, w, h, mode, np.int64(math.floor(u * w)), np.int64(math.floor(v * h)))
+    px = u * w - 0.5
+    py = v * h - 0.5
+    fx = math.floor(px)
+    fy = math.floor(py)
+    x0 = np.int64(fx)
+    y0 = np.int64(fy)
+    ax = px - fx
+    ay = py - fy
+    c00 = texel(texels, row0, w, h, mode, x0, y0)
+    c10 = texel(texels, row0, w, h, mode, x0 + 1, y0)
+    c01 = texel(texels, row0, w, h, mode, x0, y0 + 1)
+    c11 = texel(texels, row0, w, h, mode, x0 + 1, y0 + 1)
+    top = vec.add(vec.mul(c00, 1.0 - ax), vec.mul(c10, ax))
+    bottom = vec.add(vec.mul(c01, 1.0 - ax), vec.mul(c11, ax))
+    return vec.add(vec.mul(top, 1.0 - ay), vec.mul(bottom, ay))
+
+
+@kernel(inline=True)
+def colour(mats, m, uv):
+    """Material m's colour (its ``rgb``: reflectance, specular reflectance, glass scale) at surface coordinates uv:
+    ``rgb[m]`` itself when untextured."""
+    t = mats.texture[m]
+    if t < 0:
+        return vec.row(mats.rgb, m)
+    return texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, uv)
+
+
+@kernel(inline=True)
+def albedo_mean(mats, m, rgb):
+    """The mean of material m's colour ``rgb`` (from :func:`colour`): photons' survival probability at a bounce."""
+    if mats.texture[m] < 0:
+        return mats.albedo_mean[m]
+    return (rgb[0] + rgb[1] + rgb[2]) / 3.0
