@@ -167,7 +167,7 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def coat(mats, m, d, ng, ns, uv):
+def coat(mats, m, d, ng, ns):
     """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
     the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
     (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
