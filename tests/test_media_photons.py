@@ -246,12 +246,7 @@ def fog_pspm():
 
 
 @pytest.fixture(scope="module")
-def fog_mitsuba():
-    mi = pytest.importorskip("mitsuba")
-    try:
-        mi.set_variant("scalar_rgb")
-    except Exception as exc:  # the variant may not be compiled into this build
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
+def fog_mitsuba(mi):
     scene = mi.load_file(str(builtin_scene_path("cornell-diacaustic-fog")), res=FOG_RES, spp=FOG_MITSUBA_SPP)
     assert "Volumetric" in str(scene.integrator())
     return [np.array(mi.render(scene, spp=FOG_MITSUBA_SPP, seed=s), dtype=np.float32)[..., :3] for s in FOG_SEEDS]

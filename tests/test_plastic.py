@@ -35,7 +35,7 @@ from caustica.bsdfs.optics import fresnel_dielectric
 from caustica.bsdfs.plastic import INTERNAL, TABLE, fresnel_diffuse_reflectance
 from caustica.scene.description import BECKMANN, GGX, PLASTIC, ROUGHPLASTIC, Material
 from imagestats import assert_images_agree
-from test_glossy import draw, eval_many, incident, render_both, sphere_cells, write_scene
+from test_glossy import assert_sampled_density_is_the_pdf, draw, eval_many, incident, render_both, write_scene
 
 DIST = {"beckmann": BECKMANN, "ggx": GGX}
 
@@ -151,33 +151,9 @@ def test_sample_agrees_with_eval_pdf(case):
                          ids=["plastic-30", "plastic-75", "rough-beckmann-30", "rough-ggx-70"])
 def test_sampled_density_is_the_pdf(case):
     """Chi-square of the smooth-lobe samples' histogram against N ∫_cell pdf; their rate against ∫ pdf."""
-    from scipy.stats import chi2
     kind, dist, theta = case
-    mats = table(kind, dist=dist, alpha=0.2)
-    d = incident(theta)
-    n = 400_000
-    out = draw(mats, d, n=n, seed=2)
-    ok = (out[:, 0] > 0) & (out[:, 12] != bsdfs.DELTA_REFLECTION)
-    dirs, dw, (nc, nphi, sub) = sphere_cells()
-    ev = np.zeros((len(dirs), 4))
-    eval_many(mats, d, dirs, ev)
-    expected = ev[:, 3].reshape(nc, sub, nphi, sub).sum(axis=(1, 3)) * dw * n
-    wi = out[ok, 1:4]
-    ci = np.clip(((wi[:, 2] + 1.0) / 2.0 * nc).astype(int), 0, nc - 1)
-    pj = np.clip((np.mod(np.arctan2(wi[:, 1], wi[:, 0]), 2 * math.pi) / (2 * math.pi) * nphi).astype(int), 0,
-                 nphi - 1)
-    observed = np.zeros((nc, nphi))
-    np.add.at(observed, (ci, pj), 1.0)
-    total = expected.sum() / n
-    se = math.sqrt(max(total * (1 - total), 1e-12) / n) + 1e-4
-    assert abs(ok.mean() - total) <= 5 * se + 2e-3, (ok.mean(), total)
-    big = expected >= 20
-    obs = np.append(observed[big], observed[~big].sum())
-    exp = np.append(expected[big], expected[~big].sum())
-    keep = exp > 0
-    stat = float(np.sum((obs[keep] - exp[keep]) ** 2 / exp[keep]))
-    dof = int(keep.sum()) - 1
-    assert stat <= chi2.ppf(1 - 1e-6, dof), (stat, dof, chi2.ppf(1 - 1e-6, dof))
+    assert_sampled_density_is_the_pdf(table(kind, dist=dist, alpha=0.2), incident(theta),
+                                      counted=lambda out: out[:, 12] != bsdfs.DELTA_REFLECTION)
 
 
 def exact_fdr(eta, n=4000):

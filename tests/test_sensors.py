@@ -59,16 +59,6 @@ def test_orthographic_matches_mitsuba(mi, test_scenes_dir):
     assert_images_agree(ours, theirs, label="orthographic")
 
 
-def test_a_flat_orthographic_view_is_refused(tmp_path):
-    from caustica.errors import SceneError
-    path = tmp_path / "flat.xml"
-    path.write_text('<scene version="3.0.0">\n<sensor type="orthographic">\n'
-                    '<transform name="to_world"><scale x="0" y="1"/></transform>\n</sensor>\n'
-                    '<shape type="sphere"><emitter type="area"/></shape>\n</scene>\n')
-    with pytest.raises(SceneError, match=r"flat\.xml:3: <transform name=\"to_world\">: the transform is degenerate"):
-        caustica.load_scene(path)
-
-
 def test_thin_lens_rays_of_one_film_position_meet_in_the_plane_in_focus(test_scenes_dir):
     scene = caustica.load_scene(test_scenes_dir / "thinlens.xml")
     cam = scene.camera()
@@ -108,11 +98,18 @@ def test_thin_lens_matches_mitsuba(mi, test_scenes_dir, focus):
     assert_images_agree(ours, theirs, label=f"thin lens, focus {focus}")
 
 
-def test_a_scaled_thin_lens_is_refused(tmp_path):
+@pytest.mark.parametrize("sensor, message", [
+    ('<sensor type="orthographic">\n<transform name="to_world"><scale x="0" y="1"/></transform>\n</sensor>',
+     r'<transform name="to_world">: the transform is degenerate'),
+    ('<sensor type="thinlens"><float name="aperture_radius" value="0.1"/>\n'
+     '<transform name="to_world"><scale value="2"/></transform>\n</sensor>',
+     r'<transform name="to_world">: a thin lens\'s to_world must not'),
+], ids=["flat-orthographic", "scaled-thin-lens"])
+def test_a_sensor_transform_mitsuba_refuses_is_refused(tmp_path, sensor, message):
+    """A zero scale (a flat orthographic view) and a thin lens's scaling to_world: one error naming file and line."""
     from caustica.errors import SceneError
-    path = tmp_path / "lens.xml"
-    path.write_text('<scene version="3.0.0">\n<sensor type="thinlens"><float name="aperture_radius" value="0.1"/>\n'
-                    '<transform name="to_world"><scale value="2"/></transform>\n</sensor>\n'
-                    '<shape type="sphere"><emitter type="area"/></shape>\n</scene>\n')
-    with pytest.raises(SceneError, match=r"lens\.xml:3: <transform name=\"to_world\">: a thin lens's to_world must not"):
+    path = tmp_path / "s.xml"
+    path.write_text(f'<scene version="3.0.0">\n{sensor}\n<shape type="sphere"><emitter type="area"/></shape>\n'
+                    f'</scene>\n')
+    with pytest.raises(SceneError, match=r"s\.xml:3: " + message):
         caustica.load_scene(path)

@@ -91,15 +91,12 @@ def generate_ray(cam, px, py, u1, u2, key):
                        px, cam.width, u1) / cam.width
     sy = film_position(cam.filter_kind, cam.filter_radius, cam.filter_stddev, cam.sample_border,
                        py, cam.height, u2) / cam.height
-    b = cam.basis
     if cam.orthographic:
         return _orthographic_ray(cam, sx, sy)
     local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
     if cam.aperture_radius > 0.0:
         return _thin_lens_ray(cam, local, key)
-    d = vec.normalize((b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],
-                       b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
-                       b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2]))
+    d = vec.normalize(_to_world(cam.basis, local))
     # Start on the near plane (Mitsuba ignores geometry closer than near_clip).
     zlen = vec.length(local)
     o = (cam.origin[0], cam.origin[1], cam.origin[2])
@@ -107,15 +104,20 @@ def generate_ray(cam, px, py, u1, u2, key):
     return o, d
 
 
+@kernel(inline=True)
+def _to_world(b, v):
+    """The camera-space vector v in world space: basis b (columns: camera x, y, z) times v."""
+    return (b[0, 0] * v[0] + b[0, 1] * v[1] + b[0, 2] * v[2],
+            b[1, 0] * v[0] + b[1, 1] * v[1] + b[1, 2] * v[2],
+            b[2, 0] * v[0] + b[2, 1] * v[1] + b[2, 2] * v[2])
+
+
 @kernel
 def _orthographic_ray(cam, sx, sy):
     """The ray of film position (sx, sy) in [0, 1)^2: from the near plane's point, along camera +z."""
     local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), cam.near_clip)
-    b = cam.basis
-    o = (cam.origin[0] + b[0, 0] * local[0] + b[0, 1] * local[1] + b[0, 2] * local[2],
-         cam.origin[1] + b[1, 0] * local[0] + b[1, 1] * local[1] + b[1, 2] * local[2],
-         cam.origin[2] + b[2, 0] * local[0] + b[2, 1] * local[1] + b[2, 2] * local[2])
-    return o, vec.normalize((b[0, 2], b[1, 2], b[2, 2]))
+    origin = (cam.origin[0], cam.origin[1], cam.origin[2])
+    return vec.add(origin, _to_world(cam.basis, local)), vec.normalize(_to_world(cam.basis, (0.0, 0.0, 1.0)))
 
 
 @kernel
@@ -127,11 +129,6 @@ def _thin_lens_ray(cam, local, key):
     a = (cam.aperture_radius * dx, cam.aperture_radius * dy, 0.0)
     f = vec.mul(local, cam.focus_distance)
     dc = vec.normalize(vec.sub(f, a))
-    b = cam.basis
-    d = vec.normalize((b[0, 0] * dc[0] + b[0, 1] * dc[1] + b[0, 2] * dc[2],
-                       b[1, 0] * dc[0] + b[1, 1] * dc[1] + b[1, 2] * dc[2],
-                       b[2, 0] * dc[0] + b[2, 1] * dc[1] + b[2, 2] * dc[2]))
-    o = (cam.origin[0] + b[0, 0] * a[0] + b[0, 1] * a[1],
-         cam.origin[1] + b[1, 0] * a[0] + b[1, 1] * a[1],
-         cam.origin[2] + b[2, 0] * a[0] + b[2, 1] * a[1])
+    d = vec.normalize(_to_world(cam.basis, dc))
+    o = vec.add((cam.origin[0], cam.origin[1], cam.origin[2]), _to_world(cam.basis, a))
     return vec.madd(o, d, cam.near_clip / dc[2]), d

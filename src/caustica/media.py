@@ -293,6 +293,27 @@ def power_heuristic(a, b):
     return a * a / (a * a + b * b)
 
 
+@kernel(inline=True)
+def shadow_ray_start(media, at, wi, towards, through):
+    """Where a shadow ray towards unit direction wi leaves ``at``: (faces, cos_s, origin, medium).
+
+    At a surface: cos_s = ns·wi, and the light must be on the scattering side of both normals (or, with
+    ``through``, behind both, with |cos|), else ``faces`` is False; the origin is offset off the surface
+    towards ``towards`` (wi, or the vector to the light), in the medium on that side.  In a medium
+    (shape < 0): cos_s = 1, the point itself, its medium.
+    """
+    p, ng, ns, ng_front, shape, medium, _ = at
+    if shape < 0:
+        return True, 1.0, p, medium
+    cos_s = vec.dot(ns, wi)
+    cos_g = vec.dot(ng, wi)
+    if through and cos_s < 0.0 and cos_g < 0.0:
+        cos_s, cos_g = -cos_s, -cos_g
+    if cos_s <= 0.0 or cos_g <= 0.0:
+        return False, cos_s, p, medium
+    return True, cos_s, vec.offset_origin(p, ng, towards), medium_after(media, shape, ng_front, wi, medium)
+
+
 @kernel(hot=True)
 def light_sample(tables, at, u, through):
     """One light sample seen from ``at`` through media and null boundaries (next-event estimation).
@@ -309,7 +330,7 @@ def light_sample(tables, at, u, through):
     In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium, _ = at
+    p, shape = at.p, at.shape
     u0, u1, u2 = u
     zero = (0.0, 0.0, 0.0)
     if lights.kind.shape[0] == 0:
@@ -334,17 +355,9 @@ def light_sample(tables, at, u, through):
         if cos_l <= 0.0:
             return zero, wi, 0.0, 0.0, True, False, 0
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
-    o = p
-    cos_s = 1.0
-    if shape >= 0:
-        cos_s = vec.dot(ns, wi)
-        cos_g = vec.dot(ng, wi)
-        if through and cos_s < 0.0 and cos_g < 0.0:
-            cos_s, cos_g = -cos_s, -cos_g
-        if cos_s <= 0.0 or cos_g <= 0.0:
-            return zero, wi, 0.0, 0.0, is_area, False, 0
-        medium = medium_after(media, shape, ng_front, wi, medium)
-        o = vec.offset_origin(p, ng, to_l)
+    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, to_l, through)
+    if not faces:
+        return zero, wi, 0.0, 0.0, is_area, False, 0
     target = vec.offset_origin(q, nq, vec.neg(to_l))
     T, rays = shadow_transmittance(geom, mats, media, o, target, medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
@@ -361,23 +374,15 @@ def env_light_sample(tables, at, sel_pdf, u, through):
     the scene's bounding sphere, as Mitsuba 3 does), through media and null boundaries.  Returns what
     light_sample does, ``is_area`` True (not a delta: MIS applies)."""
     geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium, _ = at
+    p = at.p
     zero = (0.0, 0.0, 0.0)
     wi, pdf_dir, Le = env_sample(lights, u[0], u[1])
     pdf = sel_pdf * pdf_dir
     if not pdf > 0.0:   # a direction of zero density, or an environment that emits nothing (never chosen)
         return zero, wi, 0.0, 0.0, True, False, 0
-    o = p
-    cos_s = 1.0
-    if shape >= 0:
-        cos_s = vec.dot(ns, wi)
-        cos_g = vec.dot(ng, wi)
-        if through and cos_s < 0.0 and cos_g < 0.0:
-            cos_s, cos_g = -cos_s, -cos_g
-        if cos_s <= 0.0 or cos_g <= 0.0:
-            return zero, wi, 0.0, 0.0, True, False, 0
-        medium = medium_after(media, shape, ng_front, wi, medium)
-        o = vec.offset_origin(p, ng, wi)
+    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, wi, through)
+    if not faces:
+        return zero, wi, 0.0, 0.0, True, False, 0
     T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, True, False, rays
