@@ -288,7 +288,11 @@ BAD = {
 
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_rough_bsdfs_exit_2_one_line(cli, tmp_path, case):
-    body, words = BAD[case]
+    assert_refused_in_one_line(cli, tmp_path, *BAD[case])
+
+
+def assert_refused_in_one_line(cli, tmp_path, body, words):
+    """``caustica render`` of a scene with the BSDF ``body`` exits 2 with one line naming g.xml:5 and ``words``."""
     path = write_scene(tmp_path, body)
     code, _, err = cli("render", path, "--res", "8", "--spp", "1", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
