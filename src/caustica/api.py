@@ -16,7 +16,7 @@ import numpy as np
 
 from . import checkpoint as ckpt
 from . import driver, methods
-from .bsdfs import DELTA, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION, SMOOTH
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION, SMOOTH
 from .errors import ParameterError, RenderError, SceneError, quoted
 from .film import FILM_BYTES_PER_PIXEL, IMAGE_BYTES_PER_PIXEL
 from .version import __version__
@@ -105,20 +105,31 @@ def check_common(*, spp, width, height, seed, threads, film_source: str | None =
 
 
 def check_bsdfs(cls, scene) -> None:
-    """Refuse a scene with a glossy BSDF (roughconductor, roughdielectric, roughplastic) or one with both a delta and
-    a diffuse lobe (plastic) for a method that does not render them: the photon methods treat every non-delta
-    surface as Lambertian so far (issue 20), which would be a silently wrong image.  Methods that do declare
-    ``renders_glossy = True`` (``pt``: both) or ``renders_coated = True`` (``pm``, ``sppm``: plastic; the stream
-    methods' loop does not separate its lobes)."""
+    """Refuse a scene with a BSDF the method does not render, which would be a silently wrong image.
+
+    Each method declares what it renders beyond diffuse surfaces, mirrors and glass:
+    ``renders_glossy = True`` — every BSDF (``pt``); ``passes_glossy = True`` — glossy BSDFs without a
+    diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
+    (``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
+    the stream methods' loop does not separate its lobes).  A glossy lobe beside a diffuse one
+    (roughplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
+    does yet (issue 20).
+    """
     if getattr(cls, "renders_glossy", False):
         return
     for mat, flags in zip(scene.description.materials, scene.materials.flags):
         where = f"{mat.source}: " if mat.source else ""
+        name = MATERIAL_NAMES[mat.kind]
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
-            raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
-                             f"glossy BSDFs yet (its photons and visible points are Lambertian); use --method pt")
+            if flags & DIFFUSE_REFLECTION:
+                raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "
+                                 f"beside a diffuse one yet (its gather would treat both as Lambertian); use "
+                                 f"--method pt")
+            if not getattr(cls, "passes_glossy", False):
+                raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render glossy BSDFs "
+                                 f"yet (its photons and visible points are Lambertian); use --method pt or sppm")
         if flags & DELTA and flags & SMOOTH and not getattr(cls, "renders_coated", False):
-            raise SceneError(f"{where}<bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not render "
+            raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render "
                              f"a delta coating over a diffuse lobe yet (its streams would lose the coating's "
                              f"reflection); use --method pt, pm or sppm")
 

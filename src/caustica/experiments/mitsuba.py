@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -24,9 +25,13 @@ def mitsuba_module():
     return mi
 
 
-def mitsuba_equal_time(mi, scene_name, res, budget_s, seed):
-    """Mitsuba's path tracer, passes of a few spp (new seed each) until the next would cross the budget."""
-    scene = mi.load_file(str(builtin_scene_path(scene_name)), res=res)
+def mitsuba_equal_time(mi, scene_name, res, budget_s, seed, **params):
+    """Mitsuba's path tracer, passes of a few spp (new seed each) until the next would cross the budget.
+
+    ``scene_name``: a built-in scene's name, or the path of an XML file; ``params``: its ``<default>`` values.
+    Returns (image, wall seconds, spp)."""
+    path = scene_name if isinstance(scene_name, Path) else builtin_scene_path(scene_name)
+    scene = mi.load_file(str(path), res=res, **params)
     mi.render(scene, spp=1, seed=2**31)   # untimed, as caustica's warm-up
     acc = None
     passes = 0

@@ -31,14 +31,13 @@ import time
 
 import numpy as np
 
-from ..bsdfs import DELTA, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, camera_scale, eval_pdf, oriented, sample
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, oriented, sample
 from ..camera import generate_ray
-from ..emitters import env_pdf, env_radiance
 from ..errors import ParameterError
 from ..geometry import vec
 from ..jit import kernel, parallel_for
-from ..media import escape_transmittance, free_flight, light_sample, medium_after, phase_pdf, phase_sample, \
-    phase_value, power_heuristic
+from ..lighting import emission_mis, environment_mis, next_event
+from ..media import free_flight, medium_after, phase_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
 from . import register
@@ -159,64 +158,6 @@ def radiance(tables, o, d, key, depths):
             dim += 1
             beta = vec.mul(beta, 1.0 / q)
     return L, n_ext, n_shadow
-
-
-@kernel(inline=True)
-def next_event(tables, at, m, d, beta, key, dim):
-    """Next-event estimation at ``at`` (a surface of material m, or a point in a medium) for a path arriving along
-    d with throughput β: one light sample (numbers dim .. dim + 2), weighted by MIS against the BSDF's or the
-    phase function's sampling for area lights.  Returns (ok, term, scale, shadow rays, dim): L += term · scale.
-    """
-    mats, media = tables[1], tables[3]
-    through = at.shape >= 0 and mats.flags[m] & GLOSSY_TRANSMISSION != 0   # lights on either side
-    contrib, wi, pdf_light, _, is_area, ok, shadow = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
-                                                                  uniform(key, dim + 2)), through)
-    if not ok:
-        return False, contrib, 0.0, shadow, dim + 3
-    if at.shape < 0:
-        w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
-        return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
-    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
-    if through:
-        f_scale *= camera_scale(mats, m, d, at.ng, at.ns, wi)
-    w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0
-    return True, vec.hadamard(beta, vec.hadamard(f, contrib)), w_l * f_scale, shadow, dim + 3
-
-
-@kernel(inline=True)
-def emission_mis(lights, e, last, cos_l, t, crossings, p):
-    """The MIS weight of emitter e's radiance (at p, cosine cos_l) reached by BSDF or phase sampling from the
-    last scattering, ``last`` = (specular, pdf_last, p_last), against light sampling from there: 1 after a
-    delta bounce or from the camera (``specular``).  The distance is the ray's t, or |p - p_last| when null
-    surfaces were crossed since that point."""
-    specular, pdf_last, p_last = last
-    if specular:
-        return 1.0
-    if crossings == 0:
-        pdf_light = lights.select_pdf[e] * t * t / (lights.area[e] * cos_l)
-    else:
-        to_p = vec.sub(p, p_last)
-        pdf_light = lights.select_pdf[e] * vec.dot(to_p, to_p) / (lights.area[e] * cos_l)
-    return power_heuristic(pdf_last, pdf_light)
-
-
-@kernel
-def environment_mis(lights, media, d, medium, last):
-    """The environment's radiance along an escaping ray d, MIS-weighted against light sampling from the last
-    scattering, ``last`` = (specular, pdf_last): weight 1 from the camera or after a delta bounce.  A ray
-    that escapes from inside a medium (one that nothing bounds) escaped in the channels that do not
-    attenuate: their radiance is divided by the probability of escaping, the others' is 0 (docs/media.md)."""
-    specular, pdf_last = last
-    Le = env_radiance(lights, d)
-    if medium >= 0:
-        T = escape_transmittance(media, medium)
-        p = (T[0] + T[1] + T[2]) / 3.0
-        if not p > 0.0:
-            return (0.0, 0.0, 0.0)
-        Le = vec.mul(vec.hadamard(Le, T), 1.0 / p)
-    if specular:
-        return Le
-    return vec.mul(Le, power_heuristic(pdf_last, lights.select_pdf[lights.env[0]] * env_pdf(lights, d)))
 
 
 @kernel

@@ -15,7 +15,9 @@ own fixed slots, so the maps are identical for any thread count.
   the phase function; the event counts as a bounce towards ``max_bounces``, as a diffuse one
   does.
 * At every diffuse hit a surface record is stored; mirrors and glass reflect or refract, up to
-  their own cap (:data:`SPECULAR_CAP`).  ``max_bounces`` (mr) counts diffuse and medium bounces.
+  their own cap (:data:`SPECULAR_CAP`).  A glossy surface (rough metal or glass, no diffuse lobe) stores
+  nothing, as no visible point is made there (:mod:`caustica.photons.visible_points`): the photon goes on by
+  its BSDF's sample.  ``max_bounces`` (mr) counts diffuse, glossy and medium bounces.
   At a BSDF with a delta coating over a diffuse lobe (plastic) the photon is stored with its power times
   the lobe's factor B on the light's side (:func:`caustica.bsdfs.coat`), then continues by sampling a lobe:
   the coating's reflection is a specular event, but the records after it are INDIRECT.
@@ -27,7 +29,7 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdfs import DELTA, SMOOTH, albedo_mean, colour, entry, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, albedo_mean, colour, entry, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
@@ -135,7 +137,7 @@ def trace_one(tables, key, photon, rules, out):
         if not scatters:
             break  # the black back of a one-sided surface absorbs
         if mats.flags[m] & SMOOTH:
-            if scattered and stored < slots:
+            if scattered and stored < slots and mats.flags[m] & DIFFUSE_REFLECTION:
                 stored_power = power
                 if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
                     stored_power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))

@@ -58,13 +58,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, sample
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import kernel, parallel_for
-from ..lighting import direct_stratified
-from ..media import attenuation, medium_after
+from ..emitters import env_pdf
+from ..lighting import direct_stratified, emission_mis, next_event
+from ..media import attenuation, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
@@ -146,6 +147,9 @@ def visible_point(tables, o, d, numbers, params, out):
     depth = 0
     first_glass = True
     counted = False   # the next surface's emission was already added, in expectation, at the glass before it
+    specular = True   # no glossy scattering yet, or a delta one since: emitters the path meets count in full
+    pdf_last = 0.0    # after a glossy scattering: its sampled direction's density, and where it was (MIS)
+    p_last = o
     medium = media.camera[0]
     n_seg = 0
     crossings = 0
@@ -159,13 +163,21 @@ def visible_point(tables, o, d, numbers, params, out):
             n_seg += 1
         if prim < 0:
             if lights.env[0] >= 0 and not counted:
-                L = vec.add(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)))
+                Le = escaped_radiance(lights, media, d, medium)
+                if not specular:
+                    Le = vec.mul(Le, power_heuristic(pdf_last, lights.select_pdf[lights.env[0]] * env_pdf(lights, d)))
+                L = vec.add(L, vec.hadamard(beta, Le))
             return False, zero, zero, zero, L, n_seg
+        crossed = crossings
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
-            L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+            if specular:
+                L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+            else:
+                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+                             emission_mis(lights, e, (False, pdf_last, p_last), -vec.dot(d, ng), t, crossed, p))
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
@@ -176,6 +188,29 @@ def visible_point(tables, o, d, numbers, params, out):
         if not scatters:
             return False, zero, zero, zero, L, n_seg
         flags = mats.flags[m]
+        if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
+            # a glossy surface (rough metal, rough glass): no visible point here, as in pbrt-v4's SPPM; its direct
+            # light by one light sample (MIS against the BSDF's sampling), then the path goes on by the BSDF's sample
+            depth += 1
+            if depth > max_specular:
+                return False, zero, zero, zero, L, n_seg
+            ok, term, scale, _, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium, uv), m, d,
+                                                 beta, key, dim)
+            if ok:
+                L = vec.madd(L, term, scale)
+            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, uv, key, dim)
+            if not alive:
+                return False, zero, zero, zero, L, n_seg
+            beta = vec.hadamard(beta, weight)
+            if lobe & TRANSMISSION:
+                beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
+            specular = lobe & DELTA != 0
+            pdf_last = pdf
+            p_last = p
+            medium = medium_after(media, shape, ng_front, wi, medium)
+            o = vec.offset_origin(p, ng, wi)
+            d = wi
+            continue
         coated = flags & SMOOTH != 0 and flags & DELTA != 0
         take_coat = False
         wc, P, w_coat, A = zero, 0.0, zero, zero
@@ -209,6 +244,7 @@ def visible_point(tables, o, d, numbers, params, out):
         depth += 1
         if depth > max_specular:
             return False, zero, zero, zero, L, n_seg
+        specular = True
         if take_coat:
             medium = medium_after(media, shape, ng_front, wc, medium)
             o = vec.offset_origin(p, ng, wc)

@@ -1,0 +1,140 @@
+"""The issue's glossy-caustic goal: SPPM against Mitsuba 3's path tracer at equal wall time on a glossy caustic.
+
+    python benchmarks/bench_glossy_caustic.py [--budget 30] [--res 96] [--ref-spp 8192] [--seeds 0]
+                                              [--dist ggx] [--alpha 0.1] [--threads N]
+
+Scene: tests/scenes/glossy-caustic.xml, a rough glass ball and a rough silver ring (``--dist``, ``--alpha`` set
+both) on a diffuse floor under a small square light.
+
+* Reference: Mitsuba's path tracer (``scalar_rgb``) at ``--ref-spp`` samples per pixel, in two halves of
+  independent seeds, cached in out/refs/.  Its own error in the measure below is half the relative RMSE between
+  its halves; each error is printed as measured and with that noise taken out in quadrature.
+* Caustic region: the pixels whose centre ray first meets the floor (Mitsuba's ``ray_intersect``) and where the
+  reference exceeds a direct-light-only render (Mitsuba, ``max_depth`` 2, as many samples) by at least 0.1 of that
+  excess's 99.9th percentile over the floor: the light that reached the floor through the ball or off the ring.
+* Timed: ``sppm`` (defaults) with ``--time BUDGET`` after an untimed warm-up (kernels compiled or loaded), and
+  Mitsuba's path tracer for the same budget in the same run
+  (:func:`caustica.experiments.mitsuba.mitsuba_equal_time`).  Relative RMSE over the caustic region and the whole
+  image, image means against the reference's, and the ratio Mitsuba / sppm.
+
+The 1-minute load average is printed before each render: read a loaded machine's numbers as such.  No asserts:
+numbers to read.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+import caustica
+from caustica.experiments.convergence import rel_rmse
+from caustica.experiments.mitsuba import mitsuba_equal_time, mitsuba_module
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = REPO / "tests" / "scenes" / "glossy-caustic.xml"
+REF_SPP_PER_CALL = 256
+
+
+def mitsuba_render(mi, scene, spp, seed0, integrator=None):
+    """Mean of spp samples per pixel in calls of REF_SPP_PER_CALL, seeded seed0, seed0 + 1, ... (float64)."""
+    acc, calls = 0.0, max(1, spp // REF_SPP_PER_CALL)
+    for i in range(calls):
+        kw = {} if integrator is None else {"integrator": integrator}
+        acc = acc + np.array(mi.render(scene, spp=REF_SPP_PER_CALL, seed=seed0 + i, **kw), np.float64)[..., :3]
+    return acc / calls
+
+
+def reference(mi, args, params):
+    """(reference, its first half, its second half, the direct-light-only render), cached in out/refs/."""
+    cache = REPO / "out" / "refs" / f"glossy-caustic-{args.dist}-{args.alpha}-{args.res}-{args.ref_spp}.npz"
+    if cache.is_file():
+        z = np.load(cache)
+        return z["ref"], z["a"], z["b"], z["direct"]
+    scene = mi.load_file(str(SCENE), res=args.res, **params)
+    t0 = time.perf_counter()
+    half = args.ref_spp // 2
+    a = mitsuba_render(mi, scene, half, 0)
+    b = mitsuba_render(mi, scene, half, 100_000)
+    direct = mitsuba_render(mi, scene, args.ref_spp, 200_000, mi.load_dict({"type": "path", "max_depth": 2}))
+    print(f"# reference: {args.ref_spp} spp in two halves and a direct-only render, {time.perf_counter() - t0:.0f} s")
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    tmp = cache.with_suffix(".tmp.npz")
+    np.savez(tmp, ref=(a + b) / 2, a=a, b=b, direct=direct)
+    os.replace(tmp, cache)
+    return (a + b) / 2, a, b, direct
+
+
+def floor_pixels(mi, args, params):
+    """bool[H, W]: the pixels whose centre ray first meets the shape with id "floor"."""
+    scene = mi.load_file(str(SCENE), res=args.res, **params)
+    sensor = scene.sensors()[0]
+    w, h = sensor.film().crop_size()
+    out = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + 0.5) / w, (y + 0.5) / h), mi.Point2f(0.5, 0.5))
+            si = scene.ray_intersect(ray)
+            out[y, x] = bool(si.is_valid()) and si.shape.id() == "floor"
+    return out
+
+
+def caustic_region(ref, direct, floor):
+    excess = (ref - direct).sum(axis=2)
+    level = 0.1 * np.percentile(excess[floor], 99.9)
+    return floor & (excess >= level)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--budget", type=float, default=30.0, help="seconds per render (default 30)")
+    ap.add_argument("--res", type=int, default=96)
+    ap.add_argument("--ref-spp", type=int, default=8192, help="the reference's samples per pixel (default 8192)")
+    ap.add_argument("--seeds", default="0", help="comma-separated seeds (default 0)")
+    ap.add_argument("--dist", default="ggx", choices=("ggx", "beckmann"))
+    ap.add_argument("--alpha", default="0.1")
+    ap.add_argument("--threads", type=int)
+    args = ap.parse_args()
+    mi = mitsuba_module()
+    if mi is None:
+        raise SystemExit("Mitsuba 3 (scalar_rgb) is needed: pip install mitsuba")
+    params = {"dist": args.dist, "alpha": args.alpha}
+    ref, a, b, direct = reference(mi, args, params)
+    region = caustic_region(ref, direct, floor_pixels(mi, args, params))
+    noise = {"caustic": rel_rmse(a, b, region) / 2, "whole": rel_rmse(a, b) / 2}
+    print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, {SCENE.name} "
+          f"{args.dist} alpha {args.alpha}, {args.res}x{args.res}, budget {args.budget:g} s, caustic region "
+          f"{int(region.sum())} pixels, reference {args.ref_spp} spp (own error: caustic {noise['caustic']:.4f}, "
+          f"whole {noise['whole']:.4f}), reference mean {ref.mean():.5f}")
+    print("| seed | renderer | passes / spp | wall s | mean / ref | caustic relRMSE (noise out) | "
+          "whole relRMSE (noise out) | load |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    scene = caustica.load_scene(SCENE, **params)
+    caustica.render(scene, "sppm", res=args.res, passes=2, threads=args.threads)   # warm-up
+    for seed in (int(s) for s in args.seeds.split(",")):
+        rows = []
+        load = os.getloadavg()[0]
+        t0 = time.perf_counter()
+        r = caustica.render(scene, "sppm", res=args.res, seed=seed, time_s=args.budget, threads=args.threads)
+        rows.append(("caustica sppm", r.stats["passes"], time.perf_counter() - t0, r.image, load))
+        load = os.getloadavg()[0]
+        image, wall, spp = mitsuba_equal_time(mi, SCENE, args.res, args.budget, seed, **params)
+        rows.append(("Mitsuba 3 path (scalar_rgb)", spp, wall, image, load))
+        errors = []
+        for label, count, wall, image, load in rows:
+            e = {k: rel_rmse(image, ref, region if k == "caustic" else None) for k in ("caustic", "whole")}
+            out = {k: max(e[k] ** 2 - noise[k] ** 2, 0.0) ** 0.5 for k in e}
+            errors.append(out)
+            print(f"| {seed} | {label} | {count} | {wall:.1f} | {image.mean() / ref.mean():.4f} | "
+                  f"{e['caustic']:.4f} ({out['caustic']:.4f}) | {e['whole']:.4f} ({out['whole']:.4f}) | {load:.2f} |",
+                  flush=True)
+        ratio = {k: errors[1][k] / errors[0][k] for k in ("caustic", "whole")}
+        print(f"| {seed} | **ratio Mitsuba / sppm** |  |  |  | **{ratio['caustic']:.1f}x** | {ratio['whole']:.2f}x |  |",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
