@@ -38,6 +38,10 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_twosided_cbox_onesided.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/infinite_mirrors/scene_path.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_dielectric_envmap_volpath.xml",
+    # spot and directional emitters
+    "mitsuba-renderer+mitsuba-data/docs/scenes/emitter_spot_no_texture.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/floating_sphere/test_directional_direct.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_roughdielectric_spot_volpath.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),

@@ -425,7 +425,7 @@ MANY = """<sensor type="perspective"><float name="fov" value="45"/>
 
 def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     from caustica.cli import main
-    write(tmp_path / "more.xml", '<scene version="3.0.0">\n<emitter type="spot"/>\n</scene>')
+    write(tmp_path / "more.xml", '<scene version="3.0.0">\n<emitter type="sunsky"/>\n</scene>')
     path = write(tmp_path / "many.xml", f'<scene version="3.0.0">\n{MANY}\n</scene>\n')
     with pytest.raises(SceneError) as e:
         load_scene_file(path)
@@ -445,7 +445,7 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     assert len(items) == 9
     for item, (line, words) in zip(items, expected):
         assert item.startswith(f"  {path}:{line}: {words}"), item
-    assert items[8].startswith(f"  {tmp_path / 'more.xml'}:2: <emitter type=\"spot\">: unknown emitter type 'spot'")
+    assert items[8].startswith(f"  {tmp_path / 'more.xml'}:2: <emitter type=\"sunsky\">: unknown emitter type 'sunsky'")
     # the command line prints it as one error, exit 2, nothing written
     assert main(["render", str(path), "--method", "pt", "-q", "-o", str(tmp_path / "x.exr")]) == 2
     err = capsys.readouterr().err

@@ -1,12 +1,23 @@
-"""Emitters: area lights (one-sided Lambertian, on any shape), point lights and an environment.
+"""Emitters: area lights (one-sided Lambertian, on any shape), point and spot lights, directional lights and an
+environment.
 
 A :class:`LightTable` lists every emitter once: area emitters first (one per
-emissive shape, in scene order, matching ``Geometry.prim_emitter``), then point
-lights, then the environment if the scene has one (``env[0]`` its index, else -1).  Lights are chosen in proportion to their power (mean over RGB), both for
+emissive shape, in scene order, matching ``Geometry.prim_emitter``), then point and spot
+lights (in scene order), then directional lights, then the environment if the scene has one (``env[0]`` its
+index, else -1).  Lights are chosen in proportion to their power (mean over RGB), both for
 next-event estimation and for photon emission.
 
 Power of a one-sided Lambertian area emitter of radiance L and area A is
 Φ = π L A; of a point light of intensity I it is Φ = 4 π I (watts per channel).
+
+A spot light (Mitsuba 3's ``spot``) is a point light whose intensity is I f(θ), θ the angle from its axis:
+f = 1 within the beam width β, (γ − θ) / (γ − β) between β and the cutoff angle γ, 0 beyond
+(:func:`spot_falloff`).  Its power is Φ = 2π I ∫₀^γ f(θ) sin θ dθ = 2π I (1 − (sin γ − sin β) / (γ − β))
+(2π I (1 − cos γ) when β = γ; :func:`spot_power_factor`).
+
+A directional light (Mitsuba 3's ``directional``) of irradiance E shines along one direction from infinitely far
+away; like the environment its power is taken over the disc of the scene's bounding sphere (radius R) across
+the beam: Φ = π R² E (Mitsuba's convention).
 
 The environment (Mitsuba 3's ``constant`` or ``envmap``) is light from infinitely far away.  Its power is
 Φ = π R² ∫ L dω, R the radius of the scene's bounding sphere (Mitsuba's convention; for a map the integral
@@ -36,6 +47,8 @@ from .scene.description import SceneDescription
 AREA = 0
 POINT = 1
 ENV = 2
+SPOT = 3          # a point light with an angular falloff (its axis in LightTable.normal, its cone in .cone)
+DIRECTIONAL = 4   # a delta light at infinity (its direction of travel in LightTable.normal)
 ENV_TO_WORLD = 4   # offsets into LightTable.env_data
 ENV_CDF = 13
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -45,9 +58,10 @@ LUMINANCE = (0.212671, 0.715160, 0.072169)
 
 
 class LightTable(NamedTuple):
-    kind: np.ndarray          # int32[L]: AREA or POINT
-    radiance: np.ndarray      # float64[L, 3]: radiance (area) or intensity W/sr (point)
-    position: np.ndarray      # float64[L, 3]: point lights' position
+    kind: np.ndarray          # int32[L]: AREA, POINT, SPOT, DIRECTIONAL or ENV
+    radiance: np.ndarray      # float64[L, 3]: radiance (area), intensity W/sr (point, spot: on its axis),
+    #                           irradiance W/m² (directional)
+    position: np.ndarray      # float64[L, 3]: point and spot lights' position
     area: np.ndarray          # float64[L]: total area of an area emitter
     power: np.ndarray         # float64[L, 3]: emitted power per channel (W)
     select_pdf: np.ndarray    # float64[L]: probability of choosing the light
@@ -60,9 +74,13 @@ class LightTable(NamedTuple):
     corner: np.ndarray        # float64[L, 3]
     edge1: np.ndarray         # float64[L, 3]
     edge2: np.ndarray         # float64[L, 3]
-    normal: np.ndarray        # float64[L, 3]: the parallelogram's front normal
+    normal: np.ndarray        # float64[L, 3]: the parallelogram's front normal; a spot's axis; the direction a
+    #                           directional light's light travels (unit)
+    cone: np.ndarray          # float64[L, 4]: a spot's (cos γ, cos β, γ in rad, 1 / (γ − β) in 1/rad or 0 when
+    #                           β = γ), γ its cutoff angle, β its beam width
     # the environment (one entry of kind ENV, or none; arrays of size 1 without one)
     # (few arrays: every call that passes the tables passes each array's fields)
+    # The scene's bounding sphere is env_data[0..3] whenever the scene has an environment or a directional light.
     env: np.ndarray           # int32[2]: its index (-1 without one), 1 if constant (radiance[env] everywhere)
     env_image: np.ndarray     # float64[H, W, 3]: a map's radiance (scale applied), Mitsuba's lat-long layout
     env_data: np.ndarray      # float64[*]: the scene's bounding sphere (centre, radius R) at 0..3, then a map's
@@ -93,7 +111,8 @@ def _parallelogram(shape):
 def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     emissive = [s for s in desc.shapes if s.emitter_radiance is not None]
     n_area = len(emissive)
-    n = n_area + len(desc.point_lights)
+    n_point = n_area + len(desc.point_lights)
+    n = n_point + len(desc.directional_lights)
     kind = np.zeros(n, np.int32)
     radiance = np.zeros((n, 3))
     position = np.zeros((n, 3))
@@ -106,6 +125,7 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     edge1 = np.zeros((n, 3))
     edge2 = np.zeros((n, 3))
     normal = np.zeros((n, 3))
+    cone = np.zeros((n, 4))
     for e, shape in enumerate(emissive):
         # The geometry lists each emitter's primitives with their area CDF (CSR).
         first[e] = geom.emitter_offset[e]
@@ -124,13 +144,27 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
         radiance[i] = light.intensity
         position[i] = light.position
         power[i] = 4.0 * math.pi * np.asarray(light.intensity)
+        if light.axis is not None:
+            kind[i] = SPOT
+            normal[i] = light.axis
+            gamma, beta = math.radians(light.cutoff_angle), math.radians(light.beam_width)
+            cone[i] = (math.cos(gamma), math.cos(beta), gamma, 1.0 / (gamma - beta) if gamma > beta else 0.0)
+            power[i] = 2.0 * math.pi * spot_power_factor(gamma, beta) * np.asarray(light.intensity)
     env = _environment_tables(desc, geom)
+    disc = math.pi * env["env_data"][3] ** 2
+    for j, light in enumerate(desc.directional_lights):
+        i = n_point + j
+        kind[i] = DIRECTIONAL
+        radiance[i] = light.irradiance
+        normal[i] = light.direction
+        power[i] = disc * np.asarray(light.irradiance)
     if desc.environment is not None:
         kind = np.append(kind, np.int32(ENV))
         radiance = np.vstack([radiance, env.pop("radiance")])
         power = np.vstack([power, env.pop("power")])
         position, edge1, edge2, corner, normal = (np.vstack([a, np.zeros((1, 3))]) for a in
                                                   (position, edge1, edge2, corner, normal))
+        cone = np.vstack([cone, np.zeros((1, 4))])
         area = np.append(area, 0.0)
         first = np.append(first, np.int32(0))
         count = np.append(count, np.int32(0))
@@ -148,7 +182,16 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     return LightTable(kind, radiance, position, area, power, select_pdf, select_cdf,
                       first, count, geom.emitter_prim_ids.astype(np.int32),
                       geom.emitter_cdf.astype(np.float64), is_para,
-                      corner, edge1, edge2, normal, **env)
+                      corner, edge1, edge2, normal, cone, **env)
+
+
+def spot_power_factor(gamma: float, beta: float) -> float:
+    """∫₀^γ f(θ) sin θ dθ of Mitsuba's spot falloff f (cutoff γ, beam width β, radians; β ≤ γ): the spot's power
+    over 2π I.  1 − cos β from the beam, cos β − (sin γ − sin β) / (γ − β) from the linear ramp; the quotient
+    is written 2 cos((γ + β) / 2) sin((γ − β) / 2) / (γ − β), which tends to cos γ as β → γ."""
+    half = 0.5 * (gamma - beta)
+    ramp_mean_cos = math.cos(0.5 * (gamma + beta)) * (math.sin(half) / half if half > 0.0 else 1.0)
+    return 1.0 - ramp_mean_cos
 
 
 def scene_bounding_sphere(geom: Geometry) -> tuple[np.ndarray, float]:
@@ -170,12 +213,15 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
     envd = desc.environment
     out = dict(env=np.array([-1, 0], np.int32), env_image=np.zeros((1, 1, 3)), env_data=np.zeros(ENV_CDF),
                radiance=np.zeros(3), power=np.zeros(3))
-    if envd is None:
+    if envd is None and not desc.directional_lights:
         return out
     centre, radius = scene_bounding_sphere(geom)
-    n_lights = sum(1 for s in desc.shapes if s.emitter_radiance is not None) + len(desc.point_lights)
-    out["env"] = np.array([n_lights, 1 if envd.kind == "constant" else 0], np.int32)
     out["env_data"] = np.concatenate([centre, [radius], np.eye(3).reshape(-1)])
+    if envd is None:
+        return out
+    n_lights = (sum(1 for s in desc.shapes if s.emitter_radiance is not None) + len(desc.point_lights)
+                + len(desc.directional_lights))
+    out["env"] = np.array([n_lights, 1 if envd.kind == "constant" else 0], np.int32)
     disc = math.pi * radius * radius
     if envd.kind == "constant":
         out["radiance"] = np.asarray(envd.radiance, np.float64)
@@ -229,6 +275,18 @@ def choose_light(lights, u):
     p = lights.select_pdf[i]
     u_rest = (u - lo) / p if p > 0.0 else 0.0
     return i, p, min(max(u_rest, 0.0), 0.99999999)
+
+
+@kernel(inline=True)
+def spot_falloff(lights, e, d):
+    """Mitsuba 3's falloff f of spot e towards unit world direction d (leaving the light), in [0, 1]: 1 within
+    the beam width β, (γ − θ) / (γ − β) beyond it, 0 from the cutoff angle γ on (θ the angle from the axis)."""
+    cos_t = vec.dot(vec.row(lights.normal, e), d)
+    if not cos_t > lights.cone[e, 0]:
+        return 0.0
+    if cos_t >= lights.cone[e, 1]:
+        return 1.0
+    return (lights.cone[e, 2] - math.acos(min(cos_t, 1.0))) * lights.cone[e, 3]
 
 
 @kernel(inline=True)

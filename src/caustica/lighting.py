@@ -1,8 +1,8 @@
 """Direct lighting: shadow rays from a scattering point to the emitters.
 
 * :func:`direct_stratified` — at a photon method's diffuse point (SPEC §2): every emitter, ``n x n``
-  stratified points on each area light (or the fixed centres of the n x n grid), point lights exactly,
-  through media and null boundaries.  It returns an irradiance-like E that the caller scales by
+  stratified points on each area light (or the fixed centres of the n x n grid), point, spot and directional
+  lights exactly, through media and null boundaries.  It returns an irradiance-like E that the caller scales by
   f_r = ρ / π.
 * :func:`next_event` — one light sample (:func:`caustica.media.light_sample`) at any scattering point,
   weighted by multiple importance sampling against the BSDF's (or phase function's) own sampling; the
@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 
 from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf
-from .emitters import AREA, ENV, env_pdf, env_radiance, env_sample, sample_area_emitter
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_sample, sample_area_emitter, \
+    spot_falloff
 from .geometry import vec
 from .jit import kernel
 from .media import env_shadow_length, escape_transmittance, light_sample, medium_after, phase_pdf, phase_value, \
@@ -105,7 +106,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
     dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
-    fill it evenly).  Point lights exactly; the environment by :func:`env_direct`.  Each shadow ray's
+    fill it evenly).  Point and spot lights exactly (a spot's intensity times its falloff), a directional light
+    by one shadow ray against its direction (E cos θ T); the environment by :func:`env_direct`.  Each shadow ray's
     visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
     light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on
     the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta coating over a diffuse lobe
@@ -144,6 +146,14 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             area = lights.area[li]
             E = (E[0] + rad[0] * (acc[0] * area / n_total), E[1] + rad[1] * (acc[1] * area / n_total),
                  E[2] + rad[2] * (acc[2] * area / n_total))
+        elif lights.kind[li] == DIRECTIONAL:
+            wi = vec.neg(vec.row(lights.normal, li))
+            cos_s = vec.dot(ns, wi)
+            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+                continue
+            if coated >= 0:
+                cos_s *= entry(mats, coated, cos_s)
+            E = vec.madd(E, vec.hadamard(rad, env_transmittance(tables, at, wi)), cos_s)
         else:
             q = vec.row(lights.position, li)
             to_l = vec.sub(q, p)
@@ -154,11 +164,16 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             cos_s = vec.dot(ns, wi)
             if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                 continue
+            falloff = spot_falloff(lights, li, vec.neg(wi)) if lights.kind[li] == SPOT else 1.0
+            if not falloff > 0.0:
+                continue
             T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                  medium_after(media, shape, ng_front, wi, medium))
             g = cos_s / dist2
             if coated >= 0:
                 g *= entry(mats, coated, cos_s)
+            if lights.kind[li] == SPOT:
+                g *= falloff
             E = vec.madd(E, vec.hadamard(rad, T), g)
     return E
 

@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .emitters import AREA, ENV, choose_light, env_sample, sample_area_emitter
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, sample_area_emitter, spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import intersect, occluded, surface_at
 from .jit import kernel
@@ -325,7 +325,8 @@ def light_sample(tables, at, u, through):
     Returns (contrib, wi, pdf, cos_s, is_area, ok, shadow rays):
     contrib = L_e T cos_s / pdf at a surface (the caller multiplies by f_r), L_e T / pdf in a medium
     (the caller multiplies by the phase function); wi the unit direction to the light; pdf the
-    solid-angle density of choosing it (light choice included; 0 for a point light, a delta); ok
+    solid-angle density of choosing it (light choice included; 0 for a point, spot or directional light, a
+    delta); ok
     False when the sample cannot light p (behind the light or the surface, or blocked: contrib 0).
     In vacuum (T = 1) it is the path tracer's classic estimate, number for number.
     """
@@ -338,6 +339,8 @@ def light_sample(tables, at, u, through):
     li, sel_pdf, _ = choose_light(lights, u0)
     if lights.kind[li] == ENV:
         return env_light_sample(tables, at, sel_pdf, (u1, u2), through)
+    if lights.kind[li] == DIRECTIONAL:
+        return directional_light_sample(tables, at, li, sel_pdf, through)
     is_area = lights.kind[li] == AREA
     if is_area:
         q, nq = sample_area_emitter(lights, geom, li, u1, u2)
@@ -355,6 +358,9 @@ def light_sample(tables, at, u, through):
         if cos_l <= 0.0:
             return zero, wi, 0.0, 0.0, True, False, 0
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
+    falloff = spot_falloff(lights, li, vec.neg(wi)) if lights.kind[li] == SPOT else 1.0
+    if not falloff > 0.0:
+        return zero, wi, 0.0, 0.0, False, False, 0
     faces, cos_s, o, medium = shadow_ray_start(media, at, wi, to_l, through)
     if not faces:
         return zero, wi, 0.0, 0.0, is_area, False, 0
@@ -363,6 +369,8 @@ def light_sample(tables, at, u, through):
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, is_area, False, rays
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
+    if lights.kind[li] == SPOT:
+        Le = vec.mul(Le, falloff)
     return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \
         rays
 
@@ -387,6 +395,25 @@ def env_light_sample(tables, at, sel_pdf, u, through):
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, True, False, rays
     return vec.mul(vec.hadamard(Le, T), cos_s / pdf), wi, pdf, cos_s, True, True, rays
+
+
+@kernel
+def directional_light_sample(tables, at, li, sel_pdf, through):
+    """:func:`light_sample` of directional light li (chosen with probability sel_pdf): its shadow ray against the
+    light's direction, to 2 max(R, |p - c|) as the environment's (Mitsuba 3's ``directional``); contrib
+    E T cos_s / sel_pdf (E T / sel_pdf in a medium).  A delta: pdf 0, ``is_area`` False (no MIS)."""
+    geom, mats, lights, media = tables
+    p = at.p
+    zero = (0.0, 0.0, 0.0)
+    wi = vec.neg(vec.row(lights.normal, li))
+    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, wi, through)
+    if not faces:
+        return zero, wi, 0.0, 0.0, False, False, 0
+    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
+    if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
+        return zero, wi, 0.0, 0.0, False, False, rays
+    return vec.mul(vec.hadamard(vec.row(lights.radiance, li), T), cos_s / sel_pdf), wi, 0.0, cos_s, False, True, \
+        rays
 
 
 @kernel(inline=True)
@@ -492,13 +519,18 @@ def light_medium(geom, lights, media, e):
     """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe).
 
     An area light on a shape with media emits into that shape's exterior (its front side, as
-    Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first;
+    Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first (a
+    directional light: a probe along its direction);
     otherwise a probe from just in front of the light's middle, along its normal
-    (:func:`medium_at`), says where it is.  A point light is probed from its position.
+    (:func:`medium_at`), says where it is.  A point or spot light is probed from its position.
     """
     fallback = media.camera[0]
     if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
         d = vec.normalize((0.3, 0.5, 0.81))
+        c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+        return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)
+    if lights.kind[e] == DIRECTIONAL:
+        d = vec.row(lights.normal, e)
         c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
         return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)
     if lights.kind[e] == AREA:

@@ -97,7 +97,8 @@ def compile_scene(desc: SceneDescription) -> Scene:
     lights = build_light_table(desc, geom)
     if lights.kind.shape[0] == 0:
         raise SceneError(f"{desc.source}: the scene has no emitter; add an <emitter type=\"area\"> "
-                         f"inside a shape, an <emitter type=\"point\">, \"constant\" or \"envmap\"")
+                         f"inside a shape, an <emitter type=\"point\">, \"spot\", \"directional\", \"constant\" or "
+                         f"\"envmap\"")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
     media = build_medium_table(desc)
@@ -110,19 +111,20 @@ def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:
     Radiance and sizes are each checked when read, but their product (pi x radiance x
     area) is not: a radiance of 1e30 on a shape of area 1e20 would make every photon's
     power infinite.  The lights table lists the area emitters in shape order, then the
-    point lights.
+    point and spot lights, the directional lights and the environment.
     """
-    sources = ([s.source for s in desc.shapes if s.emitter_radiance is not None]
-               + [p.source for p in desc.point_lights]
-               + ([desc.environment.source] if desc.environment is not None else []))
+    rows = ([(s.source, "pi x radiance x area") for s in desc.shapes if s.emitter_radiance is not None]
+            + [(p.source, "4 pi x intensity" if p.axis is None else "2 pi x intensity x the falloff's integral")
+               for p in desc.point_lights]
+            + [(d.source, "pi R^2 x irradiance, R the scene's bounding radius") for d in desc.directional_lights]
+            + ([(desc.environment.source, "pi R^2 x the radiance's integral over the sphere, R the scene's "
+                                          "bounding radius")] if desc.environment is not None else []))
     total = lights.power.sum(axis=0)
     if np.all(total <= MAX_ABS_FLOAT):
         return
     i = int(np.argmax(lights.power.max(axis=1)))
-    n_area = len(sources) - len(desc.point_lights) - (desc.environment is not None)
-    what = ("pi x radiance x area" if i < n_area else "4 pi x intensity" if i < len(sources) - (desc.environment is not None)
-            else "pi R^2 x the radiance's integral over the sphere, R the scene's bounding radius")
-    raise SceneError(f"{sources[i] or desc.source}: the emitter's power ({what}) is "
+    source, what = rows[i]
+    raise SceneError(f"{source or desc.source}: the emitter's power ({what}) is "
                      f"{float(lights.power[i].max()):.3g} W, and the scene's lights emit "
                      f"{float(total.max()):.3g} W in all, beyond {MAX_ABS_FLOAT:.3g} (float32, in which photon "
                      f"powers are stored); lower the radiance or the emitter's size")

@@ -2,12 +2,16 @@
 
 A light is chosen in proportion to its power; an area light emits from a point
 uniform by area in a cosine-weighted direction about its front normal, a point
-light uniformly over the sphere.  The photon's power is the Monte Carlo weight of
+light uniformly over the sphere, a spot light uniformly within its cutoff cone (as Mitsuba 3's
+``sample_ray``).  The photon's power is the Monte Carlo weight of
 its emission sample divided by the number of paths, so that the sum of emitted
 power equals the scene's total power Φ (SPEC §3):
 
     area:  Φ_p = L cosθ / (pdf_area · pdf_dir · p_select · N) = π L A / (p_select N)
     point: Φ_p = I / (pdf_dir · p_select · N)                  = 4 π I / (p_select N)
+    spot:  Φ_p = I f(θ) / (pdf_dir · p_select · N)             = 2 π (1 − cos γ) I f(θ) / (p_select N)
+
+(f the spot's falloff, γ its cutoff angle: the mean of Φ_p is the spot's power over p_select N.)
 
 Caustic photons are aimed at bounding spheres of the specular shapes: the
 direction is drawn from the mixture (uniform over spheres) of uniform cones that
@@ -21,13 +25,19 @@ the sphere's far side from where the light goes (Mitsuba 3's ``sample_ray``):
     env:   Φ_p = L(ω) π R² / (p(ω) · p_select · N)
 
 Its caustic photons take the origin on the disc of one specular sphere's radius instead (chosen
-uniformly), and divide by the mixture of those discs' area densities.
+uniformly), and divide by the mixture of those discs' area densities.  A directional light of irradiance E
+emits as the environment does along its one direction d (a delta: no direction density):
+
+    directional: Φ_p = E π R² / (p_select · N)
+
+and its caustic photons as the environment's, along d.  A spot's caustic photons are a point light's (aimed
+at the spheres' cones), their power times the falloff f in the direction drawn.
 """
 from __future__ import annotations
 
 import math
 
-from ..emitters import AREA, ENV, choose_light, env_sample, sample_area_emitter
+from ..emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, sample_area_emitter, spot_falloff
 from ..geometry import vec
 from ..jit import kernel
 from ..sampling.rng import uniform
@@ -43,6 +53,10 @@ def emit_photon(geom, lights, key, n_paths):
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
     if lights.kind[li] == ENV:
         return emit_env_photon(lights, sel_pdf, key, n_paths)
+    if lights.kind[li] == DIRECTIONAL:
+        return emit_directional_photon(lights, li, sel_pdf, key, n_paths)
+    if lights.kind[li] == SPOT:
+        return emit_spot_photon(lights, li, sel_pdf, key, n_paths)
     if lights.kind[li] == AREA:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
         local = square_to_cosine_hemisphere(uniform(key, 3), uniform(key, 4))
@@ -86,6 +100,8 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
     if lights.kind[li] == ENV:
         return emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths)
+    if lights.kind[li] == DIRECTIONAL:
+        return emit_directional_caustic_photon(lights, li, spheres, sel_pdf, key, n_paths)
     is_area = lights.kind[li] == AREA
     if is_area:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
@@ -117,7 +133,43 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
         return (vec.offset_origin(p, n, d), d,
                 (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True)
     w = 1.0 / (pdf_dir * sel_pdf * n_paths)
+    if lights.kind[li] == SPOT:
+        w *= spot_falloff(lights, li, d)
+        if not w > 0.0:
+            return p, d, zero, False
     return p, d, (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True
+
+
+@kernel
+def emit_spot_photon(lights, li, sel_pdf, key, n_paths):
+    """A photon from spot li (chosen with probability sel_pdf): a direction uniform in its cutoff cone (numbers 1,
+    2), power I f / (pdf_dir p_select N); as :func:`emit_photon` returns it, with no normal."""
+    p = vec.row(lights.position, li)
+    cos_max = lights.cone[li, 0]
+    axis = vec.row(lights.normal, li)
+    s, t = vec.orthonormal_basis(axis)
+    d = vec.normalize(vec.from_local(s, t, axis, square_to_uniform_cone(uniform(key, 1), uniform(key, 2), cos_max)))
+    zero = (0.0, 0.0, 0.0)
+    solid_angle = 2.0 * math.pi * (1.0 - cos_max)
+    if not solid_angle > 0.0:
+        return p, d, zero, zero
+    w = solid_angle * spot_falloff(lights, li, d) / (sel_pdf * n_paths)
+    return p, d, vec.mul(vec.row(lights.radiance, li), w), zero
+
+
+@kernel
+def emit_directional_photon(lights, li, sel_pdf, key, n_paths):
+    """A photon from directional light li (chosen with probability sel_pdf): along its direction d, from a point
+    uniform on the disc of the scene's bounding sphere (centre c, radius R) across d, on the sphere's far side
+    (numbers 1, 2, as the environment's); power E π R² / (p_select N)."""
+    d = vec.row(lights.normal, li)
+    c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
+    r = lights.env_data[3]
+    s, t = vec.orthonormal_basis(d)
+    x, y = square_to_uniform_disk(uniform(key, 1), uniform(key, 2))
+    o = vec.madd(vec.madd(vec.madd(c, s, x * r), t, y * r), d, -r)
+    w = math.pi * r * r / (sel_pdf * n_paths)
+    return o, d, vec.mul(vec.row(lights.radiance, li), w), (0.0, 0.0, 0.0)
 
 
 @kernel
@@ -142,16 +194,39 @@ def emit_env_photon(lights, sel_pdf, key, n_paths):
 def emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths):
     """A photon from the environment aimed at a specular sphere: (origin, direction, power, ok).
 
-    Direction by the environment's importance (numbers 1, 2); sphere j uniformly (number 3); the origin
-    uniform on the disc of sphere j's radius about its centre, across the direction (numbers 4, 5), moved
-    back to the plane that touches the scene's bounding sphere behind it.  Its power divides by the
-    mixture of the spheres' disc densities at that line.
+    Direction by the environment's importance (numbers 1, 2); the origin by :func:`aim_parallel_ray`
+    (numbers 3, 4, 5).  Its power divides by the direction's density and the origin's.
     """
     towards, pdf, Le = env_sample(lights, uniform(key, 1), uniform(key, 2))
     d = vec.neg(towards)
     zero = (0.0, 0.0, 0.0)
     if not pdf > 0.0:
         return zero, (0.0, 0.0, 1.0), zero, False
+    o, density = aim_parallel_ray(lights, spheres, d, key)
+    if not density > 0.0:
+        return o, d, zero, False
+    return o, d, vec.mul(Le, 1.0 / (pdf * density * sel_pdf * n_paths)), True
+
+
+@kernel
+def emit_directional_caustic_photon(lights, li, spheres, sel_pdf, key, n_paths):
+    """A photon from directional light li aimed at a specular sphere: (origin, direction, power, ok); the origin by
+    :func:`aim_parallel_ray` (numbers 3, 4, 5), power E / (density p_select N)."""
+    d = vec.row(lights.normal, li)
+    o, density = aim_parallel_ray(lights, spheres, d, key)
+    if not density > 0.0:
+        return o, d, (0.0, 0.0, 0.0), False
+    return o, d, vec.mul(vec.row(lights.radiance, li), 1.0 / (density * sel_pdf * n_paths)), True
+
+
+@kernel
+def aim_parallel_ray(lights, spheres, d, key):
+    """The origin of a ray along d from outside the scene aimed at a specular sphere, and its area density across d.
+
+    Sphere j uniformly (number 3); a point q uniform on the disc of sphere j's radius about its centre, across
+    d (numbers 4, 5), moved back to the plane that touches the scene's bounding sphere behind it.  The density
+    (per m² across d) is the mixture over the spheres of their discs' uniform densities at that line.
+    """
     m = spheres.shape[0]
     j = min(int(uniform(key, 3) * m), m - 1)
     s, t = vec.orthonormal_basis(d)
@@ -167,7 +242,6 @@ def emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths):
             density += 1.0 / (math.pi * r2)
     density /= m
     if not density > 0.0:
-        return q, d, zero, False
+        return q, 0.0
     c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
-    o = vec.madd(q, d, -(vec.dot(vec.sub(q, c), d) + lights.env_data[3]))
-    return o, d, vec.mul(Le, 1.0 / (pdf * density * sel_pdf * n_paths)), True
+    return vec.madd(q, d, -(vec.dot(vec.sub(q, c), d) + lights.env_data[3])), density

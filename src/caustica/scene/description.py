@@ -180,8 +180,23 @@ class Shape:
 
 @dataclass
 class PointLight:
+    """A point light (Mitsuba 3's ``point``), or a spot light (``spot``) when ``axis`` is given: then its
+    intensity falls off with the angle θ from the axis as Mitsuba's does (1 within ``beam_width``, linearly in θ
+    to 0 at ``cutoff_angle``, both in degrees; :func:`caustica.emitters.spot_falloff`)."""
     position: tuple[float, float, float]
-    intensity: tuple[float, float, float]  # W/sr per channel
+    intensity: tuple[float, float, float]  # W/sr per channel (a spot's, on its axis)
+    source: str = ""  # "file:line" for messages
+    axis: tuple[float, float, float] | None = None   # a spot's unit beam direction in the world; None: a point light
+    cutoff_angle: float = 180.0   # degrees
+    beam_width: float = 180.0     # degrees, <= cutoff_angle
+
+
+@dataclass
+class DirectionalLight:
+    """A light at infinity shining along one direction (Mitsuba 3's ``directional``): ``irradiance`` (W/m² per
+    channel) on a surface facing it, arriving from -``direction`` (unit, the way the light travels)."""
+    direction: tuple[float, float, float]
+    irradiance: tuple[float, float, float]
     source: str = ""  # "file:line" for messages
 
 
@@ -292,6 +307,7 @@ class SceneDescription:
     media: list[Medium] = field(default_factory=list)
     integrator_settings: IntegratorSettings = field(default_factory=IntegratorSettings)
     environment: Environment | None = None   # at most one (as in Mitsuba)
+    directional_lights: list[DirectionalLight] = field(default_factory=list)
 
     @property
     def has_media(self) -> bool:

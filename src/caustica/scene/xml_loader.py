@@ -33,7 +33,7 @@ from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, PLASTIC, ROUGHCONDUCTOR,
                           ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, WRAP_MODES, Camera, Environment, IntegratorSettings,
-                          Material, Medium, PointLight, ReconstructionFilter, SceneDescription, Shape, Texture)
+                          DirectionalLight, Material, Medium, PointLight, ReconstructionFilter, SceneDescription, Shape, Texture)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 from .textures import read_texels
@@ -102,6 +102,8 @@ TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflecta
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
+    "spot": {"to_world": XFORM, "intensity": COLOR, "cutoff_angle": FLOAT, "beam_width": FLOAT},
+    "directional": {"direction": POINT, "to_world": XFORM, "irradiance": COLOR},
     "constant": {"radiance": COLOR},
     # mis_compensation only changes how Mitsuba samples the map (its noise), not the image it converges to
     "envmap": {"filename": STR, "scale": FLOAT, "to_world": XFORM, "mis_compensation": BOOL},
@@ -394,6 +396,7 @@ class _Loader:
         self.declared: dict[str, Node] = {}  # every <default>, by name (the first of each name)
         self.environment_node: Node | None = None   # the scene's environment emitter, if any
         self.environment_emitter: Environment | None = None
+        self.directional_lights: list[DirectionalLight] = []
 
     # -- files ------------------------------------------------------------------------
     def lookup_dirs(self, node: Node) -> list[Path]:
@@ -1418,7 +1421,7 @@ class _Loader:
                                 point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
                                 integrator_props=settings.props, source=self.source,
                                 integrator_source=settings.source, integrator_settings=settings,
-                                environment=self.environment_emitter)
+                                environment=self.environment_emitter, directional_lights=self.directional_lights)
 
     def environment(self, node: Node) -> Environment:
         """A ``constant`` or ``envmap`` emitter (Mitsuba 3's): uniform radiance, or a latitude-longitude image."""
@@ -1463,6 +1466,63 @@ class _Loader:
                                                                                               "matrix of a rotation"])
         return Environment("envmap", image=np.ascontiguousarray(image), to_world=rot, filename=filename,
                            source=self.at(node))
+
+    def point_light(self, node: Node) -> PointLight:
+        """A ``point`` emitter: ``position`` or ``to_world``'s translation, ``intensity`` (W/sr)."""
+        props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
+        if props.has("position") and props.has("to_world"):
+            self.fail(node, "give either 'position' or 'to_world', not both")
+        if props.has("to_world"):
+            pos = props.get("to_world")[:3, 3]
+        else:
+            pos = props.get("position", np.zeros(3))
+        intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
+        return PointLight(tuple(float(c) for c in pos), intensity, source=self.at(node))
+
+    def spot(self, node: Node) -> PointLight:
+        """A ``spot`` emitter (Mitsuba 3's): at ``to_world``'s origin, shining along its +z; ``intensity`` (W/sr on
+        the axis), ``cutoff_angle`` (degrees, default 20) and ``beam_width`` (default 3/4 of the cutoff).  Its
+        projected ``texture`` is refused; so is a ``to_world`` that is not a rotation with a uniform scale
+        (Mitsuba would tilt the falloff's cone)."""
+        props = self.plugin(node, {"spot": EMITTER_PROPS["spot"]}, ("texture", "ref"))
+        if props.objects:
+            self.fail(props.objects[0], "a spot light's projected 'texture' is not supported (a spot of uniform "
+                                        "'intensity' is)")
+        cutoff = float(self.number(props, "cutoff_angle", 20.0))
+        if not 0.0 <= cutoff <= 180.0:
+            self.fail(props.node_of("cutoff_angle"), f"'cutoff_angle' must be within [0, 180] degrees, got {cutoff:g}")
+        beam = float(self.number(props, "beam_width", cutoff * 3.0 / 4.0))
+        if not 0.0 <= beam <= cutoff:
+            self.fail(props.node_of("beam_width"), f"'beam_width' must be within [0, cutoff_angle = {cutoff:g}] "
+                                                   f"degrees, got {beam:g}")
+        m = np.asarray(props.get("to_world", np.eye(4)), dtype=np.float64)
+        lin = m[:3, :3]
+        scale2 = np.trace(lin.T @ lin) / 3.0
+        if not (scale2 > 0.0 and np.allclose(lin.T @ lin, scale2 * np.eye(3), rtol=0.0, atol=1e-5 * scale2)):
+            self.fail(props.node_of("to_world"), "a spot's to_world must be a rotation with a uniform scale (its "
+                                                 "3x3 part a multiple of an orthonormal matrix)",
+                      supported=["lookat", "rotate", "translate", "uniform scale"])
+        axis = lin[:, 2] / np.linalg.norm(lin[:, 2])
+        intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
+        return PointLight(tuple(float(c) for c in m[:3, 3]), intensity, source=self.at(node),
+                          axis=tuple(float(c) for c in axis), cutoff_angle=cutoff, beam_width=beam)
+
+    def directional(self, node: Node) -> DirectionalLight:
+        """A ``directional`` emitter (Mitsuba 3's): ``irradiance`` (W/m²) travelling along ``direction`` or
+        ``to_world``'s +z (default +z), normalised."""
+        props = self.plugin(node, {"directional": EMITTER_PROPS["directional"]})
+        if props.has("direction") and props.has("to_world"):
+            self.fail(node, "give either 'direction' or 'to_world', not both")
+        if props.has("to_world"):
+            d, where = np.asarray(props.get("to_world"), dtype=np.float64)[:3, 2], props.node_of("to_world")
+        else:
+            d, where = np.asarray(props.get("direction", (0.0, 0.0, 1.0)), dtype=np.float64), \
+                props.node_of("direction")
+        norm = float(np.linalg.norm(d))
+        if not (norm > 0.0 and math.isfinite(norm)):
+            self.fail(where, f"a directional light needs a non-zero finite direction, got {tuple(float(c) for c in d)}")
+        irradiance = self.color(props, "irradiance", (1.0, 1.0, 1.0), emitter=True)
+        return DirectionalLight(tuple(float(c) for c in d / norm), irradiance, source=self.at(node))
 
     def top_level(self, node: Node, camera, spp, settings, integrator_node, shapes, lights):
         """Read one element at the top of the scene (what it defines goes into the arguments)."""
@@ -1511,19 +1571,17 @@ class _Loader:
                 self.environment_node = node
                 self.environment_emitter = env
                 return camera, spp, settings, integrator_node
-            if node.attrs.get("type") not in (None, "point"):
-                self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
-                          supported=["point (top level)", "area (inside a <shape>)", "constant", "envmap"])
-            props = self.plugin(node, {"point": EMITTER_PROPS["point"]})
-            if props.has("position") and props.has("to_world"):
-                self.fail(node, "give either 'position' or 'to_world', not both")
-            if props.has("to_world"):
-                pos = props.get("to_world")[:3, 3]
+            kind = node.attrs.get("type")
+            if kind == "directional":
+                self.directional_lights.append(self.directional(node))
+            elif kind == "spot":
+                lights.append(self.spot(node))
+            elif kind in (None, "point"):
+                lights.append(self.point_light(node))
             else:
-                pos = props.get("position", np.zeros(3))
-            intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
-            lights.append(PointLight(tuple(float(c) for c in pos), intensity,
-                                     source=self.at(node)))
+                self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
+                          supported=["point", "spot", "directional (top level)", "area (inside a <shape>)",
+                                     "constant", "envmap"])
         else:
             self.fail(node, "unknown element at the top level of the scene",
                       supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
