@@ -1,7 +1,7 @@
 """The issue's glossy-caustic goal: SPPM against Mitsuba 3's path tracer at equal wall time on a glossy caustic.
 
     python benchmarks/bench_glossy_caustic.py [--budget 30] [--res 96] [--ref-spp 8192] [--seeds 0]
-                                              [--dist ggx] [--alpha 0.1] [--threads N]
+                                              [--dist ggx] [--alpha 0.1] [--threads N] [--reference-only]
 
 Scene: tests/scenes/glossy-caustic.xml, a rough glass ball and a rough silver ring (``--dist``, ``--alpha`` set
 both) on a diffuse floor under a small square light.
@@ -97,12 +97,15 @@ def main() -> None:
     ap.add_argument("--dist", default="ggx", choices=("ggx", "beckmann"))
     ap.add_argument("--alpha", default="0.1")
     ap.add_argument("--threads", type=int)
+    ap.add_argument("--reference-only", action="store_true", help="make (or check) the cached reference and stop")
     args = ap.parse_args()
     mi = mitsuba_module()
     if mi is None:
         raise SystemExit("Mitsuba 3 (scalar_rgb) is needed: pip install mitsuba")
     params = {"dist": args.dist, "alpha": args.alpha}
     ref, a, b, direct = reference(mi, args, params)
+    if args.reference_only:
+        return
     region = caustic_region(ref, direct, floor_pixels(mi, args, params))
     noise = {"caustic": rel_rmse(a, b, region) / 2, "whole": rel_rmse(a, b) / 2}
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, {SCENE.name} "

@@ -590,14 +590,14 @@ def test_camera_pass_numbers_are_jointly_uniform_over_passes():
     torus (cells of an 8 x 8 grid held 0 to ~390 of 4,096 passes): seen through glass, a medium was
     sampled at the distances of one branch only.  Now every pair's cells hold 41 to 84 of the 64 each is
     due (a rank-1 lattice's 2-D projections are not perfect nets); the bound is half to 1.5 times."""
-    from caustica.photons.visible_points import glass_branch_number
+    from caustica.photons.visible_points import branch_number
     from caustica.photons.segments import first_segment_numbers
     from caustica.sampling.rng import KRONECKER_ALPHA, kronecker, path_key, uniform
 
     passes = 4096
     for pixel in range(3):
         qkey = path_key(7, 3, pixel)
-        dims = np.array([(glass_branch_number(True, p, qkey, qkey, 0),
+        dims = np.array([(branch_number(True, (qkey, qkey, 0, p), 0)[0],
                           kronecker(p, KRONECKER_ALPHA[1], uniform(qkey, 3)),
                           kronecker(p, KRONECKER_ALPHA[2], uniform(qkey, 4)),
                           *first_segment_numbers(p, qkey)) for p in range(passes)])

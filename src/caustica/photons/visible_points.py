@@ -27,6 +27,12 @@ gathered there carry the lobe's other factor B (:mod:`caustica.photons.trace`), 
 of its direct light.  The emitters the coating reflects are added in expectation, β F_i specular Le, as
 glass's are.  Each pass is an unbiased sample of both lobes, as of glass's two branches.
 
+**Glossy surfaces** (rough metal and glass: smooth lobes, none diffuse) hold no visible point, as in pbrt-v4's
+SPPM: the path takes one light sample there, MIS-weighted against the BSDF's sampling (the path tracer's
+:func:`caustica.lighting.next_event`), and goes on by the BSDF's sample; an emitter or the environment it meets
+next is weighted to match (:func:`seen_weight`).  Glossy bounces count towards ``max_specular``; a path that
+reaches it ends (its light beyond is lost, as a path tracer's past its depth).
+
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
 estimate, so the numbers that matter most are drawn from low-discrepancy sequences
 indexed by the pass, each randomised per pixel (keys of ``STREAM_CAMERA_SCRAMBLE``):
@@ -76,12 +82,15 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel(inline=True)
-def glass_branch_number(first_glass, pass_index, qkey, key, dim):
-    """The number that picks a glass branch: at the path's first glass point ``pass`` of a shifted
-    Kronecker sequence (the branches stratified over the passes), later uniform(key, dim)."""
+def branch_number(first_glass, numbers, dim):
+    """The number that picks a glass branch or a coating, and the path's state after it: (u, False, dim + 1).
+
+    At the path's first such choice u is point ``pass`` of a shifted Kronecker sequence (the branches stratified
+    over the passes), later uniform(key, dim); ``numbers`` as :func:`visible_point` takes them."""
+    key, qkey, _, pass_index = numbers
     if first_glass:
-        return kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2))
-    return uniform(key, dim)
+        return kronecker(pass_index, KRONECKER_ALPHA[0], uniform(qkey, 2)), False, dim + 1
+    return uniform(key, dim), False, dim + 1
 
 
 @kernel(inline=True)
@@ -129,6 +138,84 @@ def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
     return Ls, beta
 
 
+@kernel(inline=True)
+def seen_weight(lights, e, last, hit):
+    """The weight of emitter e's radiance a camera path meets at ``hit`` = (cos_l, t, null crossings, point): 1 from
+    the camera or after a delta scattering; after a glossy one, ``last`` = (specular, pdf_last, p_last), its MIS
+    weight against the light sample taken there (:func:`caustica.lighting.emission_mis`)."""
+    if last[0]:
+        return 1.0
+    cos_l, t, crossed, p = hit
+    return emission_mis(lights, e, last, cos_l, t, crossed, p)
+
+
+@kernel(inline=True)
+def escape_weight(lights, d, last):
+    """:func:`seen_weight` for the environment, along the escaping direction d."""
+    specular, pdf_last, _ = last
+    if specular:
+        return 1.0
+    return power_heuristic(pdf_last, lights.select_pdf[lights.env[0]] * env_pdf(lights, d))
+
+
+@kernel(inline=True)
+def glossy_step(tables, at, m, d, path, key, dim):
+    """At a glossy surface (rough metal or glass: no visible point here, as in pbrt-v4's SPPM): its direct light by
+    one light sample, MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the
+    BSDF's own sample.  ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density,
+    dim)."""
+    L, beta = path
+    ok, term, scale, _, dim = next_event(tables, at, m, d, beta, key, dim)
+    if ok:
+        L = vec.madd(L, term, scale)
+    alive, wi, weight, pdf, lobe, eta, dim = sample(tables[1], m, d, at.ng, at.ns, at.uv, key, dim)
+    beta = vec.hadamard(beta, weight)
+    if lobe & TRANSMISSION:
+        beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
+    return L, alive, wi, beta, lobe, pdf, dim
+
+
+@kernel(inline=True)
+def delta_step(tables, at, m, d, path, u):
+    """At a mirror or glass: the direction the path takes and β for it (glass: the branch u picks, with the emitters
+    seen along both added in expectation, :func:`glass_step`).  ``path`` = (L, β).  Returns (L, direction, β,
+    whether the next hit's emission was already added)."""
+    mats, media = tables[1], tables[3]
+    L, beta = path
+    wr, wt, F, eta, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta = vec.hadamard(beta, tint)
+    if not mats.flags[m] & TRANSMISSION:
+        return L, wr, beta, False
+    Lr = emitted_along(tables, vec.offset_origin(at.p, at.ng, wr), wr,
+                       medium_after(media, at.shape, at.ng_front, wr, at.medium))
+    Lt = (0.0, 0.0, 0.0)
+    if F < 1.0:
+        Lt = emitted_along(tables, vec.offset_origin(at.p, at.ng, wt), wt,
+                           medium_after(media, at.shape, at.ng_front, wt, at.medium))
+    L, wi, beta = glass_step(L, beta, (Lr, Lt), (wr, wt, F, eta), u)
+    return L, wi, beta, True
+
+
+@kernel(inline=True)
+def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
+    """The visible point's weight W and its direct light W E at ``at``: W = β ρ / π, or, under a delta coating
+    ``coating`` = (P, A) (:func:`caustica.bsdfs.coat`; P < 0 without one), β A / (1 - P) with each shadow ray
+    weighted by the lobe's factor B (:func:`caustica.lighting.direct_stratified`)."""
+    key, qkey, _, pass_index = numbers
+    n_strata, fixed_grid, _ = params
+    P, A = coating
+    if P >= 0.0:
+        w = vec.mul(vec.hadamard(beta, A), 1.0 / (1.0 - P))
+    else:
+        w = vec.mul(vec.hadamard(beta, colour(tables[1], m, at.uv)), INV_PI)
+    lobe_b = m if P >= 0.0 else -1
+    if fixed_grid:
+        E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b)
+    else:
+        E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b)
+    return w, vec.hadamard(w, E)
+
+
 @kernel
 def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
@@ -138,8 +225,8 @@ def visible_point(tables, o, d, numbers, params, out):
     The path's medium segments are written to ``out`` = (slot0, segments): slots slot0, slot0 + 1, ...
     """
     geom, mats, lights, media = tables
-    key, qkey, _, pass_index = numbers
-    n_strata, fixed_grid, max_specular = params
+    key = numbers[0]
+    max_specular = params[2]
     L = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     zero = (0.0, 0.0, 0.0)
@@ -163,21 +250,16 @@ def visible_point(tables, o, d, numbers, params, out):
             n_seg += 1
         if prim < 0:
             if lights.env[0] >= 0 and not counted:
-                Le = escaped_radiance(lights, media, d, medium)
-                if not specular:
-                    Le = vec.mul(Le, power_heuristic(pdf_last, lights.select_pdf[lights.env[0]] * env_pdf(lights, d)))
-                L = vec.add(L, vec.hadamard(beta, Le))
+                L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
+                             escape_weight(lights, d, (specular, pdf_last, p_last)))
             return False, zero, zero, zero, L, n_seg
         crossed = crossings
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
-            if specular:
-                L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
-            else:
-                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
-                             emission_mis(lights, e, (False, pdf_last, p_last), -vec.dot(d, ng), t, crossed, p))
+            L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+                         seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
@@ -187,86 +269,48 @@ def visible_point(tables, o, d, numbers, params, out):
         scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             return False, zero, zero, zero, L, n_seg
+        at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
         flags = mats.flags[m]
         if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
-            # a glossy surface (rough metal, rough glass): no visible point here, as in pbrt-v4's SPPM; its direct
-            # light by one light sample (MIS against the BSDF's sampling), then the path goes on by the BSDF's sample
             depth += 1
             if depth > max_specular:
                 return False, zero, zero, zero, L, n_seg
-            ok, term, scale, _, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium, uv), m, d,
-                                                 beta, key, dim)
-            if ok:
-                L = vec.madd(L, term, scale)
-            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, uv, key, dim)
+            L, alive, wi, beta, lobe, pdf_last, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
             if not alive:
                 return False, zero, zero, zero, L, n_seg
-            beta = vec.hadamard(beta, weight)
-            if lobe & TRANSMISSION:
-                beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
             specular = lobe & DELTA != 0
-            pdf_last = pdf
             p_last = p
-            medium = medium_after(media, shape, ng_front, wi, medium)
-            o = vec.offset_origin(p, ng, wi)
-            d = wi
-            continue
-        coated = flags & SMOOTH != 0 and flags & DELTA != 0
-        take_coat = False
-        wc, P, w_coat, A = zero, 0.0, zero, zero
-        if coated:
-            # a delta coating over a diffuse lobe (plastic): the coating with its sampling probability P (the
-            # emitters it reflects added in expectation, as glass's), else the visible point here, weight / (1 - P)
-            wc, P, w_coat, A = coat(mats, m, d, ng, ns)
-            if depth >= max_specular:
-                P = 0.0
-            if P > 0.0:
-                u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
-                first_glass = False
-                dim += 1
-                Lr = emitted_along(tables, vec.offset_origin(p, ng, wc), wc, medium_after(media, shape, ng_front, wc,
-                                                                                          medium))
-                L = vec.add(L, vec.mul(vec.hadamard(beta, vec.hadamard(w_coat, Lr)), P))
-                take_coat = u < P
-        if flags & SMOOTH and not take_coat:
-            if coated:
-                w = vec.mul(vec.hadamard(beta, A), 1.0 / (1.0 - P))
+        else:
+            take_coat = False
+            wc, P, w_coat, A = zero, -1.0, zero, zero
+            if flags & SMOOTH and flags & DELTA:
+                # a delta coating over a diffuse lobe (plastic): the coating with its sampling probability P (the
+                # emitters it reflects added in expectation, as glass's), else the visible point here
+                wc, P, w_coat, A = coat(mats, m, d, ng, ns)
+                if depth >= max_specular:
+                    P = 0.0
+                if P > 0.0:
+                    u, first_glass, dim = branch_number(first_glass, numbers, dim)
+                    Lr = emitted_along(tables, vec.offset_origin(p, ng, wc), wc,
+                                       medium_after(media, shape, ng_front, wc, medium))
+                    L = vec.add(L, vec.mul(vec.hadamard(beta, vec.hadamard(w_coat, Lr)), P))
+                    take_coat = u < P
+            if flags & SMOOTH and not take_coat:
+                w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
+                return True, p, ns, w, vec.add(L, Ld), n_seg
+            depth += 1
+            if depth > max_specular:
+                return False, zero, zero, zero, L, n_seg
+            specular = True
+            if take_coat:
+                wi = wc
+                beta = vec.hadamard(beta, w_coat)
+                counted = True   # the reflection's first hit's emission was added above
             else:
-                w = vec.mul(vec.hadamard(beta, colour(mats, m, uv)), INV_PI)
-            at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
-            lobe_b = m if coated else -1
-            if fixed_grid:
-                E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b)
-            else:
-                E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b)
-            L = vec.add(L, vec.hadamard(w, E))
-            return True, p, ns, w, L, n_seg
-        depth += 1
-        if depth > max_specular:
-            return False, zero, zero, zero, L, n_seg
-        specular = True
-        if take_coat:
-            medium = medium_after(media, shape, ng_front, wc, medium)
-            o = vec.offset_origin(p, ng, wc)
-            d = wc
-            beta = vec.hadamard(beta, w_coat)
-            counted = True   # the reflection's first hit's emission was added above
-            continue
-        wr, wt, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
-        beta = vec.hadamard(beta, tint)
-        wi = wr
-        if mats.flags[m] & TRANSMISSION:
-            u = glass_branch_number(first_glass, pass_index, qkey, key, dim)
-            first_glass = False
-            dim += 1
-            # emitters seen along either branch, with their expected weights (glass_step)
-            Lr = emitted_along(tables, vec.offset_origin(p, ng, wr), wr, medium_after(media, shape, ng_front, wr, medium))
-            Lt = zero
-            if F < 1.0:
-                Lt = emitted_along(tables, vec.offset_origin(p, ng, wt), wt,
-                                   medium_after(media, shape, ng_front, wt, medium))
-            L, wi, beta = glass_step(L, beta, (Lr, Lt), (wr, wt, F, eta), u)
-            counted = True   # the branch taken leaves its first hit's emission out
+                u = 0.0
+                if flags & TRANSMISSION:
+                    u, first_glass, dim = branch_number(first_glass, numbers, dim)
+                L, wi, beta, counted = delta_step(tables, at, m, d, (L, beta), u)
         medium = medium_after(media, shape, ng_front, wi, medium)
         o = vec.offset_origin(p, ng, wi)
         d = wi
