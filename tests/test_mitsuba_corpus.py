@@ -38,6 +38,11 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_twosided_cbox_onesided.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/infinite_mirrors/scene_path.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_dielectric_envmap_volpath.xml",
+    # thindielectric (the participating-media ones: a thin sphere bounding a medium)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_thindielectric_glass.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_area_light_volpath.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_emitter_inside_medium_volpath.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_obj_inside_medium_volpath.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),
