@@ -43,6 +43,13 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_area_light_volpath.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_emitter_inside_medium_volpath.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_obj_inside_medium_volpath.xml",
+    # textures on a plastic's or roughplastic's diffuse_reflectance
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_bumpmap_without.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_normalmap_without.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_plastic_nopreserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_plastic_preserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_nopreserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_preserve.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),

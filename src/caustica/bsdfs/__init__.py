@@ -36,7 +36,7 @@ from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCO
     ROUGHPLASTIC, THINDIELECTRIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
-from .textures import albedo_mean, colour, texture_columns  # noqa: F401  (part of the interface)
+from .textures import albedo_mean, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -91,7 +91,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         if mat.kind in (PLASTIC, ROUGHPLASTIC):
             row = coating[i]
             row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
-            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(mat.rgb, mat.specular)
+            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(
+                mat.rgb, mat.specular, None if mat.texture is None else mitsuba_mean(mat.texture))
             row[plastic.NONLINEAR] = 1.0 if mat.nonlinear else 0.0
             if mat.kind == PLASTIC:
                 row[plastic.INTERNAL] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
@@ -171,13 +172,13 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def coat(mats, m, d, ng, ns):
+def coat(mats, m, d, ng, ns, uv):
     """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
     the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
     (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
     f = A(d) · :func:`entry` (wi), which lets the photon methods weight a photon (or a light sample) by B where it
-    arrives and a visible point by A."""
-    return plastic.coat(mats, m, d, ng, ns)
+    arrives and a visible point by A, A with the diffuse colour at surface coordinates uv."""
+    return plastic.coat(mats, m, d, ng, ns, uv)
 
 
 @kernel(inline=True)

@@ -52,7 +52,7 @@ class Material:
     coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
     ``distribution`` and ``alpha``.
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
-    a conductor's ``specular_reflectance``); ``rgb`` is then unused.
+    a conductor's ``specular_reflectance``, a plastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.

@@ -101,7 +101,8 @@ TEXTURE_PROPS = {
 BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
-                   "roughconductor": ("specular_reflectance",)}
+                   "roughconductor": ("specular_reflectance",), "plastic": ("diffuse_reflectance",),
+                   "roughplastic": ("diffuse_reflectance",)}
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
@@ -815,9 +816,11 @@ class _Loader:
             return mat
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
-            mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE), int_ior=int_ior,
-                           ext_ior=ext_ior, name=name, specular=self.color(props, "specular_reflectance", (1.0,) * 3),
-                           nonlinear=bool(props.get("nonlinear", False)), source=self.at(node))
+            tex = textures.get("diffuse_reflectance")
+            mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE) if tex is None
+                           else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name,
+                           specular=self.color(props, "specular_reflectance", (1.0,) * 3),
+                           nonlinear=bool(props.get("nonlinear", False)), source=self.at(node), texture=tex)
             if kind == "roughplastic":
                 if int_ior == ext_ior:
                     self.fail(node, f"roughplastic: int_ior and ext_ior are both {int_ior:g}; they must differ, "
