@@ -42,6 +42,18 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/emitter_spot_no_texture.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/floating_sphere/test_directional_direct.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_roughdielectric_spot_volpath.xml",
+    # thindielectric (the participating-media ones: a thin sphere bounding a medium)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_thindielectric_glass.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_area_light_volpath.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_emitter_inside_medium_volpath.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/participating_media/test_homo_obj_inside_medium_volpath.xml",
+    # textures on a plastic's or roughplastic's diffuse_reflectance
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_bumpmap_without.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_normalmap_without.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_plastic_nopreserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_plastic_preserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_nopreserve.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_preserve.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),

@@ -1,7 +1,7 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
-A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``roughconductor``, ``roughdielectric``,
-``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
+A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindielectric``, ``roughconductor``,
+``roughdielectric``, ``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
 ``KIND`` (the code the loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS``
 (:mod:`.flags`) and its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
@@ -33,15 +33,16 @@ import numpy as np
 from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
-    ROUGHPLASTIC, SceneDescription
-from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic
-from .textures import albedo_mean, colour, texture_columns  # noqa: F401  (part of the interface)
+    ROUGHPLASTIC, THINDIELECTRIC, SceneDescription
+from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
+    thindielectric
+from .textures import albedo_mean, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
-         ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic}
+         ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic, THINDIELECTRIC: thindielectric}
 
 
 class MaterialTable(NamedTuple):
@@ -49,7 +50,8 @@ class MaterialTable(NamedTuple):
     flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
     rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse, a plastic's base), specular reflectance
     #                        (conductor), scale (glass)
-    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, roughdielectric, a plastic's coating)
+    eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, thindielectric, roughdielectric, a plastic's
+    #                        coating)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
     albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
     distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
@@ -89,7 +91,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         if mat.kind in (PLASTIC, ROUGHPLASTIC):
             row = coating[i]
             row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
-            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(mat.rgb, mat.specular)
+            row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(
+                mat.rgb, mat.specular, None if mat.texture is None else mitsuba_mean(mat.texture))
             row[plastic.NONLINEAR] = 1.0 if mat.nonlinear else 0.0
             if mat.kind == PLASTIC:
                 row[plastic.INTERNAL] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
@@ -135,6 +138,8 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
         return plastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHPLASTIC:
         return roughplastic.sample(mats, m, d, ng, ns, uv, key, dim)
+    if kind == THINDIELECTRIC:
+        return thindielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
 
 
@@ -167,13 +172,13 @@ def camera_scale(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def coat(mats, m, d, ng, ns):
+def coat(mats, m, d, ng, ns, uv):
     """For a BSDF with a delta reflection over a diffuse lobe (``plastic``; flags with both ``DELTA`` and ``SMOOTH``),
     the lobes apart: (reflected direction, P, weight, A).  :func:`sample` picks the reflection with probability P
     (``u < P`` with its first number u), with that weight (f cos / pdf); the diffuse lobe is separable,
     f = A(d) · :func:`entry` (wi), which lets the photon methods weight a photon (or a light sample) by B where it
-    arrives and a visible point by A."""
-    return plastic.coat(mats, m, d, ng, ns)
+    arrives and a visible point by A, A with the diffuse colour at surface coordinates uv."""
+    return plastic.coat(mats, m, d, ng, ns, uv)
 
 
 @kernel(inline=True)
@@ -191,6 +196,9 @@ def delta_branches(mats, m, d, ng, ns, uv):
     transmission; the colour scales either branch.  ``u < F`` picks reflection as :func:`sample` does
     with number u.
     """
-    if mats.kind[m] == CONDUCTOR:
+    kind = mats.kind[m]
+    if kind == CONDUCTOR:
         return conductor.delta_branches(mats, m, d, ng, ns, uv)
+    if kind == THINDIELECTRIC:
+        return thindielectric.delta_branches(mats, m, d, ng, ns, uv)
     return dielectric.delta_branches(mats, m, d, ng, ns, uv)

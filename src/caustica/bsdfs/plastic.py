@@ -34,6 +34,7 @@ from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import PLASTIC
 from .flags import DELTA_REFLECTION, DIFFUSE_REFLECTION
 from .optics import fresnel_dielectric, mirror_reflect
+from .textures import colour
 
 KIND = PLASTIC
 FLAGS = DELTA_REFLECTION | DIFFUSE_REFLECTION
@@ -62,19 +63,23 @@ def fresnel_diffuse_reflectance(eta: float) -> float:
     return 0.919317 + x * (-3.4793 + x * (6.75335 + x * (-7.80989 + x * (4.98554 + x * -1.36881))))
 
 
-def specular_sampling_weight(diffuse, specular) -> float:
+def specular_sampling_weight(diffuse, specular, diffuse_mean=None) -> float:
     """Mitsuba's weight w = mean(specular) / (mean(diffuse) + mean(specular)) of the coating's lobe (1/2 for a black
-    plastic, where Mitsuba divides 0 by 0)."""
-    d, s = sum(diffuse) / 3.0, sum(specular) / 3.0
+    plastic, where Mitsuba divides 0 by 0).  One number per material, as Mitsuba's: a textured diffuse reflectance
+    gives its texture's mean (``diffuse_mean``, :func:`caustica.bsdfs.textures.mitsuba_mean`), not the colour at the
+    point."""
+    d = sum(diffuse) / 3.0 if diffuse_mean is None else diffuse_mean
+    s = sum(specular) / 3.0
     return s / (d + s) if d + s > 0.0 else 0.5
 
 
 @kernel(inline=True)
-def base(mats, m):
+def base(mats, m, uv):
     """The diffuse base's colour with the coating's internal reflections, ρ / (1 - Fdr) (or ρ / (1 - ρ Fdr) per
-    channel with ``nonlinear``): shared with :mod:`.roughplastic`, whose Fdr is its rough coating's."""
+    channel with ``nonlinear``), ρ the diffuse reflectance at surface coordinates uv (its texture's there, as
+    Mitsuba evaluates it per point): shared with :mod:`.roughplastic`, whose Fdr is its rough coating's."""
     fdr = mats.coating[m, INTERNAL]
-    r = vec.row(mats.rgb, m)
+    r = colour(mats, m, uv)
     if mats.coating[m, NONLINEAR] != 0.0:
         return (r[0] / (1.0 - r[0] * fdr), r[1] / (1.0 - r[1] * fdr), r[2] / (1.0 - r[2] * fdr))
     return vec.mul(r, 1.0 / (1.0 - fdr))
@@ -92,8 +97,8 @@ def choice(mats, m, F_i):
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """The coating's reflection with probability P (number dim), else a cosine-weighted direction about ns (numbers
-    dim + 1, dim + 2): see :func:`caustica.bsdfs.sample` and the module's docstring (uv is not read: a plastic's
-    colours are not textured)."""
+    dim + 1, dim + 2): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse
+    reflectance's texture is read)."""
     zero = (0.0, 0.0, 0.0)
     cos_i = -vec.dot(d, ns)
     if cos_i <= 0.0:
@@ -112,7 +117,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     F_o, _ = fresnel_dielectric(local[2], eta)
     # f cos / pdf = base (1 - F_i)(1 - F_o) / (π eta²) cos / ((1 - P) cos / π)
     w = (1.0 - F_i) * (1.0 - F_o) / (eta * eta * (1.0 - P))
-    return True, wi, vec.mul(base(mats, m), w), (1.0 - P) * local[2] * INV_PI, DIFFUSE_REFLECTION, 1.0, dim + 3
+    return True, wi, vec.mul(base(mats, m, uv), w), (1.0 - P) * local[2] * INV_PI, DIFFUSE_REFLECTION, 1.0, dim + 3
 
 
 @kernel
@@ -127,14 +132,14 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     F_i, _ = fresnel_dielectric(cos_i, eta)
     F_o, _ = fresnel_dielectric(cos_o, eta)
     P = choice(mats, m, F_i)
-    return base(mats, m), (1.0 - F_i) * (1.0 - F_o) * INV_PI / (eta * eta), (1.0 - P) * cos_o * INV_PI
+    return base(mats, m, uv), (1.0 - F_i) * (1.0 - F_o) * INV_PI / (eta * eta), (1.0 - P) * cos_o * INV_PI
 
 
 @kernel
-def coat(mats, m, d, ng, ns):
+def coat(mats, m, d, ng, ns, uv):
     """The two lobes apart, for the photon methods (see :func:`caustica.bsdfs.coat`): (the coating's reflected
     direction, the probability P that :func:`sample` picks it, its weight F_i · specular / P, the diffuse lobe's
-    outgoing factor A = base (1 - F_i) / (π eta²)); P = 0 and A = 0 seen from below."""
+    outgoing factor A = base (1 - F_i) / (π eta²), its colour at uv); P = 0 and A = 0 seen from below."""
     zero = (0.0, 0.0, 0.0)
     wr = mirror_reflect(d, ng, ns)
     cos_i = -vec.dot(d, ns)
@@ -144,7 +149,7 @@ def coat(mats, m, d, ng, ns):
     F_i, _ = fresnel_dielectric(cos_i, eta)
     P = choice(mats, m, F_i)
     w = vec.mul(specular(mats, m), F_i / P) if P > 0.0 else zero
-    return wr, P, w, vec.mul(base(mats, m), (1.0 - F_i) * INV_PI / (eta * eta))
+    return wr, P, w, vec.mul(base(mats, m, uv), (1.0 - F_i) * INV_PI / (eta * eta))
 
 
 @kernel

@@ -98,8 +98,9 @@ def choice(mats, m, t_o):
 
 
 @kernel
-def local_eval(mats, m, wo, wl):
-    """f (RGB, both lobes) and the sampling density of the local direction wl from wo (both above the surface)."""
+def local_eval(mats, m, wo, wl, uv):
+    """f (RGB, both lobes) and the sampling density of the local direction wl from wo (both above the surface), the
+    diffuse reflectance read at surface coordinates uv."""
     dist, alpha, eta = mats.distribution[m], mats.alpha[m], mats.eta[m]
     t_o = transmittance(mats, m, wo[2])
     P = choice(mats, m, t_o)
@@ -109,7 +110,7 @@ def local_eval(mats, m, wo, wl):
     F, _ = fresnel_dielectric(vec.dot(wo, h), eta)
     spec = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     diff = t_o * transmittance(mats, m, wl[2]) * INV_PI / (eta * eta)
-    f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m), diff))
+    f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m, uv), diff))
     pdf = P * dh * g1o / (4.0 * wo[2]) + (1.0 - P) * wl[2] * INV_PI
     return f, pdf
 
@@ -117,8 +118,8 @@ def local_eval(mats, m, wo, wl):
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """The glossy lobe with probability P (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
-    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv is not read: a plastic's colours
-    are not textured)."""
+    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
+    texture is read)."""
     zero = (0.0, 0.0, 0.0)
     s, t = vec.orthonormal_basis(ns)
     wo = mf.to_local(s, t, ns, vec.neg(d))
@@ -137,7 +138,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
         return False, wi, zero, 0.0, lobe, 1.0, dim + 3
-    f, pdf = local_eval(mats, m, wo, wl)
+    f, pdf = local_eval(mats, m, wo, wl, uv)
     if not pdf > 0.0:
         return False, wi, zero, 0.0, lobe, 1.0, dim + 3
     return True, wi, vec.mul(f, wl[2] / pdf), pdf, lobe, 1.0, dim + 3
@@ -151,5 +152,5 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0
-    f, pdf = local_eval(mats, m, wo, wl)
+    f, pdf = local_eval(mats, m, wo, wl, uv)
     return f, 1.0, pdf

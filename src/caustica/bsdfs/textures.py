@@ -64,6 +64,20 @@ def texture_columns(materials) -> tuple:
     return texture, ints, floats, texels
 
 
+#: Rec. 709 luminance weights of linear RGB (Mitsuba's ``luminance``).
+LUMINANCE = (0.212671, 0.715160, 0.072169)
+
+
+def mitsuba_mean(tex) -> float:
+    """The one number Mitsuba 3's RGB variants give as a texture's ``mean()`` (what a plastic's specular sampling
+    weight reads): a checkerboard's is the mean of its two colours' channel means, a bitmap's the mean luminance
+    of its (linear) texels."""
+    if tex.kind == CHECKERBOARD:
+        return 0.5 * (sum(tex.color0) + sum(tex.color1)) / 3.0
+    t = np.asarray(tex.texels, dtype=np.float64).reshape(-1, 3)
+    return float(np.mean(t @ np.array(LUMINANCE)))
+
+
 @kernel(inline=True)
 def wrap(i, n, mode):
     """Texel index i of a row or column of n texels, wrapped by ``mode`` into [0, n)."""

@@ -96,7 +96,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                     # a delta coating over a diffuse lobe (plastic): the diffuse lobe's estimate here, f = A B (the
                     # photons and shadow rays carry B); the coating's reflection split off as glass's branches are,
                     # or chosen with its sampling probability P (the estimate then weighted 1 / (1 - P))
-                    wc, P, w_coat, A = coat(mats, m, d, ng, ns)
+                    wc, P, w_coat, A = coat(mats, m, d, ng, ns, uv)
                     fr = A
                     lobe_b = m
                     if depth < max_specular and P > 0.0:

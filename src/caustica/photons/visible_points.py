@@ -286,7 +286,7 @@ def visible_point(tables, o, d, numbers, params, out):
             if flags & SMOOTH and flags & DELTA:
                 # a delta coating over a diffuse lobe (plastic): the coating with its sampling probability P (the
                 # emitters it reflects added in expectation, as glass's), else the visible point here
-                wc, P, w_coat, A = coat(mats, m, d, ng, ns)
+                wc, P, w_coat, A = coat(mats, m, d, ng, ns, uv)
                 if depth >= max_specular:
                     P = 0.0
                 if P > 0.0:

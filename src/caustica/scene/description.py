@@ -22,9 +22,10 @@ ROUGHCONDUCTOR = 4   # Mitsuba's roughconductor: a microfacet metal (bsdfs/rough
 ROUGHDIELECTRIC = 5  # Mitsuba's roughdielectric: microfacet glass, Walter et al. 2007 (bsdfs/roughdielectric.py)
 PLASTIC = 6          # Mitsuba's plastic: a smooth dielectric coating over a diffuse base (bsdfs/plastic.py)
 ROUGHPLASTIC = 7     # Mitsuba's roughplastic: a microfacet coating over a diffuse base (bsdfs/roughplastic.py)
+THINDIELECTRIC = 8   # Mitsuba's thindielectric: a thin glass slab, light reflected or straight on (bsdfs/thindielectric.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
-                  ROUGHPLASTIC: "roughplastic"}
+                  ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric"}
 #: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
 
 # Microfacet distributions (Mitsuba's names; the codes the material table stores).
@@ -40,7 +41,9 @@ class Material:
     kind: DIFFUSE (``rgb`` = reflectance), CONDUCTOR (a perfect mirror, ``rgb`` =
     specular_reflectance), DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
     ``rgb`` = specular transmittance/reflectance scale, normally 1) or NULL (no surface:
-    rays cross it unchanged; the boundary of a medium, see :class:`Medium`).
+    rays cross it unchanged; the boundary of a medium, see :class:`Medium`).  THINDIELECTRIC: a thin glass
+    slab (a pane as one sheet), ``int_ior`` / ``ext_ior`` and ``rgb`` as DIELECTRIC's, light reflected or
+    passing straight on.
     ROUGHCONDUCTOR and ROUGHDIELECTRIC are the microfacet versions of CONDUCTOR and DIELECTRIC, with
     ``distribution`` (BECKMANN or GGX) and ``alpha`` (isotropic roughness).  A conductor (smooth or
     rough) with ``conductor_eta`` / ``conductor_k`` (RGB complex IOR) has their Fresnel reflectance;
@@ -49,7 +52,7 @@ class Material:
     coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
     ``distribution`` and ``alpha``.
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
-    a conductor's ``specular_reflectance``); ``rgb`` is then unused.
+    a conductor's ``specular_reflectance``, a plastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -71,7 +74,7 @@ class Material:
 
     @property
     def is_specular(self) -> bool:
-        return self.kind in (CONDUCTOR, DIELECTRIC)
+        return self.kind in (CONDUCTOR, DIELECTRIC, THINDIELECTRIC)
 
 
 @dataclass

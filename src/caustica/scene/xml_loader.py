@@ -32,8 +32,9 @@ from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, PLASTIC, ROUGHCONDUCTOR,
-                          ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, WRAP_MODES, Camera, Environment, IntegratorSettings,
-                          DirectionalLight, Material, Medium, PointLight, ReconstructionFilter, SceneDescription, Shape, Texture)
+                          ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES, Camera, Environment,
+                          DirectionalLight, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
+                          SceneDescription, Shape, Texture)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
 from .serialized import load_serialized
 from .textures import read_texels
@@ -72,6 +73,8 @@ BSDF_PROPS = {
     "conductor": {"material": STR, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR},
     "dielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
                    "specular_reflectance": COLOR, "specular_transmittance": COLOR},
+    "thindielectric": {"int_ior": FLOAT + STR, "ext_ior": FLOAT + STR,
+                       "specular_reflectance": COLOR, "specular_transmittance": COLOR},
     "roughconductor": {"material": STR, "eta": COLOR, "k": COLOR, "specular_reflectance": COLOR,
                        "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
                        "sample_visible": BOOL},
@@ -98,7 +101,8 @@ TEXTURE_PROPS = {
 BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
-                   "roughconductor": ("specular_reflectance",)}
+                   "roughconductor": ("specular_reflectance",), "plastic": ("diffuse_reflectance",),
+                   "roughplastic": ("diffuse_reflectance",)}
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
@@ -797,13 +801,15 @@ class _Loader:
             return mat
         if kind == "null":
             return Material(NULL, (1.0, 1.0, 1.0), name=name)
-        if kind in ("dielectric", "roughdielectric"):
+        if kind in ("dielectric", "roughdielectric", "thindielectric"):
             for p in ("specular_reflectance", "specular_transmittance"):
                 if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
                     self.fail(props.node_of(p), f"'{p}' other than 1 is not supported (clear glass only)",
                               supported=["1"])
             int_ior, ext_ior = self.dielectric_iors(props)
             mat = Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=int_ior, ext_ior=ext_ior, name=name)
+            if kind == "thindielectric":
+                mat.kind, mat.source = THINDIELECTRIC, self.at(node)
             if kind == "roughdielectric":
                 if int_ior == ext_ior:
                     self.fail(node, f"roughdielectric: int_ior and ext_ior are both {int_ior:g}; they must differ, "
@@ -813,9 +819,11 @@ class _Loader:
             return mat
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
-            mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE), int_ior=int_ior,
-                           ext_ior=ext_ior, name=name, specular=self.color(props, "specular_reflectance", (1.0,) * 3),
-                           nonlinear=bool(props.get("nonlinear", False)), source=self.at(node))
+            tex = textures.get("diffuse_reflectance")
+            mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE) if tex is None
+                           else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name,
+                           specular=self.color(props, "specular_reflectance", (1.0,) * 3),
+                           nonlinear=bool(props.get("nonlinear", False)), source=self.at(node), texture=tex)
             if kind == "roughplastic":
                 if int_ior == ext_ior:
                     self.fail(node, f"roughplastic: int_ior and ext_ior are both {int_ior:g}; they must differ, "
@@ -829,7 +837,7 @@ class _Loader:
                             f"(different front and back BSDFs are not supported)")
         inner_node = self.resolve(props.objects[0], "bsdf")
         inner = self.build_material(inner_node)
-        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, NULL):
+        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
@@ -849,7 +857,7 @@ class _Loader:
                 self.fail(obj, "a texture inside a BSDF needs name= (the parameter it gives)",
                           supported=[f"name=\"{p}\"" for p in allowed] or None)
             if name not in allowed:
-                what = " (clear glass only)" if kind in ("dielectric", "roughdielectric") else ""
+                what = " (clear glass only)" if kind in ("dielectric", "roughdielectric", "thindielectric") else ""
                 self.fail(obj, f"a texture for '{name}' of a {kind} BSDF is not supported{what}",
                           supported=[f"a texture for '{p}'" for p in allowed] + [f"a constant '{name}'"])
             if name in props.props or name in out:

@@ -1,0 +1,214 @@
+"""Mitsuba 3's thindielectric (bsdfs/thindielectric.py): a thin glass slab through the scattering interface.
+
+1. Against Mitsuba 3's own BSDF (``scalar_rgb``): at several angles, from both sides, with eta above and below 1,
+   the reflection probability (Mitsuba's ``sample``'s pdf for its reflection, 1 - its ``eval_null_transmission``),
+   both directions, eta 1 and weight 1; ``eval``/``pdf`` are 0 everywhere.
+2. The slab's reflectance is the sum of its inter-reflections, R = F + (1 - F)² F / (1 - F²), and R + T = 1: a white
+   slab neither loses nor creates energy; ``sample`` reflects with frequency R (5 standard errors) with weight 1.
+3. Scenes against Mitsuba (tests/scenes/thindielectric.xml: a tilted pane and a thin-walled bubble over a diffuse
+   floor, the floor under the pane lit only through it): pt, sppm and PM+C, image mean within 2 % and every 4x4
+   block within 5 sigmas of both renderers' noise (tests/imagestats.py); the bubble holding a medium, pt against
+   Mitsuba's volpath: the medium inside is entered through the sheet as through any shape with an interior.
+4. Input: the loader's defaults and named IORs; a negative IOR, a tint, a texture, a twosided wrapper -> one line
+   naming file and line.
+"""
+from __future__ import annotations
+
+import math
+import types
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica import bsdfs
+from caustica.bsdfs.optics import fresnel_dielectric
+from caustica.jit import kernel
+from caustica.scene.description import THINDIELECTRIC, Material
+from imagestats import assert_images_agree
+from test_glossy import assert_refused_in_one_line, draw, incident, write_scene
+
+NG = (0.0, 0.0, 1.0)
+UV = (0.0, 0.0)
+
+
+def table(int_ior=1.5, ext_ior=1.0):
+    """A one-material table built as a scene's is (build_material_table)."""
+    mat = Material(THINDIELECTRIC, (1.0, 1.0, 1.0), int_ior=int_ior, ext_ior=ext_ior)
+    return bsdfs.build_material_table(types.SimpleNamespace(materials=[mat]))
+
+
+@kernel
+def branches_kernel(mats, d, out):
+    """out = (reflected xyz, transmitted xyz, F, eta, colour rgb, eval's f·scale r, pdf) for a ray along d."""
+    wr, wt, F, eta, c = bsdfs.delta_branches(mats, 0, d, NG, NG, UV)
+    f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wr)
+    out[0], out[1], out[2] = wr
+    out[3], out[4], out[5] = wt
+    out[6], out[7] = F, eta
+    out[8], out[9], out[10] = c
+    out[11], out[12] = f[0] * s, pdf
+
+
+def branches(mats, d):
+    out = np.zeros(13)
+    branches_kernel(mats, d, out)
+    return out
+
+
+def slab_reflectance_by_series(F, terms=200):
+    """R and T of a slab by summing its paths: R, TRT, TR³T, ... and TT, TR²T, ..."""
+    R = F + sum((1 - F) ** 2 * F ** (2 * k + 1) for k in range(terms))
+    T = sum((1 - F) ** 2 * F ** (2 * k) for k in range(terms))
+    return R, T
+
+
+IORS = [(1.5, 1.0), (2.0, 1.0), (1.0, 1.33)]     # eta 1.5, 2, and below 1 (total internal reflection when grazing)
+THETAS = [0.0, 30.0, 60.0, 85.0]
+
+
+@pytest.mark.parametrize("iors", IORS, ids=[f"{a}-{b}" for a, b in IORS])
+def test_bsdf_values_match_mitsuba(mi, iors):
+    mats = table(*iors)
+    theirs = mi.load_dict({"type": "thindielectric", "int_ior": iors[0], "ext_ior": iors[1]})
+    ctx = mi.BSDFContext()
+    si = mi.SurfaceInteraction3f()
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    for theta in THETAS:
+        for below in (False, True):
+            d = incident(theta, below)
+            wi = -np.array(d)                       # Mitsuba's si.wi: towards where the ray came from
+            si.wi = mi.Vector3f(*wi)
+            ours = branches(mats, d)
+            t_mi = float(theirs.eval_null_transmission(si)[0])
+            bs_r, w_r = theirs.sample(ctx, si, 0.0, mi.Point2f(0.5, 0.5))
+            assert abs(ours[6] - (1.0 - t_mi)) <= 1e-6, (iors, theta, below, ours[6], t_mi)
+            assert abs(ours[6] - float(bs_r.pdf)) <= 1e-6
+            np.testing.assert_allclose(ours[0:3], np.array(bs_r.wo), atol=1e-6)
+            assert float(bs_r.eta) == 1.0 and np.allclose(np.array(w_r), 1.0)
+            if t_mi > 0.0:
+                bs_t, w_t = theirs.sample(ctx, si, 1.0 - 1e-7, mi.Point2f(0.5, 0.5))
+                assert abs((1.0 - ours[6]) - float(bs_t.pdf)) <= 1e-6
+                np.testing.assert_allclose(ours[3:6], np.array(bs_t.wo), atol=1e-6)   # straight on: -wi
+                np.testing.assert_allclose(ours[3:6], d, atol=0)
+                assert float(bs_t.eta) == 1.0 and np.allclose(np.array(w_t), 1.0)
+            assert ours[7] == 1.0                                       # no change of relative IOR
+            # delta lobes only: nothing to evaluate towards any direction, in either renderer
+            assert ours[11] == 0.0 and ours[12] == 0.0
+            assert float(theirs.eval(ctx, si, bs_r.wo)[0]) == 0.0 and float(theirs.pdf(ctx, si, bs_r.wo)) == 0.0
+
+
+@pytest.mark.parametrize("iors", IORS, ids=[f"{a}-{b}" for a, b in IORS])
+def test_white_slab_reflects_its_interreflections_and_conserves_energy(iors):
+    mats = table(*iors)
+    eta = iors[0] / iors[1]
+    for theta in THETAS:
+        for below in (False, True):
+            d = incident(theta, below)
+            F, _ = fresnel_dielectric(math.cos(math.radians(theta)), eta)   # the outside's eta from either side
+            R, T = slab_reflectance_by_series(F)
+            if F < 1.0:
+                assert abs(R + T - 1.0) < 1e-12
+                assert abs(R - (F + (1 - F) ** 2 * F / (1 - F * F))) < 1e-12
+            else:
+                R = 1.0
+            ours = branches(mats, d)
+            assert abs(ours[6] - R) < 1e-12, (iors, theta, below, ours[6], R)
+            n = 40_000
+            out = draw(mats, d, n=n, seed=2)
+            assert np.all(out[:, 0] == 1.0)
+            assert np.all(out[:, 4:7] == 1.0)           # weight 1 on either lobe: R + T = 1 exactly
+            assert np.all(out[:, 7] == 0.0) and np.all(out[:, 13] == 1.0)
+            refl = out[:, 12] == bsdfs.DELTA_REFLECTION
+            assert np.all(refl | (out[:, 12] == bsdfs.DELTA_TRANSMISSION))
+            assert abs(refl.mean() - R) <= 5 * math.sqrt(R * (1 - R) / n) + 1e-12, (theta, refl.mean(), R)
+            np.testing.assert_allclose(out[~refl, 1:4], np.broadcast_to(d, (int((~refl).sum()), 3)), atol=0)
+            np.testing.assert_allclose(out[refl, 1:4], np.broadcast_to((d[0], d[1], -d[2]), (int(refl.sum()), 3)),
+                                       atol=1e-12)
+
+
+def test_slab_is_a_caustic_caster():
+    """Purely delta: the photon methods aim caustic photons at it and follow it as a specular bounce."""
+    assert table().flags[0] == bsdfs.DELTA_REFLECTION | bsdfs.DELTA_TRANSMISSION
+    scene = caustica.load_scene(SCENE)
+    names = [s.id for s in scene.description.shapes]
+    assert sorted(names[i] for i in scene.specular_shapes()) == ["bubble", "pane"]
+
+
+# --------------------------------------------------------------------------- scenes against Mitsuba 3
+
+SCENE = __import__("pathlib").Path(__file__).parent / "scenes" / "thindielectric.xml"
+SEEDS = (1, 2, 3, 4)
+
+
+def mitsuba_renders(mi, path, spp=512, **defaults):
+    theirs_scene = mi.load_file(str(path), res=32, spp=spp, **defaults)
+    return [np.array(mi.render(theirs_scene, spp=spp, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
+
+
+@pytest.fixture(scope="module")
+def mitsuba_images(mi):
+    return mitsuba_renders(mi, SCENE)
+
+
+@pytest.mark.parametrize("method, params", [
+    ("pt", {"spp": 128}),
+    ("sppm", {"passes": 48, "photons": 20_000, "termination": "roulette", "max_bounces": 64}),
+    ("pm", {"photons": 200_000, "caustic_photons": 100_000, "spp": 16, "termination": "roulette",
+            "max_bounces": 64})])
+def test_thin_glass_scene_matches_mitsuba(mitsuba_images, method, params):
+    """pt, sppm after 48 passes and PM+C (roulette, mr = 64: no depth truncation) against Mitsuba's path tracer."""
+    scene = caustica.load_scene(SCENE)
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in range(4)]
+    assert_images_agree(ours, mitsuba_images, label=f"{method} thindielectric")
+
+
+def test_thin_bubble_holding_a_medium_matches_mitsuba_volpath(mi, tmp_path):
+    """The bubble's interior is a fog: a ray passing straight through the sheet enters it (the shape's interior
+    medium, whatever its BSDF), as in Mitsuba's volpath."""
+    s = SCENE.read_text()
+    s = s.replace('<integrator type="path"/>', '<integrator type="volpath"/>\n    <medium type="homogeneous" id="fog">'
+                  '<rgb name="sigma_t" value="0.375, 0.625, 1"/><float name="scale" value="4"/>'
+                  '<float name="albedo" value="0.8"/></medium>')
+    s = s.replace('<string name="int_ior" value="water"/>\n        </bsdf>',
+                  '<string name="int_ior" value="water"/>\n        </bsdf>\n        <ref name="interior" id="fog"/>')
+    assert s.count('id="fog"') == 2
+    path = tmp_path / "thin-fog.xml"
+    path.write_text(s)
+    scene = caustica.load_scene(path)
+    assert scene.has_media
+    ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
+    theirs = mitsuba_renders(mi, path)
+    assert_images_agree(ours, theirs, label="thindielectric bubble of fog")
+
+
+# --------------------------------------------------------------------------- input
+
+BAD = {
+    "negative ior": ('<bsdf type="thindielectric"><float name="int_ior" value="-1.5"/></bsdf>',
+                     ["int_ior", "positive"]),
+    "unknown ior name": ('<bsdf type="thindielectric"><string name="ext_ior" value="vacuumm"/></bsdf>',
+                         ["vacuumm", "bk7"]),
+    "tinted": ('<bsdf type="thindielectric"><rgb name="specular_transmittance" value="0.5"/></bsdf>',
+               ["specular_transmittance", "clear glass"]),
+    "textured": ('<bsdf type="thindielectric"><texture type="checkerboard" name="specular_reflectance"/></bsdf>',
+                 ["specular_reflectance", "thindielectric"]),
+    "twosided": ('<bsdf type="twosided"><bsdf type="thindielectric"/></bsdf>', ["twosided", "thindielectric"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_thin_glass_exits_2_one_line(cli, tmp_path, case):
+    assert_refused_in_one_line(cli, tmp_path, *BAD[case])
+
+
+def test_loader_reads_thindielectric(tmp_path):
+    from caustica.scene import load_scene_file
+    d = load_scene_file(write_scene(tmp_path, '<bsdf type="thindielectric"/>'))
+    m = d.materials[d.shapes[0].material]
+    assert (m.kind, m.rgb, m.int_ior, m.ext_ior) == (THINDIELECTRIC, (1.0, 1.0, 1.0), 1.5046, 1.000277)  # bk7 / air
+    d = load_scene_file(write_scene(tmp_path, '<bsdf type="thindielectric"><string name="int_ior" value="water"/>'
+                                              '<float name="ext_ior" value="1.1"/>'
+                                              '<rgb name="specular_reflectance" value="1"/></bsdf>'))
+    m = d.materials[d.shapes[0].material]
+    assert (m.kind, m.int_ior, m.ext_ior) == (THINDIELECTRIC, 1.333, 1.1)
