@@ -11,9 +11,10 @@
    tests/scenes/glossy.xml (a rough gold sphere, a rough mirror panel, a rough glass slab over a diffuse floor) for
    beckmann and ggx at alpha 0.05 and 0.3, block by block within the noise of both renderers (tests/imagestats.py);
    tests/scenes/conductors.xml (smooth conductors with Fresnel); a glossy caustic (tests/scenes/glossy-caustic.xml)
-   for its mean, by ``pt`` and by ``sppm`` (whose camera paths and photons pass glossy surfaces by sampling them).
+   for its mean by ``pt``, block by block by ``sppm`` and PM+C (whose camera paths and photons pass glossy surfaces
+   by sampling them; glossy objects are caustic casters).
 5. Bad input: negative alpha, an unknown distribution, anisotropic alpha -> one line naming file and line; the
-   photon methods that do not render glossy BSDFs (pm, spm, pspm) refuse a glossy scene.
+   photon methods that do not render glossy BSDFs (spm, pspm) refuse a glossy scene.
 
 Tolerances come from the estimators' standard errors (5 sigma) or, for the chi-square, a p-value of 1e-6.
 """
@@ -318,13 +319,13 @@ def test_loader_reads_the_rough_bsdfs(tmp_path):
     assert d.materials[d.shapes[0].material].conductor_eta is None
 
 
-@pytest.mark.parametrize("method", ["pm", "spm", "pspm"])
+@pytest.mark.parametrize("method", ["spm", "pspm"])
 def test_photon_methods_refuse_glossy_scenes(cli, tmp_path, method):
     path = write_scene(tmp_path, '<bsdf type="roughdielectric"/>')
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
     line = err.strip()
-    assert "\n" not in line and "g.xml:5" in line and "roughdielectric" in line and "--method pt or sppm" in line, line
+    assert "\n" not in line and "g.xml:5" in line and "roughdielectric" in line and "--method pt, pm or sppm" in line, line
     assert not (tmp_path / "o.exr").exists()
 
 
@@ -382,23 +383,51 @@ def test_glossy_caustic_mean_matches_mitsuba(mi, test_scenes_dir, dist, alpha):
     assert abs(a.mean() - b.mean()) <= 5 * se, (a.mean(), b.mean(), se)
 
 
-def test_sppm_renders_the_glossy_caustic_as_mitsuba(mi, test_scenes_dir):
-    """sppm on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1: the rough glass ball's caustic and the rough ring's, on
-    the floor): camera paths pass the glossy surfaces by sampling them, with one MIS-weighted light sample at each,
-    and the photons they scatter reach the floor's visible points.  Against Mitsuba's path tracer, as the plastics'
-    sppm test: roulette and mr = 64 (no depth truncation), mean within 2 % and 4x4 blocks within 5 sigmas of the
-    seeds' noise.  The start radius is 0.01 rather than the default 0.088: the ring's wall has no thickness, so a
-    visible point on the floor just outside it gathers the bright caustic inside (the light leak of any photon
-    density estimate, shrinking with the radius); with the default the pixels along the ring's foot were still up to
-    2.4x too bright after 192 passes, and a start radius of 0.05 left a 4x4 block 3.8 % over Mitsuba's after 48.  Measured at 0.01: mean
-    0.54229 against Mitsuba's 0.54170, every block within its tolerance (beckmann 0.2 too: 0.54200 and 0.54143)."""
-    path = test_scenes_dir / "glossy-caustic.xml"
-    scene = caustica.load_scene(path, dist="ggx", alpha="0.1")
-    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=48, photons=100_000, radius=0.01,
-                            termination="roulette", max_bounces=64).image for s in range(4)]
-    theirs_scene = mi.load_file(str(path), res=32, spp=512, dist="ggx", alpha="0.1")
-    theirs = [np.array(mi.render(theirs_scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
-    assert_images_agree(ours, theirs, label="sppm glossy caustic")
+@pytest.fixture(scope="module")
+def glossy_caustic_mitsuba(mi, test_scenes_dir):
+    """Mitsuba's path tracer on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1) at 32 x 32: 4 seeds of 512 spp."""
+    scene = mi.load_file(str(test_scenes_dir / "glossy-caustic.xml"), res=32, spp=512, dist="ggx", alpha="0.1")
+    return [np.array(mi.render(scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+
+
+@pytest.mark.parametrize("method, params", [
+    ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.01}),
+    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05})])
+def test_photon_methods_render_the_glossy_caustic_as_mitsuba(glossy_caustic_mitsuba, test_scenes_dir, method, params):
+    """sppm and PM+C on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1: the rough glass ball's caustic and the rough
+    ring's, on the floor): camera paths pass the glossy surfaces by sampling them, with one MIS-weighted light sample
+    at each; the ball and the ring are caustic casters, so the aimed photons carry light -> (S|G)+ -> floor.  Against
+    Mitsuba's path tracer, as the plastics' photon tests: roulette and mr = 64 (no depth truncation), mean within 2 %
+    and 4x4 blocks within 5 sigmas of the seeds' noise.
+
+    The radii are small on purpose: the ring's wall has no thickness, so a point on the floor just outside it
+    gathers the bright caustic inside (the light leak of any photon density estimate, shrinking with the radius).
+    With sppm's default start radius (0.088 here) the pixels along the ring's foot were still up to 2.4x too bright
+    after 192 passes, and 0.05 left a 4x4 block 3.8 % over Mitsuba's after 48; PM+C with a largest search radius of
+    0.1 left 3 block values out, with 0.05 none.  Measured: sppm 0.54288, PM+C 0.54353 against Mitsuba's 0.54170."""
+    scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml", dist="ggx", alpha="0.1")
+    ours = [caustica.render(scene, method, res=32, seed=s, termination="roulette", max_bounces=64, **params).image
+            for s in range(4)]
+    assert_images_agree(ours, glossy_caustic_mitsuba, label=f"{method} glossy caustic")
+
+
+def test_glossy_objects_are_caustic_casters(test_scenes_dir):
+    """The rough ball and ring are the scene's caustic casters (delta or glossy lobes, no diffuse one), and a photon
+    aimed at them stores CAUSTIC records on a diffuse surface after any number of glossy bounces, none on the glossy
+    surfaces: light -> (S|G)+ -> diffuse."""
+    from caustica.photons.records import CAUSTIC, EMPTY, allocate_buffers
+    from caustica.photons.trace import trace_caustic_photon_pass
+    scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml")
+    names = [s.id for s in scene.description.shapes]
+    assert sorted(names[i] for i in scene.specular_shapes()) == ["ball", "ring"]
+    n = 20_000
+    buf = allocate_buffers(n, 1)
+    trace_caustic_photon_pass(scene, buf, 5, 77, n)
+    stored = buf.kind != EMPTY
+    assert np.count_nonzero(stored) > n // 4
+    assert np.all(buf.kind[stored] == CAUSTIC)
+    y = buf.position[stored, 1]
+    assert np.all((np.abs(y) < 1e-6) | (np.abs(y - 2.5) < 1e-6))   # on the floor, or on the light's diffuse face
 
 
 def test_conductors_with_fresnel_match_mitsuba(mi, test_scenes_dir):

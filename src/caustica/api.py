@@ -110,7 +110,7 @@ def check_bsdfs(cls, scene) -> None:
     Each method declares what it renders beyond diffuse surfaces, mirrors and glass:
     ``renders_glossy = True`` — every BSDF (``pt``); ``passes_glossy = True`` — glossy BSDFs without a
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
-    (``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
+    (``pm``, ``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
     the stream methods' loop does not separate its lobes).  A glossy lobe beside a diffuse one
     (roughplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
     does yet (issue 20).
@@ -127,7 +127,7 @@ def check_bsdfs(cls, scene) -> None:
                                  f"--method pt")
             if not getattr(cls, "passes_glossy", False):
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render glossy BSDFs "
-                                 f"yet (its photons and visible points are Lambertian); use --method pt or sppm")
+                                 f"yet (its streams treat them as Lambertian); use --method pt, pm or sppm")
         if flags & DELTA and flags & SMOOTH and not getattr(cls, "renders_coated", False):
             raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render "
                              f"a delta coating over a diffuse lobe yet (its streams would lose the coating's "

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bsdfs import DELTA, SMOOTH, MaterialTable, build_material_table
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table
 from .camera import CameraParams, camera_params
 from .emitters import LightTable, build_light_table
 from .errors import SceneError
@@ -64,10 +64,11 @@ class Scene:
         return camera_params(self.description.camera, width, height)
 
     def specular_shapes(self) -> list[int]:
-        """Indices of the shapes made of mirror or glass (the caustic casters): a BSDF with delta lobes only."""
+        """Indices of the shapes that cast caustics: a BSDF with delta or glossy lobes and no diffuse one (mirror,
+        glass, rough metal, rough glass; the aimed caustic photons' targets)."""
         flags = self.materials.flags
         return [i for i, s in enumerate(self.description.shapes)
-                if flags[s.material] & DELTA and not flags[s.material] & SMOOTH]
+                if flags[s.material] & (DELTA | GLOSSY) and not flags[s.material] & DIFFUSE_REFLECTION]
 
     def specular_bounding_spheres(self) -> np.ndarray:
         """(n, 4) centre + radius of a tight sphere containing each specular shape (the caustic map's targets).

@@ -51,7 +51,8 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
-                                    "aimed at the mirrors and glass, if any, when --caustic-photons is not given)",
+                                    "aimed at the mirrors, glass and glossy objects, if any, when --caustic-photons is not "
+                                    "given)",
               positive, ">= 1"),
         Param("caustic_photons", int, None, "photons per pass aimed at the specular objects for light -> "
                                             "specular -> diffuse paths, which the other photons then leave out "

@@ -1,7 +1,8 @@
 """The camera pass shared by every photon-mapping method (SPEC §2).
 
 Camera rays are followed through mirrors and glass until they reach a diffuse
-surface.  At the first :data:`SPLIT_DEPTH` specular bounces a glass interface
+surface; a glossy surface (rough metal or glass) they pass as SPPM's camera paths do, by one MIS-weighted light
+sample and the BSDF's own sample (:func:`caustica.photons.visible_points.glossy_step`).  At the first :data:`SPLIT_DEPTH` specular bounces a glass interface
 splits the ray into its reflected and refracted parts, weighted by Fresnel (so a
 glass sphere shows its reflection, its refraction and its first inner reflection
 without noise at one sample per pixel); deeper interfaces choose one branch with
@@ -25,7 +26,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, coat, colour, delta_branches, oriented
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branches, oriented
 from ..camera import generate_ray
 from ..emitters import env_radiance
 from ..geometry import vec
@@ -35,6 +36,7 @@ from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..transport import ShadingPoint, borrow_tables
 from .estimate import flux_density
+from .visible_points import escape_weight, glossy_step, seen_weight
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
@@ -72,24 +74,41 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
         d = vec.row(st_d, top)
         beta = vec.row(st_beta, top)
         depth = st_depth[top]
+        last = (True, 0.0, o)   # (specular, pdf_last, p_last): a split branch starts after a delta bounce
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
             if prim < 0:
-                if lights.env[0] >= 0:   # the environment, seen directly or through mirrors and glass
-                    L = vec.add(L, vec.hadamard(beta, env_radiance(lights, d)))
+                if lights.env[0] >= 0:   # the environment, seen directly or through mirrors, glass or glossy
+                    L = vec.madd(L, vec.hadamard(beta, env_radiance(lights, d)), escape_weight(lights, d, last))
                 break
             p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
             front = vec.dot(d, ng) < 0.0
             e = geom.prim_emitter[prim]
             if e >= 0 and front:
-                L = vec.add(L, vec.hadamard(beta, vec.row(lights.radiance, e)))
+                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+                             seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             m = geom.prim_material[prim]
             uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 else (0.0, 0.0)
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
-            if mats.flags[m] & SMOOTH:
+            flags = mats.flags[m]
+            if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
+                # a glossy surface: no estimate here, the path goes on by the BSDF's sample (as SPPM's camera paths)
+                depth += 1
+                if depth > max_specular:
+                    break
+                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
+                L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
+                if not alive:
+                    break
+                last = (lobe & DELTA != 0, pdf, p)
+                o = vec.offset_origin(p, ng, wi)
+                d = wi
+                continue
+            last = (True, 0.0, p)
+            if flags & SMOOTH:
                 fr = vec.mul(colour(mats, m, uv), INV_PI)
                 lobe_b = -1
                 if mats.flags[m] & DELTA:

@@ -21,7 +21,7 @@ from .kdtree import KdTree, build_kdtree, memory_bytes as tree_bytes, normal_bou
 # Record kinds in the tracing buffers.
 EMPTY = 0
 INDIRECT = 1   # arrived after at least one diffuse bounce: light -> ... -> D -> ... -> here
-CAUSTIC = 2    # arrived through specular surfaces only: light -> S+ -> here
+CAUSTIC = 2    # arrived through mirrors, glass and glossy surfaces only: light -> (S|G)+ -> here
 # Volume photons (a scattering event in a medium; photons/trace.py), with the same two histories.
 VOLUME_INDIRECT = 3
 VOLUME_CAUSTIC = 4

@@ -15,21 +15,22 @@ own fixed slots, so the maps are identical for any thread count.
   the phase function; the event counts as a bounce towards ``max_bounces``, as a diffuse one
   does.
 * At every diffuse hit a surface record is stored; mirrors and glass reflect or refract, up to
-  their own cap (:data:`SPECULAR_CAP`).  A glossy surface (rough metal or glass, no diffuse lobe) stores
-  nothing, as no visible point is made there (:mod:`caustica.photons.visible_points`): the photon goes on by
-  its BSDF's sample.  ``max_bounces`` (mr) counts diffuse, glossy and medium bounces.
+  their own cap (:data:`SPECULAR_CAP`).  A glossy surface (rough metal or glass, no diffuse lobe) is passed as
+  a mirror is: nothing is stored there, as no visible point or gather is made there
+  (:mod:`caustica.photons.visible_points`), the photon goes on by its BSDF's sample, and the bounce counts
+  towards the same cap.  ``max_bounces`` (mr) counts diffuse and medium bounces.
   At a BSDF with a delta coating over a diffuse lobe (plastic) the photon is stored with its power times
   the lobe's factor B on the light's side (:func:`caustica.bsdfs.coat`), then continues by sampling a lobe:
   the coating's reflection is a specular event, but the records after it are INDIRECT.
 
 What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
-event was a mirror or glass (light -> S+ -> event: what aimed caustic photons carry),
+event was a mirror, glass or glossy surface (light -> (S|G)+ -> event: what aimed caustic photons carry),
 INDIRECT / VOLUME_INDIRECT otherwise.
 """
 from __future__ import annotations
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, albedo_mean, colour, entry, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, albedo_mean, colour, entry, oriented, sample
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
@@ -136,8 +137,8 @@ def trace_one(tables, key, photon, rules, out):
         scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             break  # the black back of a one-sided surface absorbs
-        if mats.flags[m] & SMOOTH:
-            if scattered and stored < slots and mats.flags[m] & DIFFUSE_REFLECTION:
+        if mats.flags[m] & DIFFUSE_REFLECTION:
+            if scattered and stored < slots:
                 stored_power = power
                 if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
                     stored_power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
@@ -149,11 +150,12 @@ def trace_one(tables, key, photon, rules, out):
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)
-        if delta:
+        if delta or not mats.flags[m] & DIFFUSE_REFLECTION:
+            # a mirror, glass or glossy bounce: the photon is still on a caustic path, light -> (S|G)+
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            if mats.flags[m] & SMOOTH:
+            if mats.flags[m] & DIFFUSE_REFLECTION:
                 # a coating's reflection (plastic): no caustic caster (tables.py), so the caustic photons never carry
                 # what follows; its records are INDIRECT, though it is no diffuse bounce
                 diffuse_like = True
