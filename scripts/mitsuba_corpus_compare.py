@@ -31,6 +31,7 @@ import argparse
 import datetime
 import importlib.util
 import math
+import re
 import subprocess
 import sys
 import time
@@ -94,8 +95,35 @@ def render_caustica(scene, res, cap, max_spp):
     return [r.image.astype(np.float64) for r in runs], spp, time.perf_counter() - t0, runs[0].stats
 
 
-def mitsuba_scene(mi, path, res):
-    scene = mi.load_file(str(path))
+DEFAULT = re.compile(r"""<default\s+name\s*=\s*["']([^"']+)["']\s+value\s*=\s*["']([^"']*)["']""")
+
+
+def file_defaults(path: Path, seen=None) -> dict:
+    """The <default>s of a scene file and of the files it includes, wherever they stand."""
+    seen = set() if seen is None else seen
+    if path.resolve() in seen or not path.is_file():
+        return {}
+    seen.add(path.resolve())
+    text = path.read_text(errors="replace")
+    out = {}
+    for name in re.findall(r"""<include\s[^>]*filename\s*=\s*["']([^"']+)["']""", text):
+        out.update(file_defaults(path.parent / name, seen))
+    out.update(DEFAULT.findall(text))
+    return out
+
+
+def mitsuba_scene(mi, path, res, notes):
+    try:
+        scene = mi.load_file(str(path))
+    except RuntimeError as exc:
+        # Mitsuba 3 reads a <default> only if it comes before its use; caustica takes the file's <default>s
+        # wherever they stand (docs/scenes/sensor_*.xml use $spp before the include that defines it).
+        if "undefined parameter" not in str(exc):
+            raise
+        defaults = file_defaults(path)
+        scene = mi.load_file(str(path), **defaults)
+        notes.append("Mitsuba was given the file's own <default>s (" + ", ".join(
+            f"{k}={v}" for k, v in defaults.items()) + "): it reads a <default> only before its use")
     params = mi.traverse(scene)
     keys = [k for k in params.keys() if k.endswith("film.size")]
     if len(keys) != 1:
@@ -111,8 +139,8 @@ def mitsuba_scene(mi, path, res):
     return scene
 
 
-def render_mitsuba(mi, path, res, cap, max_spp):
-    scene = mitsuba_scene(mi, path, res)
+def render_mitsuba(mi, path, res, cap, max_spp, notes):
+    scene = mitsuba_scene(mi, path, res, notes)
     t0 = time.perf_counter()
     mi.render(scene, spp=PILOT_SPP, seed=99)
     per_spp = (time.perf_counter() - t0) / PILOT_SPP
@@ -224,7 +252,9 @@ def main(argv=None) -> int:
             continue
         counts["rendered"] += 1
         try:
-            theirs, row["spp_m"], row["t_m"] = render_mitsuba(mi, path, res, args.cap, args.max_spp)
+            notes = [row["note"]] if row["note"] else []
+            theirs, row["spp_m"], row["t_m"] = render_mitsuba(mi, path, res, args.cap, args.max_spp, notes)
+            row["note"] = "; ".join(notes)
         except Exception as exc:
             row.update(verdict="mitsuba-failed", error=one_line(exc))
             counts["mitsuba-failed"] += 1
