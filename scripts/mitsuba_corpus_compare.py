@@ -6,9 +6,9 @@
 
 Both renderers render the scene as its file gives it (its sensor, its rfilter; caustica's pt takes the
 scene's <integrator> max_depth, rr_depth and hide_emitters, methods.scene_params), at the same small film:
-the scene's film scaled so that its longest side is ``--size`` pixels, the other side rounded to a multiple
-of 4.  Mitsuba's film is resized after loading through mi.traverse (``film.size``, ``film.crop_size``), so
-includes and fixed sizes need no XML editing.
+the scene's film scaled to its exact aspect ratio with a longest side near ``--size`` pixels (small_res).
+Mitsuba's film is resized after loading through mi.traverse (``film.size``, ``film.crop_size``), so includes
+and fixed sizes need no XML editing.
 
 Noise: each side renders K = 4 independent seeds (4 renders are what tests/imagestats.block_se was checked
 with).  Per scene the script prints
@@ -67,11 +67,17 @@ def report_module():
 
 
 def small_res(width: int, height: int, size: int) -> tuple[int, int]:
+    """The film's exact aspect ratio at a longest side as near ``size`` as it allows (within 1.5x), else the
+    longest side ``size`` and the other rounded.  The aspect must not change: Mitsuba keeps its x_fov when
+    its film is resized, while caustica applies fov_axis to the new film (a scene with fov_axis="smaller"
+    was framed a pixel apart when 768 x 512 became 64 x 44)."""
+    g = math.gcd(width, height)
+    a, b = width // g, height // g
+    k = max(1, round(size / max(a, b)))
+    if max(a, b) * k <= 1.5 * size and min(a, b) * k >= 8:
+        return a * k, b * k
     s = size / max(width, height)
-    w, h = max(4, round(width * s)), max(4, round(height * s))
-    if w >= h:
-        return size, max(4, 4 * round(h / 4))
-    return max(4, 4 * round(w / 4)), size
+    return max(4, round(width * s)), max(4, round(height * s))
 
 
 def pow2_spp(seconds_per_spp: float, cap: float, max_spp: int) -> int:
@@ -244,6 +250,8 @@ def main(argv=None) -> int:
         try:
             ours, row["spp_c"], row["t_c"], info = render_caustica(scene, res, args.cap, args.max_spp)
             row["note"] = info.get("integrator_note") or ""
+            if res[0] * scene.height != res[1] * scene.width:
+                row["note"] = (row["note"] + f"; aspect ratio changed from {scene.width}x{scene.height}").strip("; ")
         except Exception as exc:
             row.update(verdict="failed", error=one_line(exc))
             counts["failed"] += 1
