@@ -110,7 +110,9 @@ def test_pyramid():
 def test_bunny():
     d = _load("cornell-bunny")
     bunny = d.shapes[-1]
-    assert bunny.mesh.triangles.shape == (16301, 3) and bunny.mesh.normals is None
+    # bunny.ply has no normals: angle-weighted vertex normals, as Mitsuba computes them (smooth shading)
+    assert bunny.mesh.triangles.shape == (16301, 3) and bunny.mesh.normals.shape == bunny.mesh.positions.shape
+    assert np.allclose(np.linalg.norm(bunny.mesh.normals, axis=1), 1.0)
     lo, hi = bunny.mesh.positions.min(0), bunny.mesh.positions.max(0)
     assert 8.5 < hi[1] - lo[1] < 9.5 and abs(lo[1]) < 0.1
 
