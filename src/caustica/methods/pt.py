@@ -48,8 +48,8 @@ INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
 #: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults
 #: (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights, to
-#: the same image).
-SCENE_INTEGRATORS = ("path", "volpath", "ptracer", "direct")
+#: the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
+SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
 
 
 @kernel(hot=True)

@@ -324,7 +324,7 @@ class SceneDescription:
         """What a render with ``method`` and its ``parameters`` does with the scene's
         ``<integrator>``, when that differs from what the file asks; None otherwise.
 
-        ``pt`` renders what Mitsuba's ``path`` and ``volpath`` render, and takes their
+        ``pt`` renders what Mitsuba's ``path`` and ``volpath`` (and ``volpathmis``) render, and takes their
         ``max_depth``, ``rr_depth`` and ``hide_emitters`` (a value given to pt wins: then a note);
         ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
         on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not), and so do
@@ -346,7 +346,7 @@ class SceneDescription:
             return None if not asked else (
                 f"integrator 'path' in {where} asks for {' and '.join(a for a, _ in asked)}, which --method "
                 f"{method} does not read ({'; '.join(why for _, why in asked)})")
-        if kind not in ("path", "volpath", "direct", "ptracer"):
+        if kind not in ("path", "volpath", "volpathmis", "direct", "ptracer"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
         if kind == "path" and self.has_media:

@@ -264,6 +264,33 @@ def cube_mesh() -> Mesh:
                 np.array(uvs, dtype=np.float64))
 
 
+def vertex_normals_by_angle(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit vertex normals of a mesh whose file has none, as Mitsuba 3 computes them (Mesh::
+    recompute_vertex_normals, after Thuermer and Wuethrich, JGT 1998): each triangle's unit normal,
+    weighted by the triangle's angle at the vertex, summed over the triangles using the vertex.
+    Degenerate triangles add nothing; a vertex that gets no normal keeps that of its first triangle's
+    geometry if any, else (1, 0, 0) (it shades nothing: only degenerate triangles use it)."""
+    p = positions[triangles]                                     # (m, 3 corners, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 0
+    n = np.where(ok[:, None], n / np.where(ok, length, 1.0)[:, None], 0.0)
+    normals = np.zeros_like(positions, dtype=np.float64)
+    for c in range(3):
+        d0 = p[:, (c + 1) % 3] - p[:, c]
+        d1 = p[:, (c + 2) % 3] - p[:, c]
+        l0, l1 = np.linalg.norm(d0, axis=1), np.linalg.norm(d1, axis=1)
+        good = ok & (l0 > 0) & (l1 > 0)
+        cos = np.einsum("ij,ij->i", d0, d1) / np.where(good, l0 * l1, 1.0)
+        angle = np.where(good, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
+        np.add.at(normals, triangles[:, c], n * angle[:, None])
+    length = np.linalg.norm(normals, axis=1)
+    bad = ~(length > 0)
+    normals = normals / np.where(bad, 1.0, length)[:, None]
+    normals[bad] = (1.0, 0.0, 0.0)
+    return normals
+
+
 def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = False) -> Mesh:
     """A world-space copy of an object-space mesh.
 

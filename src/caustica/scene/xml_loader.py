@@ -35,7 +35,7 @@ from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC,
                           ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES, Camera, Environment,
                           DirectionalLight, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
                           SceneDescription, Shape, Texture)
-from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh
+from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .serialized import load_serialized
 from .textures import read_texels
 
@@ -1151,6 +1151,9 @@ class _Loader:
                 mesh = to_world_mesh(local, to_world, flip)
             except SceneError as exc:
                 self.fail(node, str(exc))
+            if kind in ("obj", "ply", "serialized") and mesh.normals is None and not props.get("face_normals", False):
+                # A file without vertex normals shades smoothly in Mitsuba 3: it computes them (in world space)
+                mesh.normals = vertex_normals_by_angle(mesh.positions, mesh.triangles)
             return Shape(MESH, mesh=mesh, to_world=to_world, **common)
         if kind == "sphere":
             radius = self.number(props, "radius", 1.0, positive=True)
