@@ -383,6 +383,22 @@ def test_glossy_caustic_mean_matches_mitsuba(mi, test_scenes_dir, dist, alpha):
     assert abs(a.mean() - b.mean()) <= 5 * se, (a.mean(), b.mean(), se)
 
 
+def test_photon_roulette_survival_is_a_probability(tmp_path):
+    """Russian roulette at a photon's non-delta bounce survives with q = the mean albedo, capped at 1: Mitsuba accepts
+    a roughconductor's specular_reflectance of 1.5, and a q above 1 kept every photon but scaled its power by
+    1 / q = 2/3 at each glossy bounce (its caustic too dark by that factor)."""
+    from caustica.photons.trace import TERMINATION_ROULETTE, bounce
+    from caustica.sampling.rng import path_key
+    scene = caustica.load_scene(write_scene(tmp_path, '<bsdf type="roughconductor"><rgb name="specular_reflectance" '
+                                                      'value="1.5"/></bsdf>'))
+    m = scene.description.shapes[0].material
+    d = tuple(np.array([0.3, 0.0, -1.0]) / np.linalg.norm([0.3, 0.0, -1.0]))
+    inv_q = {bounce(scene.materials, m, d, (NG, NG, UV), np.uint64(path_key(1, 2, i)), 8,
+                    TERMINATION_ROULETTE)[3]
+             for i in range(200)}
+    assert inv_q == {1.0}, inv_q
+
+
 @pytest.fixture(scope="module")
 def glossy_caustic_mitsuba(mi, test_scenes_dir):
     """Mitsuba's path tracer on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1) at 32 x 32: 4 seeds of 512 spp."""

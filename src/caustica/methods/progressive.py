@@ -105,9 +105,9 @@ CAUSTIC_STATISTICS_PARAMS = (
 
 
 def trace_caustic_pass(scene, settings, pass_index, n_caustic, out: TraceBuffers) -> float:
-    """Trace the pass's ``n_caustic`` photons aimed at the mirrors and glass into ``out`` (one slot each).
+    """Trace the pass's ``n_caustic`` photons aimed at the caustic casters into ``out`` (one slot each).
 
-    They carry every light -> specular+ -> diffuse path (as PM's caustic map, their power divided
+    They carry every light -> (specular or glossy)+ -> diffuse path (as PM's caustic map, their power divided
     by the aiming pdf); the method's other photons or streams must then leave those paths out.
     Returns the compile seconds.
     """

@@ -27,9 +27,10 @@ from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_
 
 
 def photon_counts(scene, settings) -> tuple[int, int]:
-    """(photons, caustic photons) traced per pass; caustic photons only where there is a mirror or glass to aim at.
+    """(photons, caustic photons) traced per pass; caustic photons only where there is a caustic caster (a mirror,
+    glass or a glossy object: ``Scene.specular_shapes``) to aim at.
 
-    Both left to their defaults in a scene with mirrors or glass: one photon per pixel in all, as
+    Both left to their defaults in a scene with casters: one photon per pixel in all, as
     pbrt-v4, half of them aimed at those objects (docs/progressive.md has the measurements).  Otherwise
     ``--photons`` (default one per pixel) and ``--caustic-photons`` (default 0) as given.
     """

@@ -92,7 +92,7 @@ def _cone_pdf(p, d, spheres):
 
 @kernel
 def emit_caustic_photon(geom, lights, spheres, key, n_paths):
-    """A photon aimed at a specular object: (origin, direction, power, ok).
+    """A photon aimed at a caustic caster (mirror, glass or glossy object): (origin, direction, power, ok).
 
     ok is False when the sampled direction leaves the light's back side (a
     one-sided emitter sends nothing there); such a photon still counts in n_paths.

@@ -60,8 +60,8 @@ def store_record(s, p, d, power, n, kind, buf):
 def bounce(mats, m, d, at, key, dim, termination):
     """Continue a photon from material m at ``at`` = (ng, ns, uv) (normals from :func:`caustica.bsdfs.oriented`,
     surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette with the mean albedo
-    there (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p) on the number after the
-    sample's.
+    there, capped at 1 (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p) on the number
+    after the sample's.
 
     Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
     was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
@@ -73,7 +73,7 @@ def bounce(mats, m, d, at, key, dim, termination):
     u = uniform(key, dim)
     dim += 1
     if termination == TERMINATION_ROULETTE:
-        q = albedo_mean(mats, m, colour(mats, m, uv))
+        q = min(albedo_mean(mats, m, colour(mats, m, uv)), 1.0)   # a probability, for an albedo above 1 too
         return ok and u < q, wi, weight, 1.0 / q, False, dim
     return ok, wi, weight, 1.0, False, dim
 
@@ -188,10 +188,10 @@ def trace_photons(tables, light_medium, source, rules, buf, i0, i1):
 
 @kernel
 def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
-    """Caustic photons [i0, i1) of ``source`` = (seed, stream, n_paths), aimed at the specular objects: the
-    first event after a mirror or glass only (one slot each).  A photon that scatters in a medium or meets a
-    diffuse surface before any mirror or glass stores nothing (that light is the other photons' and the
-    direct light's)."""
+    """Caustic photons [i0, i1) of ``source`` = (seed, stream, n_paths), aimed at the caustic casters (mirrors,
+    glass, glossy objects): the first event after a chain of them only (one slot each).  A photon that scatters in
+    a medium or meets a diffuse surface before any of them stores nothing (that light is the other photons' and
+    the direct light's)."""
     tables = borrow_tables(tables)
     geom, _, lights, _ = tables
     seed, stream, n_paths = source
@@ -213,7 +213,7 @@ def trace_photon_pass(scene, buf, seed, stream, n_paths, max_bounces, terminatio
 
 def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None, threads=None,
                               progress=None) -> float:
-    """Trace ``n_paths`` photons aimed at the scene's mirrors and glass (or at ``spheres``, (n, 4) centre and
+    """Trace ``n_paths`` photons aimed at the scene's caustic casters (or at ``spheres``, (n, 4) centre and
     radius) into ``buf`` (one slot each); returns the compile seconds."""
     spheres = scene.specular_bounding_spheres() if spheres is None else spheres
     return parallel_for(trace_caustic_photons, n_paths,
