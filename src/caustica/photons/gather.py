@@ -1,9 +1,10 @@
 """The camera pass shared by every photon-mapping method (SPEC §2).
 
 Camera rays are followed through mirrors and glass until they reach a diffuse
-surface; a glossy surface (rough metal or glass) they pass as SPPM's camera paths do, by one MIS-weighted light
-sample and the BSDF's own sample (:func:`caustica.photons.visible_points.glossy_step`).  At the first :data:`SPLIT_DEPTH` specular bounces a glass interface
-splits the ray into its reflected and refracted parts, weighted by Fresnel (so a
+surface; a glossy surface (rough metal or glass) they pass as SPPM's camera paths do, by one
+MIS-weighted light sample and the BSDF's own sample
+(:func:`caustica.photons.visible_points.glossy_step`).  At the first :data:`SPLIT_DEPTH`
+specular bounces a glass interface splits the ray into its reflected and refracted parts, weighted by Fresnel (so a
 glass sphere shows its reflection, its refraction and its first inner reflection
 without noise at one sample per pixel); deeper interfaces choose one branch with
 the Fresnel probability, which is unbiased and avoids spending a full gather (25
