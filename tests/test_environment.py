@@ -215,11 +215,11 @@ from caustica.sampling.rng import path_key  # noqa: E402
 
 
 @kernel
-def _emit_many(geom, lights, spheres, n, out):
-    """n photons (global when spheres is empty, else aimed at them): origins, directions, powers, ok."""
+def emit_many(geom, lights, spheres, n, seed, out):
+    """n photons of ``seed`` (global when spheres is empty, else aimed at them): origins, directions, powers, ok."""
     o_out, d_out, p_out, ok_out = out
     for i in range(n):
-        key = path_key(11, 3, i)
+        key = path_key(seed, 3, i)
         if spheres.shape[0] == 0:
             o, d, power, _ = emit_photon(geom, lights, key, n)
             ok = True
@@ -257,7 +257,7 @@ def test_environment_photons_carry_the_flux_that_crosses_a_sphere(tmp_path, aime
     targets = np.array([[0.0, 0.0, 0.0, 0.5], [0.6, 0.3, 0.0, 0.4]])
     n = 400_000
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.bool_))
-    _emit_many(scene.geometry, scene.lights, targets if aimed else np.zeros((0, 4)), n, out)
+    emit_many(scene.geometry, scene.lights, targets if aimed else np.zeros((0, 4)), n, 11, out)
     o, d, power, ok = out
     flux_L = _radiance_integral(scene.lights, 720, 720)
     for centre, a in ((targets[0, :3], targets[0, 3]), (targets[1, :3], targets[1, 3])):

@@ -11,11 +11,11 @@ from caustica.emitters import DIRECTIONAL, SPOT, spot_power_factor
 from caustica.jit import kernel
 from caustica.lighting import direct_stratified
 from caustica.media import light_sample
-from caustica.photons.emission import emit_caustic_photon, emit_photon
 from caustica.sampling.rng import path_key
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 from caustica.transport import ShadingPoint
+from test_environment import emit_many
 
 SENSOR = """<sensor type="perspective"><float name="fov" value="30"/>
   <transform name="to_world"><lookat origin="0,6,0.1" target="0,0,0" up="0,1,0"/></transform>
@@ -185,27 +185,9 @@ def test_irradiance_on_a_plane_is_analytic(tmp_path, cutoff, beam):
 
 # ----------------------------------------------------------------------------- photons
 
-@kernel
-def _emit_many(geom, lights, spheres, n, out):
-    """n photons (global when spheres is empty, else aimed at them): origins, directions, powers, ok."""
-    o_out, d_out, p_out, ok_out = out
-    for i in range(n):
-        key = path_key(12, 3, i)
-        if spheres.shape[0] == 0:
-            o, d, power, _ = emit_photon(geom, lights, key, n)
-            ok = True
-        else:
-            o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n)
-        for c in range(3):
-            o_out[i, c] = o[c]
-            d_out[i, c] = d[c]
-            p_out[i, c] = power[c]
-        ok_out[i] = ok
-
-
 def emit(scene, n, spheres=None):
     out = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, np.bool_))
-    _emit_many(scene.geometry, scene.lights, np.zeros((0, 4)) if spheres is None else spheres, n, out)
+    emit_many(scene.geometry, scene.lights, np.zeros((0, 4)) if spheres is None else spheres, n, 12, out)
     return out
 
 

@@ -381,20 +381,32 @@ def env_light_sample(tables, at, sel_pdf, u, through):
     :func:`caustica.emitters.env_sample` (u = (u1, u2)), its shadow ray to 2 max(R, |p - c|) along it (c, R
     the scene's bounding sphere, as Mitsuba 3 does), through media and null boundaries.  Returns what
     light_sample does, ``is_area`` True (not a delta: MIS applies)."""
-    geom, mats, lights, media = tables
-    p = at.p
+    lights = tables[2]
     zero = (0.0, 0.0, 0.0)
     wi, pdf_dir, Le = env_sample(lights, u[0], u[1])
     pdf = sel_pdf * pdf_dir
     if not pdf > 0.0:   # a direction of zero density, or an environment that emits nothing (never chosen)
         return zero, wi, 0.0, 0.0, True, False, 0
-    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, wi, through)
+    faces, cos_s, T, rays = distant_light_shadow(tables, at, wi, through)
     if not faces:
         return zero, wi, 0.0, 0.0, True, False, 0
-    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, True, False, rays
     return vec.mul(vec.hadamard(Le, T), cos_s / pdf), wi, pdf, cos_s, True, True, rays
+
+
+@kernel(inline=True)
+def distant_light_shadow(tables, at, wi, through):
+    """The shadow ray towards a light at infinity (the environment, a directional light) along wi: from ``at``
+    (:func:`shadow_ray_start`) to 2 max(R, |p - c|) (c, R the scene's bounding sphere, as Mitsuba 3 does), through
+    media and null boundaries.  Returns (faces: the light is on a side that scatters, cos_s, T, rays)."""
+    geom, mats, lights, media = tables
+    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, wi, through)
+    if not faces:
+        return False, cos_s, (0.0, 0.0, 0.0), 0
+    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(at.p, wi, env_shadow_length(lights, at.p)),
+                                   medium)
+    return True, cos_s, T, rays
 
 
 @kernel
@@ -402,14 +414,12 @@ def directional_light_sample(tables, at, li, sel_pdf, through):
     """:func:`light_sample` of directional light li (chosen with probability sel_pdf): its shadow ray against the
     light's direction, to 2 max(R, |p - c|) as the environment's (Mitsuba 3's ``directional``); contrib
     E T cos_s / sel_pdf (E T / sel_pdf in a medium).  A delta: pdf 0, ``is_area`` False (no MIS)."""
-    geom, mats, lights, media = tables
-    p = at.p
+    lights = tables[2]
     zero = (0.0, 0.0, 0.0)
     wi = vec.neg(vec.row(lights.normal, li))
-    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, wi, through)
+    faces, cos_s, T, rays = distant_light_shadow(tables, at, wi, through)
     if not faces:
         return zero, wi, 0.0, 0.0, False, False, 0
-    T, rays = shadow_transmittance(geom, mats, media, o, vec.madd(p, wi, env_shadow_length(lights, p)), medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, False, False, rays
     return vec.mul(vec.hadamard(vec.row(lights.radiance, li), T), cos_s / sel_pdf), wi, 0.0, cos_s, False, True, \
