@@ -272,6 +272,32 @@ def test_an_interrupt_during_a_periodic_save_stops_after_it_without_saving_twice
     assert r.stats["interrupted_by"] == "SIGINT"
 
 
+def test_no_checkpoint_is_written_until_a_pass_is_merged(diacaustic, tmp_path, monkeypatch):
+    """A cluster's first task back can be pass 1 while pass 0 is still out: nothing is merged yet, and no
+    checkpoint is written (one of none was written, and Ctrl-C just after it rightly kept no image, which the
+    cluster's Ctrl-C test read as a hang or a lost pass; 2026-12-03).  An executor that gives back nothing merged
+    first, then the pass, stands in for the cluster."""
+    scene, cls, settings = caustica.api.resolve_settings(diacaustic, "sppm", multi_pass=True, **KW)
+    plan = driver.check_plan(cls, passes=1, checkpoint=tmp_path / "state.npz")
+    monkeypatch.setattr(driver, "CHECKPOINT_INTERVAL_S", 0.0)    # a save whenever one is due
+    saves = []
+    real = checkpoint.save
+    monkeypatch.setattr(checkpoint, "save", lambda *a: saves.append(a[-1].passes) or real(*a))
+
+    class PassOneFirst(driver.LocalPasses):
+        held_back = True
+
+        def collect(self, state, late_after):
+            if self.sent and self.held_back:   # a later pass came back: nothing to merge yet
+                self.held_back = False
+                return state, [], 0.0
+            return super().collect(state, late_after)
+
+    state, log = driver.run(cls, scene, settings, plan, driver.QuietBar,
+                            PassOneFirst(cls, scene, settings, driver.QuietBar))
+    assert state.passes == 1 and saves == [1] and log.checkpoint_passes == 1
+
+
 def test_sigterm_is_handled_as_ctrl_c_with_exit_143(cli, tmp_path, interrupt_at_pass):
     interrupt_at_pass("sppm", 2, interrupts.Terminated)   # what the CLI's SIGTERM handler raises
     ck = tmp_path / "state.npz"

@@ -144,7 +144,10 @@ def run(method_cls, scene, settings, plan: PassPlan, progress, executor=None):
             for seconds, stats in passes:
                 log.add(seconds, stats)
             pass_s.append(task_pass_s)
-            if plan.checkpoint is not None and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
+            # saved when passes were merged since the last save: a cluster's first task back may be one that
+            # waits for an earlier pass, and a checkpoint of none would only say the render had begun
+            if plan.checkpoint is not None and state.passes > log.checkpoint_passes \
+                    and time.perf_counter() - last_save >= CHECKPOINT_INTERVAL_S:
                 save_checkpoint(plan, method_cls, scene, settings, state, log)
                 last_save = time.perf_counter()
             bar.update(len(passes))
