@@ -88,7 +88,7 @@ def test_spot_defaults_are_mitsubas(tmp_path):
     ('<emitter type="spot"><float name="cutoff_angle" value="20"/><float name="beam_width" value="25"/></emitter>',
      ("<float name=\"beam_width\">", "'beam_width' must be within [0, cutoff_angle = 20] degrees, got 25")),
     ('<emitter type="spot"><texture type="bitmap" name="texture"><string name="filename" value="a.png"/></texture>'
-     '</emitter>', ("projected 'texture' is not supported",)),
+     '</emitter>', ("'a.png' not found",)),
     ('<emitter type="spot"><transform name="to_world"><scale x="2"/></transform></emitter>',
      ("to_world must be a rotation with a uniform scale",)),
     ('<emitter type="spot"><point name="position" x="1" y="2" z="3"/></emitter>',

@@ -23,7 +23,7 @@ from .jit import kernel
 from .sampling.filters import FILTER_KINDS, GAUSSIAN, film_position, filter_radius
 from .sampling.rng import lens_key, uniform
 from .sampling.warps import square_to_uniform_disk
-from .scene.description import Camera
+from .scene.description import Camera, fov_tangents
 
 
 class CameraParams(NamedTuple):
@@ -46,21 +46,10 @@ class CameraParams(NamedTuple):
 
 def tan_half_angles(fov_deg: float, fov_axis: str, width: int, height: int) -> tuple[float, float]:
     """tan(fov_x / 2), tan(fov_y / 2) for Mitsuba's fov / fov_axis (as Mitsuba 3's parse_fov)."""
-    aspect = width / height
-    axis = fov_axis
-    if axis == "smaller":
-        axis = "y" if aspect > 1 else "x"
-    elif axis == "larger":
-        axis = "x" if aspect > 1 else "y"
-    t = math.tan(math.radians(fov_deg) / 2)
-    if axis == "x":
-        return t, t / aspect
-    if axis == "y":
-        return t * aspect, t
-    if axis == "diagonal":
-        tx = t / math.sqrt(1.0 + 1.0 / (aspect * aspect))
-        return tx, tx / aspect
-    raise SceneError(f"fov_axis '{fov_axis}' is not supported; supported: x, y, diagonal, smaller, larger")
+    try:
+        return fov_tangents(fov_deg, fov_axis, width / height)
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
 
 
 def camera_params(cam: Camera, width: int | None = None, height: int | None = None) -> CameraParams:

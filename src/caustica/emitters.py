@@ -15,6 +15,18 @@ f = 1 within the beam width β, (γ − θ) / (γ − β) between β and the cut
 (:func:`spot_falloff`).  Its power is Φ = 2π I ∫₀^γ f(θ) sin θ dθ = 2π I (1 − (sin γ − sin β) / (γ − β))
 (2π I (1 − cos γ) when β = γ; :func:`spot_power_factor`).
 
+A spot may project a ``texture`` (Mitsuba's): its intensity times T(uv), uv = (1/2 + x / (2 z tan γ),
+1/2 + y / (2 z tan γ)) for the direction (x, y, z) in the spot's frame; its power is then a quadrature of
+I ∫ f T dω (:func:`profile_power`).
+
+A projector (Mitsuba 3's ``projector``) is a point light projecting an image E through a pinhole of half-angle
+tangents (tan_x, tan_y) along its +z: the direction (x, y, z) in its frame meets the image at
+uv = (1/2 − x / (2 z tan_x), 1/2 − y / (2 z tan_y)), and its intensity there is π s E(uv) / cos³θ (s its
+``scale``), so a plane at distance z across its axis receives π s E / z².  Its power is
+Φ = π s A ∫ E du dv, A = 4 tan_x tan_y the image's area on the plane z = 1; a bitmap's ∫ E du dv is its texels'
+mean (bilinear or nearest, with any wrap mode).  Its photons take uv by the texels' luminance as Mitsuba's
+bitmap ``sample_position`` does (:func:`projector_sample_uv`).
+
 A directional light (Mitsuba 3's ``directional``) of irradiance E shines along one direction from infinitely far
 away; like the environment its power is taken over the disc of the scene's bounding sphere (radius R) across
 the beam: Φ = π R² E (Mitsuba's convention).
@@ -38,18 +50,22 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .bsdfs.textures import NEAREST, REPEAT, texture_columns, texture_rgb, wrap
 from .geometry import vec
 from .geometry.scene_geometry import Geometry, sample_on_primitive
 from .jit import kernel
 from .sampling.warps import square_to_uniform_sphere
-from .scene.description import SceneDescription
+from .scene.description import BITMAP, CHECKERBOARD, SceneDescription
 
 AREA = 0
 POINT = 1
 ENV = 2
 SPOT = 3          # a point light with an angular falloff (its axis in LightTable.normal, its cone in .cone)
 DIRECTIONAL = 4   # a delta light at infinity (its direction of travel in LightTable.normal)
+PROJECTOR = 5     # a point light projecting an image (its frame in edge1, edge2, normal; its image in .cone)
 ENV_TO_WORLD = 4   # offsets into LightTable.env_data
+TEX_OF, TEX_CDF = 6, 7   # columns of LightTable.tex_int past the texture's own: 1 if the light has a texture;
+#                          the offset of its sampling tables in tex_cdf (-1: none)
 ENV_CDF = 13
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -72,12 +88,13 @@ class LightTable(NamedTuple):
     prim_cdf: np.ndarray      # float64[*]: area CDF within each emitter (Geometry.emitter_cdf)
     is_parallelogram: np.ndarray  # int8[L]: 1 when sampled through corner + u e1 + v e2
     corner: np.ndarray        # float64[L, 3]
-    edge1: np.ndarray         # float64[L, 3]
-    edge2: np.ndarray         # float64[L, 3]
+    edge1: np.ndarray         # float64[L, 3]: a parallelogram's edges; a projector's or textured spot's unit x
+    edge2: np.ndarray         # float64[L, 3]: ... and unit y
     normal: np.ndarray        # float64[L, 3]: the parallelogram's front normal; a spot's axis; the direction a
-    #                           directional light's light travels (unit)
+    #                           directional light's light travels (unit); a projector's axis (its +z)
     cone: np.ndarray          # float64[L, 4]: a spot's (cos γ, cos β, γ in rad, 1 / (γ − β) in 1/rad or 0 when
-    #                           β = γ), γ its cutoff angle, β its beam width
+    #                           β = γ), γ its cutoff angle, β its beam width; a projector's (tan_x, tan_y, A, 0):
+    #                           its half-angle tangents and image area 4 tan_x tan_y on the plane z = 1
     # the environment (one entry of kind ENV, or none; arrays of size 1 without one)
     # (few arrays: every call that passes the tables passes each array's fields)
     # The scene's bounding sphere is env_data[0..3] whenever the scene has an environment or a directional light.
@@ -87,6 +104,14 @@ class LightTable(NamedTuple):
     #                           rotation to the world (3 x 3, row-major) at ENV_TO_WORLD, then from ENV_CDF
     #                           its CDF over rows of bilinear patches (H - 1), each row's CDF over its patches
     #                           ((H - 1) W) and each patch's density in (u, v) (probability x W (H - 1))
+    # The textures of spots and projectors, one row per light (bsdfs/textures.py's columns, read by texture_rgb
+    # with the light's index): a light without one has tex_int[e, TEX_OF] = 0.
+    tex_int: np.ndarray       # int64[L, 8]: kind, filter, wrap, width, height, first texel row, TEX_OF, TEX_CDF
+    tex_float: np.ndarray     # float64[L, 12]: to_uv, a checkerboard's colours
+    texels: np.ndarray        # float32[N, 3]: the bitmaps' texels
+    tex_cdf: np.ndarray       # float64[*]: a projector's bitmap's sampling tables from tex_int[e, TEX_CDF] (-1:
+    #                           none, uniform in uv): its row CDF (H), each row's column CDF (H W), each texel's
+    #                           probability x W H (H W)
 
 
 def _parallelogram(shape):
@@ -111,7 +136,7 @@ def _parallelogram(shape):
 def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     emissive = [s for s in desc.shapes if s.emitter_radiance is not None]
     n_area = len(emissive)
-    n_point = n_area + len(desc.point_lights)
+    n_point = n_area + len(desc.point_lights) + len(desc.projectors)
     n = n_point + len(desc.directional_lights)
     kind = np.zeros(n, np.int32)
     radiance = np.zeros((n, 3))
@@ -150,6 +175,17 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
             gamma, beta = math.radians(light.cutoff_angle), math.radians(light.beam_width)
             cone[i] = (math.cos(gamma), math.cos(beta), gamma, 1.0 / (gamma - beta) if gamma > beta else 0.0)
             power[i] = 2.0 * math.pi * spot_power_factor(gamma, beta) * np.asarray(light.intensity)
+            if light.frame is not None:
+                edge1[i], edge2[i] = light.frame[:, 0], light.frame[:, 1]
+    for j, proj in enumerate(desc.projectors):
+        i = n_area + len(desc.point_lights) + j
+        kind[i] = PROJECTOR
+        radiance[i] = math.pi * proj.scale * np.asarray(proj.irradiance if proj.texture is None else (1.0,) * 3)
+        position[i] = proj.position
+        edge1[i], edge2[i], normal[i] = proj.frame[:, 0], proj.frame[:, 1], proj.frame[:, 2]
+        cone[i] = (proj.tan_x, proj.tan_y, 4.0 * proj.tan_x * proj.tan_y, 0.0)
+        power[i] = cone[i, 2] * radiance[i] * _image_mean(proj.texture)
+    textures = _light_textures(desc, n_area, n)
     env = _environment_tables(desc, geom)
     disc = math.pi * env["env_data"][3] ** 2
     for j, light in enumerate(desc.directional_lights):
@@ -169,20 +205,85 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
         first = np.append(first, np.int32(0))
         count = np.append(count, np.int32(0))
         is_para = np.append(is_para, np.int8(0))
+        textures["tex_int"] = np.vstack([textures["tex_int"], _no_texture_row()])
+        textures["tex_float"] = np.vstack([textures["tex_float"], np.zeros((1, 12))])
         n += 1
     else:
         env.pop("radiance")
         env.pop("power")
+    table = LightTable(kind, radiance, position, area, power, np.zeros(n), np.zeros(n),
+                       first, count, geom.emitter_prim_ids.astype(np.int32),
+                       geom.emitter_cdf.astype(np.float64), is_para,
+                       corner, edge1, edge2, normal, cone, **env, **textures)
+    for j, light in enumerate(desc.point_lights):
+        if light.texture is not None:   # a textured spot: I ∫ f T dω by quadrature
+            i = n_area + j
+            power[i] = radiance[i] * np.asarray(profile_power(table, i, 1024, 2048))
     scalar = power.mean(axis=1)
     total_power = scalar.sum()
     select_pdf = scalar / total_power if total_power > 0 else np.zeros(n)
     select_cdf = np.cumsum(select_pdf)
     if n:
         select_cdf[-1] = 1.0
-    return LightTable(kind, radiance, position, area, power, select_pdf, select_cdf,
-                      first, count, geom.emitter_prim_ids.astype(np.int32),
-                      geom.emitter_cdf.astype(np.float64), is_para,
-                      corner, edge1, edge2, normal, cone, **env)
+    return table._replace(power=power, select_pdf=select_pdf, select_cdf=select_cdf)
+
+
+def _no_texture_row() -> np.ndarray:
+    row = np.zeros((1, 8), np.int64)
+    row[0, TEX_CDF] = -1
+    return row
+
+
+def _image_mean(tex) -> np.ndarray:
+    """∫ E du dv over the unit square of a projector's image (1 for a constant one, whose colour is in its
+    radiance): a bitmap's texel mean per channel (bilinear or nearest, any wrap mode: each texel's weight
+    integrates to one texel's area), a checkerboard's two colours' mean (to_uv is the identity)."""
+    if tex is None:
+        return np.ones(3)
+    if tex.kind == CHECKERBOARD:
+        return 0.5 * (np.asarray(tex.color0) + np.asarray(tex.color1))
+    return tex.texels.reshape(-1, 3).astype(np.float64).mean(axis=0)
+
+
+def _light_textures(desc: SceneDescription, n_area: int, n: int) -> dict:
+    """The LightTable's texture columns: one row per light (rows of the area emitters and directional lights
+    empty), and a projector's bitmap's sampling tables (Mitsuba's DiscreteDistribution2D over the texels'
+    luminance)."""
+    lights = list(desc.point_lights) + list(desc.projectors)
+    index, ints, floats, texels = texture_columns([_Textured(x.texture) for x in lights])
+    tex_int = np.zeros((n, 8), np.int64)
+    tex_int[:, TEX_CDF] = -1
+    tex_float = np.zeros((n, 12))
+    chunks, offset = [], 0
+    for j, light in enumerate(lights):
+        tex = light.texture
+        if tex is None:
+            continue
+        i = n_area + j
+        tex_int[i, :6] = ints[index[j]]
+        tex_float[i] = floats[index[j]]
+        tex_int[i, TEX_OF] = 1
+        if j >= len(desc.point_lights) and tex.kind == BITMAP:
+            lum = tex.texels.astype(np.float64) @ np.asarray(LUMINANCE)
+            total = lum.sum()
+            if not total > 0.0:
+                continue   # a black image: no photons (its power is 0, it is never chosen)
+            h, w = lum.shape
+            prob = lum / total
+            rows = prob.sum(axis=1)
+            row_cdf = np.cumsum(rows)
+            row_cdf[-1] = 1.0
+            col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
+            col_cdf[:, -1] = 1.0
+            chunks.append(np.concatenate([row_cdf, col_cdf.reshape(-1), (prob * w * h).reshape(-1)]))
+            tex_int[i, TEX_CDF] = offset
+            offset += chunks[-1].size
+    tex_cdf = np.concatenate(chunks) if chunks else np.zeros(1)
+    return dict(tex_int=tex_int, tex_float=tex_float, texels=texels, tex_cdf=tex_cdf)
+
+
+class _Textured(NamedTuple):
+    texture: object
 
 
 def spot_power_factor(gamma: float, beta: float) -> float:
@@ -220,7 +321,7 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
     if envd is None:
         return out
     n_lights = (sum(1 for s in desc.shapes if s.emitter_radiance is not None) + len(desc.point_lights)
-                + len(desc.directional_lights))
+                + len(desc.projectors) + len(desc.directional_lights))
     out["env"] = np.array([n_lights, 1 if envd.kind == "constant" else 0], np.int32)
     disc = math.pi * radius * radius
     if envd.kind == "constant":
@@ -287,6 +388,161 @@ def spot_falloff(lights, e, d):
     if cos_t >= lights.cone[e, 1]:
         return 1.0
     return (lights.cone[e, 2] - math.acos(min(cos_t, 1.0))) * lights.cone[e, 3]
+
+
+@kernel
+def light_texture(lights, e, uv):
+    """Light e's texture (a spot's projected texture, a projector's image) at uv, RGB."""
+    return texture_rgb((lights.tex_int, lights.tex_float, lights.texels), e, uv)
+
+
+@kernel
+def profile(lights, e, d):
+    """The intensity of textured spot or projector e towards unit world direction d (leaving it) over its
+    ``radiance`` row, per channel: a spot's falloff f times its texture at uv = (1/2 + x / (2 z tan γ),
+    1/2 + y / (2 z tan γ)); a projector's image E at uv = (1/2 − x / (2 z tan_x), 1/2 − y / (2 z tan_y)) over
+    cos³θ = z³, 0 outside the image ((x, y, z) = d in the light's frame; Mitsuba 3's spot and projector)."""
+    zero = (0.0, 0.0, 0.0)
+    x = vec.dot(vec.row(lights.edge1, e), d)
+    y = vec.dot(vec.row(lights.edge2, e), d)
+    z = vec.dot(vec.row(lights.normal, e), d)
+    if lights.kind[e] == SPOT:
+        f = spot_falloff(lights, e, d)
+        if not (f > 0.0 and z > 0.0):
+            return zero
+        c = lights.cone[e, 0]
+        k = 0.5 * c / (z * math.sqrt(max(0.0, 1.0 - c * c)))   # 1 / (2 z tan γ)
+        return vec.mul(light_texture(lights, e, (0.5 + x * k, 0.5 + y * k)), f)
+    if not z > 0.0:
+        return zero
+    u = 0.5 - 0.5 * x / (z * lights.cone[e, 0])
+    v = 0.5 - 0.5 * y / (z * lights.cone[e, 1])
+    if not (0.0 <= u <= 1.0 and 0.0 <= v <= 1.0):
+        return zero
+    inv_cos3 = 1.0 / (z * z * z)
+    if lights.tex_int[e, TEX_OF] == 0:
+        return (inv_cos3, inv_cos3, inv_cos3)
+    return vec.mul(light_texture(lights, e, (u, v)), inv_cos3)
+
+
+@kernel(inline=True)
+def profiled(lights, e):
+    """Whether light e's intensity varies by :func:`profile` (a projector, a textured spot)."""
+    return lights.kind[e] == PROJECTOR or (lights.kind[e] == SPOT and lights.tex_int[e, TEX_OF] == 1)
+
+
+@kernel
+def profile_power(lights, e, n_theta, n_phi):
+    """∫ profile dω over spot e's cone (per channel; its power over its intensity) by the midpoint rule on an
+    n_theta x n_phi grid of (θ, φ) within its cutoff angle."""
+    gamma = lights.cone[e, 2]
+    axis = vec.row(lights.normal, e)
+    ex = vec.row(lights.edge1, e)
+    ey = vec.row(lights.edge2, e)
+    acc0 = 0.0
+    acc1 = 0.0
+    acc2 = 0.0
+    d_theta = gamma / n_theta
+    d_phi = 2.0 * math.pi / n_phi
+    for i in range(n_theta):
+        theta = (i + 0.5) * d_theta
+        st = math.sin(theta)
+        ct = math.cos(theta)
+        for j in range(n_phi):
+            phi = (j + 0.5) * d_phi
+            d = vec.madd(vec.madd(vec.mul(axis, ct), ex, st * math.cos(phi)), ey, st * math.sin(phi))
+            p = profile(lights, e, d)
+            acc0 += p[0] * st
+            acc1 += p[1] * st
+            acc2 += p[2] * st
+    w = d_theta * d_phi
+    return (acc0 * w, acc1 * w, acc2 * w)
+
+
+@kernel
+def projector_uv_pdf(lights, e, u, v):
+    """The density in (u, v) with which :func:`projector_sample_uv` gives (u, v) on projector e's image: 1 without
+    a bitmap; a bitmap's texel probabilities x W H, interpolated as its filter interpolates texels (Mitsuba's
+    ``pdf_position``)."""
+    o = lights.tex_int[e, TEX_CDF]
+    if o < 0:
+        return 1.0
+    w = lights.tex_int[e, 3]
+    h = lights.tex_int[e, 4]
+    mode = lights.tex_int[e, 2]
+    dens = o + h + h * w
+    if lights.tex_int[e, 1] == NEAREST:
+        j = min(max(np.int64(math.floor(u * w)), 0), w - 1)
+        i = min(max(np.int64(math.floor(v * h)), 0), h - 1)
+        return lights.tex_cdf[dens + i * w + j]
+    px = u * w - 0.5
+    py = v * h - 0.5
+    fx = math.floor(px)
+    fy = math.floor(py)
+    ax = px - fx
+    ay = py - fy
+    x0 = wrap(np.int64(fx), w, mode)
+    x1 = wrap(np.int64(fx) + 1, w, mode)
+    y0 = wrap(np.int64(fy), h, mode)
+    y1 = wrap(np.int64(fy) + 1, h, mode)
+    p = lights.tex_cdf
+    top = (1.0 - ax) * p[dens + y0 * w + x0] + ax * p[dens + y0 * w + x1]
+    bottom = (1.0 - ax) * p[dens + y1 * w + x0] + ax * p[dens + y1 * w + x1]
+    return (1.0 - ay) * top + ay * bottom
+
+
+@kernel
+def projector_sample_uv(lights, e, u1, u2):
+    """A point (u, v) on projector e's image and its density: uniform without a bitmap; with one, a texel by its
+    luminance (row by u1, column by u2), then uniform in it (nearest) or a tent about its centre one texel wide
+    each way, wrapped or reflected back into [0, 1] by its wrap mode (bilinear): Mitsuba 3's bitmap
+    ``sample_position``, whose density :func:`projector_uv_pdf` is."""
+    o = lights.tex_int[e, TEX_CDF]
+    if o < 0:
+        return u1, u2, 1.0
+    w = lights.tex_int[e, 3]
+    h = lights.tex_int[e, 4]
+    cdf = lights.tex_cdf
+    i = find_cdf(cdf, o, h, u1) - o
+    lo = cdf[o + i - 1] if i > 0 else 0.0
+    width = cdf[o + i] - lo
+    u1 = min(max((u1 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
+    cols = o + h + i * w
+    j = find_cdf(cdf, cols, w, u2) - cols
+    lo = cdf[cols + j - 1] if j > 0 else 0.0
+    width = cdf[cols + j] - lo
+    u2 = min(max((u2 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
+    if lights.tex_int[e, 1] == NEAREST:
+        u = (j + u2) / w
+        v = (i + u1) / h
+    else:
+        u = wrap_unit((j + 0.5 + tent(u2)) / w, lights.tex_int[e, 2])
+        v = wrap_unit((i + 0.5 + tent(u1)) / h, lights.tex_int[e, 2])
+    return u, v, projector_uv_pdf(lights, e, u, v)
+
+
+@kernel(inline=True)
+def tent(u):
+    """u in [0, 1) to [-1, 1] with the tent density 1 - |x| (Mitsuba's square_to_tent)."""
+    if u < 0.5:
+        return math.sqrt(2.0 * u) - 1.0
+    return 1.0 - math.sqrt(2.0 - 2.0 * u)
+
+
+@kernel(inline=True)
+def wrap_unit(x, mode):
+    """x within a texel of [0, 1] moved into it: periodically (repeat), else reflected at the edge."""
+    if mode == REPEAT:
+        if x < 0.0:
+            return x + 1.0
+        if x > 1.0:
+            return x - 1.0
+        return x
+    if x < 0.0:
+        return -x
+    if x > 1.0:
+        return 2.0 - x
+    return x
 
 
 @kernel(inline=True)

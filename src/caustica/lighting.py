@@ -1,8 +1,8 @@
 """Direct lighting: shadow rays from a scattering point to the emitters.
 
 * :func:`direct_stratified` — at a photon method's diffuse point (SPEC §2): every emitter, ``n x n``
-  stratified points on each area light (or the fixed centres of the n x n grid), point, spot and directional
-  lights exactly, through media and null boundaries.  It returns an irradiance-like E that the caller scales by
+  stratified points on each area light (or the fixed centres of the n x n grid), point, spot, projector and
+  directional lights exactly, through media and null boundaries.  It returns an irradiance-like E that the caller scales by
   f_r = ρ / π.
 * :func:`next_event` — one light sample (:func:`caustica.media.light_sample`) at any scattering point,
   weighted by multiple importance sampling against the BSDF's (or phase function's) own sampling; the
@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 
 from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf
-from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_sample, sample_area_emitter, \
-    spot_falloff
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_sample, profile, profiled, \
+    sample_area_emitter, spot_falloff
 from .geometry import vec
 from .jit import kernel
 from .media import env_shadow_length, escape_transmittance, light_sample, medium_after, phase_pdf, phase_value, \
@@ -106,8 +106,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
     dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
     (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
-    fill it evenly).  Point and spot lights exactly (a spot's intensity times its falloff), a directional light
-    by one shadow ray against its direction (E cos θ T); the environment by :func:`env_direct`.  Each shadow ray's
+    fill it evenly).  Point and spot lights exactly (a spot's intensity times its falloff; a projector's or a textured
+    spot's by :func:`profiled_direct`), a directional light by one shadow ray against its direction (E cos θ T); the environment by :func:`env_direct`.  Each shadow ray's
     visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
     light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on
     the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta coating over a diffuse lobe
@@ -154,6 +154,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             if coated >= 0:
                 cos_s *= entry(mats, coated, cos_s)
             E = vec.madd(E, vec.hadamard(rad, env_transmittance(tables, at, wi)), cos_s)
+        elif profiled(lights, li):
+            E = vec.add(E, profiled_direct(tables, at, li, coated))
         else:
             q = vec.row(lights.position, li)
             to_l = vec.sub(q, p)
@@ -176,6 +178,33 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                 g *= falloff
             E = vec.madd(E, vec.hadamard(rad, T), g)
     return E
+
+
+@kernel
+def profiled_direct(tables, at, li, coated):
+    """:func:`direct_stratified`'s irradiance from projector or textured spot li at ``at``: its intensity towards
+    p (radiance x :func:`caustica.emitters.profile`) T cos θ / r², by one shadow ray (times B with ``coated``)."""
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium, _ = at
+    zero = (0.0, 0.0, 0.0)
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    if not dist2 > 0.0:
+        return zero
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    cos_s = vec.dot(ns, wi)
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return zero
+    intensity = vec.hadamard(vec.row(lights.radiance, li), profile(lights, li, vec.neg(wi)))
+    if not (intensity[0] > 0.0 or intensity[1] > 0.0 or intensity[2] > 0.0):
+        return zero
+    T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
+                                medium_after(media, shape, ng_front, wi, medium))
+    g = cos_s / dist2
+    if coated >= 0:
+        g *= entry(mats, coated, cos_s)
+    return vec.mul(vec.hadamard(intensity, T), g)
 
 
 @kernel(inline=True)

@@ -33,7 +33,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, sample_area_emitter, spot_falloff
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, profile, profiled, sample_area_emitter, \
+    spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import intersect, occluded, surface_at
 from .jit import kernel
@@ -341,6 +342,8 @@ def light_sample(tables, at, u, through):
         return env_light_sample(tables, at, sel_pdf, (u1, u2), through)
     if lights.kind[li] == DIRECTIONAL:
         return directional_light_sample(tables, at, li, sel_pdf, through)
+    if profiled(lights, li):
+        return profiled_light_sample(tables, at, li, sel_pdf, through)
     is_area = lights.kind[li] == AREA
     if is_area:
         q, nq = sample_area_emitter(lights, geom, li, u1, u2)
@@ -373,6 +376,32 @@ def light_sample(tables, at, u, through):
         Le = vec.mul(Le, falloff)
     return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \
         rays
+
+
+@kernel
+def profiled_light_sample(tables, at, li, sel_pdf, through):
+    """:func:`light_sample` of a projector or textured spot li (chosen with probability sel_pdf): a point light
+    whose intensity towards ``at`` is radiance x :func:`caustica.emitters.profile`; contrib I T cos_s / (r² sel_pdf)
+    (without cos_s in a medium).  A delta: pdf 0, ``is_area`` False (no MIS)."""
+    geom, mats, lights, media = tables
+    zero = (0.0, 0.0, 0.0)
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, at.p)
+    dist2 = vec.dot(to_l, to_l)
+    if not dist2 > 0.0:
+        return zero, zero, 0.0, 0.0, False, False, 0
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    shape = profile(lights, li, vec.neg(wi))
+    if not (shape[0] > 0.0 or shape[1] > 0.0 or shape[2] > 0.0):
+        return zero, wi, 0.0, 0.0, False, False, 0
+    faces, cos_s, o, medium = shadow_ray_start(media, at, wi, to_l, through)
+    if not faces:
+        return zero, wi, 0.0, 0.0, False, False, 0
+    T, rays = shadow_transmittance(geom, mats, media, o, q, medium)
+    if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
+        return zero, wi, 0.0, 0.0, False, False, rays
+    Le = vec.hadamard(vec.hadamard(vec.row(lights.radiance, li), shape), T)
+    return vec.mul(Le, (cos_s if at.shape >= 0 else 1.0) / (sel_pdf * dist2)), wi, 0.0, cos_s, False, True, rays
 
 
 @kernel
@@ -532,7 +561,7 @@ def light_medium(geom, lights, media, e):
     Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first (a
     directional light: a probe along its direction);
     otherwise a probe from just in front of the light's middle, along its normal
-    (:func:`medium_at`), says where it is.  A point or spot light is probed from its position.
+    (:func:`medium_at`), says where it is.  A point, spot or projector is probed from its position.
     """
     fallback = media.camera[0]
     if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre

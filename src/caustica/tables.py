@@ -98,7 +98,7 @@ def compile_scene(desc: SceneDescription) -> Scene:
     lights = build_light_table(desc, geom)
     if lights.kind.shape[0] == 0:
         raise SceneError(f"{desc.source}: the scene has no emitter; add an <emitter type=\"area\"> "
-                         f"inside a shape, an <emitter type=\"point\">, \"spot\", \"directional\", \"constant\" or "
+                         f"inside a shape, an <emitter type=\"point\">, \"spot\", \"projector\", \"directional\", \"constant\" or "
                          f"\"envmap\"")
     _check_light_power(desc, lights)
     mats = build_material_table(desc)
@@ -112,11 +112,13 @@ def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:
     Radiance and sizes are each checked when read, but their product (pi x radiance x
     area) is not: a radiance of 1e30 on a shape of area 1e20 would make every photon's
     power infinite.  The lights table lists the area emitters in shape order, then the
-    point and spot lights, the directional lights and the environment.
+    point and spot lights, the projectors, the directional lights and the environment.
     """
     rows = ([(s.source, "pi x radiance x area") for s in desc.shapes if s.emitter_radiance is not None]
-            + [(p.source, "4 pi x intensity" if p.axis is None else "2 pi x intensity x the falloff's integral")
+            + [(p.source, "4 pi x intensity" if p.axis is None else "2 pi x intensity x the falloff's integral"
+                if p.texture is None else "intensity x the integral of the falloff times the texture")
                for p in desc.point_lights]
+            + [(p.source, "pi x scale x the image's area at distance 1 x its mean irradiance") for p in desc.projectors]
             + [(d.source, "pi R^2 x irradiance, R the scene's bounding radius") for d in desc.directional_lights]
             + ([(desc.environment.source, "pi R^2 x the radiance's integral over the sphere, R the scene's "
                                           "bounding radius")] if desc.environment is not None else []))

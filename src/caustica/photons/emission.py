@@ -2,8 +2,8 @@
 
 A light is chosen in proportion to its power; an area light emits from a point
 uniform by area in a cosine-weighted direction about its front normal, a point
-light uniformly over the sphere, a spot light uniformly within its cutoff cone (as Mitsuba 3's
-``sample_ray``).  The photon's power is the Monte Carlo weight of
+light uniformly over the sphere, a spot light uniformly within its cutoff cone, a projector through a point
+of its image drawn by the image's luminance (as Mitsuba 3's ``sample_ray``).  The photon's power is the Monte Carlo weight of
 its emission sample divided by the number of paths, so that the sum of emitted
 power equals the scene's total power Φ (SPEC §3):
 
@@ -11,7 +11,13 @@ power equals the scene's total power Φ (SPEC §3):
     point: Φ_p = I / (pdf_dir · p_select · N)                  = 4 π I / (p_select N)
     spot:  Φ_p = I f(θ) / (pdf_dir · p_select · N)             = 2 π (1 − cos γ) I f(θ) / (p_select N)
 
-(f the spot's falloff, γ its cutoff angle: the mean of Φ_p is the spot's power over p_select N.)
+(f the spot's falloff, γ its cutoff angle: the mean of Φ_p is the spot's power over p_select N; a projected
+texture T multiplies it, T(uv) at the direction drawn, which stays uniform in the cone, as Mitsuba 3's.)
+A projector (image E, scale s, image area A on its plane z = 1) draws a point uv of its image by the image's
+luminance, density p(uv) (uniform for a constant image; Mitsuba 3's ``sample_ray``), and sends the photon
+through it:
+
+    projector: Φ_p = π s A E(uv) / (p(uv) · p_select · N)
 
 Caustic photons are aimed at bounding spheres of the specular shapes: the
 direction is drawn from the mixture (uniform over spheres) of uniform cones that
@@ -31,13 +37,15 @@ emits as the environment does along its one direction d (a delta: no direction d
     directional: Φ_p = E π R² / (p_select · N)
 
 and its caustic photons as the environment's, along d.  A spot's caustic photons are a point light's (aimed
-at the spheres' cones), their power times the falloff f in the direction drawn.
+at the spheres' cones), their power times the falloff f in the direction drawn (a projector's and a textured
+spot's times their intensity's profile there, :func:`caustica.emitters.profile`).
 """
 from __future__ import annotations
 
 import math
 
-from ..emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, sample_area_emitter, spot_falloff
+from ..emitters import AREA, DIRECTIONAL, ENV, PROJECTOR, SPOT, TEX_OF, choose_light, env_sample, light_texture, \
+    profile, profiled, projector_sample_uv, sample_area_emitter, spot_falloff
 from ..geometry import vec
 from ..jit import kernel
 from ..sampling.rng import uniform
@@ -57,6 +65,8 @@ def emit_photon(geom, lights, key, n_paths):
         return emit_directional_photon(lights, li, sel_pdf, key, n_paths)
     if lights.kind[li] == SPOT:
         return emit_spot_photon(lights, li, sel_pdf, key, n_paths)
+    if lights.kind[li] == PROJECTOR:
+        return emit_projector_photon(lights, li, sel_pdf, key, n_paths)
     if lights.kind[li] == AREA:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
         local = square_to_cosine_hemisphere(uniform(key, 3), uniform(key, 4))
@@ -133,6 +143,9 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
         return (vec.offset_origin(p, n, d), d,
                 (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True)
     w = 1.0 / (pdf_dir * sel_pdf * n_paths)
+    if profiled(lights, li):
+        power = vec.hadamard(vec.mul(vec.row(lights.radiance, li), w), profile(lights, li, d))
+        return p, d, power, power[0] > 0.0 or power[1] > 0.0 or power[2] > 0.0
     if lights.kind[li] == SPOT:
         w *= spot_falloff(lights, li, d)
         if not w > 0.0:
@@ -154,7 +167,28 @@ def emit_spot_photon(lights, li, sel_pdf, key, n_paths):
     if not solid_angle > 0.0:
         return p, d, zero, zero
     w = solid_angle * spot_falloff(lights, li, d) / (sel_pdf * n_paths)
+    if lights.tex_int[li, TEX_OF] == 1:   # a projected texture: T at the direction's uv (profile / f)
+        return p, d, vec.mul(vec.hadamard(vec.row(lights.radiance, li), profile(lights, li, d)),
+                             solid_angle / (sel_pdf * n_paths)), zero
     return p, d, vec.mul(vec.row(lights.radiance, li), w), zero
+
+
+@kernel
+def emit_projector_photon(lights, li, sel_pdf, key, n_paths):
+    """A photon from projector li (chosen with probability sel_pdf): a point uv of its image by
+    :func:`caustica.emitters.projector_sample_uv` (numbers 1, 2), through which it leaves; power
+    π s A E(uv) / (p(uv) p_select N) (π s in its radiance, A = 4 tan_x tan_y); as :func:`emit_photon` returns it."""
+    p = vec.row(lights.position, li)
+    u, v, pdf = projector_sample_uv(lights, li, uniform(key, 1), uniform(key, 2))
+    local = ((1.0 - 2.0 * u) * lights.cone[li, 0], (1.0 - 2.0 * v) * lights.cone[li, 1], 1.0)
+    d = vec.normalize(vec.from_local(vec.row(lights.edge1, li), vec.row(lights.edge2, li),
+                                     vec.row(lights.normal, li), local))
+    zero = (0.0, 0.0, 0.0)
+    if not pdf > 0.0:
+        return p, d, zero, zero
+    w = lights.cone[li, 2] / (pdf * sel_pdf * n_paths)
+    E = light_texture(lights, li, (u, v)) if lights.tex_int[li, TEX_OF] == 1 else (1.0, 1.0, 1.0)
+    return p, d, vec.mul(vec.hadamard(vec.row(lights.radiance, li), E), w), zero
 
 
 @kernel

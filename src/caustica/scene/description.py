@@ -7,6 +7,7 @@ W/(m^2 sr) per RGB channel, intensity in W/sr, lengths in scene units.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -192,6 +193,51 @@ class PointLight:
     axis: tuple[float, float, float] | None = None   # a spot's unit beam direction in the world; None: a point light
     cutoff_angle: float = 180.0   # degrees
     beam_width: float = 180.0     # degrees, <= cutoff_angle
+    #: a spot's projected ``texture`` (Mitsuba's): its intensity times the texture at
+    #: uv = (1/2 + x / (2 z tan γ), 1/2 + y / (2 z tan γ)), (x, y, z) the direction in the spot's frame, γ its cutoff
+    texture: "Texture | None" = None
+    #: a textured spot's frame: 3x3, columns its unit x, y and z (= axis) in the world
+    frame: np.ndarray | None = None
+
+
+def fov_tangents(fov_deg: float, fov_axis: str, aspect: float) -> tuple[float, float]:
+    """tan(fov_x / 2), tan(fov_y / 2) of an image of width / height ``aspect`` whose field of view is ``fov_deg``
+    along ``fov_axis`` (x, y, diagonal, smaller or larger), as Mitsuba 3's parse_fov reads them (the perspective
+    camera's and the projector's)."""
+    axis = fov_axis
+    if axis == "smaller":
+        axis = "y" if aspect > 1 else "x"
+    elif axis == "larger":
+        axis = "x" if aspect > 1 else "y"
+    t = math.tan(math.radians(fov_deg) / 2)
+    if axis == "x":
+        return t, t / aspect
+    if axis == "y":
+        return t * aspect, t
+    if axis == "diagonal":
+        tx = t / math.sqrt(1.0 + 1.0 / (aspect * aspect))
+        return tx, tx / aspect
+    raise ValueError(f"fov_axis '{fov_axis}' is not supported; supported: x, y, diagonal, smaller, larger")
+
+
+@dataclass
+class Projector:
+    """A projection light (Mitsuba 3's ``projector``): a point light at ``position`` that projects an image through
+    a pinhole, as a perspective camera at the same place would see it.  In its ``frame`` (3x3, columns its unit x,
+    y, z in the world; it shines along +z) the direction (x, y, z) meets the image at
+    uv = (1/2 − x / (2 z tan_x), 1/2 − y / (2 z tan_y)) (u along −x, as in Mitsuba's camera), and its intensity there
+    is π ``scale`` E(uv) / cos³θ (W/sr; θ the angle from +z, E the irradiance ``texture`` or the constant
+    ``irradiance``): a plane at distance z facing it receives π scale E / z² (Mitsuba's convention; 0 outside the
+    image).  ``tan_x``, ``tan_y``: tangents of the half fields of view (tan_y = tan_x / aspect, the aspect the
+    texture's width / height, 1 for a constant)."""
+    position: tuple[float, float, float]
+    frame: np.ndarray
+    irradiance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # the constant image (W/m² over π, per channel)
+    texture: "Texture | None" = None                             # the image instead (a bitmap or checkerboard)
+    scale: float = 1.0
+    tan_x: float = 1.0
+    tan_y: float = 1.0
+    source: str = ""  # "file:line" for messages
 
 
 @dataclass
@@ -311,6 +357,7 @@ class SceneDescription:
     integrator_settings: IntegratorSettings = field(default_factory=IntegratorSettings)
     environment: Environment | None = None   # at most one (as in Mitsuba)
     directional_lights: list[DirectionalLight] = field(default_factory=list)
+    projectors: list[Projector] = field(default_factory=list)
 
     @property
     def has_media(self) -> bool:

@@ -33,8 +33,8 @@ from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, PLASTIC, ROUGHCONDUCTOR,
                           ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES, Camera, Environment,
-                          DirectionalLight, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
-                          SceneDescription, Shape, Texture)
+                          DirectionalLight, IntegratorSettings, Material, Medium, PointLight, Projector,
+                          ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .serialized import load_serialized
 from .textures import read_texels
@@ -107,6 +107,9 @@ EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
     "spot": {"to_world": XFORM, "intensity": COLOR, "cutoff_angle": FLOAT, "beam_width": FLOAT},
+    # a texture (bitmap or checkerboard) may give 'irradiance' instead of a colour
+    "projector": {"irradiance": COLOR, "scale": FLOAT, "to_world": XFORM, "fov": FLOAT, "focal_length": STR + FLOAT,
+                  "fov_axis": STR},
     "directional": {"direction": POINT, "to_world": XFORM, "irradiance": COLOR},
     "constant": {"radiance": COLOR},
     # mis_compensation only changes how Mitsuba samples the map (its noise), not the image it converges to
@@ -401,6 +404,7 @@ class _Loader:
         self.environment_node: Node | None = None   # the scene's environment emitter, if any
         self.environment_emitter: Environment | None = None
         self.directional_lights: list[DirectionalLight] = []
+        self.projectors: list[Projector] = []
 
     # -- files ------------------------------------------------------------------------
     def lookup_dirs(self, node: Node) -> list[Path]:
@@ -1432,7 +1436,8 @@ class _Loader:
                                 point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
                                 integrator_props=settings.props, source=self.source,
                                 integrator_source=settings.source, integrator_settings=settings,
-                                environment=self.environment_emitter, directional_lights=self.directional_lights)
+                                environment=self.environment_emitter, directional_lights=self.directional_lights,
+                                projectors=self.projectors)
 
     def environment(self, node: Node) -> Environment:
         """A ``constant`` or ``envmap`` emitter (Mitsuba 3's): uniform radiance, or a latitude-longitude image."""
@@ -1492,13 +1497,12 @@ class _Loader:
 
     def spot(self, node: Node) -> PointLight:
         """A ``spot`` emitter (Mitsuba 3's): at ``to_world``'s origin, shining along its +z; ``intensity`` (W/sr on
-        the axis), ``cutoff_angle`` (degrees, default 20) and ``beam_width`` (default 3/4 of the cutoff).  Its
-        projected ``texture`` is refused; so is a ``to_world`` that is not a rotation with a uniform scale
-        (Mitsuba would tilt the falloff's cone)."""
+        the axis), ``cutoff_angle`` (degrees, default 20), ``beam_width`` (default 3/4 of the cutoff) and an optional
+        projected ``texture`` (a bitmap or checkerboard, multiplying the intensity; the cutoff then below 90 degrees,
+        as Mitsuba maps it through tan(cutoff)).  A ``to_world`` that is not a rotation with a uniform scale is
+        refused (Mitsuba would tilt the falloff's cone)."""
         props = self.plugin(node, {"spot": EMITTER_PROPS["spot"]}, ("texture", "ref"))
-        if props.objects:
-            self.fail(props.objects[0], "a spot light's projected 'texture' is not supported (a spot of uniform "
-                                        "'intensity' is)")
+        textures = self.emitter_textures(props, "texture", "spot")
         cutoff = float(self.number(props, "cutoff_angle", 20.0))
         if not 0.0 <= cutoff <= 180.0:
             self.fail(props.node_of("cutoff_angle"), f"'cutoff_angle' must be within [0, 180] degrees, got {cutoff:g}")
@@ -1506,6 +1510,11 @@ class _Loader:
         if not 0.0 <= beam <= cutoff:
             self.fail(props.node_of("beam_width"), f"'beam_width' must be within [0, cutoff_angle = {cutoff:g}] "
                                                    f"degrees, got {beam:g}")
+        texture = textures.get("texture")
+        if texture is not None and not 0.0 < cutoff < 90.0:
+            self.fail(props.node_of("cutoff_angle"), f"a spot with a projected 'texture' needs a 'cutoff_angle' "
+                                                     f"within (0, 90) degrees (Mitsuba maps the texture through "
+                                                     f"tan(cutoff_angle)), got {cutoff:g}")
         m = np.asarray(props.get("to_world", np.eye(4)), dtype=np.float64)
         lin = m[:3, :3]
         scale2 = np.trace(lin.T @ lin) / 3.0
@@ -1513,10 +1522,66 @@ class _Loader:
             self.fail(props.node_of("to_world"), "a spot's to_world must be a rotation with a uniform scale (its "
                                                  "3x3 part a multiple of an orthonormal matrix)",
                       supported=["lookat", "rotate", "translate", "uniform scale"])
-        axis = lin[:, 2] / np.linalg.norm(lin[:, 2])
+        frame = lin / np.linalg.norm(lin, axis=0)
+        axis = frame[:, 2]
         intensity = self.color(props, "intensity", (1.0, 1.0, 1.0), emitter=True)
         return PointLight(tuple(float(c) for c in m[:3, 3]), intensity, source=self.at(node),
-                          axis=tuple(float(c) for c in axis), cutoff_angle=cutoff, beam_width=beam)
+                          axis=tuple(float(c) for c in axis), cutoff_angle=cutoff, beam_width=beam,
+                          texture=texture, frame=None if texture is None else np.ascontiguousarray(frame))
+
+    def emitter_textures(self, props: Props, name: str, kind: str) -> dict[str, Texture]:
+        """The texture an emitter takes for its parameter ``name`` (a nested ``<texture name=...>`` or a ``<ref>``),
+        as {name: Texture}; the texture's colours must not be negative."""
+        out: dict[str, Texture] = {}
+        for obj in props.objects:
+            given = obj.attrs.get("name")
+            if given != name:
+                self.fail(obj, f"a {kind} emitter takes a texture only for '{name}'"
+                               + (f", not for {quoted(given)}" if given else " (give it name=\"" + name + "\")"),
+                          supported=[f"<texture name=\"{name}\">"])
+            if name in props.props or name in out:
+                self.fail(obj, f"'{name}' is given twice")
+            tex = self.texture(obj)
+            low = min(min(tex.color0), min(tex.color1)) if tex.kind == CHECKERBOARD else float(tex.texels.min())
+            if not low >= 0.0:
+                self.fail(obj, f"the {kind}'s '{name}' texture has negative values (down to {low:g}); an emitter's "
+                               f"texture must not be negative")
+            out[name] = tex
+        return out
+
+    def projector(self, node: Node) -> Projector:
+        """A ``projector`` emitter (Mitsuba 3's): a point light at ``to_world``'s origin projecting its ``irradiance``
+        (a bitmap or checkerboard texture, or a constant colour; default 1) times ``scale`` along its +z through a
+        pinhole of field of view ``fov`` along ``fov_axis`` (or a ``focal_length``), as Mitsuba's perspective
+        camera: the aspect is the texture's width / height.  ``to_world`` must be a rigid motion."""
+        props = self.plugin(node, {"projector": EMITTER_PROPS["projector"]}, ("texture", "ref"))
+        texture = self.emitter_textures(props, "irradiance", "projector").get("irradiance")
+        if texture is not None and not np.allclose(texture.to_uv, np.eye(3)[:2], rtol=0.0, atol=1e-12):
+            self.fail(props.objects[0], "a projector's texture with a 'to_uv' is not supported (the projector "
+                                        "samples the image's texels where they fall)", supported=["no to_uv"])
+        irradiance = self.color(props, "irradiance", (1.0, 1.0, 1.0), emitter=True)
+        scale = float(self.number(props, "scale", 1.0, nonneg=True))
+        if not math.isfinite(scale):
+            self.fail(props.node_of("scale"), f"'scale' must be finite, got {scale}")
+        aspect = 1.0
+        if texture is not None and texture.kind == BITMAP:
+            aspect = texture.texels.shape[1] / texture.texels.shape[0]
+        fov, fov_axis = self.field_of_view(node, props)
+        tan_x, tan_y = fov_tangents(fov, fov_axis, aspect)
+        if not (0.0 < tan_x < 1e15 and 0.0 < tan_y < 1e15):
+            self.fail(props.node_of("fov"), f"the projector's field of view ({fov:g} degrees along {fov_axis}) is "
+                                             f"too close to 0 or 180 degrees along one of its axes")
+        m = np.asarray(props.get("to_world", np.eye(4)), dtype=np.float64)
+        lin = m[:3, :3]
+        if not np.allclose(lin.T @ lin, np.eye(3), rtol=0.0, atol=1e-5):
+            self.fail(props.node_of("to_world"), "a projector's to_world must be a rigid motion (its 3x3 part "
+                                                 "orthonormal: Mitsuba scales a projector's light by a scale in it in "
+                                                 "direct lighting but not in its emitted rays)",
+                      supported=["lookat", "rotate", "translate"])
+        frame = lin / np.linalg.norm(lin, axis=0)
+        return Projector(tuple(float(c) for c in m[:3, 3]), np.ascontiguousarray(frame), irradiance=irradiance,
+                         texture=texture, scale=scale, tan_x=float(tan_x), tan_y=float(tan_y),
+                         source=self.at(node))
 
     def directional(self, node: Node) -> DirectionalLight:
         """A ``directional`` emitter (Mitsuba 3's): ``irradiance`` (W/m²) travelling along ``direction`` or
@@ -1587,11 +1652,13 @@ class _Loader:
                 self.directional_lights.append(self.directional(node))
             elif kind == "spot":
                 lights.append(self.spot(node))
+            elif kind == "projector":
+                self.projectors.append(self.projector(node))
             elif kind in (None, "point"):
                 lights.append(self.point_light(node))
             else:
                 self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
-                          supported=["point", "spot", "directional (top level)", "area (inside a <shape>)",
+                          supported=["point", "spot", "projector", "directional (top level)", "area (inside a <shape>)",
                                      "constant", "envmap"])
         else:
             self.fail(node, "unknown element at the top level of the scene",
