@@ -90,3 +90,18 @@ def load_reference(refs_dir, name):
     ref = read_exr(exr).astype(np.float64)
     meta = json.loads((refs_dir / f"{name}_256.json").read_text())
     return ref, meta
+
+
+def mitsuba_path_and_ptracer(mi, path, seeds, files=()):
+    """The XML scene at ``path`` rendered by Mitsuba 3 twice per seed: its path integrator (256 spp), which like
+    caustica's pt misses the caustics of delta lights (a point, spot or projector seen through a mirror), and its
+    ptracer (1024 spp, 32 px), which like the photon methods renders them.  ``files``: names the scene gives
+    relative to its folder (the ptracer's copy is loaded from a string).  Returns (path images, ptracer images)."""
+    scene = mi.load_file(str(path), spp=256)
+    path_images = [np.array(mi.render(scene, spp=256, seed=s), dtype=np.float32)[..., :3] for s in seeds]
+    text = path.read_text().replace('<integrator type="path"/>', '<integrator type="ptracer"/>')
+    for name in files:
+        text = text.replace(f'value="{name}"', f'value="{path.parent / name}"')
+    scene = mi.load_string(text.replace('value="$spp"', 'value="1024"').replace('value="$res"', 'value="32"'))
+    ptracer_images = [np.array(mi.render(scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in seeds]
+    return path_images, ptracer_images

@@ -250,13 +250,9 @@ def mitsuba_renders(mi, test_scenes_dir):
     """tests/scenes/spot-directional.xml rendered by Mitsuba 3: its path integrator (4 seeds x 256 spp), which like
     pt misses the mirror's caustics of the delta lights, and its ptracer (4 seeds x 1024 spp), which like the
     photon methods renders them."""
+    from imagestats import mitsuba_path_and_ptracer
     path = test_scenes_dir / "spot-directional.xml"
-    scene = mi.load_file(str(path), spp=256)
-    path_images = [np.array(mi.render(scene, spp=256, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
-    text = path.read_text().replace('<integrator type="path"/>', '<integrator type="ptracer"/>')
-    scene = mi.load_string(text.replace('value="$spp"', 'value="1024"').replace('value="$res"', 'value="32"'))
-    ptracer_images = [np.array(mi.render(scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
-    return path, path_images, ptracer_images
+    return (path, *mitsuba_path_and_ptracer(mi, path, SEEDS))
 
 
 def test_pt_matches_mitsuba(mitsuba_renders):
