@@ -127,8 +127,8 @@ def trace_one(tables, key, photon, rules, out):
             crossings = 0
             continue
         # ---- a surface
-        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            tables, (prim, t, b1, b2), o, d, medium, crossings)
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
+            tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
@@ -155,9 +155,11 @@ def trace_one(tables, key, photon, rules, out):
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            if mats.flags[m] & DIFFUSE_REFLECTION:
-                # a coating's reflection (plastic): no caustic caster (tables.py), so the caustic photons never carry
-                # what follows; its records are INDIRECT, though it is no diffuse bounce
+            if mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
+                # a coating's reflection (plastic), or a blend's delta or glossy part beside a diffuse one: no caustic
+                # caster (tables.py: the flags of the surface's own material, a mixture's those of all its parts), so
+                # the caustic photons never carry what follows; its records are INDIRECT, though it is no diffuse
+                # bounce
                 diffuse_like = True
         else:
             diffuse_bounces += 1

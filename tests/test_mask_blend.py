@@ -1,0 +1,234 @@
+"""Mitsuba 3's mask and blendbsdf (bsdfs/mixtures.py): resolved where a ray meets them, with one random number.
+
+1. The resolution against Mitsuba 3's own plugins (``scalar_rgb``): a mask's chance of letting a ray through is
+   its ``eval_null_transmission`` (1 - opacity), a mask's opacity and a blend's weight from a checkerboard are
+   Mitsuba's ``eval_1`` (clipped to [0, 1]), and the part chosen with a blend's weight w reproduces Mitsuba's
+   blend in expectation: (1 - w) f0 + w f1 equals its ``eval`` (diffuse with a rough conductor, several angles).
+2. A white furnace: a sphere that is a mask (opacity 0.4) over a white two-sided diffuse, beside one that blends a
+   white diffuse and a white mirror, in a constant environment of radiance 1: every pixel is 1 (pt), so the
+   mixtures neither lose nor create energy.
+3. Scenes against Mitsuba (tests/scenes/mask.xml, blend.xml): pt, sppm and PM+C, image mean within 2 % and every
+   4x4 block within 5 sigmas of both renderers' noise (tests/imagestats.py).  The mask scene against Mitsuba's
+   volpath (its path integrator blocks shadow rays at a mask).
+4. Input: opacity outside [0, 1], a mask without a nested BSDF, a blend with one, a negative weight, a mixture in a
+   mixture, twosided around one, a texture for another parameter -> one line naming file and line, exit 2; the
+   stream methods refuse mixtures in one line.
+"""
+from __future__ import annotations
+
+import math
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica import bsdfs
+from caustica.jit import kernel
+from caustica.sampling.rng import path_key
+from caustica.scene.description import BLEND, DIFFUSE, MASK, ROUGHCONDUCTOR, Material, Texture, CHECKERBOARD
+from imagestats import assert_images_agree
+from test_glossy import assert_refused_in_one_line, incident
+
+HERE = Path(__file__).parent / "scenes"
+MASK_SCENE = HERE / "mask.xml"
+BLEND_SCENE = HERE / "blend.xml"
+SEEDS = (1, 2, 3, 4)
+NG = (0.0, 0.0, 1.0)
+
+
+def table(materials):
+    return bsdfs.build_material_table(types.SimpleNamespace(materials=materials))
+
+
+@kernel
+def pass_and_weight(mats, m, uv, out):
+    out[0] = bsdfs.pass_probability(mats, m, uv)
+    out[1] = bsdfs.mixtures.weight(mats, m, uv)
+
+
+@kernel
+def resolved_frequency(mats, m, uv, n, out):
+    """out[k]: how often material k is chosen for (u, v) over n keys; out[-1] how often no surface."""
+    for i in range(n):
+        r, _ = bsdfs.resolve(mats, m, uv, path_key(7, 3, i), 5)
+        out[r] += 1.0 / n
+
+
+@kernel
+def eval_part(mats, m, d, wi):
+    f, s, _ = bsdfs.eval_pdf(mats, m, d, NG, NG, (0.0, 0.0), wi)
+    return f[0] * s, f[1] * s, f[2] * s
+
+
+def test_mask_opacity_and_pass_probability_match_mitsuba(mi):
+    board = Texture(CHECKERBOARD, color0=(0.9,) * 3, color1=(0.3, 0.5, 0.9))   # color1: its luminance
+    mats = table([Material(DIFFUSE, (0.5,) * 3), Material(MASK, nested=(0,), mix=0.3),
+                  Material(MASK, nested=(0,), mix_texture=board)])
+    theirs = [mi.load_dict({"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}),
+              mi.load_dict({"type": "mask", "bsdf": {"type": "diffuse"},
+                            "opacity": {"type": "checkerboard", "color0": 0.9,
+                                        "color1": {"type": "rgb", "value": [0.3, 0.5, 0.9]}}})]
+    si = mi.SurfaceInteraction3f()
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    si.wi = mi.Vector3f(0, 0, 1)
+    for m, th in zip((1, 2), theirs):
+        for uv in ((0.1, 0.2), (0.7, 0.2), (0.6, 0.9), (0.3, 0.8)):
+            si.uv = mi.Point2f(*uv)
+            out = np.zeros(2)
+            pass_and_weight(mats, m, uv, out)
+            t_mi = float(th.eval_null_transmission(si)[0])
+            assert abs(out[0] - t_mi) < 1e-6 and abs(out[1] - (1.0 - t_mi)) < 1e-6, (m, uv, out, t_mi)
+            freq = np.zeros(len(mats.kind) + 1)
+            n = 20_000
+            resolved_frequency(mats, m, uv, n, freq)
+            assert abs(freq[0] - out[1]) <= 5 * math.sqrt(out[1] * (1 - out[1]) / n) + 1e-12
+            assert abs(freq[0] + freq[-1] - 1.0) < 1e-9
+
+
+def test_blend_in_expectation_is_mitsubas_blend(mi):
+    w = 0.35
+    mats = table([Material(DIFFUSE, (0.8, 0.3, 0.2)), Material(ROUGHCONDUCTOR, (1.0,) * 3, alpha=0.3),
+                  Material(BLEND, nested=(0, 1), mix=w)])
+    theirs = mi.load_dict({"type": "blendbsdf", "weight": w,
+                           "a": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.3, 0.2]}},
+                           "b": {"type": "roughconductor", "alpha": 0.3}})
+    ctx = mi.BSDFContext()
+    si = mi.SurfaceInteraction3f()
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    freq = np.zeros(4)
+    resolved_frequency(mats, 2, (0.0, 0.0), 20_000, freq)
+    assert abs(freq[1] - w) <= 5 * math.sqrt(w * (1 - w) / 20_000)
+    for theta in (0.0, 30.0, 60.0):
+        d = incident(theta, False)
+        si.wi = mi.Vector3f(*(-np.array(d)))
+        for wi in ((0.3, 0.1, 0.948683), (-0.5, 0.2, 0.842615), (0.0, 0.0, 1.0)):
+            ours = (1 - w) * np.array(eval_part(mats, 0, d, wi)) + w * np.array(eval_part(mats, 1, d, wi))
+            f_mi = np.array(theirs.eval(ctx, si, mi.Vector3f(*wi))) / wi[2]   # Mitsuba's eval includes cos
+            np.testing.assert_allclose(ours, f_mi, rtol=1e-3, atol=1e-6)   # Mitsuba: float32
+
+
+FURNACE = """<?xml version="1.0"?>
+<scene version="3.0.0">
+    <integrator type="path"/>
+    <sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+    <shape type="sphere">
+        <point name="center" x="-1" y="0" z="0"/><float name="radius" value="0.9"/>
+        <bsdf type="mask"><float name="opacity" value="0.4"/>
+            <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="1"/></bsdf></bsdf>
+        </bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" x="1" y="0" z="0"/><float name="radius" value="0.9"/>
+        <bsdf type="blendbsdf"><float name="weight" value="0.6"/>
+            <bsdf type="diffuse"><rgb name="reflectance" value="1"/></bsdf>
+            <bsdf type="conductor"/>
+        </bsdf>
+    </shape>
+</scene>
+"""
+
+
+def test_white_furnace(tmp_path):
+    """White parts in a uniform environment: radiance 1 everywhere, whatever the mixture chooses (Russian roulette
+    and the random choices only add noise: the mean is 1 within 5 standard errors, every pixel near 1)."""
+    path = tmp_path / "furnace.xml"
+    path.write_text(FURNACE)
+    img = caustica.render(caustica.load_scene(path), "pt", spp=64, seed=1, max_depth=-1, rr_depth=64).image
+    img = np.asarray(img, np.float64)
+    sigma = img.std()    # one pixel's standard deviation (the true image is flat)
+    assert abs(img.mean() - 1.0) <= 5 * sigma / math.sqrt(img.size), (img.mean(), sigma)
+    blocks = img.reshape(4, 4, 4, 4, 3).mean(axis=(1, 3))
+    assert np.all(np.abs(blocks - 1.0) <= 5 * sigma / 4.0), (blocks.min(), blocks.max(), sigma)
+
+
+# --------------------------------------------------------------------------- scenes against Mitsuba 3
+
+def mitsuba_renders(mi, path, spp=512):
+    theirs = mi.load_file(str(path), res=32, spp=spp)
+    return [np.array(mi.render(theirs, spp=spp, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
+
+
+@pytest.fixture(scope="module")
+def mitsuba_mask(mi):
+    return mitsuba_renders(mi, MASK_SCENE)
+
+
+@pytest.fixture(scope="module")
+def mitsuba_blend(mi):
+    return mitsuba_renders(mi, BLEND_SCENE)
+
+
+METHODS = [("pt", {"spp": 128}),
+           ("sppm", {"passes": 48, "photons": 20_000, "termination": "roulette", "max_bounces": 64}),
+           ("pm", {"photons": 200_000, "caustic_photons": 100_000, "spp": 16, "termination": "roulette",
+                   "max_bounces": 64})]
+
+
+@pytest.mark.parametrize("method, params", METHODS, ids=[m for m, _ in METHODS])
+def test_mask_scene_matches_mitsuba(mitsuba_mask, method, params):
+    scene = caustica.load_scene(MASK_SCENE)
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in SEEDS]
+    print(method, "mask means", np.mean(ours, axis=(0, 1, 2)), np.mean(mitsuba_mask, axis=(0, 1, 2)))
+    assert_images_agree(ours, mitsuba_mask, label=f"{method} mask")
+
+
+@pytest.mark.parametrize("method, params", METHODS, ids=[m for m, _ in METHODS])
+def test_blend_scene_matches_mitsuba(mitsuba_blend, method, params):
+    scene = caustica.load_scene(BLEND_SCENE)
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in SEEDS]
+    print(method, "blend means", np.mean(ours, axis=(0, 1, 2)), np.mean(mitsuba_blend, axis=(0, 1, 2)))
+    assert_images_agree(ours, mitsuba_blend, label=f"{method} blend")
+
+
+# --------------------------------------------------------------------------- input
+
+DIFF = '<bsdf type="diffuse"/>'
+BAD = {
+    "opacity above 1": (f'<bsdf type="mask"><float name="opacity" value="1.5"/>{DIFF}</bsdf>',
+                        ["opacity", "[0, 1]"]),
+    "opacity below 0": (f'<bsdf type="mask"><float name="opacity" value="-0.1"/>{DIFF}</bsdf>',
+                        ["opacity", "[0, 1]"]),
+    "mask without a BSDF": ('<bsdf type="mask"><float name="opacity" value="0.5"/></bsdf>', ["mask", "exactly 1"]),
+    "blend with one BSDF": (f'<bsdf type="blendbsdf"><float name="weight" value="0.5"/>{DIFF}</bsdf>',
+                            ["blendbsdf", "exactly 2", "found 1"]),
+    "negative weight": (f'<bsdf type="blendbsdf"><float name="weight" value="-0.5"/>{DIFF}{DIFF}</bsdf>',
+                        ["weight", "[0, 1]"]),
+    "blend without weight": (f'<bsdf type="blendbsdf">{DIFF}{DIFF}</bsdf>', ["weight"]),
+    "rgb opacity": (f'<bsdf type="mask"><rgb name="opacity" value="0.5"/>{DIFF}</bsdf>', ["opacity", "<float>"]),
+    "mask in a mask": (f'<bsdf type="mask"><bsdf type="mask">{DIFF}</bsdf></bsdf>', ["mask", "nested"]),
+    "twosided mask": (f'<bsdf type="twosided"><bsdf type="mask">{DIFF}</bsdf></bsdf>', ["twosided", "mask"]),
+    "texture for another name": (f'<bsdf type="mask"><texture type="checkerboard" name="weight"/>{DIFF}</bsdf>',
+                                 ["opacity"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_mixture_exits_2_one_line(cli, tmp_path, case):
+    assert_refused_in_one_line(cli, tmp_path, *BAD[case])
+
+
+@pytest.mark.parametrize("method", ["spm", "pspm"])
+def test_stream_methods_refuse_mixtures_in_one_line(method):
+    with pytest.raises(caustica.SceneError) as err:
+        caustica.render(caustica.load_scene(BLEND_SCENE), method, res=8, photons=100)
+    assert "\n" not in str(err.value) and "blendbsdf" in str(err.value) and "blend.xml:" in str(err.value)
+
+
+CORPUS = Path("/tmp/corpus/mitsuba-renderer+mitsuba-data")
+
+
+@pytest.mark.parametrize("name", ["docs/scenes/bsdf_mask_after.xml", "docs/scenes/bsdf_blendbsdf.xml",
+                                  "tests/scenes/bsdf_spheres/test_pointlight_path.xml"])
+def test_corpus_scenes_with_mixtures_load(name):
+    path = CORPUS / name
+    if not path.is_file():
+        pytest.skip(f"{path} missing (Mitsuba's data repository)")
+    desc = caustica.load_scene(path).description
+    assert any(m.kind in (MASK, BLEND) for m in desc.materials)
