@@ -11,10 +11,11 @@ the part chosen (or the surface is crossed as a null one).  A mixture takes its 
 it, so a scene without one keeps its numbers, and its bits.
 
 The opacity or weight is ``mix[m]``, or texture ``mix_texture[m]`` at the hit's (u, v) as one number, clipped to
-[0, 1] (Mitsuba's ``eval_1``, then ``clip``): a bitmap's luminance; a checkerboard's colour's channel mean, with its
-two colours the other way round from its ``eval`` (src/textures/checkerboard.cpp), as :func:`weight` follows.  Shadow rays take a mixture's chance of
-passing, the expected value (:func:`pass_probability`: 1 - o for a mask, as Mitsuba's ``eval_null_transmission``), so
-they need no number.  Mixtures do not nest (the loader refuses a mixture inside a mixture).
+[0, 1] (Mitsuba's ``eval_1``, then ``clip``): a bitmap's luminance; a checkerboard's colour's channel mean, with its two
+colours the other way round from its ``eval`` (src/textures/checkerboard.cpp), as :func:`weight` follows. Shadow
+rays take a mixture's chance of passing, the expected value (:func:`pass_probability`: 1 - o for a mask, as
+Mitsuba's ``eval_null_transmission``), so they need no number. Mixtures do not nest (the loader refuses a mixture
+inside a mixture).
 """
 from __future__ import annotations
 

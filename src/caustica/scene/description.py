@@ -327,7 +327,8 @@ class SceneDescription:
     @property
     def has_media(self) -> bool:
         """Whether rendering must follow rays through media: the camera or a shape has a medium,
-        or a shape is a null-BSDF boundary (or a mask, which is one where it is off: :meth:`may_pass`).  A medium defined but never referenced does not count."""
+        or a shape is a null-BSDF boundary (or a mask, which is one where it is off: :meth:`may_pass`).  A medium
+        defined but never referenced does not count."""
         return (self.camera.medium >= 0
                 or any(s.interior >= 0 or s.exterior >= 0 or self.may_pass(s.material) for s in self.shapes))
 

@@ -33,8 +33,8 @@ from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
-                          Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight, ReconstructionFilter,
-                          SceneDescription, Shape, Texture)
+                          Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
+                          ReconstructionFilter, SceneDescription, Shape, Texture)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .serialized import load_serialized
 from .textures import read_texels
