@@ -9,7 +9,11 @@
    mixtures neither lose nor create energy.
 3. Scenes against Mitsuba (tests/scenes/mask.xml, blend.xml): pt, sppm and PM+C, image mean within 2 % and every
    4x4 block within 5 sigmas of both renderers' noise (tests/imagestats.py).  The mask scene against Mitsuba's
-   volpath (its path integrator blocks shadow rays at a mask).
+   volpath (its path integrator blocks shadow rays at a mask).  Mitsuba's blend is biased where a delta part sits
+   beside a diffuse one whose albedo is not the delta part's F / P (a test shows its numbers), so blend.xml's delta
+   parts are where it is exact, and a gold mirror blended with black diffuse is compared with Mitsuba's conductor
+   of half the reflectance.  Photon records at a blend and a mask carry the incident flux: a floor lit only
+   indirectly against Mitsuba's equivalent diffuse floor (sppm, PM+C).
 4. Input: opacity outside [0, 1], a mask without a nested BSDF, a blend with one, a negative weight, a mixture in a
    mixture, twosided around one, a texture for another parameter -> one line naming file and line, exit 2; the
    stream methods refuse mixtures in one line.
