@@ -28,6 +28,7 @@ import pytest
 import caustica
 from caustica import bsdfs
 from caustica.bsdfs import MaterialTable
+from caustica.bsdfs.mixtures import mixture_columns
 from caustica.bsdfs.textures import texture_columns
 from caustica.jit import kernel
 from caustica.sampling.rng import path_key
@@ -48,7 +49,7 @@ def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):
                          np.array([eta]), np.zeros(1, np.int8), np.array([np.mean(rgb)]), np.array([dist], np.int32),
                          np.array([alpha]), np.array([fresnel], np.int8), np.array([ce], np.float64),
                          np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)),
-                         *texture_columns([]))
+                         *texture_columns([]), *mixture_columns([]))
 
 
 @kernel

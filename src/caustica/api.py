@@ -26,7 +26,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.description import MATERIAL_NAMES
+from .scene.description import MATERIAL_NAMES, MIXTURES
 from .tables import Scene, compile_scene
 
 
@@ -111,15 +111,31 @@ def check_bsdfs(cls, scene) -> None:
     ``renders_glossy = True`` — every BSDF (``pt``); ``passes_glossy = True`` — glossy BSDFs without a
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
     (``pm``, ``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
-    the stream methods' loop does not separate its lobes).  A glossy lobe beside a diffuse one
+    the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
+    at each hit to one of their parts (``pt``, ``pm``, ``sppm``).  A glossy lobe beside a diffuse one
     (roughplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
     does yet (issue 20).
     """
+    for mat in scene.description.materials:
+        if mat.kind in MIXTURES and not getattr(cls, "renders_mixtures", False):
+            raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
+                             f"render mask or blendbsdf yet (its streams would place their associated photons "
+                             f"on a surface that is partly absent or of another BSDF); use --method pt, pm or sppm")
     if getattr(cls, "renders_glossy", False):
         return
+    flags_of = scene.materials.flags
+    for mat in scene.description.materials:
+        parts = [k for k in mat.nested if flags_of[k] & DIFFUSE_REFLECTION] if mat.kind in MIXTURES else []
+        if len(parts) == 2 and parts[0] != parts[1] and any(flags_of[k] & DELTA for k in parts):
+            raise SceneError(f"{mat.source}: <bsdf type=\"blendbsdf\">: method {cls.name} does not render a blend "
+                             f"of a coated diffuse lobe (plastic) with another diffuse lobe yet (a photon's record "
+                             f"carries the factor of the part it met, which the other part's visible points would "
+                             f"read); use --method pt")
     for mat, flags in zip(scene.description.materials, scene.materials.flags):
         where = f"{mat.source}: " if mat.source else ""
         name = MATERIAL_NAMES[mat.kind]
+        if mat.kind in MIXTURES:
+            continue   # resolved at each hit to one of its parts, each a material of its own, checked as such
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "

@@ -12,7 +12,6 @@ from the two uniform numbers the caller passes (box: uniform inside the pixel).
 """
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np

@@ -33,13 +33,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .bsdfs.mixtures import pass_probability
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, profile, profiled, sample_area_emitter, \
     spot_falloff
 from .geometry import vec
-from .geometry.scene_geometry import intersect, occluded, surface_at
+from .geometry.scene_geometry import intersect, occluded, surface_at, surface_uv
 from .jit import kernel
 from .sampling.rng import uniform
-from .scene.description import HENYEY_GREENSTEIN, NULL, SceneDescription
+from .scene.description import BLEND, HENYEY_GREENSTEIN, MASK, NULL, SceneDescription
 
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -61,7 +62,7 @@ class MediumTable(NamedTuple):
     interior: np.ndarray   # int32[S]: each shape's interior medium, -1 for none
     exterior: np.ndarray   # int32[S]: each shape's exterior medium, -1 for none
     camera: np.ndarray     # int32[1]: the medium the camera is in, -1 for none
-    null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF (shadow rays may cross surfaces)
+    null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF or a mask (shadow rays may cross surfaces)
 
 
 def build_medium_table(desc: SceneDescription) -> MediumTable:
@@ -77,7 +78,7 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
         g[i] = m.g
     interior = np.array([s.interior for s in desc.shapes], np.int32).reshape(-1)
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
-    null = any(desc.materials[s.material].kind == NULL for s in desc.shapes)
+    null = any(desc.may_pass(s.material) for s in desc.shapes)
     return MediumTable(sigma_t, albedo, phase, g, interior, exterior,
                        np.array([desc.camera.medium], np.int32), np.array([1 if null else 0], np.int8))
 
@@ -198,9 +199,10 @@ def transmittance(geom, mats, media, o, target, medium):
     """(T per channel, rays traced) along the segment from o to target, starting in ``medium``.
 
     Null-BSDF surfaces are crossed (switching medium as :func:`medium_after` says); any other
-    surface blocks (T = 0): glass too, as in Mitsuba's volpath.  The transmittance of each
-    medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so a
-    shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
+    surface blocks (T = 0): glass too, as in Mitsuba's volpath.  A mask passes its chance of being off,
+    1 - opacity at the point (:func:`caustica.bsdfs.pass_probability`, Mitsuba's ``eval_null_transmission``).
+    The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so
+    a shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
     """
     T = (1.0, 1.0, 1.0)
     seg = vec.sub(target, o)
@@ -214,14 +216,32 @@ def transmittance(geom, mats, media, o, target, medium):
         prim, t, b1, b2 = intersect(geom, o, d, dist)
         if prim < 0:
             return vec.hadamard(T, attenuation(media, medium, dist)), rays
-        if mats.kind[geom.prim_material[prim]] != NULL:
-            return (0.0, 0.0, 0.0), rays
+        m = geom.prim_material[prim]
+        if mats.kind[m] != NULL:
+            passing = crossing(geom, mats, prim, (o, d, t, b1, b2))
+            if not passing > 0.0:
+                return (0.0, 0.0, 0.0), rays
+            T = vec.mul(T, passing)
         T = vec.hadamard(T, attenuation(media, medium, t))
         p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
         dist = vec.length(vec.sub(target, o))
     return (0.0, 0.0, 0.0), rays
+
+
+@kernel(inline=True)
+def crossing(geom, mats, prim, ray):
+    """The probability that a ray crosses primitive prim's surface, where ``ray`` = (o, d, t, b1, b2) meets it:
+    :func:`caustica.bsdfs.pass_probability` at the hit's (u, v) for a mixture, 1 for the null BSDF, else 0."""
+    m = geom.prim_material[prim]
+    kind = mats.kind[m]
+    if kind == NULL:
+        return 1.0
+    if kind != MASK and kind != BLEND:
+        return 0.0
+    o, d, t, b1, b2 = ray
+    return pass_probability(mats, m, surface_uv(geom, prim, o, d, t, b1, b2))
 
 
 # ----------------------------------------------------------------------------- phase functions

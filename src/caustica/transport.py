@@ -4,7 +4,9 @@ visible point), with or without media.
 A loop finds its next event with :func:`caustica.media.free_flight` (a surface, or a scattering
 distance in the current medium) and, at a surface, asks :func:`surface_interaction` for the hit's
 point, normals, material and shape.  A null-BSDF surface (a medium's invisible boundary) is crossed
-there and then: the ray goes on from just past it in the medium beyond, and nothing else happens.
+there and then: the ray goes on from just past it in the medium beyond, and nothing else happens.  A mixture
+(``mask``, ``blendbsdf``) is resolved there too, with one number (:func:`caustica.bsdfs.resolve`): the loop gets
+the part chosen, or the surface is crossed as a null one where a mask is off.
 One offset rule (:func:`caustica.geometry.vec.offset_origin`) and one ``tmax`` convention
 (``np.inf`` for an unbounded ray) hold in every loop.
 """
@@ -15,8 +17,9 @@ from typing import NamedTuple
 from .geometry import vec
 from .geometry.scene_geometry import surface_at, surface_uv
 from .jit import borrowed, kernel
+from .bsdfs.mixtures import resolve
 from .media import cross_null
-from .scene.description import NULL
+from .scene.description import BLEND, MASK, NULL
 
 class ShadingPoint(NamedTuple):
     """Where a path scatters, as next-event estimation needs it (built in kernels)."""
@@ -51,15 +54,17 @@ TRAPPED = 2   # more null crossings in a row than NULL_CROSSINGS_CAP: the path e
 
 
 @kernel(inline=True)
-def surface_interaction(tables, hit, o, d, medium, crossings):
+def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     """A ray from o along d (in ``medium``) meets ``hit`` = (primitive, t, barycentrics b1, b2).
 
-    Returns (p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, next): the hit point, its front
+    Returns (p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, next, dim): the hit point, its front
     geometric and shading normals (not turned towards the ray), its surface coordinates (u, v) when the
     material is textured ((0, 0) otherwise), whether the ray arrives on the front,
     the material and its kind, the shape; then the medium, origin and null crossings in a row for
     the ray's continuation, and ``next`` (SCATTER, CROSSED or TRAPPED).  At a real surface the
     crossings start again from 0 and medium and o are unchanged (the loop's scattering decides them).
+    A mixture is resolved with number (key, dim) (:func:`caustica.bsdfs.resolve`): m is then the part chosen,
+    and dim comes back past it; elsewhere dim comes back as it was.
     """
     geom, mats, _, media = tables
     prim, t, b1, b2 = hit
@@ -69,9 +74,15 @@ def surface_interaction(tables, hit, o, d, medium, crossings):
     kind = mats.kind[m]
     shape = geom.prim_shape[prim]
     uv = (0.0, 0.0)
+    mixture = kind == MASK or kind == BLEND
+    if mixture:
+        uv = surface_uv(geom, prim, o, d, t, b1, b2)
+        m, dim = resolve(mats, m, uv, key, dim)
+        kind = NULL if m < 0 else mats.kind[m]
+        m = max(m, 0)
     if kind == NULL:
         medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
-        return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED
-    if mats.texture[m] >= 0:
+        return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED, dim
+    if mats.texture[m] >= 0 and not mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
-    return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER
+    return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim

@@ -12,6 +12,9 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
   keeps one multiplication order) and the density :func:`sample` would give it;
 * :func:`colour` — material m's colour at surface coordinates uv (its texture's, or ``rgb[m]``), which every
   BSDF and loop reads rather than ``rgb`` (:mod:`.textures`);
+* :func:`resolve` — a mixture (``mask``, ``blendbsdf``: :mod:`.mixtures`) met by a ray becomes one of its parts (or
+  no surface) with one random number, in :func:`caustica.transport.surface_interaction`, so the functions above
+  never see one; :func:`pass_probability` is a surface's chance of letting a shadow ray through;
 * :func:`delta_branches` — for a BSDF with only delta lobes: both directions and the reflection
   probability, for the loops that follow both branches of glass (the photon-map gather) or add what
   each branch sees in expectation (the visible-point pass).
@@ -32,11 +35,12 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
     ROUGHPLASTIC, THINDIELECTRIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
 from .textures import albedo_mean, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
+from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -66,6 +70,10 @@ class MaterialTable(NamedTuple):
     tex_int: np.ndarray    # int64[X, 6]: kind, filter, wrap mode, a bitmap's width, height, first row in texels
     tex_float: np.ndarray  # float64[X, 12]: to_uv (2 x 3, row by row), a checkerboard's color0, color1
     texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
+    # Mixtures (mask, blendbsdf; bsdfs/mixtures.py): resolved at the hit to one of their nested materials.
+    mix_texture: np.ndarray   # int32[M]: the texture giving a mixture's opacity or weight (mixtures.weight), -1: none
+    mix: np.ndarray        # float64[M]: a mask's opacity, a blend's weight of nested[m, 1]
+    nested: np.ndarray     # int32[M, 2]: a mixture's nested materials (-1: none)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -82,6 +90,10 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
         flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
+        if mat.kind in MIXTURES:   # its parts' lobes (a mask's absence is no lobe: the loops never see it)
+            flags[i] = 0
+            for j in mat.nested:
+                flags[i] |= BSDFS[desc.materials[j].kind].FLAGS if desc.materials[j].kind in BSDFS else 0
         rgb[i] = mat.rgb
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
@@ -102,7 +114,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                     coatings[c] = roughplastic.coating_tables(*c)
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k, coating, *texture_columns(desc.materials))
+                         cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials))
 
 
 @kernel(inline=True)

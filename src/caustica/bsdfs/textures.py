@@ -3,7 +3,8 @@
 The table's texture columns (:func:`texture_columns`) hold every texture of the scene once: ``tex_int`` its
 kind, filter and wrap mode, a bitmap's width, height and first texel row; ``tex_float`` its ``to_uv`` and a
 checkerboard's two colours; the bitmaps' texels are one flat float32 array of RGB rows, ``texels``.
-``MaterialTable.texture[m]`` is the texture that gives material m's colour (-1: none, the colour is ``rgb[m]``).
+``MaterialTable.texture[m]`` is the texture that gives material m's colour (-1: none, the colour is ``rgb[m]``), and
+``MaterialTable.mix_texture[m]`` the one that gives a mixture's opacity or weight (its luminance, :mod:`.mixtures`).
 :func:`colour` is what every BSDF and loop reads; :func:`texture_rgb`, the lookup, is one called kernel, compiled
 once.
 
@@ -34,18 +35,20 @@ TO_UV, COLOR0, COLOR1 = 0, 6, 9
 
 
 def texture_columns(materials) -> tuple:
-    """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels); a
-    texture shared by several materials is stored once."""
+    """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels,
+    mix_texture); a texture shared by several materials (or giving a colour and a mixture's weight) is stored
+    once."""
     index, textures = {}, []
     texture = np.full(max(1, len(materials)), -1, np.int32)
+    mix_texture = np.full(max(1, len(materials)), -1, np.int32)
     for i, mat in enumerate(materials):
-        tex = getattr(mat, "texture", None)
-        if tex is None:
-            continue
-        if id(tex) not in index:
-            index[id(tex)] = len(textures)
-            textures.append(tex)
-        texture[i] = index[id(tex)]
+        for column, tex in ((texture, getattr(mat, "texture", None)), (mix_texture, getattr(mat, "mix_texture", None))):
+            if tex is None:
+                continue
+            if id(tex) not in index:
+                index[id(tex)] = len(textures)
+                textures.append(tex)
+            column[i] = index[id(tex)]
     x = max(1, len(textures))
     ints = np.zeros((x, 6), np.int64)
     floats = np.zeros((x, 12))
@@ -61,7 +64,7 @@ def texture_columns(materials) -> tuple:
             chunks.append(tex.texels.reshape(-1, 3))
             rows += w * h
     texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
-    return texture, ints, floats, texels
+    return texture, ints, floats, texels, mix_texture
 
 
 #: Rec. 709 luminance weights of linear RGB (Mitsuba's ``luminance``).

@@ -309,7 +309,8 @@ def build_geometry(desc: SceneDescription) -> Geometry:
     tri_p0, tri_e1, tri_e2, tri_ng = cat(1), cat(2), cat(3), cat(4)
     tri_n0, tri_n1, tri_n2 = cat(5), cat(6), cat(7)
     tri_area = np.concatenate([p[8] for p in tri_parts]) if tri_parts else np.zeros(0)
-    textured = any(getattr(m, "texture", None) is not None for m in desc.materials)
+    textured = any(getattr(m, "texture", None) is not None or getattr(m, "mix_texture", None) is not None
+                   for m in desc.materials)
     tri_uv = (_f64(np.concatenate([p[9] for p in tri_parts]), (6,)) if textured and tri_parts
               else np.zeros((0, 6)))
     tri_shape = (np.concatenate([np.full(len(p[1]), p[0]) for p in tri_parts])

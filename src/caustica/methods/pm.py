@@ -42,6 +42,7 @@ class PhotonMapping(OneShot):
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
     renders_coated = True    # plastic: its lobes apart in gather_radiance, visible_point and trace_one (api.check_bsdfs)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     default_spp = 1
     params = (
         Param("photons", int, 100_000, "photons emitted for the global map", positive, ">= 1"),

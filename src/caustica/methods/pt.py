@@ -100,8 +100,8 @@ def radiance(tables, o, d, key, depths):
         else:
             # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
-            p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-                tables, (prim, t, b1, b2), o, d, medium, crossings)
+            p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
+                tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
             e = geom.prim_emitter[prim]
             if e >= 0 and front and not (hide_emitters and depth == 0):
                 L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
@@ -196,6 +196,7 @@ class PathTracer(IndependentPasses):
     summary = "path tracing with next-event estimation and MIS (the unbiased reference), through media too"
     progressive = True
     renders_glossy = True    # the BSDFs' glossy lobes through eval_pdf and sample (api.check_bsdfs)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited; a scene's "
               "path/volpath integrator sets the default",

@@ -50,6 +50,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass"
     renders_coated = True    # plastic: its lobes apart in visible_point and trace_one (api.check_bsdfs)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
                                     "aimed at the mirrors, glass and glossy objects, if any, when --caustic-photons is not "

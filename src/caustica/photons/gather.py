@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branches, oriented
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branches, oriented, resolve
 from ..camera import generate_ray
 from ..emitters import env_radiance
 from ..geometry import vec
@@ -35,6 +35,7 @@ from ..geometry.scene_geometry import intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
+from ..scene.description import BLEND, NULL
 from ..transport import ShadingPoint, borrow_tables
 from .estimate import flux_density
 from .visible_points import escape_weight, glossy_step, seen_weight
@@ -89,7 +90,13 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             m = geom.prim_material[prim]
-            uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 else (0.0, 0.0)
+            uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND \
+                else (0.0, 0.0)
+            if mats.kind[m] == BLEND:   # one of its parts, with one number (a scene with a mask or null has media)
+                m, dim = resolve(mats, m, uv, key, dim)
+                if mats.kind[m] == NULL:
+                    o = vec.offset_origin(p, ng, d)
+                    continue
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:

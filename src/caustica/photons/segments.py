@@ -25,8 +25,8 @@ from ..emitters import env_pdf, env_radiance
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import kernel
-from ..media import NULL_CROSSINGS_CAP, attenuation, escape_transmittance, light_sample, medium_after, phase_pdf, \
-    phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
+from ..media import NULL_CROSSINGS_CAP, attenuation, crossing, escape_transmittance, light_sample, medium_after, \
+    phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
 from ..memory import check_budget
 from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 from ..scene.description import NULL
@@ -82,7 +82,8 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
     select_pdf r² / (area cos_l), as :func:`caustica.media.light_sample` samples it.
     pdf_dir < 0: no MIS (weight 1).  A ray that meets nothing sees the environment (weighted likewise against
     its light sampling).  Emitters on null surfaces crossed count, as in the path
-    tracer; the first other surface ends the ray (its emission counts if it is an emitter's front).
+    tracer (past a mask weighted by its chance of being off); the first other surface ends the ray (its emission
+    counts if it is an emitter's front).
     """
     geom, mats, lights, media = tables
     L = (0.0, 0.0, 0.0)
@@ -110,7 +111,10 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
                 w = power_heuristic(pdf_dir, pdf_light)
             L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), w)
         if mats.kind[geom.prim_material[prim]] != NULL:
-            return L
+            passing = crossing(geom, mats, prim, (o, d, t, b1, b2))   # a mask: its chance of being off there
+            if not passing > 0.0:
+                return L
+            T = vec.mul(T, passing)
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
     return L

@@ -345,8 +345,8 @@ def trace_stream(tables, key, start, rules, i, buf):
             crossings = 0
             continue
         # ---- a surface
-        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            tables, (prim, t, b1, b2), o, d, medium, crossings)
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
+            tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         if nxt == CROSSED:
             n_from = zero
             continue

@@ -31,11 +31,13 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 from __future__ import annotations
 
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, albedo_mean, colour, entry, oriented, sample
+from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
+from ..scene.description import BLEND
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
@@ -76,6 +78,29 @@ def bounce(mats, m, d, at, key, dim, termination):
         q = min(albedo_mean(mats, m, colour(mats, m, uv)), 1.0)   # a probability, for an albedo above 1 too
         return ok and u < q, wi, weight, 1.0 / q, False, dim
     return ok, wi, weight, 1.0, False, dim
+
+
+@kernel(inline=True)
+def storing_probability(mats, own, uv, side):
+    """The probability that a photon meeting mixture ``own`` at ``side`` = (front, ng, ns) (the hit's front normals)
+    resolves to a part that stores a record there: a part with a diffuse lobe that scatters on that side.
+
+    The records are the incident flux a visible point there reads whichever part the photon took; a photon stores
+    one only where it took such a part, so its record is divided by this probability (unbiased for a visible point
+    of any storing part, as the parts' records carry the same factor: api.check_bsdfs refuses a blend of a coated
+    diffuse lobe with another diffuse lobe in the photon methods)."""
+    front, ng, ns = side
+    w = weight(mats, own, uv)
+    blend = mats.kind[own] == BLEND
+    p = 0.0
+    for j in range(2):
+        k = mats.nested[own, j]
+        if k < 0 or not mats.flags[k] & DIFFUSE_REFLECTION:
+            continue
+        scatters, _, _ = oriented(mats, k, front, ng, ns)
+        if scatters:
+            p += w if (j == 1 or not blend) else 1.0 - w   # a mask's part: its opacity; a blend's: 1 - w, w
+    return p
 
 
 @kernel
@@ -127,8 +152,8 @@ def trace_one(tables, key, photon, rules, out):
             crossings = 0
             continue
         # ---- a surface
-        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            tables, (prim, t, b1, b2), o, d, medium, crossings)
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
+            tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         if nxt == CROSSED:
             continue
         if nxt == TRAPPED:
@@ -142,6 +167,10 @@ def trace_one(tables, key, photon, rules, out):
                 stored_power = power
                 if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
                     stored_power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
+                own = geom.prim_material[prim]
+                if own != m:
+                    # a mixture's part: stored with 1 / the chance of resolving to a part that stores here
+                    stored_power = vec.mul(stored_power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
                 store_record(slot0 + stored, p, d, stored_power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
@@ -155,9 +184,11 @@ def trace_one(tables, key, photon, rules, out):
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            if mats.flags[m] & DIFFUSE_REFLECTION:
-                # a coating's reflection (plastic): no caustic caster (tables.py), so the caustic photons never carry
-                # what follows; its records are INDIRECT, though it is no diffuse bounce
+            if mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
+                # a coating's reflection (plastic), or a blend's delta or glossy part beside a diffuse one: no caustic
+                # caster (tables.py: the flags of the surface's own material, a mixture's those of all its parts), so
+                # the caustic photons never carry what follows; its records are INDIRECT, though it is no diffuse
+                # bounce
                 diffuse_like = True
         else:
             diffuse_bounces += 1

@@ -254,8 +254,8 @@ def visible_point(tables, o, d, numbers, params, out):
                              escape_weight(lights, d, (specular, pdf_last, p_last)))
             return False, zero, zero, zero, L, n_seg
         crossed = crossings
-        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt = surface_interaction(
-            tables, (prim, t, b1, b2), o, d, medium, crossings)
+        p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
+            tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
             L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),

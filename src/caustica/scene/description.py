@@ -24,9 +24,14 @@ ROUGHDIELECTRIC = 5  # Mitsuba's roughdielectric: microfacet glass, Walter et al
 PLASTIC = 6          # Mitsuba's plastic: a smooth dielectric coating over a diffuse base (bsdfs/plastic.py)
 ROUGHPLASTIC = 7     # Mitsuba's roughplastic: a microfacet coating over a diffuse base (bsdfs/roughplastic.py)
 THINDIELECTRIC = 8   # Mitsuba's thindielectric: a thin glass slab, light reflected or straight on (bsdfs/thindielectric.py)
+MASK = 9             # Mitsuba's mask: its nested BSDF with probability opacity, else no surface (bsdfs/mixtures.py)
+BLEND = 10           # Mitsuba's blendbsdf: (1 - weight) f0 + weight f1 of two nested BSDFs (bsdfs/mixtures.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
-                  ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric"}
+                  ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf"}
+#: The mixtures: a hit on one of them is resolved to one of its nested BSDFs (or to no surface) with one random
+#: number (bsdfs/mixtures.py), so that no loop ever scatters at a mixture itself.
+MIXTURES = (MASK, BLEND)
 #: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
 
 # Microfacet distributions (Mitsuba's names; the codes the material table stores).
@@ -54,6 +59,10 @@ class Material:
     ``distribution`` and ``alpha``.
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
     a conductor's ``specular_reflectance``, a plastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
+    MASK and BLEND (the mixtures, :data:`MIXTURES`): ``nested`` holds the indices of the nested materials (one for
+    a mask, two for a blend, f0 then f1) in the scene's material list; ``mix`` is the opacity (mask) or the weight
+    of f1 (blend), in [0, 1], or ``mix_texture`` gives it at each surface point (the texture's luminance, clipped to
+    [0, 1] as Mitsuba's ``eval_1``).
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -72,6 +81,9 @@ class Material:
     nonlinear: bool = False            # a plastic's nonlinear colour shift (Mitsuba's ``nonlinear``)
     source: str = ""  # "file:line" for messages
     texture: "Texture | None" = None   # varies ``rgb`` over the surface (the diffuse or specular reflectance)
+    nested: tuple[int, ...] = ()        # a mixture's nested materials (indices into the scene's materials)
+    mix: float = 0.5                    # a mask's opacity, a blend's weight of nested[1]
+    mix_texture: "Texture | None" = None   # gives ``mix`` at each surface point instead (its luminance)
 
     @property
     def is_specular(self) -> bool:
@@ -362,10 +374,16 @@ class SceneDescription:
     @property
     def has_media(self) -> bool:
         """Whether rendering must follow rays through media: the camera or a shape has a medium,
-        or a shape is a null-BSDF boundary.  A medium defined but never referenced does not count."""
+        or a shape is a null-BSDF boundary (or a mask, which is one where it is off: :meth:`may_pass`).  A medium
+        defined but never referenced does not count."""
         return (self.camera.medium >= 0
-                or any(s.interior >= 0 or s.exterior >= 0 or self.materials[s.material].kind == NULL
-                       for s in self.shapes))
+                or any(s.interior >= 0 or s.exterior >= 0 or self.may_pass(s.material) for s in self.shapes))
+
+    def may_pass(self, m: int) -> bool:
+        """Whether a ray may cross material m's surface unchanged: the null BSDF, a mask, or a blend with a null
+        BSDF nested (such surfaces are crossed as a medium's boundary is, so the loops that handle media run)."""
+        mat = self.materials[m]
+        return mat.kind == NULL or mat.kind == MASK or any(self.may_pass(i) for i in mat.nested)
 
     def integrator_note(self, method: str, parameters: dict) -> str | None:
         """What a render with ``method`` and its ``parameters`` does with the scene's

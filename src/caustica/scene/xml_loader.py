@@ -30,11 +30,11 @@ from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
-from .description import (BITMAP, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
-                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MESH, NULL, PLASTIC, ROUGHCONDUCTOR,
-                          ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES, Camera, Environment,
-                          DirectionalLight, IntegratorSettings, Material, Medium, PointLight, Projector,
-                          ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
+from .description import (BITMAP, BLEND, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
+                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
+                          PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
+                          Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
+                          Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .serialized import load_serialized
 from .textures import read_texels
@@ -90,7 +90,13 @@ BSDF_PROPS = {
                      "sample_visible": BOOL},
     "twosided": {},
     "null": {},
+    # the mixtures (bsdfs/mixtures.py): a constant here, or a nested <texture name="opacity"/"weight">
+    "mask": {"opacity": FLOAT},
+    "blendbsdf": {"weight": FLOAT},
 }
+#: Each mixture's parameter (given as a float or a texture), its default (None: required, as in Mitsuba) and how many
+#: BSDFs it nests.
+MIXTURE_PARAMS = {"mask": ("opacity", 0.5, 1), "blendbsdf": ("weight", None, 2)}
 #: Mitsuba 3's textures (src/textures/): ``format`` and ``accel`` only choose how Mitsuba stores and filters the
 #: texels on a GPU (the values are checked, the texels are float32 here).
 TEXTURE_PROPS = {
@@ -196,7 +202,7 @@ DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
 #: The plugin tables and nested elements the one report checks in elements it cannot build.
 LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
-                 "film": ("rfilter",), "medium": ("phase",), "bsdf": ("texture", "ref")}
+                 "film": ("rfilter",), "medium": ("phase",), "bsdf": ("texture", "ref", "bsdf")}
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
@@ -786,9 +792,12 @@ class _Loader:
 
     def _build_material(self, node: Node) -> Material:
         props = self.plugin(node, BSDF_PROPS, ("bsdf", "ref") if node.attrs.get("type") == "twosided"
+                            else ("texture", "ref", "bsdf") if node.attrs.get("type") in MIXTURE_PARAMS
                             else ("texture", "ref"))
         kind = node.attrs["type"]
         name = node.attrs.get("id", "")
+        if kind in MIXTURE_PARAMS:
+            return self.mixture(node, props, kind, name)
         textures = {} if kind == "twosided" else self.bsdf_textures(props, kind)
         if kind == "diffuse":
             tex = textures.get("reflectance")
@@ -841,7 +850,11 @@ class _Loader:
                             f"(different front and back BSDFs are not supported)")
         inner_node = self.resolve(props.objects[0], "bsdf")
         inner = self.build_material(inner_node)
-        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL):
+        if inner.kind == BLEND:
+            self.fail(props.objects[0], "twosided around a blendbsdf is not supported; put twosided around each of "
+                                        "its nested BSDFs instead (the same BSDF)",
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
+        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
@@ -849,6 +862,45 @@ class _Loader:
         out.twosided = True
         out.name = name or inner.name
         return out
+
+    def mixture(self, node: Node, props: Props, kind: str, name: str) -> Material:
+        """A ``mask`` (``opacity``, default 0.5, and one nested BSDF) or a ``blendbsdf`` (``weight``, required, and two
+        nested BSDFs, f0 then f1): the parameter a float in [0, 1] or a nested texture (``<texture name=...>`` or
+        ``<ref name=... id=...>``, its luminance clipped to [0, 1] as Mitsuba's); the nested BSDFs inline or by
+        ``<ref>``, each a material of its own, not themselves a mask or blendbsdf."""
+        param, default, count = MIXTURE_PARAMS[kind]
+        nested, texture = [], None
+        for obj in props.objects:
+            target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else obj
+            if obj.tag == "texture" or (target is not None and target.tag == "texture"):
+                if obj.attrs.get("name") != param:
+                    self.fail(obj, f"a texture inside a {kind} gives its '{param}' (name=\"{param}\"), got "
+                                   f"name={quoted(obj.attrs.get('name', ''))}", supported=[f'name="{param}"'])
+                if texture is not None or props.has(param):
+                    self.fail(obj, f"'{param}' is given twice")
+                texture = self.texture(obj)
+            else:
+                nested.append(obj)
+        if len(nested) != count:
+            self.fail(node, f"a {kind} nests exactly {count} BSDF{'s' if count > 1 else ''}, found {len(nested)}",
+                      supported=[f"{count} nested <bsdf> or <ref id=...> element{'s' if count > 1 else ''}"])
+        indices = []
+        for obj in nested:
+            i = self.material_index(obj)
+            if self.materials[i].kind in MIXTURES:
+                self.fail(obj, f"a {MATERIAL_NAMES[self.materials[i].kind]} nested in a {kind} is not supported "
+                               f"(one level of mask or blendbsdf)",
+                          supported=[t for t in BSDF_PROPS if t not in MIXTURE_PARAMS and t != "twosided"]
+                          + ["twosided"])
+            indices.append(i)
+        if texture is None and default is None and not props.has(param):
+            self.fail(node, f"a {kind} needs its '{param}' (a <float> or a nested <texture name=\"{param}\">), as "
+                            f"in Mitsuba")
+        mix = float(self.number(props, param, 0.0 if default is None else default))
+        if not 0.0 <= mix <= 1.0:
+            self.fail(props.node_of(param), f"'{param}' must be within [0, 1], got {mix:g}", supported=["[0, 1]"])
+        return Material(MASK if kind == "mask" else BLEND, (1.0, 1.0, 1.0), name=name, nested=tuple(indices),
+                        mix=mix, mix_texture=texture, source=self.at(node))
 
     def bsdf_textures(self, props: Props, kind: str) -> dict[str, Texture]:
         """The textures among a BSDF's children (nested ``<texture name=...>`` or ``<ref name=... id=...>``), by the
