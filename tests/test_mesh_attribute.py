@@ -134,11 +134,11 @@ def attribute_scene(tmp_path) -> str:
 <shape type="ply"><string name="filename" value="{tmp_path / "g.ply"}"/>
   <transform name="to_world"><scale value="0.5"/><rotate x="1" angle="70"/><translate x="0.3" y="0.4" z="0.6"/>
   </transform>
-  <bsdf type="twosided"><bsdf type="blendbsdf"><texture type="mesh_attribute" name="weight">
+  <bsdf type="blendbsdf"><texture type="mesh_attribute" name="weight">
     <string name="name" value="face_weight"/></texture>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.6, 0.7"/></bsdf>
     <bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance"><string name="name" value="face_color"/>
-    </texture></bsdf></bsdf></bsdf></shape>
+    </texture></bsdf></bsdf></shape>
 <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="180"/>
   <translate z="2.5"/></transform><emitter type="area"><rgb name="radiance" value="15"/></emitter></shape>
 </scene>'''
