@@ -194,3 +194,48 @@ def test_bad_mesh_attributes_are_one_line(cli, tmp_path, shape, name, words):
     assert "s.xml:" in lines[0]
     for w in words:
         assert w in lines[0], (w, lines[0])
+
+
+def test_shared_and_instanced_meshes_keep_their_attributes(mi, tmp_path):
+    """One BSDF shared by two shapes of the same file, and the mesh placed by two instances (one mirrored, which
+    reverses its triangles' winding): the values at hits against Mitsuba's."""
+    grid_ply(tmp_path / "g.ply")
+    xml = f'''<scene version="3.0.0">
+<sensor type="perspective"><film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+</film></sensor>
+<bsdf type="diffuse" id="shared"><texture type="mesh_attribute" name="reflectance">
+  <string name="name" value="vertex_color"/></texture></bsdf>
+<shape type="ply"><string name="filename" value="{tmp_path / "g.ply"}"/><ref id="shared"/>
+  <transform name="to_world"><scale value="0.5"/><translate x="-1" y="1"/></transform></shape>
+<shape type="ply"><string name="filename" value="{tmp_path / "g.ply"}"/><ref id="shared"/>
+  <transform name="to_world"><scale value="0.5"/><rotate z="1" angle="40"/><translate x="1" y="1"/></transform></shape>
+<shape type="shapegroup" id="group"><shape type="ply"><string name="filename" value="{tmp_path / "g.ply"}"/>
+  <bsdf type="diffuse"><texture type="mesh_attribute" name="reflectance"><string name="name" value="face_color"/>
+  </texture></bsdf></shape></shape>
+<shape type="instance"><ref id="group"/><transform name="to_world"><scale value="0.5"/><translate x="-1" y="-1"/>
+  </transform></shape>
+<shape type="instance"><ref id="group"/><transform name="to_world"><scale x="-0.5" y="0.5" z="0.5"/>
+  <translate x="1" y="-1"/></transform></shape>
+<emitter type="point"><point name="position" x="0" y="0" z="50"/></emitter>
+</scene>'''
+    (tmp_path / "s.xml").write_text(xml)
+    scene = caustica.load_scene(tmp_path / "s.xml")
+    geom, mats = scene.tables[0], scene.tables[1]
+    theirs = mi.load_string(xml)
+    rng = np.random.default_rng(9)
+    n = 400
+    targets = np.column_stack([rng.uniform(-1.6, 1.6, n), rng.uniform(-1.6, 1.6, n), np.zeros(n)])
+    origins = targets + rng.normal(size=(n, 3)) * [0.4, 0.4, 0.0] + [0.0, 0.0, 4.0]
+    dirs = targets - origins
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    ours = np.zeros((n, 4))
+    colours_at(geom, mats, origins, dirs, ours)
+    hits = 0
+    for i in range(n):
+        si = theirs.ray_intersect(mi.Ray3f(mi.Point3f(*origins[i]), mi.Vector3f(*dirs[i])))
+        assert ours[i, 0] == float(si.is_valid())
+        if si.is_valid():
+            hits += 1
+            np.testing.assert_allclose(ours[i, 1:], np.array(si.bsdf().eval_diffuse_reflectance(si)),
+                                       rtol=1e-5, atol=1e-6)
+    assert hits > 100
