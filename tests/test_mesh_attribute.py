@@ -16,13 +16,13 @@ import struct
 
 import numpy as np
 import pytest
+from imagestats import assert_images_agree
 
 import caustica
 from caustica.bsdfs import textures
 from caustica.geometry.scene_geometry import intersect, surface_uv
 from caustica.jit import kernel
 from caustica.scene.meshes import load_mesh_file
-from imagestats import assert_images_agree
 
 
 def grid_ply(path, n=4, seed=3, alpha=False):

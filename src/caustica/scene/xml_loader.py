@@ -948,7 +948,7 @@ class _Loader:
             attr = props.get("name")
             if attr is None:
                 self.fail(node, "a mesh_attribute texture needs <string name=\"name\" .../> (the attribute)")
-            if not (attr.startswith("vertex_") or attr.startswith("face_")):
+            if not attr.startswith(("vertex_", "face_")):
                 self.fail(props.node_of("name"), f"a mesh_attribute's name must start with \"vertex_\" or \"face_\" "
                                                  f"(as in Mitsuba), got {quoted(attr)}")
             common["to_uv"] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
