@@ -39,7 +39,7 @@ from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTI
     ROUGHPLASTIC, THINDIELECTRIC, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
-from .textures import albedo_mean, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
+from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
@@ -74,6 +74,7 @@ class MaterialTable(NamedTuple):
     mix_texture: np.ndarray   # int32[M]: the texture giving a mixture's opacity or weight (mixtures.weight), -1: none
     mix: np.ndarray        # float64[M]: a mask's opacity, a blend's weight of nested[m, 1]
     nested: np.ndarray     # int32[M, 2]: a mixture's nested materials (-1: none)
+    attr: np.ndarray       # float32[K, T, 9]: mesh attributes at each triangle's corners (textures.attribute_table)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -114,7 +115,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                     coatings[c] = roughplastic.coating_tables(*c)
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
-                         cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials))
+                         cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
+                         attribute_table(desc))
 
 
 @kernel(inline=True)

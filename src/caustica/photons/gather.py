@@ -31,7 +31,7 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branc
 from ..camera import generate_ray
 from ..emitters import env_radiance
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at, surface_uv
+from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
@@ -109,7 +109,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             m = geom.prim_material[prim]
             uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND \
-                else (0.0, 0.0)
+                else NO_UV
             if mats.kind[m] == BLEND:   # one of its parts, with one number (a scene with a mask or null has media)
                 m, dim = resolve(mats, m, uv, key, dim)
                 if mats.kind[m] == NULL:
