@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import caustica
+from caustica.geometry.scene_geometry import NO_UV
 from caustica import bsdfs
 from caustica.bsdfs import MaterialTable
 from caustica.bsdfs.mixtures import mixture_columns
@@ -37,7 +38,7 @@ from caustica.scene.description import BECKMANN, GGX, ROUGHCONDUCTOR, ROUGHDIELE
 from imagestats import assert_images_agree
 
 NG = (0.0, 0.0, 1.0)
-UV = (0.0, 0.0)
+UV = NO_UV   # surface coordinates off any texture
 
 
 def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):

@@ -29,6 +29,7 @@ import pytest
 
 import caustica
 from caustica import bsdfs
+from caustica.geometry.scene_geometry import NO_UV
 from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.description import BLEND, DIFFUSE, MASK, ROUGHCONDUCTOR, Material, Texture, CHECKERBOARD
@@ -62,7 +63,7 @@ def resolved_frequency(mats, m, uv, n, out):
 
 @kernel
 def eval_part(mats, m, d, wi):
-    f, s, _ = bsdfs.eval_pdf(mats, m, d, NG, NG, (0.0, 0.0), wi)
+    f, s, _ = bsdfs.eval_pdf(mats, m, d, NG, NG, NO_UV, wi)
     return f[0] * s, f[1] * s, f[2] * s
 
 
@@ -81,12 +82,12 @@ def test_mask_opacity_and_pass_probability_match_mitsuba(mi):
         for uv in ((0.1, 0.2), (0.7, 0.2), (0.6, 0.9), (0.3, 0.8)):
             si.uv = mi.Point2f(*uv)
             out = np.zeros(2)
-            pass_and_weight(mats, m, uv, out)
+            pass_and_weight(mats, m, (*uv, -1.0, 0.0, 0.0), out)   # surface coordinates off any triangle
             t_mi = float(th.eval_null_transmission(si)[0])
             assert abs(out[0] - t_mi) < 1e-6 and abs(out[1] - (1.0 - t_mi)) < 1e-6, (m, uv, out, t_mi)
             freq = np.zeros(len(mats.kind) + 1)
             n = 20_000
-            resolved_frequency(mats, m, uv, n, freq)
+            resolved_frequency(mats, m, (*uv, -1.0, 0.0, 0.0), n, freq)
             assert abs(freq[0] - out[1]) <= 5 * math.sqrt(out[1] * (1 - out[1]) / n) + 1e-12
             assert abs(freq[0] + freq[-1] - 1.0) < 1e-9
 
@@ -102,7 +103,7 @@ def test_blend_in_expectation_is_mitsubas_blend(mi):
     si = mi.SurfaceInteraction3f()
     si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
     freq = np.zeros(4)
-    resolved_frequency(mats, 2, (0.0, 0.0), 20_000, freq)
+    resolved_frequency(mats, 2, NO_UV, 20_000, freq)
     assert abs(freq[1] - w) <= 5 * math.sqrt(w * (1 - w) / 20_000)
     for theta in (0.0, 30.0, 60.0):
         d = incident(theta, False)

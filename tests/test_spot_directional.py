@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from caustica.geometry.scene_geometry import NO_UV
 from caustica.emitters import DIRECTIONAL, SPOT, spot_power_factor
 from caustica.jit import kernel
 from caustica.lighting import direct_stratified
@@ -139,7 +140,7 @@ def test_spot_falloff_and_directional_match_mitsuba(tmp_path, mi):
 def _light_samples_kernel(tables, points, contrib, wi, direct):
     up = (0.0, 1.0, 0.0)
     for i in range(points.shape[0]):
-        at = ShadingPoint((points[i, 0], points[i, 1], points[i, 2]), up, up, up, 0, -1, (0.0, 0.0))
+        at = ShadingPoint((points[i, 0], points[i, 1], points[i, 2]), up, up, up, 0, -1, NO_UV)
         c, w, _, _, _, _, _ = light_sample(tables, at, (0.5, 0.5, 0.5), False)
         e = direct_stratified(tables, at, path_key(1, 1, i), 0, 1, True, -1, -1)
         for k in range(3):

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import caustica
+from caustica.geometry.scene_geometry import NO_UV
 from caustica import bsdfs
 from caustica.bsdfs.optics import fresnel_dielectric
 from caustica.jit import kernel
@@ -29,7 +30,7 @@ from imagestats import assert_images_agree
 from test_glossy import assert_refused_in_one_line, draw, incident, write_scene
 
 NG = (0.0, 0.0, 1.0)
-UV = (0.0, 0.0)
+UV = NO_UV   # surface coordinates off any texture
 
 
 def table(int_ior=1.5, ext_ior=1.0):

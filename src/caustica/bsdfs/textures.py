@@ -90,9 +90,11 @@ def attribute_table(desc) -> np.ndarray:
     no such attribute (the loader refuses a mesh_attribute on it).  (1, 1, 9) zeros without any."""
     textures = [getattr(m, k, None) for m in desc.materials for k in ("texture", "mix_texture")]
     slots = attribute_slots(textures)
+    if not slots:   # (before the shapes are read: a table of materials alone has none)
+        return np.zeros((1, 1, 9), np.float32)
     meshes = [s.mesh for s in desc.shapes if s.kind == MESH and s.mesh is not None]
     n = sum(len(m.triangles) for m in meshes)
-    if not slots or n == 0:
+    if n == 0:
         return np.zeros((1, 1, 9), np.float32)
     out = np.zeros((len(slots), n, 9), np.float32)
     row = 0
