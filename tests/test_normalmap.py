@@ -77,8 +77,9 @@ def test_shading_matches_mitsuba(mi):
     n = 400
     o, d = camera_rays(n)
     rng = np.random.default_rng(5)
-    lights = rng.normal(size=(6, 3))
-    lights[:, 1] = np.abs(lights[:, 1]) + 0.3        # mostly from above, some grazing
+    lights = rng.normal(size=(8, 3))
+    lights[:, 1] = np.abs(lights[:, 1]) + 0.3        # from above and the camera's side, some grazing
+    lights[:, 2] = np.abs(lights[:, 2]) + 0.2
     lights /= np.linalg.norm(lights, axis=1, keepdims=True)
     scene = caustica.load_scene(SCENE)
     ours = np.zeros((n, len(lights), 3))
