@@ -412,7 +412,7 @@ def test_integrator_setting_errors(tmp_path, inner, words):
 MANY = """<sensor type="perspective"><float name="fov" value="45"/>
 <film type="hdrfilm"><string name="pixel_format" value="rgb"/><boolean name="banner" value="no"/>
 <rfilter type="mitchell"/></film></sensor>
-<texture type="mesh_attribute" id="checks"/>
+<texture type="volume" id="checks"/>
 <bsdf type="blendbsdf" id="blend"/>
 <shape type="torus"/>
 <shape type="sphere"><float name="radius" value="1"/><float name="smoothness" value="1"/>
@@ -434,9 +434,9 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     expected = [
         (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
         (4, "<rfilter type=\"mitchell\">: unknown rfilter type 'mitchell'; supported: box, tent, gaussian"),
-        (5, "<texture type=\"mesh_attribute\" id=\"checks\">: unknown texture type 'mesh_attribute'; supported: "
-            "checkerboard, bitmap"),
-        (6, "<bsdf type=\"blendbsdf\" id=\"blend\">: unknown bsdf type 'blendbsdf'; supported: diffuse,"),
+        (5, "<texture type=\"volume\" id=\"checks\">: unknown texture type 'volume'; supported: "
+            "checkerboard, bitmap, mesh_attribute"),
+        (6, "<bsdf type=\"blendbsdf\" id=\"blend\">: a blendbsdf nests exactly 2 BSDFs, found 0"),
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
         (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),
         (9, "<spectrum name=\"reflectance\">: wavelengths must increase, but 500 follows 600"),

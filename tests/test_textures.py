@@ -36,7 +36,7 @@ from imagestats import assert_images_agree
 def lookup_many(mats, t, uvs, out):
     """out[i] = texture t's RGB at uvs[i]."""
     for i in range(uvs.shape[0]):
-        c = textures.colour(mats, 0, (uvs[i, 0], uvs[i, 1]))
+        c = textures.colour(mats, 0, (uvs[i, 0], uvs[i, 1], -1.0, 0.0, 0.0))
         out[i, 0], out[i, 1], out[i, 2] = c
 
 
@@ -241,7 +241,7 @@ def uv_many(geom, origins, dirs, out):
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if prim >= 0:
-            u, v = surface_uv(geom, prim, o, d, t, b1, b2)
+            u, v = surface_uv(geom, prim, o, d, t, b1, b2)[:2]
             out[i, 0], out[i, 1], out[i, 2] = 1.0, u, v
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from .geometry import vec
-from .geometry.scene_geometry import surface_at, surface_tangents, surface_uv
+from .geometry.scene_geometry import NO_UV, surface_at, surface_tangents, surface_uv
 from .jit import borrowed, kernel
 from .bsdfs.mixtures import resolve
 from .bsdfs.perturb import perturbed_normal
@@ -32,14 +32,14 @@ class ShadingPoint(NamedTuple):
     ng_front: tuple   # the front geometric normal: which side leads to the exterior medium
     shape: int        # the shape, or -1 for a point in a medium
     medium: int       # the medium the path is in
-    uv: tuple = (0.0, 0.0)   # surface coordinates, for the material's textures (0, 0 when it has none)
+    uv: tuple = NO_UV   # surface coordinates (u, v, triangle, b1, b2) for the material's textures (NO_UV: none)
 
 
 @kernel(inline=True)
 def in_medium(p, medium):
     """A :class:`ShadingPoint` at p inside ``medium``: no surface, no normals."""
     zero = (0.0, 0.0, 0.0)
-    return ShadingPoint(p, zero, zero, zero, -1, medium, (0.0, 0.0))
+    return ShadingPoint(p, zero, zero, zero, -1, medium, NO_UV)
 
 
 @kernel(inline=True)
@@ -77,7 +77,7 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     m = geom.prim_material[prim]
     kind = mats.kind[m]
     shape = geom.prim_shape[prim]
-    uv = (0.0, 0.0)
+    uv = NO_UV
     mixture = kind == MASK or kind == BLEND
     if mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)

@@ -39,7 +39,7 @@ from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTI
     ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
-from .textures import albedo_mean, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
+from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
@@ -78,6 +78,7 @@ class MaterialTable(NamedTuple):
     # Wrappers (normalmap, bumpmap; bsdfs/perturb.py): resolved at the hit to nested[m, 0] with a perturbed ns; their
     # map is mix_texture[m], a bump map's scale mix[m].
     terminator: np.ndarray  # int8[M]: 1 on a wrapper's nested row: f carries Mitsuba's bump-terminator shadowing
+    attr: np.ndarray       # float32[K, T, 9]: mesh attributes at each triangle's corners (textures.attribute_table)
 
 
 def build_material_table(desc: SceneDescription) -> MaterialTable:
@@ -119,7 +120,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
                          cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
-                         np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8))
+                         np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
+                         attribute_table(desc))
 
 
 @kernel(inline=True)

@@ -25,8 +25,8 @@ import numpy as np
 
 from ..jit import kernel
 from ..sampling.rng import uniform
-from ..scene.description import BLEND, CHECKERBOARD, MASK, MIXTURES, NULL, WRAPPERS
-from .textures import COLOR0, COLOR1, KIND, LUMINANCE, TO_UV, texture_rgb
+from ..scene.description import BLEND, CHECKERBOARD, MASK, MESH_ATTRIBUTE, MIXTURES, NULL, WRAPPERS
+from .textures import COLOR0, COLOR1, KIND, LUMINANCE, ROW0, TO_UV, attribute_rgb, texture_rgb
 
 
 def mixture_columns(materials) -> tuple:
@@ -48,6 +48,8 @@ def weight(mats, m, uv):
     t = mats.mix_texture[m]
     if t < 0:
         return mats.mix[m]
+    if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:   # its eval_1: a 1-channel attribute (the loader checks)
+        return min(max(attribute_rgb(mats.attr, mats.tex_int[t, ROW0], mats.tex_float[t, COLOR0], uv)[0], 0.0), 1.0)
     if mats.tex_int[t, KIND] == CHECKERBOARD:
         # Mitsuba's checkerboard eval_1 (what a mask or blend reads) picks color0 where its eval (a colour) picks
         # color1, and the other way round (src/textures/checkerboard.cpp: != against ==): followed here
@@ -59,7 +61,7 @@ def weight(mats, m, uv):
         k = COLOR1 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR0
         # a colour's eval_1 is the mean of its channels (Mitsuba's srgb spectrum: mean())
         return min(max((a[t, k] + a[t, k + 1] + a[t, k + 2]) / 3.0, 0.0), 1.0)
-    c = texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, uv)   # a bitmap's eval_1: its luminance
+    c = texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, (uv[0], uv[1]))   # a bitmap's eval_1: its luminance
     return min(max(LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2], 0.0), 1.0)
 
 

@@ -85,7 +85,7 @@ def perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv):
             n = vec.neg(n)
         local = (vec.dot(n, s), vec.dot(n, t), vec.dot(n, ns))
     else:
-        c = texture_rgb(table, x, uv)
+        c = texture_rgb(table, x, (uv[0], uv[1]))
         local = (2.0 * c[0] - 1.0, 2.0 * c[1] - 1.0, 2.0 * c[2] - 1.0)
     wi = vec.neg(d)
     if vec.dot(wi, ns) * vec.dot(wi, vec.from_local(s, t, ns, local)) <= 0.0:

@@ -5,6 +5,9 @@ kind, filter and wrap mode, a bitmap's width, height and first texel row; ``tex_
 checkerboard's two colours; the bitmaps' texels are one flat float32 array of RGB rows, ``texels``.
 ``MaterialTable.texture[m]`` is the texture that gives material m's colour (-1: none, the colour is ``rgb[m]``), and
 ``MaterialTable.mix_texture[m]`` the one that gives a mixture's opacity or weight (its luminance, :mod:`.mixtures`).
+A ``mesh_attribute`` texture reads no (u, v): its values are per triangle corner in ``MaterialTable.attr`` (one slot
+per attribute name, :func:`attribute_table`), weighted by the hit's barycentrics, which the surface coordinates
+carry with the triangle: uv = (u, v, triangle, b1, b2).
 :func:`colour` is what every BSDF and loop reads; :func:`texture_rgb`, the lookup, is one called kernel, compiled
 once.
 
@@ -23,7 +26,7 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CHECKERBOARD
+from ..scene.description import CHECKERBOARD, MESH, MESH_ATTRIBUTE
 
 NEAREST, BILINEAR = 0, 1
 REPEAT, MIRROR, CLAMP = 0, 1, 2
@@ -53,11 +56,15 @@ def texture_columns(materials) -> tuple:
     ints = np.zeros((x, 6), np.int64)
     floats = np.zeros((x, 12))
     chunks, rows = [], 0
+    slots = attribute_slots(textures)
     for t, tex in enumerate(textures):
         ints[t, KIND], ints[t, FILTER], ints[t, WRAP] = tex.kind, tex.filter, tex.wrap
         floats[t, TO_UV:TO_UV + 6] = np.asarray(tex.to_uv, dtype=np.float64).reshape(6)
         floats[t, COLOR0:COLOR0 + 3] = tex.color0
         floats[t, COLOR1:COLOR1 + 3] = tex.color1
+        if tex.kind == MESH_ATTRIBUTE:   # its slot in MaterialTable.attr and its scale
+            ints[t, ROW0] = slots[tex.attribute]
+            floats[t, COLOR0] = tex.scale
         if tex.texels is not None:
             h, w = tex.texels.shape[:2]
             ints[t, WIDTH], ints[t, HEIGHT], ints[t, ROW0] = w, h, rows
@@ -65,6 +72,41 @@ def texture_columns(materials) -> tuple:
             rows += w * h
     texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
     return texture, ints, floats, texels, mix_texture
+
+
+def attribute_slots(textures) -> dict:
+    """The mesh attributes the textures name, each with its slot in ``MaterialTable.attr`` (in order of first use)."""
+    slots = {}
+    for tex in textures:
+        if tex is not None and tex.kind == MESH_ATTRIBUTE and tex.attribute not in slots:
+            slots[tex.attribute] = len(slots)
+    return slots
+
+
+def attribute_table(desc) -> np.ndarray:
+    """``MaterialTable.attr``: float32 (K, T, 9), for each of the K attributes mesh_attribute textures name and each
+    triangle of the scene (primitive order: the meshes' triangles shape by shape), the attribute's RGB at the
+    triangle's three corners (a face attribute the same at all three, a 1-channel one grey); zero where a mesh has
+    no such attribute (the loader refuses a mesh_attribute on it).  (1, 1, 9) zeros without any."""
+    textures = [getattr(m, k, None) for m in desc.materials for k in ("texture", "mix_texture")]
+    slots = attribute_slots(textures)
+    meshes = [s.mesh for s in desc.shapes if s.kind == MESH and s.mesh is not None]
+    n = sum(len(m.triangles) for m in meshes)
+    if not slots or n == 0:
+        return np.zeros((1, 1, 9), np.float32)
+    out = np.zeros((len(slots), n, 9), np.float32)
+    row = 0
+    for mesh in meshes:
+        tri = np.asarray(mesh.triangles, dtype=np.int64)
+        for name, k in slots.items():
+            a = (mesh.attributes or {}).get(name)
+            if a is None or a.shape[1] not in (1, 3):
+                continue
+            a = np.repeat(a, 3, axis=1) if a.shape[1] == 1 else a
+            corners = a[tri] if name.startswith("vertex_") else np.repeat(a[:, None, :], 3, axis=1)
+            out[k, row:row + len(tri)] = corners.reshape(len(tri), 9)
+        row += len(tri)
+    return out
 
 
 #: Rec. 709 luminance weights of linear RGB (Mitsuba's ``luminance``).
@@ -136,14 +178,33 @@ def texture_rgb(table, t, uv):
     return vec.add(vec.mul(top, 1.0 - ay), vec.mul(bottom, ay))
 
 
+@kernel
+def attribute_rgb(attr, slot, scale, hit):
+    """A mesh attribute (slot ``slot`` of ``MaterialTable.attr``) times ``scale`` at ``hit`` = (u, v, triangle, b1,
+    b2) (:func:`caustica.geometry.scene_geometry.surface_uv`): the corners' values weighted by the barycentrics
+    (Mitsuba's mesh_attribute eval); black off a triangle."""
+    j = np.int64(hit[2])
+    if j < 0:
+        return 0.0, 0.0, 0.0
+    b1 = hit[3]
+    b2 = hit[4]
+    b0 = 1.0 - b1 - b2
+    r = (b0 * attr[slot, j, 0] + b1 * attr[slot, j, 3] + b2 * attr[slot, j, 6]) * scale
+    g = (b0 * attr[slot, j, 1] + b1 * attr[slot, j, 4] + b2 * attr[slot, j, 7]) * scale
+    b = (b0 * attr[slot, j, 2] + b1 * attr[slot, j, 5] + b2 * attr[slot, j, 8]) * scale
+    return r, g, b
+
+
 @kernel(inline=True)
 def colour(mats, m, uv):
-    """Material m's colour (its ``rgb``: reflectance, specular reflectance, glass scale) at surface coordinates uv:
-    ``rgb[m]`` itself when untextured."""
+    """Material m's colour (its ``rgb``: reflectance, specular reflectance, glass scale) at the hit's surface
+    coordinates uv = (u, v, triangle, b1, b2): ``rgb[m]`` itself when untextured."""
     t = mats.texture[m]
     if t < 0:
         return vec.row(mats.rgb, m)
-    return texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, uv)
+    if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:
+        return attribute_rgb(mats.attr, mats.tex_int[t, ROW0], mats.tex_float[t, COLOR0], uv)
+    return texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, (uv[0], uv[1]))
 
 
 @kernel(inline=True)

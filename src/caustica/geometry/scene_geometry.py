@@ -451,11 +451,16 @@ def surface_at(geom, prim, o, d, t, b1, b2):
     return p, ng, ng
 
 
+#: The surface coordinates of a point without a texture (or in a medium): (u, v, triangle, b1, b2).
+NO_UV = (0.0, 0.0, -1.0, 0.0, 0.0)
+
+
 @kernel(inline=True)
 def surface_uv(geom, prim, o, d, t, b1, b2):
     """Mitsuba's surface coordinates (u, v) at a hit from :func:`intersect`: a triangle's corner coordinates
     interpolated with the barycentrics, an analytic shape's parametrisation
-    (:func:`caustica.geometry.primitives.analytic_uv`).  Only for scenes with a texture (``tri_uv`` is empty
+    (:func:`caustica.geometry.primitives.analytic_uv`); returned as (u, v, triangle, b1, b2), the triangle's row
+    and barycentrics for mesh attributes (-1, 0, 0 on an analytic shape; :data:`NO_UV` where there is no texture).  Only for scenes with a texture (``tri_uv`` is empty
     otherwise)."""
     return hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (o, d, t), (b1, b2))
 
@@ -471,8 +476,10 @@ def hit_uv(arrays, prim, ray, bary):
     j = prim_index[prim]
     if prim_kind[prim] == TRIANGLE:
         b0 = 1.0 - b1 - b2
-        return (b0 * w[j, 0] + b1 * w[j, 2] + b2 * w[j, 4], b0 * w[j, 1] + b1 * w[j, 3] + b2 * w[j, 5])
-    return pr.analytic_uv(prim_kind[prim], to_local, j, o, d, t)
+        return (b0 * w[j, 0] + b1 * w[j, 2] + b2 * w[j, 4], b0 * w[j, 1] + b1 * w[j, 3] + b2 * w[j, 5],
+                float(j), b1, b2)
+    u, v = pr.analytic_uv(prim_kind[prim], to_local, j, o, d, t)
+    return u, v, -1.0, 0.0, 0.0
 
 
 @kernel(inline=True)

@@ -39,7 +39,7 @@ from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import free_flight, medium_after, phase_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
+from ..transport import CROSSED, NO_UV, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
 from . import register
 from .independent import IndependentPasses
 from .params import Param
@@ -94,7 +94,7 @@ def radiance(tables, o, d, key, depths):
             if depth >= max_depth:
                 break
             ng = ns = ng_front = zero
-            uv = (0.0, 0.0)
+            uv = NO_UV
             shape = -1
             m = 0
         else:

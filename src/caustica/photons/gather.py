@@ -31,7 +31,7 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branc
 from ..camera import generate_ray
 from ..emitters import env_radiance
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at, surface_uv
+from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
@@ -47,35 +47,53 @@ SPLIT_DEPTH = 2
 INV_PI = 1.0 / math.pi
 
 
+@kernel(inline=True)
+def push_branch(scratch, top, o, d, beta, depth):
+    """Put a camera-path branch (origin, direction, throughput, specular depth) on the split stack at ``top``;
+    the stack's new top."""
+    st_o, st_d, st_beta, st_depth, _, _ = scratch
+    for c in range(3):
+        st_o[top, c] = o[c]
+        st_d[top, c] = d[c]
+        st_beta[top, c] = beta[c]
+    st_depth[top] = depth
+    return top + 1
+
+
+@kernel(hot=True)
+def diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim):
+    """What arrives at the diffuse point ``at`` as an irradiance-like E (the caller scales it by f_r): shadow rays
+    to every emitter (numbers from ``dim`` on; weighted by B of plastic ``lobe_b``'s coating, -1 for none) and
+    both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances)).  Returns
+    (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
+    (gmap, cmap), (k_g, r_g, k_c, r_c, filt), (idx, d2) = lookup
+    n_strata, fixed_grid, _ = params
+    E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b)
+    Eg, _ = flux_density(gmap, at.p, at.ns, k_g, r_g, filt, idx, d2)
+    Ec, _ = flux_density(cmap, at.p, at.ns, k_c, r_c, filt, idx, d2)
+    queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
+    return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
+
+
 @kernel
 def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
-    direct light and the maps' estimates are gathered.  Returns (L, k-nearest searches made).
-
-    ``maps`` = (global map, caustic map); ``estimate`` = (k_g, r_g, k_c, r_c, filter) their k-nearest
+    direct light and the maps' estimates are gathered (:func:`diffuse_estimate`).  Returns (L, k-nearest searches
+    made).  ``maps`` = (global map, caustic map); ``estimate`` = (k_g, r_g, k_c, r_c, filter) their k-nearest
     estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular); ``scratch`` = the split stack
     (origins, directions, throughputs, depths) and the k-nearest buffers (indices, squared distances).
     """
     geom, mats, lights, media = tables
-    gmap, cmap = maps
-    k_g, r_g, k_c, r_c, filt = estimate
-    n_strata, fixed_grid, max_specular = params
-    st_o, st_d, st_beta, st_depth, idx, d2 = scratch
+    max_specular = params[2]
+    lookup = (maps, estimate, (scratch[4], scratch[5]))
+    st_o, st_d, st_beta, st_depth = scratch[0], scratch[1], scratch[2], scratch[3]
     L = (0.0, 0.0, 0.0)
     queries = 0
-    for c in range(3):
-        st_o[0, c] = o[c]
-        st_d[0, c] = d[c]
-        st_beta[0, c] = 1.0
-    st_depth[0] = 0
-    top = 1
+    top = push_branch(scratch, 0, o, d, (1.0, 1.0, 1.0), 0)
     dim = 2
     while top > 0:
         top -= 1
-        o = vec.row(st_o, top)
-        d = vec.row(st_d, top)
-        beta = vec.row(st_beta, top)
-        depth = st_depth[top]
+        o, d, beta, depth = vec.row(st_o, top), vec.row(st_d, top), vec.row(st_beta, top), st_depth[top]
         last = (True, 0.0, o)   # (specular, pdf_last, p_last): a split branch starts after a delta bounce
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
@@ -91,7 +109,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             m = geom.prim_material[prim]
             uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND \
-                else (0.0, 0.0)
+                else NO_UV
             if mats.kind[m] == BLEND:   # one of its parts, with one number (a scene with a mask or null has media)
                 m, dim = resolve(mats, m, uv, key, dim)
                 if mats.kind[m] == NULL:
@@ -102,12 +120,12 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             if not scatters:
                 break
             flags = mats.flags[m]
+            at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
             if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
                 # a glossy surface: no estimate here, the path goes on by the BSDF's sample (as SPPM's camera paths)
                 depth += 1
                 if depth > max_specular:
                     break
-                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
                 L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
                 if not alive:
                     break
@@ -119,22 +137,16 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             if flags & SMOOTH:
                 fr = vec.mul(colour(mats, m, uv), INV_PI)
                 lobe_b = -1
-                if mats.flags[m] & DELTA:
+                if flags & DELTA:
                     # a delta coating over a diffuse lobe (plastic): the diffuse lobe's estimate here, f = A B (the
                     # photons and shadow rays carry B); the coating's reflection split off as glass's branches are,
                     # or chosen with its sampling probability P (the estimate then weighted 1 / (1 - P))
                     wc, P, w_coat, A = coat(mats, m, d, ng, ns, uv)
-                    fr = A
-                    lobe_b = m
+                    fr, lobe_b = A, m
                     if depth < max_specular and P > 0.0:
                         if depth < SPLIT_DEPTH and top < st_o.shape[0]:
-                            o_r = vec.offset_origin(p, ng, wc)
-                            for c in range(3):
-                                st_o[top, c] = o_r[c]
-                                st_d[top, c] = wc[c]
-                                st_beta[top, c] = beta[c] * w_coat[c] * P
-                            st_depth[top] = depth + 1
-                            top += 1
+                            top = push_branch(scratch, top, vec.offset_origin(p, ng, wc), wc,
+                                              vec.mul(vec.hadamard(beta, w_coat), P), depth + 1)
                         else:
                             u = uniform(key, dim)
                             dim += 1
@@ -145,13 +157,8 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                                 d = wc
                                 continue
                             fr = vec.mul(A, 1.0 / (1.0 - P))
-                at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
-                E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b)
-                dim += 2 * n_strata * n_strata
-                Eg, _ = flux_density(gmap, p, ns, k_g, r_g, filt, idx, d2)
-                Ec, _ = flux_density(cmap, p, ns, k_c, r_c, filt, idx, d2)
-                queries += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
-                E = vec.add(E, vec.add(Eg, Ec))
+                E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim)
+                queries += q
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
                 break
             depth += 1
@@ -161,31 +168,18 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             d_r, d_t, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
             beta = vec.hadamard(beta, tint)
             if F >= 1.0:
-                o = vec.offset_origin(p, ng, d_r)
                 d = d_r
-                continue
-            beta_t = vec.mul(beta, (1.0 - F) / (eta * eta))
-            if depth <= SPLIT_DEPTH and top < st_o.shape[0]:
-                o_r = vec.offset_origin(p, ng, d_r)
-                for c in range(3):
-                    st_o[top, c] = o_r[c]
-                    st_d[top, c] = d_r[c]
-                    st_beta[top, c] = beta[c] * F
-                st_depth[top] = depth
-                top += 1
-                o = vec.offset_origin(p, ng, d_t)
+            elif depth <= SPLIT_DEPTH and top < st_o.shape[0]:
+                top = push_branch(scratch, top, vec.offset_origin(p, ng, d_r), d_r, vec.mul(beta, F), depth)
                 d = d_t
-                beta = beta_t
+                beta = vec.mul(beta, (1.0 - F) / (eta * eta))
             else:
                 u = uniform(key, dim)
                 dim += 1
-                if u < F:
-                    o = vec.offset_origin(p, ng, d_r)
-                    d = d_r
-                else:
-                    o = vec.offset_origin(p, ng, d_t)
-                    d = d_t
+                d = d_r if u < F else d_t
+                if u >= F:
                     beta = vec.mul(beta, 1.0 / (eta * eta))
+            o = vec.offset_origin(p, ng, d)
     return L, queries
 
 

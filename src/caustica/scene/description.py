@@ -116,12 +116,16 @@ class Mesh:
     triangles: np.ndarray
     normals: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    #: Mitsuba's mesh attributes by name: ``vertex_*`` (n, dim) or ``face_*`` (m, dim, one row per triangle) float32,
+    #: dim 1 to 4 (a PLY file's extra properties, :func:`caustica.scene.meshes.ply_attributes`).
+    attributes: dict | None = None
 
 
 # Texture kinds (the codes of the material table's texture columns).
 CHECKERBOARD = 0
 BITMAP = 1
-TEXTURE_NAMES = {CHECKERBOARD: "checkerboard", BITMAP: "bitmap"}
+MESH_ATTRIBUTE = 2
+TEXTURE_NAMES = {CHECKERBOARD: "checkerboard", BITMAP: "bitmap", MESH_ATTRIBUTE: "mesh_attribute"}
 FILTER_TYPES = {"nearest": 0, "bilinear": 1}
 WRAP_MODES = {"repeat": 0, "mirror": 1, "clamp": 2}
 
@@ -134,7 +138,8 @@ class Texture:
     columns x, y and translation).  CHECKERBOARD: ``color0`` where the fractional parts of u and v are both above
     1/2 or both not, ``color1`` elsewhere.  BITMAP: ``texels`` (height, width, 3) float32, linear RGB (sRGB
     already decoded), row 0 at v = 0 (the image's top row); ``filter`` and ``wrap`` are codes of
-    :data:`FILTER_TYPES` and :data:`WRAP_MODES`.
+    :data:`FILTER_TYPES` and :data:`WRAP_MODES`.  MESH_ATTRIBUTE: the mesh's attribute ``attribute`` (a
+    ``vertex_*`` one interpolated with the hit's barycentrics, a ``face_*`` one the triangle's) times ``scale``.
     """
     kind: int
     to_uv: np.ndarray = field(default_factory=lambda: np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
@@ -145,6 +150,8 @@ class Texture:
     wrap: int = 0
     id: str = ""
     source: str = ""  # "file:line" for messages
+    attribute: str = ""
+    scale: float = 1.0
 
 
 # Phase functions of a medium.

@@ -146,6 +146,119 @@ def _ply_checked(data: bytes, path: Path) -> bytes:
     return head + body
 
 
+#: PLY vertex properties Mitsuba reads as positions, normals and texture coordinates (not attributes).
+_VERTEX_RESERVED = {"x", "y", "z", "nx", "ny", "nz", "u", "v"}
+#: The postfix of an attribute's k-th field, by the first field's (Mitsuba's ply.h): x y z w, r g b a, 0 1 2 3, 1 2 3 4.
+_POSTFIXES = ("xr01", "yg12", "zb23", "wa34")
+
+
+def _ply_values(a: np.ndarray) -> np.ndarray:
+    """A PLY property's values as Mitsuba 3.9's PLY loader stores them (float32): floats as they are, ``uchar`` as
+    its integers (0 to 255, not scaled), other integer types divided by their type's maximum and sRGB-decoded (its
+    Struct's ``Normalized | Gamma`` conversion; measured with Mitsuba 3.9.1: a ushort 30000 reads 0.177)."""
+    a = np.asarray(a)
+    if a.dtype.kind == "f" or a.dtype == np.uint8:
+        return a.astype(np.float32)
+    x = a.astype(np.float64) / float(np.iinfo(a.dtype).max)
+    with np.errstate(invalid="ignore"):
+        x = np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4)
+    return x.astype(np.float32)
+
+
+def ply_attributes(prefix: str, element, reserved: set) -> dict:
+    """Mitsuba's mesh attributes of one PLY element (``vertex`` or ``face``; ``element`` a structured array):
+    ``r g b [a]`` (or ``red green blue [alpha]``) become ``{prefix}color``; consecutive fields ``name_x name_y
+    name_z`` (postfixes x y z w, r g b a, 0 1 2 3 or 1 2 3 4) become ``{prefix}name`` with 1 or 3 of them
+    (``{prefix}name_color`` for r g b); others are ignored, as Mitsuba ignores them.  ``element``: the element's
+    scalar properties in the file's order, name -> (rows,) array."""
+    out, fields = {}, list(element)
+    if {"r", "g", "b"} <= set(fields):
+        colour = ["r", "g", "b"] + (["a"] if "a" in fields else [])
+    elif {"red", "green", "blue"} <= set(fields):
+        colour = ["red", "green", "blue"] + (["alpha"] if "alpha" in fields else [])
+        reserved = reserved | set(colour)
+    else:
+        colour = None
+    if colour:
+        out[prefix + "color"] = np.column_stack([_ply_values(element[n]) for n in colour])
+    reserved = reserved | {"r", "g", "b", "a"}
+    groups, current, seen = [], None, set()   # current: [prefix, postfix column, fields]
+    for n in fields:
+        if n in reserved:
+            continue
+        head, _, post = n.rpartition("_")
+        if not head or len(post) != 1:
+            if current:
+                groups.append(current)
+            current = None
+            continue
+        if current and head != current[0]:
+            groups.append(current)
+            current = None
+        if current is None:
+            if head in seen:
+                continue
+            column = _POSTFIXES[0].find(post)
+            if column < 0:
+                continue
+            current = [head, column, [n]]
+            seen.add(head)
+        elif len(current[2]) < 4 and post == _POSTFIXES[len(current[2])][current[1]]:
+            current[2].append(n)
+        else:
+            current[2] = []   # an invalid sequence: Mitsuba ignores the attribute
+    if current:
+        groups.append(current)
+    for head, column, members in groups:
+        if len(members) in (1, 3):
+            name = prefix + head + ("_color" if column == 1 else "")
+            out[name] = np.column_stack([_ply_values(element[n]) for n in members])
+    return out
+
+
+def _ply_columns(element: dict) -> dict:
+    """A PLY element trimesh read (a structured array when binary, a dict of (rows, 1) arrays when ASCII) as its
+    scalar properties in the file's order, name -> (rows,) array (list properties left out)."""
+    data, order = element.get("data"), list(element.get("properties", {}))
+    if isinstance(data, np.ndarray) and data.dtype.names:
+        get = {n: data[n] for n in data.dtype.names}
+    elif isinstance(data, dict):
+        get = data
+    else:
+        return {}
+    out = {}
+    for n in order:
+        a = np.asarray(get.get(n)) if n in get else None
+        if a is not None and a.dtype.names is None and (a.ndim == 1 or (a.ndim == 2 and a.shape[1] == 1)):
+            out[n] = a.reshape(-1)
+    return out
+
+
+def _ply_mesh_attributes(geom: dict, faces) -> dict | None:
+    """The vertex and face attributes of a PLY file trimesh read (its raw elements), face ones repeated for each
+    triangle a polygon is cut into; None without any."""
+    raw = (geom.get("metadata") or {}).get("_ply_raw") or {}
+    out = {}
+    vertex, face = (_ply_columns(raw.get(name, {})) for name in ("vertex", "face"))
+    if vertex:
+        present = set(vertex)
+        reserved = set(_VERTEX_RESERVED)
+        for a, b in (("texture_u", "texture_v"), ("s", "t")):
+            if not {"u", "v"} <= present and {a, b} <= present:
+                reserved |= {a, b}
+                break
+        out.update(ply_attributes("vertex_", vertex, reserved))
+    if face:
+        per_face = ply_attributes("face_", face, {"vertex_index", "vertex_indices"})
+        if per_face:
+            sizes = ([faces.shape[1]] * len(faces) if isinstance(faces, np.ndarray) and faces.ndim == 2
+                     else [len(f) for f in faces])
+            if len(sizes) == len(next(iter(per_face.values()))):
+                repeat = np.maximum(np.asarray(sizes, dtype=np.int64) - 2, 0)
+                out.update({k: np.repeat(v, repeat, axis=0) for k, v in per_face.items()})
+    return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in out.items()} or None
+
+
 def load_mesh_file(path: str | Path, kind: str | None = None, flip_tex_coords: bool | None = None) -> Mesh:
     """Read an OBJ or PLY file into an object-space :class:`Mesh`.
 
@@ -221,7 +334,8 @@ def load_mesh_file(path: str | Path, kind: str | None = None, flip_tex_coords: b
             uvs = None
         elif flip_tex_coords if flip_tex_coords is not None else kind == "obj":
             uvs = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]])
-    return Mesh(positions, triangles, normals, None if uvs is None else np.ascontiguousarray(uvs))
+    attributes = _ply_mesh_attributes(geom, faces) if kind == "ply" else None
+    return Mesh(positions, triangles, normals, None if uvs is None else np.ascontiguousarray(uvs), attributes)
 
 
 def rectangle_mesh() -> Mesh:
@@ -315,4 +429,4 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
         if normals is not None:
             normals = -normals
     return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles),
-                None if normals is None else np.ascontiguousarray(normals), mesh.uvs)
+                None if normals is None else np.ascontiguousarray(normals), mesh.uvs, mesh.attributes)

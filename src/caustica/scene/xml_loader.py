@@ -30,7 +30,7 @@ from . import spectra
 from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
-from .description import (BITMAP, BLEND, CHECKERBOARD, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
+from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
                           PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
@@ -109,6 +109,8 @@ TEXTURE_PROPS = {
     "checkerboard": {"color0": COLOR, "color1": COLOR, "to_uv": XFORM},
     "bitmap": {"filename": STR, "filter_type": STR, "wrap_mode": STR, "raw": BOOL, "to_uv": XFORM, "format": STR,
                "accel": BOOL},
+    # a mesh's own per-vertex or per-face values (PLY properties), looked up at the hit's triangle
+    "mesh_attribute": {"name": STR, "scale": FLOAT},
 }
 BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
@@ -842,6 +844,10 @@ class _Loader:
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
             tex = textures.get("diffuse_reflectance")
+            if tex is not None and tex.kind == MESH_ATTRIBUTE:
+                self.fail(node, f"a {kind}'s diffuse_reflectance cannot be a mesh_attribute (Mitsuba's {kind} needs "
+                                f"the texture's mean, which a mesh_attribute has not)",
+                          supported=["a bitmap or checkerboard diffuse_reflectance"])
             mat = Material(PLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE) if tex is None
                            else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name,
                            specular=self.color(props, "specular_reflectance", (1.0,) * 3),
@@ -993,6 +999,15 @@ class _Loader:
         to_uv = np.eye(4)[np.ix_([0, 1], [0, 1, 3])] if m is None else np.asarray(m)[np.ix_([0, 1], [0, 1, 3])]
         common = dict(to_uv=np.ascontiguousarray(to_uv, dtype=np.float64), id=node.attrs.get("id", ""),
                       source=self.at(node))
+        if node.attrs["type"] == "mesh_attribute":
+            attr = props.get("name")
+            if attr is None:
+                self.fail(node, "a mesh_attribute texture needs <string name=\"name\" .../> (the attribute)")
+            if not attr.startswith(("vertex_", "face_")):
+                self.fail(props.node_of("name"), f"a mesh_attribute's name must start with \"vertex_\" or \"face_\" "
+                                                 f"(as in Mitsuba), got {quoted(attr)}")
+            common["to_uv"] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+            return Texture(MESH_ATTRIBUTE, attribute=attr, scale=self.number(props, "scale", 1.0), **common)
         if node.attrs["type"] == "checkerboard":
             return Texture(CHECKERBOARD, color0=self.color(props, "color0", (0.4, 0.4, 0.4)),
                            color1=self.color(props, "color1", (0.2, 0.2, 0.2)), **common)
@@ -1013,6 +1028,42 @@ class _Loader:
         except SceneError as exc:
             self.fail(where, str(exc))
         return Texture(BITMAP, texels=texels, filter=modes["filter_type"], wrap=modes["wrap_mode"], **common)
+
+    def check_mesh_attributes(self, shapes: list[Shape]) -> None:
+        """Each shape whose BSDF (or a mixture's part) reads a mesh_attribute texture is a mesh holding that attribute,
+        of 3 or 1 channels for a colour (Mitsuba's eval: 1 is grey) and 1 for a mixture's weight (its eval_1)."""
+        def uses(m, seen=()):
+            mat = self.materials[m]
+            if mat.texture is not None and mat.texture.kind == MESH_ATTRIBUTE:
+                yield mat.texture, (1, 3), "a colour"
+            mix = getattr(mat, "mix_texture", None)
+            if mix is not None and mix.kind == MESH_ATTRIBUTE:
+                yield mix, (1,), "a mixture's weight"
+            for j in getattr(mat, "nested", ()) or ():
+                if j >= 0 and j not in seen:
+                    yield from uses(j, seen + (m,))
+        for shape in shapes:
+            if not 0 <= shape.material < len(self.materials):
+                continue
+            for tex, dims, what in uses(shape.material):
+                attrs = (shape.mesh.attributes or {}) if shape.mesh is not None else None
+                if attrs is None:
+                    self.errors.append(f"{tex.source}: mesh_attribute {quoted(tex.attribute)} is on the {shape.kind} "
+                                       f"{shape.id!r} ({shape.source}), which is no mesh: only a mesh has attributes")
+                elif tex.attribute not in attrs:
+                    have = ", ".join(sorted(attrs)) or "none"
+                    self.errors.append(f"{tex.source}: the mesh {shape.id!r} ({shape.source}) has no attribute "
+                                       f"{quoted(tex.attribute)} (its attributes: {have})")
+                elif attrs[tex.attribute].shape[1] not in dims:
+                    self.errors.append(f"{tex.source}: attribute {quoted(tex.attribute)} of the mesh {shape.id!r} has "
+                                       f"{attrs[tex.attribute].shape[1]} channels; as {what} it needs "
+                                       + " or ".join(map(str, dims[::-1])) + " (as Mitsuba's mesh_attribute)")
+                else:
+                    rows = len(shape.mesh.positions) if tex.attribute.startswith("vertex_") else len(shape.mesh.triangles)
+                    if len(attrs[tex.attribute]) != rows:
+                        self.errors.append(f"{tex.source}: attribute {quoted(tex.attribute)} of the mesh {shape.id!r} "
+                                           f"has {len(attrs[tex.attribute])} rows, expected {rows} (one per "
+                                           + ("vertex" if tex.attribute.startswith("vertex_") else "face") + ")")
 
     def dielectric_iors(self, props: Props, interior: str = "bk7") -> tuple[float, float]:
         """(int_ior, ext_ior) of a (rough) dielectric or plastic: numbers or Mitsuba's names, defaults ``interior``
@@ -1542,6 +1593,7 @@ class _Loader:
                 self.check_far_clip(camera, shapes)
             except SceneError as exc:
                 self.record(exc)
+        self.check_mesh_attributes(shapes)
         self.raise_errors()
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=lights, spp=spp, integrator=settings.type, media=self.media,
@@ -1653,6 +1705,9 @@ class _Loader:
             if name in props.props or name in out:
                 self.fail(obj, f"'{name}' is given twice")
             tex = self.texture(obj)
+            if tex.kind == MESH_ATTRIBUTE:
+                self.fail(obj, f"a {kind} emitter's texture cannot be a mesh_attribute (an emitter has no mesh)",
+                          supported=["bitmap", "checkerboard"])
             low = min(min(tex.color0), min(tex.color1)) if tex.kind == CHECKERBOARD else float(tex.texels.min())
             if not low >= 0.0:
                 self.fail(obj, f"the {kind}'s '{name}' texture has negative values (down to {low:g}); an emitter's "
@@ -1782,6 +1837,8 @@ def texture_mean(tex: Texture) -> tuple[float, float, float]:
     reads one colour per material."""
     if tex.kind == CHECKERBOARD:
         return tuple(0.5 * (a + b) for a, b in zip(tex.color0, tex.color1))
+    if tex.kind == MESH_ATTRIBUTE:
+        return (0.5, 0.5, 0.5)   # unused: every reader of a mesh_attribute's colour looks it up per hit
     return tuple(float(c) for c in tex.texels.reshape(-1, 3).astype(np.float64).mean(axis=0))
 
 
