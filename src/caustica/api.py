@@ -26,7 +26,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.description import MATERIAL_NAMES, MIXTURES
+from .scene.description import MATERIAL_NAMES, MIXTURES, WRAPPERS
 from .tables import Scene, compile_scene
 
 
@@ -112,11 +112,16 @@ def check_bsdfs(cls, scene) -> None:
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
     (``pm``, ``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
-    at each hit to one of their parts (``pt``, ``pm``, ``sppm``).  A glossy lobe beside a diffuse one
+    at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
+    normalmap and bumpmap (``pt``).  A glossy lobe beside a diffuse one
     (roughplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
     does yet (issue 20).
     """
     for mat in scene.description.materials:
+        if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
+            raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
+                             f"render normalmap or bumpmap yet (Mitsuba's bump-terminator shadowing falls on the "
+                             f"light's side, which photons would have to take as well); use --method pt")
         if mat.kind in MIXTURES and not getattr(cls, "renders_mixtures", False):
             raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
                              f"render mask or blendbsdf yet (its streams would place their associated photons "
@@ -134,7 +139,7 @@ def check_bsdfs(cls, scene) -> None:
     for mat, flags in zip(scene.description.materials, scene.materials.flags):
         where = f"{mat.source}: " if mat.source else ""
         name = MATERIAL_NAMES[mat.kind]
-        if mat.kind in MIXTURES:
+        if mat.kind in MIXTURES + WRAPPERS:
             continue   # resolved at each hit to one of its parts, each a material of its own, checked as such
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
             if flags & DIFFUSE_REFLECTION:

@@ -6,7 +6,9 @@ distance in the current medium) and, at a surface, asks :func:`surface_interacti
 point, normals, material and shape.  A null-BSDF surface (a medium's invisible boundary) is crossed
 there and then: the ray goes on from just past it in the medium beyond, and nothing else happens.  A mixture
 (``mask``, ``blendbsdf``) is resolved there too, with one number (:func:`caustica.bsdfs.resolve`): the loop gets
-the part chosen, or the surface is crossed as a null one where a mask is off.
+the part chosen, or the surface is crossed as a null one where a mask is off.  A normal or bump map
+(:mod:`caustica.bsdfs.perturb`) is resolved there to its nested BSDF, with the shading normal it perturbs:
+the loop sees that BSDF at a point whose ``ns`` is the perturbed normal.
 One offset rule (:func:`caustica.geometry.vec.offset_origin`) and one ``tmax`` convention
 (``np.inf`` for an unbounded ray) hold in every loop.
 """
@@ -15,11 +17,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from .geometry import vec
-from .geometry.scene_geometry import NO_UV, surface_at, surface_uv
+from .geometry.scene_geometry import NO_UV, surface_at, surface_tangents, surface_uv
 from .jit import borrowed, kernel
 from .bsdfs.mixtures import resolve
+from .bsdfs.perturb import perturbed_normal
 from .media import cross_null
-from .scene.description import BLEND, MASK, NULL
+from .scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL
 
 class ShadingPoint(NamedTuple):
     """Where a path scatters, as next-event estimation needs it (built in kernels)."""
@@ -64,7 +67,8 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     the ray's continuation, and ``next`` (SCATTER, CROSSED or TRAPPED).  At a real surface the
     crossings start again from 0 and medium and o are unchanged (the loop's scattering decides them).
     A mixture is resolved with number (key, dim) (:func:`caustica.bsdfs.resolve`): m is then the part chosen,
-    and dim comes back past it; elsewhere dim comes back as it was.
+    and dim comes back past it; elsewhere dim comes back as it was.  A normal or bump map is resolved to its
+    nested material, ns then the perturbed shading normal (:func:`caustica.bsdfs.perturb.perturbed_normal`).
     """
     geom, mats, _, media = tables
     prim, t, b1, b2 = hit
@@ -83,6 +87,13 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     if kind == NULL:
         medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
         return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED, dim
+    if kind == NORMALMAP or kind == BUMPMAP:
+        uv = surface_uv(geom, prim, o, d, t, b1, b2)
+        dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
+        ns = perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv)
+        m = mats.nested[m, 0]
+        kind = mats.kind[m]
+        mixture = True   # uv is known
     if mats.texture[m] >= 0 and not mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
     return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim

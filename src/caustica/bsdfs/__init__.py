@@ -36,11 +36,12 @@ import numpy as np
 from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
-    ROUGHPLASTIC, THINDIELECTRIC, SceneDescription
+    ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
+from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
@@ -73,7 +74,10 @@ class MaterialTable(NamedTuple):
     # Mixtures (mask, blendbsdf; bsdfs/mixtures.py): resolved at the hit to one of their nested materials.
     mix_texture: np.ndarray   # int32[M]: the texture giving a mixture's opacity or weight (mixtures.weight), -1: none
     mix: np.ndarray        # float64[M]: a mask's opacity, a blend's weight of nested[m, 1]
-    nested: np.ndarray     # int32[M, 2]: a mixture's nested materials (-1: none)
+    nested: np.ndarray     # int32[M, 2]: a mixture's or wrapper's nested materials (-1: none)
+    # Wrappers (normalmap, bumpmap; bsdfs/perturb.py): resolved at the hit to nested[m, 0] with a perturbed ns; their
+    # map is mix_texture[m], a bump map's scale mix[m].
+    terminator: np.ndarray  # int8[M]: 1 on a wrapper's nested row: f carries Mitsuba's bump-terminator shadowing
     attr: np.ndarray       # float32[K, T, 9]: mesh attributes at each triangle's corners (textures.attribute_table)
 
 
@@ -91,7 +95,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
         flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
-        if mat.kind in MIXTURES:   # its parts' lobes (a mask's absence is no lobe: the loops never see it)
+        if mat.kind in MIXTURES + WRAPPERS:   # its parts' lobes (a mask's absence is no lobe: the loops never see it)
             flags[i] = 0
             for j in mat.nested:
                 flags[i] |= BSDFS[desc.materials[j].kind].FLAGS if desc.materials[j].kind in BSDFS else 0
@@ -116,6 +120,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
                          cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
+                         np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
                          attribute_table(desc))
 
 
@@ -138,7 +143,16 @@ def oriented(mats, m, front, ng, ns):
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """Sample material m's BSDF for a ray travelling along d (normals from :func:`oriented`, surface coordinates
     uv for its textures), with numbers (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers
-    used)."""
+    used).  On a wrapper's nested row the weight carries the bump terminator's shadowing (:mod:`.perturb`)."""
+    ok, wi, weight, pdf, lobe, eta, dim = sample_kind(mats, m, d, ng, ns, uv, key, dim)
+    if mats.terminator[m]:
+        weight = vec.mul(weight, terminator(ng, ns, wi))
+    return ok, wi, weight, pdf, lobe, eta, dim
+
+
+@kernel(inline=True)
+def sample_kind(mats, m, d, ng, ns, uv, key, dim):
+    """:func:`sample` by material m's kind."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
         return diffuse.sample(mats, m, d, ng, ns, uv, key, dim)
@@ -161,7 +175,17 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """Material m's BSDF from direction d towards wi: (colour, scale, pdf), f = colour · scale of its smooth lobes
     (0 for a delta lobe, which no direction given in advance can meet), pdf the solid-angle density with which
-    :func:`sample` returns wi (its lobe choice included)."""
+    :func:`sample` returns wi (its lobe choice included).  On a wrapper's nested row the scale carries the bump
+    terminator's shadowing (:mod:`.perturb`)."""
+    c, scale, pdf = eval_pdf_kind(mats, m, d, ng, ns, uv, wi)
+    if mats.terminator[m]:
+        scale *= terminator(ng, ns, wi)
+    return c, scale, pdf
+
+
+@kernel(inline=True)
+def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
+    """:func:`eval_pdf` by material m's kind."""
     kind = mats.kind[m]
     if kind == DIFFUSE:
         return diffuse.eval_pdf(mats, m, d, ng, ns, uv, wi)

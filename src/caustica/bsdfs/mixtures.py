@@ -25,7 +25,7 @@ import numpy as np
 
 from ..jit import kernel
 from ..sampling.rng import uniform
-from ..scene.description import BLEND, CHECKERBOARD, MASK, MESH_ATTRIBUTE, MIXTURES, NULL
+from ..scene.description import BLEND, CHECKERBOARD, MASK, MESH_ATTRIBUTE, MIXTURES, NULL, WRAPPERS
 from .textures import COLOR0, COLOR1, KIND, LUMINANCE, ROW0, TO_UV, attribute_rgb, texture_rgb
 
 
@@ -36,7 +36,7 @@ def mixture_columns(materials) -> tuple:
     mix = np.zeros(m)
     nested = np.full((m, 2), -1, np.int32)
     for i, mat in enumerate(materials):
-        if mat.kind in MIXTURES:
+        if mat.kind in MIXTURES + WRAPPERS:   # a wrapper's nested BSDF, and a bump map's scale
             mix[i] = mat.mix
             nested[i, :len(mat.nested)] = mat.nested
     return mix, nested

@@ -483,6 +483,50 @@ def hit_uv(arrays, prim, ray, bary):
 
 
 @kernel(inline=True)
+def surface_tangents(geom, prim, o, d, t):
+    """Mitsuba's position partials (dp/du, dp/dv) at a hit from :func:`intersect`, for the normal and bump maps
+    (bsdfs/perturb.py): a triangle's edges in its (u, v) basis (its edges themselves where the mesh has no
+    coordinates, uv being the barycentrics; zero where the corner coordinates are degenerate, as Mitsuba's), a
+    sphere's (-y, x, 0) 2 pi and (z cos phi, z sin phi, -r) pi in its local frame, mapped to the world (Mitsuba 3's
+    src/render/mesh.cpp, src/shapes/sphere.cpp).  Disks and cylinders are refused by the loader."""
+    return hit_tangents((geom.prim_kind, geom.prim_index, geom.tri_e1, geom.tri_e2, geom.tri_uv, geom.ana_to_world,
+                         geom.ana_to_local), prim, o, d, t)
+
+
+@kernel
+def hit_tangents(arrays, prim, o, d, t):
+    """:func:`surface_tangents` on the arrays it reads (called, not inlined)."""
+    prim_kind, prim_index, e1, e2, w, to_world, to_local = arrays
+    j = prim_index[prim]
+    if prim_kind[prim] == TRIANGLE:
+        a = (e1[j, 0], e1[j, 1], e1[j, 2])
+        b = (e2[j, 0], e2[j, 1], e2[j, 2])
+        du0 = w[j, 2] - w[j, 0]
+        dv0 = w[j, 3] - w[j, 1]
+        du1 = w[j, 4] - w[j, 0]
+        dv1 = w[j, 5] - w[j, 1]
+        det = du0 * dv1 - dv0 * du1
+        inv = 1.0 / det if det != 0.0 else 0.0
+        dp_du = ((dv1 * a[0] - dv0 * b[0]) * inv, (dv1 * a[1] - dv0 * b[1]) * inv, (dv1 * a[2] - dv0 * b[2]) * inv)
+        dp_dv = ((du0 * b[0] - du1 * a[0]) * inv, (du0 * b[1] - du1 * a[1]) * inv, (du0 * b[2] - du1 * a[2]) * inv)
+        return dp_du, dp_dv
+    ol = pr.xform_point(to_local, j, o)
+    dl = pr.xform_vector(to_local, j, d)
+    x = ol[0] + t * dl[0]
+    y = ol[1] + t * dl[1]
+    z = ol[2] + t * dl[2]
+    r = math.sqrt(x * x + y * y + z * z)
+    if r > 0.0:
+        x, y, z = x / r, y / r, z / r
+    rd = math.sqrt(x * x + y * y)
+    dv = (z * x / rd, z * y / rd, -rd) if rd > 0.0 else (1.0, 0.0, 0.0)
+    du = pr.xform_vector(to_world, j, (-y, x, 0.0))
+    dv = pr.xform_vector(to_world, j, dv)
+    return ((du[0] * 2.0 * math.pi, du[1] * 2.0 * math.pi, du[2] * 2.0 * math.pi),
+            (dv[0] * math.pi, dv[1] * math.pi, dv[2] * math.pi))
+
+
+@kernel(inline=True)
 def sample_on_primitive(geom, prim, u1, u2):
     """``(p, ng)``: a point uniform by area on ``prim`` (pdf per area ``1 / prim_area[prim]``) and its front normal."""
     j = geom.prim_index[prim]

@@ -26,12 +26,18 @@ ROUGHPLASTIC = 7     # Mitsuba's roughplastic: a microfacet coating over a diffu
 THINDIELECTRIC = 8   # Mitsuba's thindielectric: a thin glass slab, light reflected or straight on (bsdfs/thindielectric.py)
 MASK = 9             # Mitsuba's mask: its nested BSDF with probability opacity, else no surface (bsdfs/mixtures.py)
 BLEND = 10           # Mitsuba's blendbsdf: (1 - weight) f0 + weight f1 of two nested BSDFs (bsdfs/mixtures.py)
+NORMALMAP = 11       # Mitsuba's normalmap: its nested BSDF with a shading normal from a bitmap (bsdfs/perturb.py)
+BUMPMAP = 12         # Mitsuba's bumpmap: its nested BSDF with a shading normal from a height field (bsdfs/perturb.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
-                  ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf"}
+                  ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf",
+                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap"}
 #: The mixtures: a hit on one of them is resolved to one of its nested BSDFs (or to no surface) with one random
 #: number (bsdfs/mixtures.py), so that no loop ever scatters at a mixture itself.
 MIXTURES = (MASK, BLEND)
+#: The wrappers that perturb the shading normal: a hit on one is resolved to its nested BSDF with the perturbed
+#: normal (bsdfs/perturb.py), so that no loop ever scatters at a wrapper itself.
+WRAPPERS = (NORMALMAP, BUMPMAP)
 #: Kinds with a glossy lobe: the photon methods do not render them yet (issue 20), only ``pt``.
 
 # Microfacet distributions (Mitsuba's names; the codes the material table stores).
@@ -63,6 +69,10 @@ class Material:
     a mask, two for a blend, f0 then f1) in the scene's material list; ``mix`` is the opacity (mask) or the weight
     of f1 (blend), in [0, 1], or ``mix_texture`` gives it at each surface point (the texture's luminance, clipped to
     [0, 1] as Mitsuba's ``eval_1``).
+    NORMALMAP and BUMPMAP (the wrappers, :data:`WRAPPERS`): ``nested`` holds the one nested material, ``mix_texture``
+    the map (a normal map's RGB, a bump map's heights as luminance), ``mix`` a bump map's ``scale``.  The nested
+    row is the wrapper's own copy, with ``terminator`` set unless Mitsuba's ``use_shadowing_function`` is false:
+    that row's f carries the shadowing factor for the bump terminator (bsdfs/perturb.py).
     twosided: a diffuse or conductor surface that scatters on both sides
     (Mitsuba's ``twosided`` wrapper); plain diffuse and conductor surfaces are
     black seen from the back, as in Mitsuba.
@@ -83,7 +93,9 @@ class Material:
     texture: "Texture | None" = None   # varies ``rgb`` over the surface (the diffuse or specular reflectance)
     nested: tuple[int, ...] = ()        # a mixture's nested materials (indices into the scene's materials)
     mix: float = 0.5                    # a mask's opacity, a blend's weight of nested[1]
-    mix_texture: "Texture | None" = None   # gives ``mix`` at each surface point instead (its luminance)
+    mix_texture: "Texture | None" = None   # gives ``mix`` at each surface point instead (its luminance); a
+    #                                        wrapper's normal or height map
+    terminator: bool = False            # the nested row of a wrapper with use_shadowing_function
 
     @property
     def is_specular(self) -> bool:

@@ -32,6 +32,7 @@ from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
+                          BUMPMAP, NORMALMAP, WRAPPERS,
                           PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
                           Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
@@ -93,10 +94,15 @@ BSDF_PROPS = {
     # the mixtures (bsdfs/mixtures.py): a constant here, or a nested <texture name="opacity"/"weight">
     "mask": {"opacity": FLOAT},
     "blendbsdf": {"weight": FLOAT},
+    # the wrappers (bsdfs/perturb.py): a nested <texture> (normalmap: name="normalmap", a bitmap) and <bsdf>
+    "normalmap": {"flip_invalid_normals": BOOL, "use_shadowing_function": BOOL},
+    "bumpmap": {"scale": FLOAT, "flip_invalid_normals": BOOL, "use_shadowing_function": BOOL},
 }
 #: Each mixture's parameter (given as a float or a texture), its default (None: required, as in Mitsuba) and how many
 #: BSDFs it nests.
 MIXTURE_PARAMS = {"mask": ("opacity", 0.5, 1), "blendbsdf": ("weight", None, 2)}
+#: The wrappers that perturb the shading normal (bsdfs/perturb.py): one nested BSDF and one nested texture each.
+WRAPPER_TYPES = ("normalmap", "bumpmap")
 #: Mitsuba 3's textures (src/textures/): ``format`` and ``accel`` only choose how Mitsuba stores and filters the
 #: texels on a GPU (the values are checked, the texels are float32 here).
 TEXTURE_PROPS = {
@@ -795,11 +801,14 @@ class _Loader:
     def _build_material(self, node: Node) -> Material:
         props = self.plugin(node, BSDF_PROPS, ("bsdf", "ref") if node.attrs.get("type") == "twosided"
                             else ("texture", "ref", "bsdf") if node.attrs.get("type") in MIXTURE_PARAMS
+                            or node.attrs.get("type") in WRAPPER_TYPES
                             else ("texture", "ref"))
         kind = node.attrs["type"]
         name = node.attrs.get("id", "")
         if kind in MIXTURE_PARAMS:
             return self.mixture(node, props, kind, name)
+        if kind in WRAPPER_TYPES:
+            return self.wrapper(node, props, kind, name)
         textures = {} if kind == "twosided" else self.bsdf_textures(props, kind)
         if kind == "diffuse":
             tex = textures.get("reflectance")
@@ -856,6 +865,10 @@ class _Loader:
                             f"(different front and back BSDFs are not supported)")
         inner_node = self.resolve(props.objects[0], "bsdf")
         inner = self.build_material(inner_node)
+        if inner.kind in WRAPPERS:
+            self.fail(props.objects[0], f"twosided around a {MATERIAL_NAMES[inner.kind]} is not supported; put "
+                                        f"twosided inside it, around its nested BSDF",
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
         if inner.kind == BLEND:
             self.fail(props.objects[0], "twosided around a blendbsdf is not supported; put twosided around each of "
                                         "its nested BSDFs instead (the same BSDF)",
@@ -893,11 +906,11 @@ class _Loader:
         indices = []
         for obj in nested:
             i = self.material_index(obj)
-            if self.materials[i].kind in MIXTURES:
+            if self.materials[i].kind in MIXTURES + WRAPPERS:
                 self.fail(obj, f"a {MATERIAL_NAMES[self.materials[i].kind]} nested in a {kind} is not supported "
-                               f"(one level of mask or blendbsdf)",
-                          supported=[t for t in BSDF_PROPS if t not in MIXTURE_PARAMS and t != "twosided"]
-                          + ["twosided"])
+                               f"(one level of mask or blendbsdf, normalmap and bumpmap not inside one)",
+                          supported=[t for t in BSDF_PROPS if t not in MIXTURE_PARAMS and t != "twosided"
+                                     and t not in WRAPPER_TYPES] + ["twosided"])
             indices.append(i)
         if texture is None and default is None and not props.has(param):
             self.fail(node, f"a {kind} needs its '{param}' (a <float> or a nested <texture name=\"{param}\">), as "
@@ -907,6 +920,48 @@ class _Loader:
             self.fail(props.node_of(param), f"'{param}' must be within [0, 1], got {mix:g}", supported=["[0, 1]"])
         return Material(MASK if kind == "mask" else BLEND, (1.0, 1.0, 1.0), name=name, nested=tuple(indices),
                         mix=mix, mix_texture=texture, source=self.at(node))
+
+    def wrapper(self, node: Node, props: Props, kind: str, name: str) -> Material:
+        """A ``normalmap`` (a bitmap texture named "normalmap" of tangent-space normals) or a ``bumpmap`` (a texture
+        of heights, any name, and ``scale``, default 1) around one nested BSDF (inline or by ``<ref>``; not a mask,
+        blendbsdf, null or another wrapper).  The nested BSDF becomes a row of the wrapper's own, with
+        ``terminator`` set unless ``use_shadowing_function`` is false (bsdfs/perturb.py)."""
+        nested, texture = [], None
+        for obj in props.objects:
+            target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else obj
+            if obj.tag == "texture" or (target is not None and target.tag == "texture"):
+                if kind == "normalmap" and obj.attrs.get("name") != "normalmap":
+                    self.fail(obj, f"a texture inside a normalmap gives its 'normalmap' (name=\"normalmap\"), got "
+                                   f"name={quoted(obj.attrs.get('name', ''))}", supported=['name="normalmap"'])
+                if texture is not None:
+                    self.fail(obj, f"a {kind} takes one texture, found a second")
+                texture = self.texture(obj)
+                if texture.kind != BITMAP:
+                    self.fail(obj, f"a {kind}'s texture must be a bitmap (an image of "
+                                   f"{'normals' if kind == 'normalmap' else 'heights'})", supported=["bitmap"])
+            else:
+                nested.append(obj)
+        if texture is None:
+            self.fail(node, f"a {kind} needs a nested <texture type=\"bitmap\"> (its "
+                            f"{'normals' if kind == 'normalmap' else 'heights'}), as in Mitsuba")
+        if len(nested) != 1:
+            self.fail(node, f"a {kind} nests exactly 1 BSDF, found {len(nested)}",
+                      supported=["1 nested <bsdf> or <ref id=...> element"])
+        if not props.get("flip_invalid_normals", True):
+            self.fail(props.node_of("flip_invalid_normals"), "flip_invalid_normals=false is not supported",
+                      supported=["true (the default)"])
+        i = self.material_index(nested[0])
+        inner = self.materials[i]
+        if inner.kind in MIXTURES + WRAPPERS + (NULL,):
+            self.fail(nested[0], f"a {MATERIAL_NAMES[inner.kind]} nested in a {kind} is not supported",
+                      supported=[t for t in BSDF_PROPS if t not in MIXTURE_PARAMS and t not in WRAPPER_TYPES
+                                 and t != "null"])
+        row = copy.copy(inner)   # the wrapper's own row: its f carries the terminator's shadowing
+        row.terminator = bool(props.get("use_shadowing_function", True))
+        self.materials.append(row)
+        scale = float(self.number(props, "scale", 1.0)) if kind == "bumpmap" else 1.0
+        return Material(NORMALMAP if kind == "normalmap" else BUMPMAP, inner.rgb, name=name,
+                        nested=(len(self.materials) - 1,), mix=scale, mix_texture=texture, source=self.at(node))
 
     def bsdf_textures(self, props: Props, kind: str) -> dict[str, Texture]:
         """The textures among a BSDF's children (nested ``<texture name=...>`` or ``<ref name=... id=...>``), by the
@@ -1274,6 +1329,10 @@ class _Loader:
                 self.fail(props.node_of("to_world"), "a sphere's to_world must not shear or scale "
                                                      "non-uniformly (Mitsuba's sphere stays round)")
             return Shape(SPHERE, to_world=m, **common)
+        if self.materials[material].kind in WRAPPERS:
+            self.fail(node, f"a {MATERIAL_NAMES[self.materials[material].kind]} on a {kind} is not supported (its "
+                            f"position partials dp/du, dp/dv are not implemented)",
+                      supported=["rectangle", "cube", "obj", "ply", "serialized", "sphere"])
         if kind == "disk":
             return Shape(DISK, to_world=to_world, **common)
         # cylinder (Mitsuba: to_world @ translate(p0) @ to_frame(dir) @ scale(r, r, length))
