@@ -245,6 +245,18 @@ def _image_mean(tex) -> np.ndarray:
     return tex.texels.reshape(-1, 3).astype(np.float64).mean(axis=0)
 
 
+def discrete_2d(prob: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 2D discrete distribution over the cells of ``prob`` (H x W, summing to 1), sampled row first: the rows'
+    CDF (H) and each row's CDF over its columns (H x W), each ending at exactly 1 (an environment map's and a
+    projector's image, sampled by luminance)."""
+    rows = prob.sum(axis=1)
+    row_cdf = np.cumsum(rows)
+    row_cdf[-1] = 1.0
+    col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
+    col_cdf[:, -1] = 1.0
+    return row_cdf, col_cdf
+
+
 def _light_textures(desc: SceneDescription, n_area: int, n: int) -> dict:
     """The LightTable's texture columns: one row per light (rows of the area emitters and directional lights
     empty), and a projector's bitmap's sampling tables (Mitsuba's DiscreteDistribution2D over the texels'
@@ -270,11 +282,7 @@ def _light_textures(desc: SceneDescription, n_area: int, n: int) -> dict:
                 continue   # a black image: no photons (its power is 0, it is never chosen)
             h, w = lum.shape
             prob = lum / total
-            rows = prob.sum(axis=1)
-            row_cdf = np.cumsum(rows)
-            row_cdf[-1] = 1.0
-            col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
-            col_cdf[:, -1] = 1.0
+            row_cdf, col_cdf = discrete_2d(prob)
             chunks.append(np.concatenate([row_cdf, col_cdf.reshape(-1), (prob * w * h).reshape(-1)]))
             tex_int[i, TEX_CDF] = offset
             offset += chunks[-1].size
@@ -340,11 +348,7 @@ def _environment_tables(desc: SceneDescription, geom: Geometry) -> dict:
         weight = np.ones_like(weight) * band[:, None]
         total = weight.sum()
     prob = weight / total
-    rows = prob.sum(axis=1)
-    row_cdf = np.cumsum(rows)
-    row_cdf[-1] = 1.0
-    col_cdf = np.cumsum(prob, axis=1) / np.where(rows > 0, rows, 1.0)[:, None]
-    col_cdf[:, -1] = 1.0
+    row_cdf, col_cdf = discrete_2d(prob)
     rot = np.asarray(envd.to_world, np.float64).reshape(-1)
     out.update(env_image=img, env_data=np.concatenate([centre, [radius], rot, row_cdf, col_cdf.reshape(-1),
                                                        (prob * w * (h - 1)).reshape(-1)]))
