@@ -194,7 +194,7 @@ def shadow_transmittance(geom, mats, media, o, target, medium):
     return transmittance(geom, mats, media, o, target, medium)
 
 
-@kernel
+@kernel(hot=True)
 def transmittance(geom, mats, media, o, target, medium):
     """(T per channel, rays traced) along the segment from o to target, starting in ``medium``.
 
@@ -203,6 +203,8 @@ def transmittance(geom, mats, media, o, target, medium):
     1 - opacity at the point (:func:`caustica.bsdfs.pass_probability`, Mitsuba's ``eval_null_transmission``).
     The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so
     a shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
+    ``hot`` (inlined by LLVM): called per shadow ray in every scene with media or null surfaces, and a call would
+    copy every array of three scene tables (the fog box's ``pt`` ran 2.6-3.9x slower per pass that way).
     """
     T = (1.0, 1.0, 1.0)
     seg = vec.sub(target, o)
