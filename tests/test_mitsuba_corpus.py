@@ -54,6 +54,12 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_plastic_preserve.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_nopreserve.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughplastic_preserve.xml",
+    # pplastic (its RGB branch; the _stokes ones under a stokes integrator, which stands for the one it wraps)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_diffuse.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_diffuse_stokes.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_specular.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_specular_stokes.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),

@@ -114,7 +114,7 @@ def check_bsdfs(cls, scene) -> None:
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``).  A glossy lobe beside a diffuse one
-    (roughplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
+    (roughplastic, pplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
     does yet (issue 20).
     """
     for mat in scene.description.materials:

@@ -1,7 +1,7 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
 A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindielectric``, ``roughconductor``,
-``roughdielectric``, ``plastic``, ``roughplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
+``roughdielectric``, ``plastic``, ``roughplastic``, ``pplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
 ``KIND`` (the code the loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS``
 (:mod:`.flags`) and its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
@@ -35,10 +35,10 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
-    ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
-from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
-    thindielectric
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, ROUGHCONDUCTOR, \
+    ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, roughconductor, roughdielectric, \
+    roughplastic, thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
@@ -47,7 +47,8 @@ from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTI
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
-         ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic, THINDIELECTRIC: thindielectric}
+         ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic, THINDIELECTRIC: thindielectric,
+         PPLASTIC: pplastic}
 
 
 class MaterialTable(NamedTuple):
@@ -65,7 +66,8 @@ class MaterialTable(NamedTuple):
     cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
     coating: np.ndarray    # float64[M, plastic.COATING_COLUMNS]: a plastic's parameters (specular_reflectance,
-    #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py)
+    #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py);
+    #                        a pplastic's specular_reflectance and sampling weight
     # Textures (bsdfs/textures.py), X of them: the one giving material m's rgb, and each texture's columns.
     texture: np.ndarray    # int32[M]: the texture that gives rgb at each surface point, -1 for none
     tex_int: np.ndarray    # int64[X, 6]: kind, filter, wrap mode, a bitmap's width, height, first row in texels
@@ -105,7 +107,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         distribution[i], alpha[i] = mat.distribution, max(mat.alpha, microfacet.ALPHA_MIN)
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
-        if mat.kind in (PLASTIC, ROUGHPLASTIC):
+        if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
             row = coating[i]
             row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
             row[plastic.SPEC_WEIGHT] = plastic.specular_sampling_weight(
@@ -113,7 +115,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             row[plastic.NONLINEAR] = 1.0 if mat.nonlinear else 0.0
             if mat.kind == PLASTIC:
                 row[plastic.INTERNAL] = plastic.fresnel_diffuse_reflectance(1.0 / eta[i])
-            else:
+            elif mat.kind == ROUGHPLASTIC:     # (a pplastic has no coating: no Fdr, no table)
                 c = (int(distribution[i]), float(alpha[i]), float(eta[i]))
                 if c not in coatings:
                     coatings[c] = roughplastic.coating_tables(*c)
@@ -166,6 +168,8 @@ def sample_kind(mats, m, d, ng, ns, uv, key, dim):
         return plastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == ROUGHPLASTIC:
         return roughplastic.sample(mats, m, d, ng, ns, uv, key, dim)
+    if kind == PPLASTIC:
+        return pplastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if kind == THINDIELECTRIC:
         return thindielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
@@ -197,6 +201,8 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
         return plastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if kind == ROUGHPLASTIC:
         return roughplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
+    if kind == PPLASTIC:
+        return pplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 

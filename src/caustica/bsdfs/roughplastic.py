@@ -115,6 +115,19 @@ def local_eval(mats, m, wo, wl, uv):
     return f, pdf
 
 
+@kernel(inline=True)
+def lobe_direction(mats, m, wo, P, key, dim):
+    """(local direction, lobe): with probability P (number dim) the reflection of wo about a visible normal of material
+    m's distribution, else a cosine-weighted direction (numbers dim + 1, dim + 2 for either); shared with
+    :mod:`.pplastic`."""
+    u1, u2 = uniform(key, dim + 1), uniform(key, dim + 2)
+    if uniform(key, dim) < P:
+        h = mf.sample_visible(mats.distribution[m], mats.alpha[m], wo, u1, u2)
+        c = vec.dot(wo, h)
+        return (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2]), GLOSSY_REFLECTION
+    return square_to_cosine_hemisphere(u1, u2), DIFFUSE_REFLECTION
+
+
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """The glossy lobe with probability P (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
@@ -125,16 +138,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     wo = mf.to_local(s, t, ns, vec.neg(d))
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, DIFFUSE_REFLECTION, 1.0, dim + 3
-    P = choice(mats, m, transmittance(mats, m, wo[2]))
-    u1, u2 = uniform(key, dim + 1), uniform(key, dim + 2)
-    if uniform(key, dim) < P:
-        h = mf.sample_visible(mats.distribution[m], mats.alpha[m], wo, u1, u2)
-        c = vec.dot(wo, h)
-        wl = (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
-        lobe = GLOSSY_REFLECTION
-    else:
-        wl = square_to_cosine_hemisphere(u1, u2)
-        lobe = DIFFUSE_REFLECTION
+    wl, lobe = lobe_direction(mats, m, wo, choice(mats, m, transmittance(mats, m, wo[2])), key, dim)
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
         return False, wi, zero, 0.0, lobe, 1.0, dim + 3

@@ -28,10 +28,11 @@ MASK = 9             # Mitsuba's mask: its nested BSDF with probability opacity,
 BLEND = 10           # Mitsuba's blendbsdf: (1 - weight) f0 + weight f1 of two nested BSDFs (bsdfs/mixtures.py)
 NORMALMAP = 11       # Mitsuba's normalmap: its nested BSDF with a shading normal from a bitmap (bsdfs/perturb.py)
 BUMPMAP = 12         # Mitsuba's bumpmap: its nested BSDF with a shading normal from a height field (bsdfs/perturb.py)
+PPLASTIC = 13        # Mitsuba's pplastic (RGB): a microfacet reflection plus a Fresnel-weighted diffuse lobe (bsdfs/pplastic.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
                   ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf",
-                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap"}
+                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap", PPLASTIC: "pplastic"}
 #: The mixtures: a hit on one of them is resolved to one of its nested BSDFs (or to no surface) with one random
 #: number (bsdfs/mixtures.py), so that no loop ever scatters at a mixture itself.
 MIXTURES = (MASK, BLEND)
@@ -63,8 +64,10 @@ class Material:
     PLASTIC and ROUGHPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, the
     coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
     ``distribution`` and ``alpha``.
+    PPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, ``distribution``, ``alpha`` and the
+    relative IOR ``int_ior`` / ``ext_ior`` (Mitsuba's ``eta`` is read as int_ior = eta, ext_ior = 1).
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
-    a conductor's ``specular_reflectance``, a plastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
+    a conductor's ``specular_reflectance``, a plastic's or pplastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
     MASK and BLEND (the mixtures, :data:`MIXTURES`): ``nested`` holds the indices of the nested materials (one for
     a mask, two for a blend, f0 then f1) in the scene's material list; ``mix`` is the opacity (mask) or the weight
     of f1 (blend), in [0, 1], or ``mix_texture`` gives it at each surface point (the texture's luminance, clipped to

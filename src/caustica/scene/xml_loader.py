@@ -33,7 +33,7 @@ from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
-                          PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
+                          PLASTIC, PPLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
                           Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
@@ -89,6 +89,10 @@ BSDF_PROPS = {
                      "ext_ior": FLOAT + STR, "nonlinear": BOOL,
                      "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT,
                      "sample_visible": BOOL},
+    # Mitsuba's RGB pplastic (its polarization is not rendered): a relative IOR as eta or as int_ior / ext_ior
+    "pplastic": {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": FLOAT + STR,
+                 "ext_ior": FLOAT + STR, "eta": FLOAT,
+                 "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT, "sample_visible": BOOL},
     "twosided": {},
     "null": {},
     # the mixtures (bsdfs/mixtures.py): a constant here, or a nested <texture name="opacity"/"weight">
@@ -116,7 +120,7 @@ BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
                    "roughconductor": ("specular_reflectance",), "plastic": ("diffuse_reflectance",),
-                   "roughplastic": ("diffuse_reflectance",)}
+                   "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",)}
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
@@ -841,6 +845,8 @@ class _Loader:
                 mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
                 mat.distribution, mat.alpha = self.microfacet(props)
             return mat
+        if kind == "pplastic":
+            return self.pplastic(node, props, textures.get("diffuse_reflectance"), name)
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
             tex = textures.get("diffuse_reflectance")
@@ -868,15 +874,15 @@ class _Loader:
         if inner.kind in WRAPPERS:
             self.fail(props.objects[0], f"twosided around a {MATERIAL_NAMES[inner.kind]} is not supported; put "
                                         f"twosided inside it, around its nested BSDF",
-                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
         if inner.kind == BLEND:
             self.fail(props.objects[0], "twosided around a blendbsdf is not supported; put twosided around each of "
                                         "its nested BSDFs instead (the same BSDF)",
-                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
         if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
-                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic"])
+                      supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
         out = copy.copy(inner)
         out.twosided = True
         out.name = name or inner.name
@@ -1103,6 +1109,34 @@ class _Loader:
             self.fail(props.node_of("material"), f"unknown conductor material {quoted(mat)}",
                       supported=["none"] + list(CONDUCTOR_IOR))
         return CONDUCTOR_IOR[mat.strip()]
+
+    def pplastic(self, node: Node, props: Props, tex, name: str) -> Material:
+        """Mitsuba's ``pplastic`` (its RGB branch, bsdfs/pplastic.py): diffuse_reflectance (default 0.5, a texture
+        allowed), specular_reflectance (default 1), the microfacet distribution and roughness, and the relative IOR:
+        ``eta`` (positive), or int_ior / ext_ior (defaults polypropylene and air, differing), not both, as Mitsuba."""
+        if tex is not None and tex.kind == MESH_ATTRIBUTE:
+            self.fail(node, "a pplastic's diffuse_reflectance cannot be a mesh_attribute (Mitsuba's pplastic needs the "
+                            "texture's mean, which a mesh_attribute has not)",
+                      supported=["a bitmap or checkerboard diffuse_reflectance"])
+        if props.has("eta"):
+            for p in ("int_ior", "ext_ior"):
+                if props.has(p):
+                    self.fail(props.node_of(p), "pplastic: give either eta or int_ior and ext_ior, not both "
+                                                "(as Mitsuba)")
+            int_ior, ext_ior = float(self.number(props, "eta", None, positive=True)), 1.0
+            if not math.isfinite(int_ior):
+                self.fail(props.node_of("eta"), f"'eta' must be finite, got {int_ior}")
+        else:
+            int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
+            if int_ior == ext_ior:
+                self.fail(node, f"pplastic: int_ior and ext_ior are both {int_ior:g}; they must differ, as Mitsuba 3 "
+                                f"requires")
+        mat = Material(PPLASTIC, self.color(props, "diffuse_reflectance", DEFAULT_REFLECTANCE) if tex is None
+                       else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name,
+                       specular=self.color(props, "specular_reflectance", (1.0,) * 3), source=self.at(node),
+                       texture=tex)
+        mat.distribution, mat.alpha = self.microfacet(props)
+        return mat
 
     def microfacet(self, props: Props) -> tuple[int, float]:
         """(distribution code, alpha) of a rough BSDF: Mitsuba's distribution (default beckmann) and isotropic
