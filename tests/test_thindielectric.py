@@ -9,6 +9,9 @@
    floor, the floor under the pane lit only through it): pt, sppm and PM+C, image mean within 2 % and every 4x4
    block within 5 sigmas of both renderers' noise (tests/imagestats.py); the bubble holding a medium, pt against
    Mitsuba's volpath: the medium inside is entered through the sheet as through any shape with an interior.
+   At max_depth 3 the scene under ``volpath`` (the straight-on lobe is Mitsuba's ``Null`` event: no bounce, shadow rays
+   pass with 1 - R) and under ``path`` (a bounce; shadow rays blocked): pt against Mitsuba's same integrator, and a
+   shadow ray through the pane against Mitsuba's ``eval_null_transmission`` at several angles (pt's tables only).
 4. Input: the loader's defaults and named IORs; a negative IOR, a tint, a texture, a twosided wrapper -> one line
    naming file and line.
 """
@@ -181,6 +184,63 @@ def test_thin_bubble_holding_a_medium_matches_mitsuba_volpath(mi, tmp_path):
     ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
     theirs = mitsuba_renders(mi, path)
     assert_images_agree(ours, theirs, label="thindielectric bubble of fog")
+
+
+def depth3_scene(tmp_path, integrator):
+    """tests/scenes/thindielectric.xml under Mitsuba's ``integrator`` at max_depth 3: the floor under the pane is lit
+    only through it, directly (light sampling through the slab) under volpath, by a path crossing it under path."""
+    s = SCENE.read_text().replace('<integrator type="path"/>', f'<integrator type="{integrator}"><integer '
+                                  f'name="max_depth" value="3"/></integrator>')
+    path = tmp_path / f"thin-{integrator}-3.xml"
+    path.write_text(s)
+    return path
+
+
+@pytest.mark.parametrize("integrator", ["volpath", "path"])
+def test_thin_glass_at_max_depth_3_matches_mitsubas_integrator(mi, tmp_path, integrator):
+    """Mitsuba's volpath does not count a pass through the slab (its Null lobe) against max_depth and lets shadow rays
+    through it; its path counts it and blocks them.  pt follows the scene's integrator (null_thin_dielectric)."""
+    path = depth3_scene(tmp_path, integrator)
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
+    theirs = mitsuba_renders(mi, path)
+    assert_images_agree(ours, theirs, label=f"thindielectric {integrator} max_depth 3")
+
+
+def test_shadow_ray_through_pane_passes_mitsubas_null_transmission(mi):
+    """A shadow ray crossing the pane at angle theta from its normal (either way) keeps 1 - R of its light in pt's
+    tables for a volpath scene: Mitsuba's eval_null_transmission.  The scene's own tables (the photon methods') block
+    it."""
+    from caustica.media import transmittance
+    from caustica.methods.pt import null_thin_tables
+    scene = caustica.load_scene(SCENE)
+    geom, mats, lights, media = null_thin_tables(scene.tables)
+    pane = next(m for m in range(len(mats.kind)) if mats.kind[m] == THINDIELECTRIC and mats.eta[m] > 1.9)
+    assert mats.flags[pane] & bsdfs.NULL_TRANSMISSION and not scene.tables[1].flags[pane] & bsdfs.NULL_TRANSMISSION
+    theirs = mi.load_dict({"type": "thindielectric", "int_ior": 2.0})   # the pane's ($ior), ext_ior air as ours
+    si = mi.SurfaceInteraction3f()
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    c = np.array([-0.6, 1.2, 0.2])                    # the pane's centre, its normal n = R_x(-60°) z
+    n = np.array([0.0, math.sin(math.radians(60)), math.cos(math.radians(60))])
+    x = np.array([1.0, 0.0, 0.0])                     # in the pane, perpendicular to n
+    for theta in (0.0, 30.0, 60.0, 80.0):
+        w = math.cos(math.radians(theta)) * n + math.sin(math.radians(theta)) * x
+        si.wi = mi.Vector3f(0.0, math.sin(math.radians(theta)), math.cos(math.radians(theta)))
+        expected = float(theirs.eval_null_transmission(si)[0])
+        assert 0.0 < expected < 1.0
+        for sign in (1.0, -1.0):
+            o, target = tuple(c - 0.3 * sign * w), tuple(c + 0.3 * sign * w)
+            T, rays = transmittance(geom, mats, media, o, target, -1)
+            assert rays == 2 and np.allclose(T, expected, rtol=0, atol=1e-6), (theta, sign, T, expected)
+            T0, _ = transmittance(*[scene.tables[i] for i in (0, 1, 3)], o, target, -1)
+            assert T0 == (0.0, 0.0, 0.0)
+
+
+def test_scene_integrator_sets_null_thin_dielectric(tmp_path):
+    from caustica.methods.pt import PathTracer
+    for integrator, on in (("volpath", True), ("volpathmis", True), ("path", False)):
+        d = caustica.load_scene(depth3_scene(tmp_path, integrator)).description
+        assert PathTracer.scene_defaults(d)["null_thin_dielectric"] is on
 
 
 # --------------------------------------------------------------------------- input
