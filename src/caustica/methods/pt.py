@@ -23,6 +23,14 @@ Through participating media it is a volumetric path tracer after Mitsuba 3's ``v
   it, as in Mitsuba.
 
 ``max_depth`` counts scattering events (surface and medium) as Mitsuba does.
+
+``thindielectric`` follows the scene's integrator (``null_thin_dielectric``, set for ``volpath`` and
+``volpathmis``): Mitsuba flags its straight-on transmission ``Null``, and its ``volpath`` treats a pass as a
+null crossing (not counted in the depth, the last real scattering kept for MIS, the medium switched; the
+surface is sampled even at the last depth, where a reflection then ends the path) and lets shadow rays
+through with ``eval_null_transmission`` = 1 - R; its ``path`` counts the pass as a bounce and blocks shadow
+rays, as pt does without the setting.  The setting reaches the kernels as a copy of the material table
+flagged ``NULL_TRANSMISSION`` there (:func:`null_thin_tables`); the scene's own tables are not changed.
 """
 from __future__ import annotations
 
