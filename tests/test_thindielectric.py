@@ -207,6 +207,28 @@ def test_thin_glass_at_max_depth_3_matches_mitsubas_integrator(mi, tmp_path, int
     assert_images_agree(ours, theirs, label=f"thindielectric {integrator} max_depth 3")
 
 
+DISTANT_LIGHTS = {
+    "directional": '<emitter type="directional"><vector name="direction" x="0.3" y="-1" z="-0.2"/>'
+                   '<rgb name="irradiance" value="3, 2.8, 2.5"/></emitter>',
+    "constant": '<emitter type="constant"><rgb name="radiance" value="0.8, 0.9, 1"/></emitter>'}
+
+
+@pytest.mark.parametrize("light", list(DISTANT_LIGHTS))
+def test_distant_light_through_pane_under_volpath_matches_mitsuba(mi, tmp_path, light):
+    """Direct light only (max_depth 2) from a light at infinity instead of the area light: the floor under the pane and
+    under the bubble is lit by shadow rays through the slab (1 - R), the directional's and the environment's as the
+    area light's (media.distant_light_shadow)."""
+    s = depth3_scene(tmp_path, "volpath").read_text().replace('value="3"/></integrator>', 'value="2"/></integrator>')
+    start = s.index('<shape type="rectangle" id="light">')
+    s = s[:start] + DISTANT_LIGHTS[light] + '\n</scene>\n'
+    path = tmp_path / f"thin-{light}.xml"
+    path.write_text(s)
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
+    theirs = mitsuba_renders(mi, path)
+    assert_images_agree(ours, theirs, label=f"thindielectric volpath, {light} light")
+
+
 def test_shadow_ray_through_pane_passes_mitsubas_null_transmission(mi):
     """A shadow ray crossing the pane at angle theta from its normal (either way) keeps 1 - R of its light in pt's
     tables for a volpath scene: Mitsuba's eval_null_transmission.  The scene's own tables (the photon methods') block
@@ -273,3 +295,18 @@ def test_loader_reads_thindielectric(tmp_path):
                                               '<rgb name="specular_reflectance" value="1"/></bsdf>'))
     m = d.materials[d.shapes[0].material]
     assert (m.kind, m.int_ior, m.ext_ior) == (THINDIELECTRIC, 1.333, 1.1)
+
+
+def test_null_transmitting_flags_thin_rows_of_a_copy_only():
+    """pt's copy flags a thindielectric's row, not one inside a mask (whose shadow-ray pass probability would not add
+    the slab's share); the table given stays unflagged; a table without thindielectric needs no copy."""
+    from caustica.scene.description import DIFFUSE, MASK
+    thin = dict(int_ior=1.5, ext_ior=1.0)
+    mats = bsdfs.build_material_table(types.SimpleNamespace(materials=[
+        Material(THINDIELECTRIC, (1.0, 1.0, 1.0), **thin), Material(MASK, (1.0, 1.0, 1.0), nested=(0,)),
+        Material(THINDIELECTRIC, (1.0, 1.0, 1.0), **thin)]))
+    flagged = bsdfs.null_transmitting(mats)
+    assert [bool(f & bsdfs.NULL_TRANSMISSION) for f in flagged.flags] == [False, False, True]
+    assert not np.any(mats.flags & bsdfs.NULL_TRANSMISSION)
+    assert bsdfs.null_transmitting(bsdfs.build_material_table(types.SimpleNamespace(
+        materials=[Material(DIFFUSE, (0.5, 0.5, 0.5))]))) is None

@@ -37,8 +37,8 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
-    ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from ..scene.description import BLEND, CONDUCTOR, DIELECTRIC, DIFFUSE, MASK, MIXTURES, PLASTIC, ROUGHCONDUCTOR, \
+    ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
@@ -129,8 +129,12 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
     """A copy of ``mats`` whose thindielectric rows carry ``NULL_TRANSMISSION`` (their straight-on lobe is Mitsuba's
     ``Null`` one, as its ``volpath`` integrator treats it), or None when no row is a thindielectric.  The scene's
-    own table stays as it is: the photon methods carry light through the slab by their photons."""
+    own table stays as it is: the photon methods carry light through the slab by their photons.  A thindielectric
+    inside a mask or blendbsdf is left as it is (a bounce, blocking shadow rays): :func:`pass_probability` does not
+    add Mitsuba's share of its null transmission, and the camera paths and shadow rays must agree."""
     thin = mats.kind == THINDIELECTRIC
+    mixtures = (mats.kind == MASK) | (mats.kind == BLEND)
+    thin[mats.nested[mixtures][mats.nested[mixtures] >= 0]] = False
     if not thin.any():
         return None
     flags = mats.flags.copy()
