@@ -37,8 +37,9 @@ import numpy as np
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import BLEND, CONDUCTOR, DIELECTRIC, DIFFUSE, MASK, MIXTURES, PLASTIC, ROUGHCONDUCTOR, \
-    ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
+    ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from ..scene.description import BLEND, MASK
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
