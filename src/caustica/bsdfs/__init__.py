@@ -39,12 +39,12 @@ from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, \
     ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
-from ..scene.description import BLEND, MASK
 from . import conductor, dielectric, diffuse, microfacet, plastic, roughconductor, roughdielectric, roughplastic, \
     thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
+from ..scene.description import BLEND, MASK
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
