@@ -9,6 +9,9 @@
    floor, the floor under the pane lit only through it): pt, sppm and PM+C, image mean within 2 % and every 4x4
    block within 5 sigmas of both renderers' noise (tests/imagestats.py); the bubble holding a medium, pt against
    Mitsuba's volpath: the medium inside is entered through the sheet as through any shape with an interior.
+   At max_depth 3 the scene under ``volpath`` (the straight-on lobe is Mitsuba's ``Null`` event: no bounce, shadow rays
+   pass with 1 - R) and under ``path`` (a bounce; shadow rays blocked): pt against Mitsuba's same integrator, and a
+   shadow ray through the pane against Mitsuba's ``eval_null_transmission`` at several angles (pt's tables only).
 4. Input: the loader's defaults and named IORs; a negative IOR, a tint, a texture, a twosided wrapper -> one line
    naming file and line.
 """
@@ -183,6 +186,85 @@ def test_thin_bubble_holding_a_medium_matches_mitsuba_volpath(mi, tmp_path):
     assert_images_agree(ours, theirs, label="thindielectric bubble of fog")
 
 
+def depth3_scene(tmp_path, integrator):
+    """tests/scenes/thindielectric.xml under Mitsuba's ``integrator`` at max_depth 3: the floor under the pane is lit
+    only through it, directly (light sampling through the slab) under volpath, by a path crossing it under path."""
+    s = SCENE.read_text().replace('<integrator type="path"/>', f'<integrator type="{integrator}"><integer '
+                                  f'name="max_depth" value="3"/></integrator>')
+    path = tmp_path / f"thin-{integrator}-3.xml"
+    path.write_text(s)
+    return path
+
+
+@pytest.mark.parametrize("integrator", ["volpath", "path"])
+def test_thin_glass_at_max_depth_3_matches_mitsubas_integrator(mi, tmp_path, integrator):
+    """Mitsuba's volpath does not count a pass through the slab (its Null lobe) against max_depth and lets shadow rays
+    through it; its path counts it and blocks them.  pt follows the scene's integrator (null_thin_dielectric)."""
+    path = depth3_scene(tmp_path, integrator)
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
+    theirs = mitsuba_renders(mi, path)
+    assert_images_agree(ours, theirs, label=f"thindielectric {integrator} max_depth 3")
+
+
+DISTANT_LIGHTS = {
+    "directional": '<emitter type="directional"><vector name="direction" x="0.3" y="-1" z="-0.2"/>'
+                   '<rgb name="irradiance" value="3, 2.8, 2.5"/></emitter>',
+    "constant": '<emitter type="constant"><rgb name="radiance" value="0.8, 0.9, 1"/></emitter>'}
+
+
+@pytest.mark.parametrize("light", list(DISTANT_LIGHTS))
+def test_distant_light_through_pane_under_volpath_matches_mitsuba(mi, tmp_path, light):
+    """Direct light only (max_depth 2) from a light at infinity instead of the area light: the floor under the pane and
+    under the bubble is lit by shadow rays through the slab (1 - R), the directional's and the environment's as the
+    area light's (media.distant_light_shadow)."""
+    s = depth3_scene(tmp_path, "volpath").read_text().replace('value="3"/></integrator>', 'value="2"/></integrator>')
+    start = s.index('<shape type="rectangle" id="light">')
+    s = s[:start] + DISTANT_LIGHTS[light] + '\n</scene>\n'
+    path = tmp_path / f"thin-{light}.xml"
+    path.write_text(s)
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "pt", spp=128, res=32, seed=k).image for k in SEEDS]
+    theirs = mitsuba_renders(mi, path)
+    assert_images_agree(ours, theirs, label=f"thindielectric volpath, {light} light")
+
+
+def test_shadow_ray_through_pane_passes_mitsubas_null_transmission(mi):
+    """A shadow ray crossing the pane at angle theta from its normal (either way) keeps 1 - R of its light in pt's
+    tables for a volpath scene: Mitsuba's eval_null_transmission.  The scene's own tables (the photon methods') block
+    it."""
+    from caustica.media import transmittance
+    from caustica.methods.pt import null_thin_tables
+    scene = caustica.load_scene(SCENE)
+    geom, mats, lights, media = null_thin_tables(scene.tables)
+    pane = next(m for m in range(len(mats.kind)) if mats.kind[m] == THINDIELECTRIC and mats.eta[m] > 1.9)
+    assert mats.flags[pane] & bsdfs.NULL_TRANSMISSION and not scene.tables[1].flags[pane] & bsdfs.NULL_TRANSMISSION
+    theirs = mi.load_dict({"type": "thindielectric", "int_ior": 2.0})   # the pane's ($ior), ext_ior air as ours
+    si = mi.SurfaceInteraction3f()
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    c = np.array([-0.6, 1.2, 0.2])                    # the pane's centre, its normal n = R_x(-60°) z
+    n = np.array([0.0, math.sin(math.radians(60)), math.cos(math.radians(60))])
+    x = np.array([1.0, 0.0, 0.0])                     # in the pane, perpendicular to n
+    for theta in (0.0, 30.0, 60.0, 80.0):
+        w = math.cos(math.radians(theta)) * n + math.sin(math.radians(theta)) * x
+        si.wi = mi.Vector3f(0.0, math.sin(math.radians(theta)), math.cos(math.radians(theta)))
+        expected = float(theirs.eval_null_transmission(si)[0])
+        assert 0.0 < expected < 1.0
+        for sign in (1.0, -1.0):
+            o, target = tuple(c - 0.3 * sign * w), tuple(c + 0.3 * sign * w)
+            T, rays = transmittance(geom, mats, media, o, target, -1)
+            assert rays == 2 and np.allclose(T, expected, rtol=0, atol=1e-6), (theta, sign, T, expected)
+            T0, _ = transmittance(*[scene.tables[i] for i in (0, 1, 3)], o, target, -1)
+            assert T0 == (0.0, 0.0, 0.0)
+
+
+def test_scene_integrator_sets_null_thin_dielectric(tmp_path):
+    from caustica.methods.pt import PathTracer
+    for integrator, on in (("volpath", True), ("volpathmis", True), ("path", False)):
+        d = caustica.load_scene(depth3_scene(tmp_path, integrator)).description
+        assert PathTracer.scene_defaults(d)["null_thin_dielectric"] is on
+
+
 # --------------------------------------------------------------------------- input
 
 BAD = {
@@ -213,3 +295,18 @@ def test_loader_reads_thindielectric(tmp_path):
                                               '<rgb name="specular_reflectance" value="1"/></bsdf>'))
     m = d.materials[d.shapes[0].material]
     assert (m.kind, m.int_ior, m.ext_ior) == (THINDIELECTRIC, 1.333, 1.1)
+
+
+def test_null_transmitting_flags_thin_rows_of_a_copy_only():
+    """pt's copy flags a thindielectric's row, not one inside a mask (whose shadow-ray pass probability would not add
+    the slab's share); the table given stays unflagged; a table without thindielectric needs no copy."""
+    from caustica.scene.description import DIFFUSE, MASK
+    thin = dict(int_ior=1.5, ext_ior=1.0)
+    mats = bsdfs.build_material_table(types.SimpleNamespace(materials=[
+        Material(THINDIELECTRIC, (1.0, 1.0, 1.0), **thin), Material(MASK, (1.0, 1.0, 1.0), nested=(0,)),
+        Material(THINDIELECTRIC, (1.0, 1.0, 1.0), **thin)]))
+    flagged = bsdfs.null_transmitting(mats)
+    assert [bool(f & bsdfs.NULL_TRANSMISSION) for f in flagged.flags] == [False, False, True]
+    assert not np.any(mats.flags & bsdfs.NULL_TRANSMISSION)
+    assert bsdfs.null_transmitting(bsdfs.build_material_table(types.SimpleNamespace(
+        materials=[Material(DIFFUSE, (0.5, 0.5, 0.5))]))) is None

@@ -33,11 +33,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .bsdfs import NULL_TRANSMISSION, null_transmission
 from .bsdfs.mixtures import pass_probability
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, profile, profiled, sample_area_emitter, \
     spot_falloff
 from .geometry import vec
-from .geometry.scene_geometry import intersect, occluded, surface_at, surface_uv
+from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, surface_uv
 from .jit import kernel
 from .sampling.rng import uniform
 from .scene.description import BLEND, HENYEY_GREENSTEIN, MASK, NULL, SceneDescription
@@ -62,7 +63,8 @@ class MediumTable(NamedTuple):
     interior: np.ndarray   # int32[S]: each shape's interior medium, -1 for none
     exterior: np.ndarray   # int32[S]: each shape's exterior medium, -1 for none
     camera: np.ndarray     # int32[1]: the medium the camera is in, -1 for none
-    null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF or a mask (shadow rays may cross surfaces)
+    null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF or a mask (shadow rays may cross surfaces;
+    #                            pt's copy for a volpath scene with thindielectric: 1 too)
 
 
 def build_medium_table(desc: SceneDescription) -> MediumTable:
@@ -200,7 +202,8 @@ def transmittance(geom, mats, media, o, target, medium):
 
     Null-BSDF surfaces are crossed (switching medium as :func:`medium_after` says); any other
     surface blocks (T = 0): glass too, as in Mitsuba's volpath.  A mask passes its chance of being off,
-    1 - opacity at the point (:func:`caustica.bsdfs.pass_probability`, Mitsuba's ``eval_null_transmission``).
+    1 - opacity at the point (:func:`caustica.bsdfs.pass_probability`, Mitsuba's ``eval_null_transmission``), a
+    material flagged ``NULL_TRANSMISSION`` (thindielectric in ``pt`` for a volpath scene) 1 - R (:func:`crossing`).
     The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so
     a shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
     ``hot`` (inlined by LLVM): called per shadow ray in every scene with media or null surfaces, and a call would
@@ -221,9 +224,9 @@ def transmittance(geom, mats, media, o, target, medium):
         m = geom.prim_material[prim]
         if mats.kind[m] != NULL:
             passing = crossing(geom, mats, prim, (o, d, t, b1, b2))
-            if not passing > 0.0:
+            if not (passing[0] > 0.0 or passing[1] > 0.0 or passing[2] > 0.0):
                 return (0.0, 0.0, 0.0), rays
-            T = vec.mul(T, passing)
+            T = vec.hadamard(T, passing)
         T = vec.hadamard(T, attenuation(media, medium, t))
         p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
@@ -234,16 +237,23 @@ def transmittance(geom, mats, media, o, target, medium):
 
 @kernel(inline=True)
 def crossing(geom, mats, prim, ray):
-    """The probability that a ray crosses primitive prim's surface, where ``ray`` = (o, d, t, b1, b2) meets it:
-    :func:`caustica.bsdfs.pass_probability` at the hit's (u, v) for a mixture, 1 for the null BSDF, else 0."""
+    """Per channel, the share of a ray that crosses primitive prim's surface unscattered, where ``ray`` =
+    (o, d, t, b1, b2) meets it: 1 for the null BSDF; a mixture's chance of being off at the hit's (u, v)
+    (:func:`caustica.bsdfs.pass_probability`); a ``NULL_TRANSMISSION`` material's
+    :func:`caustica.bsdfs.null_transmission` (Mitsuba's ``eval_null_transmission``); else 0."""
     m = geom.prim_material[prim]
     kind = mats.kind[m]
     if kind == NULL:
-        return 1.0
-    if kind != MASK and kind != BLEND:
-        return 0.0
+        return (1.0, 1.0, 1.0)
     o, d, t, b1, b2 = ray
-    return pass_probability(mats, m, surface_uv(geom, prim, o, d, t, b1, b2))
+    if mats.flags[m] & NULL_TRANSMISSION:
+        _, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+        uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 else NO_UV
+        return null_transmission(mats, m, d, ng, ns, uv)
+    if kind != MASK and kind != BLEND:
+        return (0.0, 0.0, 0.0)
+    s = pass_probability(mats, m, surface_uv(geom, prim, o, d, t, b1, b2))
+    return (s, s, s)
 
 
 # ----------------------------------------------------------------------------- phase functions

@@ -15,6 +15,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
 * :func:`resolve` — a mixture (``mask``, ``blendbsdf``: :mod:`.mixtures`) met by a ray becomes one of its parts (or
   no surface) with one random number, in :func:`caustica.transport.surface_interaction`, so the functions above
   never see one; :func:`pass_probability` is a surface's chance of letting a shadow ray through;
+* :func:`null_transmission` — what passes straight on through a BSDF whose transmission is Mitsuba's ``Null`` lobe
+  (``NULL_TRANSMISSION``, set on a copy of the table by :func:`null_transmitting`), for shadow rays;
 * :func:`delta_branches` — for a BSDF with only delta lobes: both directions and the reflection
   probability, for the loops that follow both branches of glass (the photon-map gather) or add what
   each branch sees in expectation (the visible-point pass).
@@ -42,8 +44,9 @@ from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, rou
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
+from ..scene.description import BLEND, MASK
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
-    GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
+    GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
@@ -124,6 +127,29 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                          cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
                          np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
                          attribute_table(desc))
+
+
+def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
+    """A copy of ``mats`` whose thindielectric rows carry ``NULL_TRANSMISSION`` (their straight-on lobe is Mitsuba's
+    ``Null`` one, as its ``volpath`` integrator treats it), or None when no row is a thindielectric.  The scene's
+    own table stays as it is: the photon methods carry light through the slab by their photons.  A thindielectric
+    inside a mask or blendbsdf is left as it is (a bounce, blocking shadow rays): :func:`pass_probability` does not
+    add Mitsuba's share of its null transmission, and the camera paths and shadow rays must agree."""
+    thin = mats.kind == THINDIELECTRIC
+    mixtures = (mats.kind == MASK) | (mats.kind == BLEND)
+    thin[mats.nested[mixtures][mats.nested[mixtures] >= 0]] = False
+    if not thin.any():
+        return None
+    flags = mats.flags.copy()
+    flags[thin] |= NULL_TRANSMISSION
+    return mats._replace(flags=flags)
+
+
+@kernel(inline=True)
+def null_transmission(mats, m, d, ng, ns, uv):
+    """Per channel, the share of a shadow ray along d (front normals ng, ns at the hit) that passes material m
+    unscattered: :func:`caustica.bsdfs.thindielectric.null_transmission` (the only BSDF with such a lobe)."""
+    return thindielectric.null_transmission(mats, m, d, ng, ns, uv)
 
 
 @kernel(inline=True)

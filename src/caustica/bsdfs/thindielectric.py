@@ -4,7 +4,10 @@ Light is reflected about the shading normal with the slab's reflectance R, or pa
 no refraction (the two interfaces' bends cancel), no change of relative IOR (``eta`` 1, so no 1 / eta² scaling of
 radiance).  R sums the internal reflections, R = F + (1 - F)² F (1 + F² + F⁴ + ...) = 2F / (1 + F), with F the
 Fresnel reflectance at the angle of incidence and eta = int_ior / ext_ior whichever side the ray comes from (the
-slab is symmetric), as Mitsuba's.  Both lobes are delta; both sides scatter.  The medium beyond is the shape's
+slab is symmetric), as Mitsuba's.  Both lobes are delta; both sides scatter.  Mitsuba flags the straight-on lobe
+``Null``, which its ``volpath`` integrator does not count as a bounce and lets shadow rays through with
+``eval_null_transmission`` = 1 - R (:func:`null_transmission`); ``pt`` does so for volpath scenes
+(:data:`caustica.bsdfs.flags.NULL_TRANSMISSION`).  The medium beyond is the shape's
 (its interior or exterior), as for any surface (:func:`caustica.media.medium_after`), as in Mitsuba.
 """
 from __future__ import annotations
@@ -55,3 +58,11 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     if uniform(key, dim) < R:
         return True, wr, colour(mats, m, uv), 0.0, DELTA_REFLECTION, 1.0, dim + 1
     return True, d, colour(mats, m, uv), 0.0, DELTA_TRANSMISSION, 1.0, dim + 1
+
+
+@kernel(inline=True)
+def null_transmission(mats, m, d, ng, ns, uv):
+    """The share of a shadow ray along d that passes straight on, (1 - R) times the colour: Mitsuba's
+    ``eval_null_transmission``, with the R :func:`sample` reflects with (0 where R = 1)."""
+    _, R = slab(d, ng, ns, mats.eta[m])
+    return vec.mul(colour(mats, m, uv), max(0.0, 1.0 - R))

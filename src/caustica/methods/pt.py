@@ -23,6 +23,14 @@ Through participating media it is a volumetric path tracer after Mitsuba 3's ``v
   it, as in Mitsuba.
 
 ``max_depth`` counts scattering events (surface and medium) as Mitsuba does.
+
+``thindielectric`` follows the scene's integrator (``null_thin_dielectric``, set for ``volpath`` and
+``volpathmis``): Mitsuba flags its straight-on transmission ``Null``, and its ``volpath`` treats a pass as a
+null crossing (not counted in the depth, the last real scattering kept for MIS, the medium switched; the
+surface is sampled even at the last depth, where a reflection then ends the path) and lets shadow rays
+through with ``eval_null_transmission`` = 1 - R; its ``path`` counts the pass as a bounce and blocks shadow
+rays, as pt does without the setting.  The setting reaches the kernels as a copy of the material table
+flagged ``NULL_TRANSMISSION`` there (:func:`null_thin_tables`); the scene's own tables are not changed.
 """
 from __future__ import annotations
 
@@ -31,15 +39,15 @@ import time
 
 import numpy as np
 
-from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, oriented, sample
+from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmitting, oriented, sample
 from ..camera import generate_ray
 from ..errors import ParameterError
 from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
-from ..media import free_flight, medium_after, phase_sample
+from ..media import cross_null, free_flight, medium_after, phase_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..transport import CROSSED, NO_UV, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
+from ..transport import CROSSED, SCATTER, ShadingPoint, borrow_tables, in_medium, surface_interaction
 from . import register
 from .independent import IndependentPasses
 from .params import Param
@@ -50,25 +58,77 @@ DEPTH_CAP = 1024
 #: (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights, to
 #: the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
 SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
+#: The integrators for which a thindielectric's straight-on transmission is a null event (Mitsuba's ``Null`` lobe,
+#: which ``volpath`` does not count as a bounce and lets shadow rays through): pt's ``null_thin_dielectric``.
+NULL_THIN_INTEGRATORS = ("volpath", "volpathmis")
+
+
+@kernel(hot=True)
+def medium_event(tables, at, d, acc, key, dim):
+    """A scattering event in a medium at ``at`` (:func:`caustica.transport.in_medium`) on a path arriving along d
+    with ``acc`` = (L, β, shadow rays so far): next-event estimation with the phase function (MIS against it for
+    area lights), then a phase-sampled direction.  Returns (L, β, shadow rays, alive, wo, its pdf, dim)."""
+    L, beta, n_shadow = acc
+    ok, term, scale, shadow, dim = next_event(tables, at, 0, d, beta, key, dim)
+    if ok:
+        L = vec.madd(L, term, scale)
+    wo, weight, pdf = phase_sample(tables[3], at.medium, d, uniform(key, dim), uniform(key, dim + 1))
+    return L, vec.mul(beta, weight), n_shadow + shadow, pdf > 0.0, wo, pdf, dim + 2
+
+
+@kernel(hot=True)
+def surface_event(tables, at, m, d, acc, key, dim):
+    """Scattering at surface point ``at`` of material m on a path arriving along d with ``acc`` = (L, β, shadow rays
+    so far): next-event estimation where the BSDF has a smooth lobe, then a BSDF-sampled direction.  Returns
+    (L, β times the sample's weight, shadow rays, (alive, wi, pdf, lobe, eta²), dim): β carries 1 / eta² when the
+    lobe refracts (radiance is compressed into the denser medium), eta² is 1 otherwise."""
+    L, beta, n_shadow = acc
+    mats = tables[1]
+    if mats.flags[m] & SMOOTH:
+        ok, term, scale, shadow, dim = next_event(tables, at, m, d, beta, key, dim)
+        n_shadow += shadow
+        if ok:
+            L = vec.madd(L, term, scale)
+    alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, at.ng, at.ns, at.uv, key, dim)
+    beta = vec.hadamard(beta, weight)
+    eta2 = 1.0
+    if lobe & TRANSMISSION:
+        eta2 = eta * eta
+        beta = vec.mul(beta, 1.0 / eta2)
+    return L, beta, n_shadow, (alive, wi, pdf, lobe, eta2), dim
+
+
+@kernel(inline=True)
+def emitted(lights, e, acc, last, hit):
+    """L plus β times emitter e's radiance reached at ``hit`` = (p, cos_l, t, null crossings since the last
+    scattering), MIS-weighted against light sampling from ``last`` = (specular, pdf_last, p_last)
+    (:func:`caustica.lighting.emission_mis`); ``acc`` = (L, β)."""
+    L, beta = acc
+    p, cos_l, t, crossed = hit
+    return vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)), emission_mis(lights, e, last, cos_l, t, crossed,
+                                                                                     p))
+
+
+@kernel(inline=True)
+def russian_roulette(beta, eta_scale, key, dim):
+    """The path goes on with probability q = min(max β · eta_scale, 0.95) (number dim), then with β / q, as Mitsuba's.
+    Returns (alive, β, dim)."""
+    q = min(vec.max_component(beta) * eta_scale, 0.95)
+    if uniform(key, dim) >= q:
+        return False, beta, dim
+    return True, vec.mul(beta, 1.0 / q), dim + 1
 
 
 @kernel(hot=True)
 def radiance(tables, o, d, key, depths):
-    """Radiance arriving at o from direction -d, estimated along one random path (from the camera's medium).
-
-    ``depths`` = (max_depth, rr_depth, hide_emitters): Mitsuba's settings (hide_emitters: emitters and the
-    environment the camera ray meets before any scattering add nothing).
-
-    Returns (L, extension rays, shadow rays): the rays traced, counted where they are traced.
-    """
+    """Radiance arriving at o from direction -d along one random path (from the camera's medium), with ``depths`` =
+    (max_depth, rr_depth, hide_emitters), Mitsuba's settings (hide_emitters: emitters and the environment the camera
+    ray meets before any scattering add nothing).  Returns (L, extension rays, shadow rays traced)."""
     geom, mats, lights, media = tables
     max_depth, rr_depth, hide_emitters = depths
-    zero = (0.0, 0.0, 0.0)
-    n_ext = 0
-    n_shadow = 0
-    L = zero
-    beta = (1.0, 1.0, 1.0)
-    eta_scale = 1.0
+    n_ext = n_shadow = 0
+    L, beta = (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+    eta_scale = 1.0      # the product of the refractions' eta² (Russian roulette's measure of β, as Mitsuba's)
     specular = True      # no scattering yet, or the last one was a delta: emission counts in full
     pdf_last = 0.0       # solid-angle density of the last scattering's sampled direction
     p_last = o           # where that scattering happened
@@ -87,76 +147,58 @@ def radiance(tables, o, d, key, depths):
             beta = vec.hadamard(beta, w)
             if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
                 break    # absorbed (albedo 0), or a flight no channel can take
-        if prim < 0:
-            # ---- a scattering event in the medium, at t = the flight's distance
+        if prim < 0:     # ---- a scattering event in the medium, at t = the flight's distance
             p = vec.madd(o, d, t)
             depth += 1
             if depth >= max_depth:
                 break
-            ng = ns = ng_front = zero
-            uv = NO_UV
-            shape = -1
-            m = 0
-        else:
-            # ---- a surface (an emitter on a null boundary shines too)
+            L, beta, n_shadow, alive, d, pdf_last, dim = medium_event(tables, in_medium(p, medium), d,
+                                                                       (L, beta, n_shadow), key, dim)
+            if not alive:
+                break
+            o = p
+            specular = False
+        else:            # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
             p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
                 tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
             e = geom.prim_emitter[prim]
             if e >= 0 and front and not (hide_emitters and depth == 0):
-                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
-                             emission_mis(lights, e, (specular, pdf_last, p_last), -vec.dot(d, ng), t, crossed, p))
-            if nxt == CROSSED:
-                continue
-            if nxt == TRAPPED:
-                break
-            depth += 1
-            if depth >= max_depth:
+                L = emitted(lights, e, (L, beta), (specular, pdf_last, p_last), (p, -vec.dot(d, ng), t, crossed))
+            if nxt != SCATTER:
+                if nxt == CROSSED:
+                    continue
                 break
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
-            if not scatters:
+            null_lobe = mats.flags[m] & NULL_TRANSMISSION != 0   # sampled at the last depth too, as volpath does
+            if not scatters or (depth + 1 >= max_depth and not null_lobe):
                 break
-        in_medium = prim < 0
-        if in_medium or mats.flags[m] & SMOOTH:
-            ok, term, scale, shadow, dim = next_event(tables, ShadingPoint(p, ng, ns, ng_front, shape, medium, uv), m, d,
-                                                      beta, key, dim)
-            n_shadow += shadow
-            if ok:
-                L = vec.madd(L, term, scale)
-        if in_medium:
-            wo, weight, pdf = phase_sample(media, medium, d, uniform(key, dim), uniform(key, dim + 1))
-            dim += 2
-            if not pdf > 0.0:
-                break
-            beta = vec.mul(beta, weight)
-            o = p
-            d = wo
-            p_last = p
-            pdf_last = pdf
-            specular = False
-            crossings = 0
-        else:
-            alive, wi, weight, pdf, lobe, eta, dim = sample(mats, m, d, ng, ns, uv, key, dim)
+            L, beta, n_shadow, (alive, wi, pdf, lobe, eta2), dim = surface_event(
+                tables, ShadingPoint(p, ng, ns, ng_front, shape, medium, uv), m, d, (L, beta, n_shadow), key, dim)
             if not alive:
                 break
-            beta = vec.hadamard(beta, weight)
-            if lobe & TRANSMISSION:
-                beta = vec.mul(beta, 1.0 / (eta * eta))   # radiance is compressed into the denser medium
-                eta_scale *= eta * eta
+            if null_lobe and lobe & TRANSMISSION:   # Mitsuba's Null lobe: crossed as a null boundary, no bounce
+                medium, o, crossings, within = cross_null(media, shape, p, ng_front, d, medium, crossed)
+                if within:
+                    continue
+                break
+            depth += 1
+            if depth >= max_depth:   # a Null lobe's surface reflecting at the last depth
+                break
+            eta_scale *= eta2
             specular = lobe & DELTA != 0
             if not specular:
                 pdf_last = pdf
             medium = medium_after(media, shape, ng_front, wi, medium)
-            p_last = p
             o = vec.offset_origin(p, ng, wi)
             d = wi
+        p_last = p
+        crossings = 0    # a real scattering event: null crossings are counted from here
         if depth >= rr_depth:
-            q = min(vec.max_component(beta) * eta_scale, 0.95)
-            if uniform(key, dim) >= q:
+            alive, beta, dim = russian_roulette(beta, eta_scale, key, dim)
+            if not alive:
                 break
-            dim += 1
-            beta = vec.mul(beta, 1.0 / q)
     return L, n_ext, n_shadow
 
 
@@ -190,6 +232,18 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
         image[y, x, 2] = acc[2] * inv
 
 
+def null_thin_tables(tables):
+    """The scene tables with a thindielectric's straight-on lobe made Mitsuba volpath's null event: a copy of the
+    material table flagged ``NULL_TRANSMISSION`` there (:func:`caustica.bsdfs.null_transmitting`) and of the media
+    table saying shadow rays may cross surfaces, so that they reach :func:`caustica.media.crossing`.  The scene's
+    tables stay as they are (the photon methods carry that light by photons).  Unchanged without thindielectric."""
+    geom, mats, lights, media = tables
+    flagged = null_transmitting(mats)
+    if flagged is None:
+        return tables
+    return geom, flagged, lights, media._replace(null_surfaces=np.ones(1, np.int8))
+
+
 @register
 class PathTracer(IndependentPasses):
     name = "pt"
@@ -207,6 +261,9 @@ class PathTracer(IndependentPasses):
               max=DEPTH_CAP),
         Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
               "black, as Mitsuba's hide_emitters (a scene's integrator sets the default)"),
+        Param("null_thin_dielectric", bool, False, "thindielectric's straight-on transmission is Mitsuba volpath's "
+              "null event: not counted in max_depth, and shadow rays pass it with 1 - R (a scene's volpath "
+              "integrator sets it; else a crossing is a bounce and blocks shadow rays, as Mitsuba's path)"),
     )
 
     @staticmethod
@@ -220,7 +277,8 @@ class PathTracer(IndependentPasses):
         if s.max_depth == 0:
             raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even the "
                                  f"emitters); give -1 (unlimited) or a depth of at least 1")
-        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth, "hide_emitters": s.hide_emitters}
+        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth, "hide_emitters": s.hide_emitters,
+                "null_thin_dielectric": s.type in NULL_THIN_INTEGRATORS}
 
     @staticmethod
     def pass_output(scene, settings, pass_index, progress):
@@ -235,7 +293,8 @@ class PathTracer(IndependentPasses):
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
         params = (settings["spp"], max_depth, settings["rr_depth"], settings["hide_emitters"])
-        compile_s = parallel_for(render_pixels, n, (scene.tables, cam, (settings["seed"], stream), params, (image, rays)),
+        tables = null_thin_tables(scene.tables) if settings["null_thin_dielectric"] else scene.tables
+        compile_s = parallel_for(render_pixels, n, (tables, cam, (settings["seed"], stream), params, (image, rays)),
                                  threads=settings["threads"], progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}

@@ -112,9 +112,9 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
             L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), w)
         if mats.kind[geom.prim_material[prim]] != NULL:
             passing = crossing(geom, mats, prim, (o, d, t, b1, b2))   # a mask: its chance of being off there
-            if not passing > 0.0:
+            if not (passing[0] > 0.0 or passing[1] > 0.0 or passing[2] > 0.0):
                 return L
-            T = vec.mul(T, passing)
+            T = vec.hadamard(T, passing)
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
     return L
