@@ -477,6 +477,7 @@ def _traverse(arrays, o, d, tmax, any_hit):
     caller (``hot``), where the constant ``any_hit`` folds away.
     """
     box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local = arrays
+    prims = (prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local)
     best_prim = -1
     best_t = tmax
     best_b1 = 0.0
@@ -494,8 +495,7 @@ def _traverse(arrays, o, d, tmax, any_hit):
                 first = node[k, 0]
                 for s in range(first, first + cnt):
                     prim = order[s]
-                    t, b1, b2 = intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2,
-                                                           ana_to_local, prim, o, d, best_t)
+                    t, b1, b2 = intersect_primitive_arrays(prims, prim, o, d, best_t)
                     if t < best_t:
                         best_t = t
                         best_prim = prim
