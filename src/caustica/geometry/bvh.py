@@ -130,27 +130,22 @@ def _stable_sort(keys, order, lo, hi, tmp_keys, tmp_order):
 
 
 @kernel(inline=True)
+def _grow(lo, hi, arr, p, h):
+    """Bounds (lo, hi) grown by row p of ``arr``: its low corner in columns 0..2, its high one from column h."""
+    return ((min(lo[0], arr[p, 0]), min(lo[1], arr[p, 1]), min(lo[2], arr[p, 2])),
+            (max(hi[0], arr[p, h]), max(hi[1], arr[p, h + 1]), max(hi[2], arr[p, h + 2])))
+
+
+@kernel(inline=True)
 def _node_bounds(prim_box, cen, order, start, end):
     """The bounds of primitives order[start:end] and of their centroids: (lo, hi, centroid lo, centroid hi)."""
-    lx = ly = lz = INF
-    hx = hy = hz = -INF
-    clx = cly = clz = INF
-    chx = chy = chz = -INF
+    lo = c_lo = (INF, INF, INF)
+    hi = c_hi = (-INF, -INF, -INF)
     for k in range(start, end):
         p = order[k]
-        lx = min(lx, prim_box[p, 0])
-        ly = min(ly, prim_box[p, 1])
-        lz = min(lz, prim_box[p, 2])
-        hx = max(hx, prim_box[p, 3])
-        hy = max(hy, prim_box[p, 4])
-        hz = max(hz, prim_box[p, 5])
-        clx = min(clx, cen[p, 0])
-        cly = min(cly, cen[p, 1])
-        clz = min(clz, cen[p, 2])
-        chx = max(chx, cen[p, 0])
-        chy = max(chy, cen[p, 1])
-        chz = max(chz, cen[p, 2])
-    return (lx, ly, lz), (hx, hy, hz), (clx, cly, clz), (chx, chy, chz)
+        lo, hi = _grow(lo, hi, prim_box, p, 3)
+        c_lo, c_hi = _grow(c_lo, c_hi, cen, p, 0)
+    return lo, hi, c_lo, c_hi
 
 
 @kernel(inline=True)
@@ -397,38 +392,30 @@ def _safe_inv(x):
 
 
 @kernel(inline=True)
+def _slab(lo, hi, o, inv, t0, t1):
+    """The ray's span (t0, t1) narrowed to one axis's slab [lo, hi] (origin o and 1 / direction inv on that axis;
+    the exit widened by _BOX_WIDEN).  A NaN distance leaves the span as it is."""
+    tn = (lo - o) * inv
+    tf = (hi - o) * inv
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_WIDEN
+    return (tn if tn > t0 else t0), (tf if tf < t1 else t1)
+
+
+@kernel(inline=True)
 def _hit_box(box, k, o, inv, tmax):
     """Slab test of node ``k`` against the ray ``o + t d``, ``t`` in [0, tmax].
 
     Written so that NaN slab distances (ray in a slab plane) never reject a box.
     """
-    t0 = 0.0
-    t1 = tmax * _BOX_WIDEN
-    tn = (box[k, 0] - o[0]) * inv[0]
-    tf = (box[k, 3] - o[0]) * inv[0]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 0], box[k, 3], o[0], inv[0], 0.0, tmax * _BOX_WIDEN)
     if t0 > t1:
         return False
-    tn = (box[k, 1] - o[1]) * inv[1]
-    tf = (box[k, 4] - o[1]) * inv[1]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 1], box[k, 4], o[1], inv[1], t0, t1)
     if t0 > t1:
         return False
-    tn = (box[k, 2] - o[2]) * inv[2]
-    tf = (box[k, 5] - o[2]) * inv[2]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 2], box[k, 5], o[2], inv[2], t0, t1)
     return t0 <= t1
 
 

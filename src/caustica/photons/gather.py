@@ -52,10 +52,9 @@ def push_branch(scratch, top, o, d, beta, depth):
     """Put a camera-path branch (origin, direction, throughput, specular depth) on the split stack at ``top``;
     the stack's new top."""
     st_o, st_d, st_beta, st_depth, _, _ = scratch
-    for c in range(3):
-        st_o[top, c] = o[c]
-        st_d[top, c] = d[c]
-        st_beta[top, c] = beta[c]
+    vec.set_row(st_o, top, o)
+    vec.set_row(st_d, top, d)
+    vec.set_row(st_beta, top, beta)
     st_depth[top] = depth
     return top + 1
 

@@ -113,12 +113,12 @@ def store_stream_record(r, p, d, n, stream, kind, rec):
     """Write stream record r: the leading photon (position, direction, normal), and of ``stream`` = (its power,
     the associated photons' power, how many landed) the powers and the count."""
     lead, p_assoc, landed = stream
+    vec.set_row(rec.position, r, p)
+    vec.set_row(rec.direction, r, d)
+    vec.set_row(rec.normal, r, n)
+    vec.set_row(rec.lead_power, r, lead)
+    vec.set_row(rec.assoc_power, r, p_assoc)
     for c in range(3):
-        rec.position[r, c] = p[c]
-        rec.direction[r, c] = d[c]
-        rec.normal[r, c] = n[c]
-        rec.lead_power[r, c] = lead[c]
-        rec.assoc_power[r, c] = p_assoc[c]
         rec.energy[r, c] = lead[c] + landed * p_assoc[c]
     rec.count[r] = landed
     rec.kind[r] = kind
@@ -127,10 +127,9 @@ def store_stream_record(r, p, d, n, stream, kind, rec):
 @kernel(inline=True)
 def store_associated(a, p, d, n, assoc):
     """Write associated photon slot a (position, direction of travel, normal: zero in a medium)."""
-    for c in range(3):
-        assoc.position[a, c] = p[c]
-        assoc.direction[a, c] = d[c]
-        assoc.normal[a, c] = n[c]
+    vec.set_row(assoc.position, a, p)
+    vec.set_row(assoc.direction, a, d)
+    vec.set_row(assoc.normal, a, n)
 
 
 @kernel(inline=True)

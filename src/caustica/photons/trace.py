@@ -50,11 +50,10 @@ TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled b
 @kernel(inline=True)
 def store_record(s, p, d, power, n, kind, buf):
     """Write one photon record (position, direction of travel, power, normal, kind) into slot s of ``buf``."""
-    for c in range(3):
-        buf.position[s, c] = p[c]
-        buf.direction[s, c] = d[c]
-        buf.power[s, c] = power[c]
-        buf.normal[s, c] = n[c]
+    vec.set_row(buf.position, s, p)
+    vec.set_row(buf.direction, s, d)
+    vec.set_row(buf.power, s, power)
+    vec.set_row(buf.normal, s, n)
     buf.kind[s] = kind
 
 

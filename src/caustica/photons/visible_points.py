@@ -355,11 +355,10 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
                                                  (i * MEDIUM_SEGMENTS, segments))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
-        for c in range(3):
-            points.position[i, c] = p[c]
-            points.normal[i, c] = n[c]
-            points.weight[i, c] = w[c]
-            points.direct[i, c] = L[c]
+        vec.set_row(points.position, i, p)
+        vec.set_row(points.normal, i, n)
+        vec.set_row(points.weight, i, w)
+        vec.set_row(points.direct, i, L)
         points.found[i] = found
         segments.count[i] = n_seg
 
