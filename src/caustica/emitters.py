@@ -133,41 +133,38 @@ def _parallelogram(shape):
     return None
 
 
-def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
-    emissive = [s for s in desc.shapes if s.emitter_radiance is not None]
-    n_area = len(emissive)
-    n_point = n_area + len(desc.point_lights) + len(desc.projectors)
-    n = n_point + len(desc.directional_lights)
-    kind = np.zeros(n, np.int32)
-    radiance = np.zeros((n, 3))
-    position = np.zeros((n, 3))
-    area = np.zeros(n)
-    power = np.zeros((n, 3))
-    first = np.zeros(n, np.int32)
-    count = np.zeros(n, np.int32)
-    is_para = np.zeros(n, np.int8)
-    corner = np.zeros((n, 3))
-    edge1 = np.zeros((n, 3))
-    edge2 = np.zeros((n, 3))
-    normal = np.zeros((n, 3))
-    cone = np.zeros((n, 4))
+def _light_columns(n: int) -> dict:
+    """The per-light columns of :class:`LightTable` for ``n`` lights, zero (the selection's come last)."""
+    c = {k: np.zeros((n, 3)) for k in ("radiance", "position", "power", "corner", "edge1", "edge2", "normal")}
+    c.update(kind=np.zeros(n, np.int32), area=np.zeros(n), prim_first=np.zeros(n, np.int32),
+             prim_count=np.zeros(n, np.int32), is_parallelogram=np.zeros(n, np.int8), cone=np.zeros((n, 4)))
+    return c
+
+
+def _area_rows(c: dict, emissive: list, geom: Geometry) -> None:
+    """Rows 0.. of the area emitters: the geometry lists each one's primitives with their area CDF (CSR)."""
     for e, shape in enumerate(emissive):
-        # The geometry lists each emitter's primitives with their area CDF (CSR).
-        first[e] = geom.emitter_offset[e]
-        count[e] = geom.emitter_offset[e + 1] - geom.emitter_offset[e]
-        kind[e] = AREA
-        radiance[e] = shape.emitter_radiance
-        area[e] = geom.emitter_area[e]
-        power[e] = math.pi * area[e] * np.asarray(shape.emitter_radiance)
+        c["prim_first"][e] = geom.emitter_offset[e]
+        c["prim_count"][e] = geom.emitter_offset[e + 1] - geom.emitter_offset[e]
+        c["kind"][e] = AREA
+        c["radiance"][e] = shape.emitter_radiance
+        c["area"][e] = geom.emitter_area[e]
+        c["power"][e] = math.pi * c["area"][e] * np.asarray(shape.emitter_radiance)
         quad = _parallelogram(shape)
         if quad is not None:
-            is_para[e] = 1
-            corner[e], edge1[e], edge2[e], normal[e] = quad
+            c["is_parallelogram"][e] = 1
+            c["corner"][e], c["edge1"][e], c["edge2"][e], c["normal"][e] = quad
+
+
+def _point_rows(c: dict, desc: SceneDescription, i0: int) -> None:
+    """Rows i0.. of the point lights and spots, then of the projectors."""
+    kind, radiance, power, edge1, edge2, normal, cone = (c[k] for k in ("kind", "radiance", "power", "edge1",
+                                                                        "edge2", "normal", "cone"))
     for j, light in enumerate(desc.point_lights):
-        i = n_area + j
+        i = i0 + j
         kind[i] = POINT
         radiance[i] = light.intensity
-        position[i] = light.position
+        c["position"][i] = light.position
         power[i] = 4.0 * math.pi * np.asarray(light.intensity)
         if light.axis is not None:
             kind[i] = SPOT
@@ -178,43 +175,60 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
             if light.frame is not None:
                 edge1[i], edge2[i] = light.frame[:, 0], light.frame[:, 1]
     for j, proj in enumerate(desc.projectors):
-        i = n_area + len(desc.point_lights) + j
+        i = i0 + len(desc.point_lights) + j
         kind[i] = PROJECTOR
         radiance[i] = math.pi * proj.scale * np.asarray(proj.irradiance if proj.texture is None else (1.0,) * 3)
-        position[i] = proj.position
+        c["position"][i] = proj.position
         edge1[i], edge2[i], normal[i] = proj.frame[:, 0], proj.frame[:, 1], proj.frame[:, 2]
         cone[i] = (proj.tan_x, proj.tan_y, 4.0 * proj.tan_x * proj.tan_y, 0.0)
         power[i] = cone[i, 2] * radiance[i] * _image_mean(proj.texture)
+
+
+def _append_environment(c: dict, env: dict, textures: dict) -> None:
+    """One more row, of kind ENV, for the environment: its radiance and power from ``env`` (taken out of it)."""
+    c["kind"] = np.append(c["kind"], np.int32(ENV))
+    c["radiance"] = np.vstack([c["radiance"], env.pop("radiance")])
+    c["power"] = np.vstack([c["power"], env.pop("power")])
+    for k in ("position", "edge1", "edge2", "corner", "normal"):
+        c[k] = np.vstack([c[k], np.zeros((1, 3))])
+    c["cone"] = np.vstack([c["cone"], np.zeros((1, 4))])
+    c["area"] = np.append(c["area"], 0.0)
+    c["prim_first"] = np.append(c["prim_first"], np.int32(0))
+    c["prim_count"] = np.append(c["prim_count"], np.int32(0))
+    c["is_parallelogram"] = np.append(c["is_parallelogram"], np.int8(0))
+    textures["tex_int"] = np.vstack([textures["tex_int"], _no_texture_row()])
+    textures["tex_float"] = np.vstack([textures["tex_float"], np.zeros((1, 12))])
+
+
+def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
+    """The scene's lights in one table: area emitters, point lights and spots, projectors, directional lights,
+    then the environment; each chosen in proportion to its mean power (``select_pdf``, ``select_cdf``)."""
+    emissive = [s for s in desc.shapes if s.emitter_radiance is not None]
+    n_area = len(emissive)
+    n_point = n_area + len(desc.point_lights) + len(desc.projectors)
+    n = n_point + len(desc.directional_lights)
+    c = _light_columns(n)
+    _area_rows(c, emissive, geom)
+    _point_rows(c, desc, n_area)
     textures = _light_textures(desc, n_area, n)
     env = _environment_tables(desc, geom)
     disc = math.pi * env["env_data"][3] ** 2
     for j, light in enumerate(desc.directional_lights):
         i = n_point + j
-        kind[i] = DIRECTIONAL
-        radiance[i] = light.irradiance
-        normal[i] = light.direction
-        power[i] = disc * np.asarray(light.irradiance)
+        c["kind"][i] = DIRECTIONAL
+        c["radiance"][i] = light.irradiance
+        c["normal"][i] = light.direction
+        c["power"][i] = disc * np.asarray(light.irradiance)
     if desc.environment is not None:
-        kind = np.append(kind, np.int32(ENV))
-        radiance = np.vstack([radiance, env.pop("radiance")])
-        power = np.vstack([power, env.pop("power")])
-        position, edge1, edge2, corner, normal = (np.vstack([a, np.zeros((1, 3))]) for a in
-                                                  (position, edge1, edge2, corner, normal))
-        cone = np.vstack([cone, np.zeros((1, 4))])
-        area = np.append(area, 0.0)
-        first = np.append(first, np.int32(0))
-        count = np.append(count, np.int32(0))
-        is_para = np.append(is_para, np.int8(0))
-        textures["tex_int"] = np.vstack([textures["tex_int"], _no_texture_row()])
-        textures["tex_float"] = np.vstack([textures["tex_float"], np.zeros((1, 12))])
+        _append_environment(c, env, textures)
         n += 1
     else:
         env.pop("radiance")
         env.pop("power")
-    table = LightTable(kind, radiance, position, area, power, np.zeros(n), np.zeros(n),
-                       first, count, geom.emitter_prim_ids.astype(np.int32),
-                       geom.emitter_cdf.astype(np.float64), is_para,
-                       corner, edge1, edge2, normal, cone, **env, **textures)
+    table = LightTable(**c, select_pdf=np.zeros(n), select_cdf=np.zeros(n),
+                       prims=geom.emitter_prim_ids.astype(np.int32), prim_cdf=geom.emitter_cdf.astype(np.float64),
+                       **env, **textures)
+    power, radiance = c["power"], c["radiance"]
     for j, light in enumerate(desc.point_lights):
         if light.texture is not None:   # a textured spot: I ∫ f T dω by quadrature
             i = n_area + j

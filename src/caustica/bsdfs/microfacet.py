@@ -29,6 +29,7 @@ import math
 
 from ..geometry import vec
 from ..jit import kernel
+from ..sampling.rng import uniform
 from ..scene.description import BECKMANN, GGX  # noqa: F401  (the distribution codes)
 
 INV_PI = 1.0 / math.pi
@@ -149,3 +150,23 @@ def sample_visible(dist, alpha, wi, u1, u2):
 def to_local(s, t, n, v):
     """World to local (the s, t, n frame)."""
     return (vec.dot(v, s), vec.dot(v, t), vec.dot(v, n))
+
+
+@kernel
+def local_frame(n, d):
+    """The frame (s, t) about the normal n and, in it, wo = -d (towards where the ray came from): (s, t, wo)."""
+    s, t = vec.orthonormal_basis(n)
+    return s, t, to_local(s, t, n, vec.neg(d))
+
+
+@kernel
+def sample_half(dist, alpha, wo, key, dim):
+    """A visible microfacet normal h seen from wo (numbers dim, dim + 1; :func:`sample_visible`) and c = wo · h."""
+    h = sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
+    return h, vec.dot(wo, h)
+
+
+@kernel
+def reflect(wo, h, c):
+    """wo mirrored about the microfacet normal h, c = wo · h (local frame)."""
+    return (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])

@@ -64,8 +64,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
     texture is read)."""
     zero = (0.0, 0.0, 0.0)
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, DIFFUSE_REFLECTION, 1.0, dim + 3
     wl, lobe = lobe_direction(mats, m, wo, mats.coating[m, SPEC_WEIGHT], key, dim)
@@ -81,8 +80,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0

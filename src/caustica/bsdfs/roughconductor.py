@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from ..geometry import vec
 from ..jit import kernel
-from ..sampling.rng import uniform
 from ..scene.description import ROUGHCONDUCTOR
 from . import microfacet as mf
 from .flags import GLOSSY_REFLECTION
@@ -36,14 +35,12 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
     :func:`caustica.bsdfs.sample`."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     zero = (0.0, 0.0, 0.0)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
-    h = mf.sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
-    c = vec.dot(wo, h)
-    wl = (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
+    h, c = mf.sample_half(dist, alpha, wo, key, dim)
+    wl = mf.reflect(wo, h, c)
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or c <= 0.0 or vec.dot(wi, ng) <= 0.0:
         return False, wi, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
@@ -57,8 +54,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0

@@ -62,19 +62,17 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
-    s, t = vec.orthonormal_basis(n)
-    wo = mf.to_local(s, t, n, vec.neg(d))
+    s, t, wo = mf.local_frame(n, d)
     zero = (0.0, 0.0, 0.0)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
-    h = mf.sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
-    c = vec.dot(wo, h)
+    h, c = mf.sample_half(dist, alpha, wo, key, dim)
     if c <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
     F, cos_t = fresnel_dielectric(c, eta)
     p_h = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) * c / wo[2]
     if uniform(key, dim + 2) < F:
-        wl = (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
+        wl = mf.reflect(wo, h, c)
         pdf = F * p_h / (4.0 * c)
         lobe, eta_out = GLOSSY_REFLECTION, 1.0
         ok = wl[2] > 0.0
@@ -96,8 +94,7 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
     dist, alpha = mats.distribution[m], mats.alpha[m]
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
-    s, t = vec.orthonormal_basis(n)
-    wo = mf.to_local(s, t, n, vec.neg(d))
+    s, t, wo = mf.local_frame(n, d)
     wl = mf.to_local(s, t, n, wi)
     zero = (0.0, 0.0, 0.0)
     reflect = wl[2] > 0.0

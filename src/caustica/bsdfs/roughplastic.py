@@ -57,7 +57,7 @@ def coating_quadrature(dist, alpha, eta, mu, nodes, weights, inside):
                 c = vec.dot(wo, h)
                 F, cos_t = fresnel_dielectric(c, e) if c > 0.0 else (1.0, 0.0)
                 if inside:
-                    w = (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
+                    w = mf.reflect(wo, h, c)
                     g = F * mf.smith_g1(dist, alpha, w, h) if w[2] > 0.0 else 0.0
                 elif F < 1.0:
                     w = refract(vec.neg(wo), h, e, c, cos_t)
@@ -124,7 +124,7 @@ def lobe_direction(mats, m, wo, P, key, dim):
     if uniform(key, dim) < P:
         h = mf.sample_visible(mats.distribution[m], mats.alpha[m], wo, u1, u2)
         c = vec.dot(wo, h)
-        return (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2]), GLOSSY_REFLECTION
+        return mf.reflect(wo, h, c), GLOSSY_REFLECTION
     return square_to_cosine_hemisphere(u1, u2), DIFFUSE_REFLECTION
 
 
@@ -134,8 +134,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
     texture is read)."""
     zero = (0.0, 0.0, 0.0)
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, DIFFUSE_REFLECTION, 1.0, dim + 3
     wl, lobe = lobe_direction(mats, m, wo, choice(mats, m, transmittance(mats, m, wo[2])), key, dim)
@@ -151,8 +150,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
-    s, t = vec.orthonormal_basis(ns)
-    wo = mf.to_local(s, t, ns, vec.neg(d))
+    s, t, wo = mf.local_frame(ns, d)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0

@@ -129,6 +129,172 @@ def _stable_sort(keys, order, lo, hi, tmp_keys, tmp_order):
             order[k] = tmp_order[k]
 
 
+@kernel(inline=True)
+def _grow(lo, hi, arr, p, h):
+    """Bounds (lo, hi) grown by row p of ``arr``: its low corner in columns 0..2, its high one from column h."""
+    return ((min(lo[0], arr[p, 0]), min(lo[1], arr[p, 1]), min(lo[2], arr[p, 2])),
+            (max(hi[0], arr[p, h]), max(hi[1], arr[p, h + 1]), max(hi[2], arr[p, h + 2])))
+
+
+@kernel(inline=True)
+def _node_bounds(prim_box, cen, order, start, end):
+    """The bounds of primitives order[start:end] and of their centroids: (lo, hi, centroid lo, centroid hi)."""
+    lo = c_lo = (INF, INF, INF)
+    hi = c_hi = (-INF, -INF, -INF)
+    for k in range(start, end):
+        p = order[k]
+        lo, hi = _grow(lo, hi, prim_box, p, 3)
+        c_lo, c_hi = _grow(c_lo, c_hi, cen, p, 0)
+    return lo, hi, c_lo, c_hi
+
+
+@kernel(inline=True)
+def _bin_of(cen, p, axis, lo, scale):
+    """The SAH bin of primitive p's centroid along ``axis`` (from the centroid bounds' ``lo``), below N_BINS."""
+    b = int((cen[p, axis] - lo) * scale)
+    if b >= N_BINS:
+        b = N_BINS - 1
+    return b
+
+
+@kernel(inline=True)
+def _fill_bins(prim_box, cen, order, span, axis, lo, scale, bins):
+    """Count primitives order[start:end] (``span``) into the bins along ``axis`` and grow each bin's bounds;
+    ``bins`` = (counts, bounds)."""
+    start, end = span
+    bin_cnt, bin_box = bins
+    bin_cnt[:] = 0
+    for b in range(N_BINS):
+        for c in range(3):
+            bin_box[b, c] = INF
+            bin_box[b, c + 3] = -INF
+    for k in range(start, end):
+        p = order[k]
+        b = max(_bin_of(cen, p, axis, lo, scale), 0)
+        bin_cnt[b] += 1
+        for c in range(3):
+            if prim_box[p, c] < bin_box[b, c]:
+                bin_box[b, c] = prim_box[p, c]
+            if prim_box[p, c + 3] > bin_box[b, c + 3]:
+                bin_box[b, c + 3] = prim_box[p, c + 3]
+
+
+@kernel(inline=True)
+def _sweep(bin_box, b, bounds):
+    """``bounds`` (lx, ly, lz, hx, hy, hz) grown by bin b's."""
+    lx, ly, lz, hx, hy, hz = bounds
+    return (min(lx, bin_box[b, 0]), min(ly, bin_box[b, 1]), min(lz, bin_box[b, 2]),
+            max(hx, bin_box[b, 3]), max(hy, bin_box[b, 4]), max(hz, bin_box[b, 5]))
+
+
+@kernel(inline=True)
+def _best_bin(bins, right):
+    """The SAH's cheapest split of the filled ``bins`` = (counts, bounds): (cost, b), left = bins < b, b = -1 if no
+    split leaves both sides non-empty.  ``right`` = (areas, counts) scratch of the sweep from the right."""
+    bin_cnt, bin_box = bins
+    right_area, right_cnt = right
+    empty = (INF, INF, INF, -INF, -INF, -INF)
+    r = empty
+    rc = 0
+    for b in range(N_BINS - 1, 0, -1):   # area and count of bins b..N_BINS-1
+        r = _sweep(bin_box, b, r)
+        rc += bin_cnt[b]
+        right_area[b] = _area(r[0], r[1], r[2], r[3], r[4], r[5])
+        right_cnt[b] = rc
+    best_cost = INF
+    best_bin = -1
+    lb = empty
+    lc = 0
+    for b in range(1, N_BINS):           # split after bin b - 1
+        lb = _sweep(bin_box, b - 1, lb)
+        lc += bin_cnt[b - 1]
+        if lc == 0 or right_cnt[b] == 0:
+            continue
+        cost = lc * _area(lb[0], lb[1], lb[2], lb[3], lb[4], lb[5]) + right_cnt[b] * right_area[b]
+        if cost < best_cost:
+            best_cost = cost
+            best_bin = b
+    return best_cost, best_bin
+
+
+@kernel(inline=True)
+def _sah_split(prim_box, cen, order, span, centroids, bins, right):
+    """The cheapest SAH split of order[start:end] (``span``) over the three axes, ``centroids`` = (their lower
+    bound, extent): (cost, axis, bin), axis -1 if none."""
+    clo, ext = centroids
+    best_cost = INF
+    best_axis = -1
+    best_bin = -1
+    for axis in range(3):
+        if ext[axis] <= 0.0:
+            continue
+        _fill_bins(prim_box, cen, order, span, axis, clo[axis], N_BINS / ext[axis], bins)
+        cost, b = _best_bin(bins, right)
+        if b >= 0 and cost < best_cost:
+            best_cost = cost
+            best_axis = axis
+            best_bin = b
+    return best_cost, best_axis, best_bin
+
+
+@kernel(inline=True)
+def _partition(cen, order, span, axis, centroids, best_bin):
+    """Partition order[start:end] (``span``) by centroid bin < best_bin along ``axis``; the first index of the
+    second part."""
+    start, end = span
+    clo, ext = centroids
+    scale = N_BINS / ext[axis]
+    i = start
+    j = end - 1
+    while i <= j:
+        p = order[i]
+        if _bin_of(cen, p, axis, clo[axis], scale) < best_bin:
+            i += 1
+        else:
+            order[i] = order[j]
+            order[j] = p
+            j -= 1
+    return i
+
+
+@kernel(inline=True)
+def _choose_split(prim_box, cen, order, span, bounds, depth, scratch):
+    """Where the node of primitives order[start:end] (``span``) splits: (mid, axis), mid = -1 for a leaf.
+
+    ``bounds`` = (lo, hi, centroid lo, centroid hi) of :func:`_node_bounds`.  Above MEDIAN_DEPTH the binned SAH
+    (a leaf where it is cheaper and small enough); where it finds no split, the object median along the widest
+    centroid axis (a stable sort of order[start:end]).  ``scratch`` = (bins, right, keys, tmp_keys, tmp_order).
+    """
+    start, end = span
+    lo, hi, clo, chi = bounds
+    bins, right, keys, tmp_keys, tmp_order = scratch
+    cnt = end - start
+    if cnt == 1:
+        return -1, 0
+    ext = (chi[0] - clo[0], chi[1] - clo[1], chi[2] - clo[2])
+    big_axis = 0
+    if ext[1] > ext[big_axis]:
+        big_axis = 1
+    if ext[2] > ext[big_axis]:
+        big_axis = 2
+    if ext[big_axis] > 0.0 and depth < MEDIAN_DEPTH:
+        parent_area = _area(lo[0], lo[1], lo[2], hi[0], hi[1], hi[2])
+        best_cost, best_axis, best_bin = _sah_split(prim_box, cen, order, span, (clo, ext), bins, right)
+        if best_axis >= 0:
+            split_cost = TRAVERSAL_COST + (best_cost / parent_area if parent_area > 0.0 else cnt)
+            if cnt <= MAX_LEAF and cnt <= split_cost:
+                return -1, 0
+            mid = _partition(cen, order, span, best_axis, (clo, ext), best_bin)
+            if mid != start and mid != end:
+                return mid, best_axis
+    if cnt <= MAX_LEAF:
+        return -1, 0
+    for k in range(start, end):
+        keys[k] = cen[order[k], big_axis]
+    _stable_sort(keys, order, start, end, tmp_keys, tmp_order)
+    return start + cnt // 2, big_axis
+
+
 @kernel
 def build_bvh(prim_box):
     """Build the BVH over primitives with bounds ``prim_box`` (N, 6).
@@ -149,179 +315,34 @@ def build_bvh(prim_box):
     for i in range(n):
         for a in range(3):
             cen[i, a] = 0.5 * (prim_box[i, a] + prim_box[i, a + 3])
+    scratch = ((np.zeros(N_BINS, dtype=np.int64), np.empty((N_BINS, 6), dtype=np.float64)),
+               (np.empty(N_BINS, dtype=np.float64), np.empty(N_BINS, dtype=np.int64)),
+               np.empty(n, dtype=np.float64), np.empty(n, dtype=np.float64), np.empty(n, dtype=np.int32))
 
     # DFS work stack: (start, end, parent-to-patch or -1, depth).
-    cap = 2 * (MEDIAN_DEPTH + 64) + 8
-    st = np.empty((cap, 4), dtype=np.int64)
-    sp = 0
+    st = np.empty((2 * (MEDIAN_DEPTH + 64) + 8, 4), dtype=np.int64)
     st[0, 0] = 0
     st[0, 1] = n
     st[0, 2] = -1
     st[0, 3] = 0
     sp = 1
     n_nodes = 0
-
-    bin_cnt = np.zeros(N_BINS, dtype=np.int64)
-    bin_box = np.empty((N_BINS, 6), dtype=np.float64)
-    right_area = np.empty(N_BINS, dtype=np.float64)
-    right_cnt = np.empty(N_BINS, dtype=np.int64)
-    keys = np.empty(n, dtype=np.float64)
-    tmp_keys = np.empty(n, dtype=np.float64)
-    tmp_order = np.empty(n, dtype=np.int32)
-
     while sp > 0:
         sp -= 1
-        start = st[sp, 0]
-        end = st[sp, 1]
-        parent = st[sp, 2]
-        depth = st[sp, 3]
+        start, end, parent, depth = st[sp, 0], st[sp, 1], st[sp, 2], st[sp, 3]
         idx = n_nodes
         n_nodes += 1
         if parent >= 0:
             node[parent, 0] = idx
-
-        # Bounds of the primitives and of their centroids.
-        lx = ly = lz = INF
-        hx = hy = hz = -INF
-        clx = cly = clz = INF
-        chx = chy = chz = -INF
-        for k in range(start, end):
-            p = order[k]
-            lx = min(lx, prim_box[p, 0])
-            ly = min(ly, prim_box[p, 1])
-            lz = min(lz, prim_box[p, 2])
-            hx = max(hx, prim_box[p, 3])
-            hy = max(hy, prim_box[p, 4])
-            hz = max(hz, prim_box[p, 5])
-            clx = min(clx, cen[p, 0])
-            cly = min(cly, cen[p, 1])
-            clz = min(clz, cen[p, 2])
-            chx = max(chx, cen[p, 0])
-            chy = max(chy, cen[p, 1])
-            chz = max(chz, cen[p, 2])
-        box[idx, 0] = lx
-        box[idx, 1] = ly
-        box[idx, 2] = lz
-        box[idx, 3] = hx
-        box[idx, 4] = hy
-        box[idx, 5] = hz
-        cnt = end - start
-        if cnt == 1:
-            node[idx, 0] = start
-            node[idx, 1] = 1
-            continue
-
-        clo = (clx, cly, clz)
-        ext = (chx - clx, chy - cly, chz - clz)
-        big_axis = 0
-        if ext[1] > ext[big_axis]:
-            big_axis = 1
-        if ext[2] > ext[big_axis]:
-            big_axis = 2
-
-        mid = -1
-        split_axis = big_axis
-        if ext[big_axis] > 0.0 and depth < MEDIAN_DEPTH:
-            parent_area = _area(lx, ly, lz, hx, hy, hz)
-            best_cost = INF
-            best_axis = -1
-            best_bin = -1
-            for axis in range(3):
-                if ext[axis] <= 0.0:
-                    continue
-                scale = N_BINS / ext[axis]
-                bin_cnt[:] = 0
-                for b in range(N_BINS):
-                    bin_box[b, 0] = INF
-                    bin_box[b, 1] = INF
-                    bin_box[b, 2] = INF
-                    bin_box[b, 3] = -INF
-                    bin_box[b, 4] = -INF
-                    bin_box[b, 5] = -INF
-                for k in range(start, end):
-                    p = order[k]
-                    b = int((cen[p, axis] - clo[axis]) * scale)
-                    if b >= N_BINS:
-                        b = N_BINS - 1
-                    if b < 0:
-                        b = 0
-                    bin_cnt[b] += 1
-                    for c in range(3):
-                        if prim_box[p, c] < bin_box[b, c]:
-                            bin_box[b, c] = prim_box[p, c]
-                        if prim_box[p, c + 3] > bin_box[b, c + 3]:
-                            bin_box[b, c + 3] = prim_box[p, c + 3]
-                # Sweep from the right: area and count of bins b..N_BINS-1.
-                rlx = rly = rlz = INF
-                rhx = rhy = rhz = -INF
-                rc = 0
-                for b in range(N_BINS - 1, 0, -1):
-                    rlx = min(rlx, bin_box[b, 0])
-                    rly = min(rly, bin_box[b, 1])
-                    rlz = min(rlz, bin_box[b, 2])
-                    rhx = max(rhx, bin_box[b, 3])
-                    rhy = max(rhy, bin_box[b, 4])
-                    rhz = max(rhz, bin_box[b, 5])
-                    rc += bin_cnt[b]
-                    right_area[b] = _area(rlx, rly, rlz, rhx, rhy, rhz)
-                    right_cnt[b] = rc
-                # Sweep from the left; split after bin b - 1 (left = bins < b).
-                llx = lly = llz = INF
-                lhx = lhy = lhz = -INF
-                lc = 0
-                for b in range(1, N_BINS):
-                    llx = min(llx, bin_box[b - 1, 0])
-                    lly = min(lly, bin_box[b - 1, 1])
-                    llz = min(llz, bin_box[b - 1, 2])
-                    lhx = max(lhx, bin_box[b - 1, 3])
-                    lhy = max(lhy, bin_box[b - 1, 4])
-                    lhz = max(lhz, bin_box[b - 1, 5])
-                    lc += bin_cnt[b - 1]
-                    if lc == 0 or right_cnt[b] == 0:
-                        continue
-                    cost = lc * _area(llx, lly, llz, lhx, lhy, lhz) + right_cnt[b] * right_area[b]
-                    if cost < best_cost:
-                        best_cost = cost
-                        best_axis = axis
-                        best_bin = b
-            if best_axis >= 0:
-                split_cost = TRAVERSAL_COST + (best_cost / parent_area if parent_area > 0.0 else cnt)
-                if cnt <= MAX_LEAF and cnt <= split_cost:
-                    node[idx, 0] = start
-                    node[idx, 1] = cnt
-                    continue
-                # Partition order[start:end] by bin < best_bin.
-                axis = best_axis
-                scale = N_BINS / ext[axis]
-                i = start
-                j = end - 1
-                while i <= j:
-                    p = order[i]
-                    b = int((cen[p, axis] - clo[axis]) * scale)
-                    if b >= N_BINS:
-                        b = N_BINS - 1
-                    if b < best_bin:
-                        i += 1
-                    else:
-                        order[i] = order[j]
-                        order[j] = p
-                        j -= 1
-                mid = i
-                split_axis = axis
-                if mid == start or mid == end:
-                    mid = -1
+        bounds = _node_bounds(prim_box, cen, order, start, end)
+        for c in range(3):
+            box[idx, c] = bounds[0][c]
+            box[idx, c + 3] = bounds[1][c]
+        mid, split_axis = _choose_split(prim_box, cen, order, (start, end), bounds, depth, scratch)
         if mid < 0:
-            if cnt <= MAX_LEAF:
-                node[idx, 0] = start
-                node[idx, 1] = cnt
-                continue
-            # Object median along the widest centroid axis.
-            split_axis = big_axis
-            for k in range(start, end):
-                keys[k] = cen[order[k], split_axis]
-            _stable_sort(keys, order, start, end, tmp_keys, tmp_order)
-            mid = start + cnt // 2
-
+            node[idx, 0] = start
+            node[idx, 1] = end - start
+            continue
         node[idx, 1] = 0
         node[idx, 2] = split_axis
         # Push the second (right) child first so the first child gets index idx + 1.
@@ -329,12 +350,11 @@ def build_bvh(prim_box):
         st[sp, 1] = end
         st[sp, 2] = idx
         st[sp, 3] = depth + 1
-        sp += 1
-        st[sp, 0] = start
-        st[sp, 1] = mid
-        st[sp, 2] = -1
-        st[sp, 3] = depth + 1
-        sp += 1
+        st[sp + 1, 0] = start
+        st[sp + 1, 1] = mid
+        st[sp + 1, 2] = -1
+        st[sp + 1, 3] = depth + 1
+        sp += 2
     return box[:n_nodes].copy(), node[:n_nodes].copy(), order
 
 
@@ -372,38 +392,30 @@ def _safe_inv(x):
 
 
 @kernel(inline=True)
+def _slab(lo, hi, o, inv, t0, t1):
+    """The ray's span (t0, t1) narrowed to one axis's slab [lo, hi] (origin o and 1 / direction inv on that axis;
+    the exit widened by _BOX_WIDEN).  A NaN distance leaves the span as it is."""
+    tn = (lo - o) * inv
+    tf = (hi - o) * inv
+    if tn > tf:
+        tn, tf = tf, tn
+    tf *= _BOX_WIDEN
+    return (tn if tn > t0 else t0), (tf if tf < t1 else t1)
+
+
+@kernel(inline=True)
 def _hit_box(box, k, o, inv, tmax):
     """Slab test of node ``k`` against the ray ``o + t d``, ``t`` in [0, tmax].
 
     Written so that NaN slab distances (ray in a slab plane) never reject a box.
     """
-    t0 = 0.0
-    t1 = tmax * _BOX_WIDEN
-    tn = (box[k, 0] - o[0]) * inv[0]
-    tf = (box[k, 3] - o[0]) * inv[0]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 0], box[k, 3], o[0], inv[0], 0.0, tmax * _BOX_WIDEN)
     if t0 > t1:
         return False
-    tn = (box[k, 1] - o[1]) * inv[1]
-    tf = (box[k, 4] - o[1]) * inv[1]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 1], box[k, 4], o[1], inv[1], t0, t1)
     if t0 > t1:
         return False
-    tn = (box[k, 2] - o[2]) * inv[2]
-    tf = (box[k, 5] - o[2]) * inv[2]
-    if tn > tf:
-        tn, tf = tf, tn
-    tf *= _BOX_WIDEN
-    t0 = tn if tn > t0 else t0
-    t1 = tf if tf < t1 else t1
+    t0, t1 = _slab(box[k, 2], box[k, 5], o[2], inv[2], t0, t1)
     return t0 <= t1
 
 
@@ -452,6 +464,7 @@ def _traverse(arrays, o, d, tmax, any_hit):
     caller (``hot``), where the constant ``any_hit`` folds away.
     """
     box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local = arrays
+    prims = (prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local)
     best_prim = -1
     best_t = tmax
     best_b1 = 0.0
@@ -469,8 +482,7 @@ def _traverse(arrays, o, d, tmax, any_hit):
                 first = node[k, 0]
                 for s in range(first, first + cnt):
                     prim = order[s]
-                    t, b1, b2 = intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2,
-                                                           ana_to_local, prim, o, d, best_t)
+                    t, b1, b2 = intersect_primitive_arrays(prims, prim, o, d, best_t)
                     if t < best_t:
                         best_t = t
                         best_prim = prim

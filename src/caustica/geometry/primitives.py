@@ -343,8 +343,10 @@ def borrow(typingctx, arr):
 
 
 @kernel(inline=True)
-def intersect_primitive_arrays(prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local, prim, o, d, tmax):
-    """:func:`intersect_primitive` on the individual columns (the BVH's inner loop)."""
+def intersect_primitive_arrays(prims, prim, o, d, tmax):
+    """:func:`intersect_primitive` on the individual columns, ``prims`` = (prim_kind, prim_index, tri_p0, tri_e1,
+    tri_e2, ana_to_local) (the BVH's inner loop, on borrowed views)."""
+    prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local = prims
     kind = prim_kind[prim]
     j = prim_index[prim]
     if kind == TRIANGLE:
@@ -362,5 +364,5 @@ def intersect_primitive(geom, prim, o, d, tmax):
 
     ``b1, b2`` are the barycentrics of ``p1, p2`` for triangles and 0 for analytic shapes.
     """
-    return intersect_primitive_arrays(geom.prim_kind, geom.prim_index, geom.tri_p0, geom.tri_e1,
-                                      geom.tri_e2, geom.ana_to_local, prim, o, d, tmax)
+    return intersect_primitive_arrays((geom.prim_kind, geom.prim_index, geom.tri_p0, geom.tri_e1, geom.tri_e2,
+                                       geom.ana_to_local), prim, o, d, tmax)

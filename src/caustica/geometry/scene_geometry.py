@@ -268,11 +268,10 @@ def _analytic_box(kind: int, m34):
 _ANALYTIC_KIND = {SHAPE_SPHERE: SPHERE, SHAPE_DISK: DISK, SHAPE_CYLINDER: CYLINDER}
 
 
-def build_geometry(desc: SceneDescription) -> Geometry:
-    """Flatten every shape of ``desc`` into primitive tables and build the BVH.
-
-    Raises SceneError (naming ``shape.source``) for shapes it cannot represent.
-    """
+def _shape_parts(desc: SceneDescription):
+    """Each shape of ``desc`` as triangles or one analytic primitive: (tri_parts, ana_parts, emitter_of_shape),
+    tri_parts one (shape index, p0, e1, e2, ng, n0, n1, n2, area, uv) per mesh, ana_parts one (shape index, kind,
+    to_world, to_local, flip, area) per analytic shape, emitter_of_shape: shape index -> emitter index."""
     tri_parts = []      # per mesh shape: (shape index, p0, e1, e2, ng, n0, n1, n2, area)
     ana_parts = []      # per analytic shape: (shape index, kind, to_world, to_local, flip, area)
     emitter_of_shape = {}
@@ -296,6 +295,57 @@ def build_geometry(desc: SceneDescription) -> Geometry:
             raise SceneError(f"{shape.source}: unsupported shape kind {shape.kind!r} "
                              "(supported: mesh, sphere, disk, cylinder)")
 
+    return tri_parts, ana_parts, emitter_of_shape
+
+
+def _bounds(prim_box, prim_shape, n_shapes):
+    """Per-shape and scene bounds (lo, hi) from the primitives' ``prim_box`` (N, 6)."""
+    N = prim_box.shape[0]
+    shape_box = np.empty((n_shapes, 6))
+    shape_box[:, :3] = np.inf
+    shape_box[:, 3:] = -np.inf
+    if N:
+        np.minimum.at(shape_box[:, :3], prim_shape, prim_box[:, :3])
+        np.maximum.at(shape_box[:, 3:], prim_shape, prim_box[:, 3:])
+    scene_box = (np.concatenate([prim_box[:, :3].min(axis=0), prim_box[:, 3:].max(axis=0)])
+                 if N else np.zeros(6))
+    return np.ascontiguousarray(shape_box), np.ascontiguousarray(scene_box.astype(np.float64))
+
+
+def _emitter_csr(desc, emitter_of_shape, prim_shape, prim_area) -> dict:
+    """The area emitters' primitives (CSR: offsets, ids) with their area CDFs, total areas and shapes, as the
+    ``emitter_*`` fields of :class:`Geometry`; SceneError for an emitter of zero area."""
+    n_em = len(emitter_of_shape)
+    offsets = [0]
+    ids, cdfs, areas, em_shape = [], [], [], []
+    for s_idx, e in sorted(emitter_of_shape.items(), key=lambda kv: kv[1]):
+        prims = np.nonzero(prim_shape == s_idx)[0]
+        a = prim_area[prims]
+        total = float(a.sum())
+        if not (total > 0.0) or not np.isfinite(total):
+            raise SceneError(f"{desc.shapes[s_idx].source}: area emitter on shape "
+                             f"{desc.shapes[s_idx].id!r} has zero surface area")
+        c = np.cumsum(a) / total
+        c[-1] = 1.0
+        ids.append(prims)
+        cdfs.append(c)
+        areas.append(total)
+        em_shape.append(s_idx)
+        offsets.append(offsets[-1] + len(prims))
+    return dict(
+        emitter_offset=_i32(offsets),
+        emitter_prim_ids=_i32(np.concatenate(ids) if ids else []),
+        emitter_cdf=np.ascontiguousarray(np.concatenate(cdfs) if cdfs else np.zeros(0)),
+        emitter_area=np.ascontiguousarray(np.array(areas, dtype=np.float64).reshape(n_em)),
+        emitter_shape=_i32(em_shape))
+
+
+def build_geometry(desc: SceneDescription) -> Geometry:
+    """Flatten every shape of ``desc`` into primitive tables and build the BVH.
+
+    Raises SceneError (naming ``shape.source``) for shapes it cannot represent.
+    """
+    tri_parts, ana_parts, emitter_of_shape = _shape_parts(desc)
     n_shapes = len(desc.shapes)
     T = sum(len(p[1]) for p in tri_parts)
     A = len(ana_parts)
@@ -342,35 +392,7 @@ def build_geometry(desc: SceneDescription) -> Geometry:
     for j, p in enumerate(ana_parts):
         prim_box[T + j] = _analytic_box(p[1], p[2])
     bvh_box, bvh_node, bvh_order = build_bvh(np.ascontiguousarray(prim_box))
-
-    shape_box = np.empty((n_shapes, 6))
-    shape_box[:, :3] = np.inf
-    shape_box[:, 3:] = -np.inf
-    if N:
-        np.minimum.at(shape_box[:, :3], prim_shape, prim_box[:, :3])
-        np.maximum.at(shape_box[:, 3:], prim_shape, prim_box[:, 3:])
-    scene_box = (np.concatenate([prim_box[:, :3].min(axis=0), prim_box[:, 3:].max(axis=0)])
-                 if N else np.zeros(6))
-
-    # Emitter CSR.
-    n_em = len(emitter_of_shape)
-    offsets = [0]
-    ids, cdfs, areas, em_shape = [], [], [], []
-    for s_idx, e in sorted(emitter_of_shape.items(), key=lambda kv: kv[1]):
-        prims = np.nonzero(prim_shape == s_idx)[0]
-        a = prim_area[prims]
-        total = float(a.sum())
-        if not (total > 0.0) or not np.isfinite(total):
-            raise SceneError(f"{desc.shapes[s_idx].source}: area emitter on shape "
-                             f"{desc.shapes[s_idx].id!r} has zero surface area")
-        c = np.cumsum(a) / total
-        c[-1] = 1.0
-        ids.append(prims)
-        cdfs.append(c)
-        areas.append(total)
-        em_shape.append(s_idx)
-        offsets.append(offsets[-1] + len(prims))
-
+    shape_box, scene_box = _bounds(prim_box, prim_shape, n_shapes)
     return Geometry(
         tri_p0=tri_p0, tri_e1=tri_e1, tri_e2=tri_e2, tri_ng=tri_ng,
         tri_n0=tri_n0, tri_n1=tri_n1, tri_n2=tri_n2,
@@ -378,14 +400,8 @@ def build_geometry(desc: SceneDescription) -> Geometry:
         prim_kind=prim_kind, prim_index=prim_index, prim_material=prim_material,
         prim_emitter=prim_emitter, prim_shape=prim_shape, prim_area=prim_area,
         bvh_box=bvh_box, bvh_node=bvh_node, bvh_order=bvh_order,
-        emitter_offset=_i32(offsets),
-        emitter_prim_ids=_i32(np.concatenate(ids) if ids else []),
-        emitter_cdf=np.ascontiguousarray(np.concatenate(cdfs) if cdfs else np.zeros(0)),
-        emitter_area=np.ascontiguousarray(np.array(areas, dtype=np.float64).reshape(n_em)),
-        emitter_shape=_i32(em_shape),
-        shape_box=np.ascontiguousarray(shape_box),
-        scene_box=np.ascontiguousarray(scene_box.astype(np.float64)),
-        tri_uv=tri_uv,
+        **_emitter_csr(desc, emitter_of_shape, prim_shape, prim_area),
+        shape_box=shape_box, scene_box=scene_box, tri_uv=tri_uv,
     )
 
 

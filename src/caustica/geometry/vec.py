@@ -83,6 +83,13 @@ def row(arr, i):
     return (arr[i, 0], arr[i, 1], arr[i, 2])
 
 
+@kernel(inline=True)
+def set_row(arr, i, v):
+    """Row i of an (n, 3) array set to the vector v (the record writers' one line per field)."""
+    for c in range(3):
+        arr[i, c] = v[c]
+
+
 @kernel
 def orthonormal_basis(n):
     """Two unit vectors completing n to a right-handed frame (Duff et al. 2017)."""

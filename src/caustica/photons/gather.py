@@ -52,10 +52,9 @@ def push_branch(scratch, top, o, d, beta, depth):
     """Put a camera-path branch (origin, direction, throughput, specular depth) on the split stack at ``top``;
     the stack's new top."""
     st_o, st_d, st_beta, st_depth, _, _ = scratch
-    for c in range(3):
-        st_o[top, c] = o[c]
-        st_d[top, c] = d[c]
-        st_beta[top, c] = beta[c]
+    vec.set_row(st_o, top, o)
+    vec.set_row(st_d, top, d)
+    vec.set_row(st_beta, top, beta)
     st_depth[top] = depth
     return top + 1
 
@@ -73,6 +72,75 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim):
     Ec, _ = flux_density(cmap, at.p, at.ns, k_c, r_c, filt, idx, d2)
     queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
+
+
+@kernel(inline=True)
+def camera_surface(geom, mats, hit, o, d, key, dim):
+    """The surface a camera ray from o along d meets at ``hit`` = (prim, t, b1, b2): (p, ng, ns, front, m, uv, passed,
+    dim), a blend resolved to one of its parts with one number; ``passed``: that part is null, the ray goes on (a
+    scene with a mask or null has media)."""
+    prim, t, b1, b2 = hit
+    p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+    front = vec.dot(d, ng) < 0.0
+    m = geom.prim_material[prim]
+    uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND else NO_UV
+    passed = False
+    if mats.kind[m] == BLEND:
+        m, dim = resolve(mats, m, uv, key, dim)
+        passed = mats.kind[m] == NULL
+    return p, ng, ns, front, m, uv, passed, dim
+
+
+@kernel(inline=True)
+def diffuse_or_coating(mats, m, d, at, path, stack, key, dim):
+    """At a diffuse lobe: f_r = ρ / π.  Under a delta coating (plastic) the diffuse lobe's estimate is made with
+    f = A B (the photons and shadow rays carry B); the coating's reflection is split off as glass's branches are
+    (pushed on ``stack`` = (scratch, top)), or chosen with its sampling probability P (the estimate then weighted
+    1 / (1 - P)).  ``path`` = (β, specular depth, max_specular).  Returns (take the coating, f_r, the coated lobe
+    (-1: none), top, the coating's direction and weight, dim)."""
+    beta, depth, max_specular = path
+    scratch, top = stack
+    fr = vec.mul(colour(mats, m, at.uv), INV_PI)
+    lobe_b = -1
+    wc, w_coat = d, fr
+    if mats.flags[m] & DELTA:
+        wc, P, w_coat, A = coat(mats, m, d, at.ng, at.ns, at.uv)
+        fr, lobe_b = A, m
+        if depth < max_specular and P > 0.0:
+            if depth < SPLIT_DEPTH and top < scratch[0].shape[0]:
+                top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, wc), wc,
+                                  vec.mul(vec.hadamard(beta, w_coat), P), depth + 1)
+            else:
+                u = uniform(key, dim)
+                dim += 1
+                if u < P:
+                    return True, fr, lobe_b, top, wc, w_coat, dim
+                fr = vec.mul(A, 1.0 / (1.0 - P))
+    return False, fr, lobe_b, top, wc, w_coat, dim
+
+
+@kernel(inline=True)
+def delta_branch(mats, m, d, at, path, stack, key, dim):
+    """At a mirror or glass: glass splits into reflection and refraction weighted by Fresnel (the reflection pushed
+    on ``stack`` = (scratch, top)) at the first SPLIT_DEPTH bounces, deeper it takes one with the Fresnel
+    probability.  ``path`` = (β, specular depth).  Returns (direction, β, top, dim)."""
+    beta, depth = path
+    scratch, top = stack
+    d_r, d_t, F, eta, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta = vec.hadamard(beta, tint)
+    if F >= 1.0:
+        d = d_r
+    elif depth <= SPLIT_DEPTH and top < scratch[0].shape[0]:
+        top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta, F), depth)
+        d = d_t
+        beta = vec.mul(beta, (1.0 - F) / (eta * eta))
+    else:
+        u = uniform(key, dim)
+        dim += 1
+        d = d_r if u < F else d_t
+        if u >= F:
+            beta = vec.mul(beta, 1.0 / (eta * eta))
+    return d, beta, top, dim
 
 
 @kernel
@@ -101,20 +169,14 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 if lights.env[0] >= 0:   # the environment, seen directly or through mirrors, glass or glossy
                     L = vec.madd(L, vec.hadamard(beta, env_radiance(lights, d)), escape_weight(lights, d, last))
                 break
-            p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-            front = vec.dot(d, ng) < 0.0
+            p, ng, ns, front, m, uv, passed, dim = camera_surface(geom, mats, (prim, t, b1, b2), o, d, key, dim)
             e = geom.prim_emitter[prim]
             if e >= 0 and front:
                 L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
-            m = geom.prim_material[prim]
-            uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND \
-                else NO_UV
-            if mats.kind[m] == BLEND:   # one of its parts, with one number (a scene with a mask or null has media)
-                m, dim = resolve(mats, m, uv, key, dim)
-                if mats.kind[m] == NULL:
-                    o = vec.offset_origin(p, ng, d)
-                    continue
+            if passed:
+                o = vec.offset_origin(p, ng, d)
+                continue
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
@@ -130,33 +192,17 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 if not alive:
                     break
                 last = (lobe & DELTA != 0, pdf, p)
-                o = vec.offset_origin(p, ng, wi)
-                d = wi
+                o, d = vec.offset_origin(p, ng, wi), wi
                 continue
             last = (True, 0.0, p)
             if flags & SMOOTH:
-                fr = vec.mul(colour(mats, m, uv), INV_PI)
-                lobe_b = -1
-                if flags & DELTA:
-                    # a delta coating over a diffuse lobe (plastic): the diffuse lobe's estimate here, f = A B (the
-                    # photons and shadow rays carry B); the coating's reflection split off as glass's branches are,
-                    # or chosen with its sampling probability P (the estimate then weighted 1 / (1 - P))
-                    wc, P, w_coat, A = coat(mats, m, d, ng, ns, uv)
-                    fr, lobe_b = A, m
-                    if depth < max_specular and P > 0.0:
-                        if depth < SPLIT_DEPTH and top < st_o.shape[0]:
-                            top = push_branch(scratch, top, vec.offset_origin(p, ng, wc), wc,
-                                              vec.mul(vec.hadamard(beta, w_coat), P), depth + 1)
-                        else:
-                            u = uniform(key, dim)
-                            dim += 1
-                            if u < P:
-                                depth += 1
-                                beta = vec.hadamard(beta, w_coat)
-                                o = vec.offset_origin(p, ng, wc)
-                                d = wc
-                                continue
-                            fr = vec.mul(A, 1.0 / (1.0 - P))
+                take_coat, fr, lobe_b, top, wc, w_coat, dim = diffuse_or_coating(
+                    mats, m, d, at, (beta, depth, max_specular), (scratch, top), key, dim)
+                if take_coat:
+                    depth += 1
+                    beta = vec.hadamard(beta, w_coat)
+                    o, d = vec.offset_origin(p, ng, wc), wc
+                    continue
                 E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim)
                 queries += q
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
@@ -164,21 +210,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             depth += 1
             if depth > max_specular:
                 break
-            # a mirror or glass: glass splits into reflection and refraction, weighted by Fresnel
-            d_r, d_t, F, eta, tint = delta_branches(mats, m, d, ng, ns, uv)
-            beta = vec.hadamard(beta, tint)
-            if F >= 1.0:
-                d = d_r
-            elif depth <= SPLIT_DEPTH and top < st_o.shape[0]:
-                top = push_branch(scratch, top, vec.offset_origin(p, ng, d_r), d_r, vec.mul(beta, F), depth)
-                d = d_t
-                beta = vec.mul(beta, (1.0 - F) / (eta * eta))
-            else:
-                u = uniform(key, dim)
-                dim += 1
-                d = d_r if u < F else d_t
-                if u >= F:
-                    beta = vec.mul(beta, 1.0 / (eta * eta))
+            d, beta, top, dim = delta_branch(mats, m, d, at, (beta, depth), (scratch, top), key, dim)
             o = vec.offset_origin(p, ng, d)
     return L, queries
 

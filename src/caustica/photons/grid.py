@@ -81,12 +81,17 @@ def _bucket(key, mask):
 
 
 @kernel
-def _counting_sort(position, power, normal, valid, lo, cell, dims, start, out_key, out_pos, out_pow, out_nrm):
-    """Sort the valid events by bucket into out_*, stably; start receives the buckets' offsets.
+def _counting_sort(events, shape, out):
+    """Sort the valid events, ``events`` = (position, power, normal, valid), by bucket of the grid ``shape`` =
+    (lo, cell, dims) into ``out`` = (start, key, position, power, normal), stably; start receives the buckets'
+    offsets.
 
     Counts, a prefix sum, then the events placed from the last one back, each at the end of its
     bucket's free part (a bucket's key is recomputed rather than stored: no temporary arrays).
     """
+    position, power, normal, valid = events
+    lo, cell, dims = shape
+    start, out_key, out_pos, out_pow, out_nrm = out
     inv = 1.0 / cell
     n = position.shape[0]
     n_buckets = start.shape[0] - 1
@@ -130,7 +135,7 @@ def build_grid(position, power, normal, valid, box, cell) -> PhotonGrid:
     start = np.zeros(bucket_count(n, int(np.prod(dims))) + 1, np.int64)
     key = np.empty(n, np.int64)
     out = [np.empty((n, 3), np.float32) for _ in range(3)]
-    _counting_sort(position, power, normal, valid, lo, cell, dims, start, key, *out)
+    _counting_sort((position, power, normal, valid), (lo, cell, dims), (start, key, *out))
     return PhotonGrid(lo, np.array([cell]), dims, start, key, *out)
 
 

@@ -142,20 +142,23 @@ def _push_children(stk_lo, stk_hi, sp, split, leaf_size):
     return sp
 
 
-@kernel
-def _build(pts, idx, axis, leaf_size):
-    n = pts.shape[0]
-    if n <= leaf_size:
-        return
+@kernel(inline=True)
+def _range_stack(n, leaf_size):
+    """The builds' work stack of index ranges [lo, hi), holding the whole range [0, n) unless that is one leaf:
+    (stk_lo, stk_hi, sp)."""
     stk_lo = np.empty(2 * STACK_SIZE, dtype=np.int64)
     stk_hi = np.empty(2 * STACK_SIZE, dtype=np.int64)
     stk_lo[0] = 0
     stk_hi[0] = n
-    sp = 1
+    return stk_lo, stk_hi, (1 if n > leaf_size else 0)
+
+
+@kernel
+def _build(pts, idx, axis, leaf_size):
+    stk_lo, stk_hi, sp = _range_stack(pts.shape[0], leaf_size)
     while sp > 0:
         sp -= 1
-        lo = stk_lo[sp]
-        hi = stk_hi[sp]
+        lo, hi = stk_lo[sp], stk_hi[sp]
         # axis of largest extent
         mn0 = mx0 = pts[lo, 0]
         mn1 = mx1 = pts[lo, 1]
@@ -212,18 +215,10 @@ def build_kdtree(points: np.ndarray) -> KdTree:
 
 @kernel
 def _normal_bounds(index, normals, leaf_size, out):
-    n = index.shape[0]
-    if n <= leaf_size:
-        return
-    stk_lo = np.empty(2 * STACK_SIZE, dtype=np.int64)
-    stk_hi = np.empty(2 * STACK_SIZE, dtype=np.int64)
-    stk_lo[0] = 0
-    stk_hi[0] = n
-    sp = 1
+    stk_lo, stk_hi, sp = _range_stack(index.shape[0], leaf_size)
     while sp > 0:
         sp -= 1
-        lo = stk_lo[sp]
-        hi = stk_hi[sp]
+        lo, hi = stk_lo[sp], stk_hi[sp]
         m = (lo + hi) >> 1
         for a in range(3):
             mn = 1.0

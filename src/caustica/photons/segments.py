@@ -65,10 +65,9 @@ def allocate_segments(pixels: int, media: bool) -> CameraSegments:
 @kernel(inline=True)
 def store_segment(k, o, d, s, beta, medium, segments):
     """Write segment slot k."""
-    for c in range(3):
-        segments.origin[k, c] = o[c]
-        segments.direction[k, c] = d[c]
-        segments.beta[k, c] = beta[c]
+    vec.set_row(segments.origin, k, o)
+    vec.set_row(segments.direction, k, d)
+    vec.set_row(segments.beta, k, beta)
     segments.length[k] = s
     segments.medium[k] = medium
 

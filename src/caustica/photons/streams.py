@@ -113,12 +113,12 @@ def store_stream_record(r, p, d, n, stream, kind, rec):
     """Write stream record r: the leading photon (position, direction, normal), and of ``stream`` = (its power,
     the associated photons' power, how many landed) the powers and the count."""
     lead, p_assoc, landed = stream
+    vec.set_row(rec.position, r, p)
+    vec.set_row(rec.direction, r, d)
+    vec.set_row(rec.normal, r, n)
+    vec.set_row(rec.lead_power, r, lead)
+    vec.set_row(rec.assoc_power, r, p_assoc)
     for c in range(3):
-        rec.position[r, c] = p[c]
-        rec.direction[r, c] = d[c]
-        rec.normal[r, c] = n[c]
-        rec.lead_power[r, c] = lead[c]
-        rec.assoc_power[r, c] = p_assoc[c]
         rec.energy[r, c] = lead[c] + landed * p_assoc[c]
     rec.count[r] = landed
     rec.kind[r] = kind
@@ -127,10 +127,9 @@ def store_stream_record(r, p, d, n, stream, kind, rec):
 @kernel(inline=True)
 def store_associated(a, p, d, n, assoc):
     """Write associated photon slot a (position, direction of travel, normal: zero in a medium)."""
-    for c in range(3):
-        assoc.position[a, c] = p[c]
-        assoc.direction[a, c] = d[c]
-        assoc.normal[a, c] = n[c]
+    vec.set_row(assoc.position, a, p)
+    vec.set_row(assoc.direction, a, d)
+    vec.set_row(assoc.normal, a, n)
 
 
 @kernel(inline=True)
@@ -275,20 +274,131 @@ def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
         trace_stream(tables, key, (o, d, e_s, n_from, light_medium[li]), rules, i, buf)
 
 
+@kernel(inline=True)
+def attenuate_stream(stream, medium, w):
+    """Every photon of ``stream`` = (the leading photon's power, each associated photon's power, how many are
+    alive) times a free flight's weight w in ``medium`` (none: unchanged).  Returns (alive: w is not zero, stream)."""
+    if medium < 0:
+        return True, stream
+    if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
+        return False, stream
+    lead, p_assoc, n_alive = stream
+    return True, (vec.hadamard(lead, w), vec.hadamard(p_assoc, w), n_alive)
+
+
+@kernel(inline=True)
+def stream_at_medium_event(geom, beam, key, dim, stream, rules, out):
+    """At a scattering event x in a medium, ``beam`` = (o, zero, x, d, r_s): the associated photons spread over the
+    disc about x (``rules`` = (n_assoc, spread), :func:`spread_in_medium`) or merge into the leading photon, and a
+    volume stream record of ``kind`` goes to slot r when ``out`` = (store, r, kind, rec, assoc) says store.
+    Returns (the stream, dim past its 2 n_assoc numbers)."""
+    lead, p_assoc, n_alive = stream
+    n_assoc, spread = rules
+    store, r, kind, rec, assoc = out
+    landed = 0
+    if spread and n_alive > 0:
+        landed = spread_in_medium(geom, beam, key, dim, n_alive, (store, r * n_assoc, assoc))
+    dim += 2 * n_assoc
+    lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
+    if store:
+        store_stream_record(r, beam[2], beam[3], (0.0, 0.0, 0.0), (lead, p_assoc, landed), kind, rec)
+    return (lead, p_assoc, landed), dim
+
+
+@kernel(inline=True)
+def stream_medium_event(tables, medium, beam, key, dim, stream, rules, out):
+    """The stream at a scattering event in ``medium`` (:func:`stream_at_medium_event`), then, unless it was the last
+    bounce, its leading photon samples the phase function there and every photon takes its weight; ``rules`` =
+    (n_assoc, spread, termination, last).  Returns (alive, the new direction, the stream, dim)."""
+    _, _, _, media = tables
+    n_assoc, spread, termination, last = rules
+    stream, dim = stream_at_medium_event(tables[0], beam, key, dim, stream, (n_assoc, spread), out)
+    if last:
+        return False, beam[3], stream, dim
+    lead, p_assoc, n_alive = stream
+    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, beam[3], key, dim,
+                                                   termination == TERMINATION_ROULETTE)
+    if alive:
+        lead = vec.mul(vec.mul(lead, inv_q), weight)
+        p_assoc = vec.mul(vec.mul(p_assoc, inv_q), weight)
+    return alive, wo, (lead, p_assoc, n_alive), dim
+
+
+@kernel(inline=True)
+def stream_at_specular(tables, key, beam, stream, splitting):
+    """At the leading photon's mirror or glass: its associated photons split off (``--specular split``, once per
+    stream at most, as none is left after it: :func:`split_at_specular`) or merge into it.
+    Returns (the stream, with no associated photon left, split photons added)."""
+    lead, p_assoc, n_alive = stream
+    k = 0
+    if splitting[0] and n_alive > 0:
+        lead, k = split_at_specular(tables, key, beam, (n_alive, p_assoc), lead, splitting)
+        n_alive = 0
+    lead = vec.madd(lead, p_assoc, float(n_alive))
+    return (lead, p_assoc, 0), k
+
+
+@kernel(inline=True)
+def stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting):
+    """At the leading photon's diffuse hit x with shading normal ns: its associated photons land where their rays
+    meet a diffuse surface (:func:`place_associated`, written from assoc slot r * n_assoc on), split off or merge
+    into it; with ``out`` = (store, r, kind, n_assoc, rec, assoc), stream record r of ``kind`` is written when
+    ``store`` says.  Returns (the stream, split photons added, dim past its 2 n_assoc numbers)."""
+    lead, p_assoc, n_alive = stream
+    store, r, kind, n_assoc, rec, assoc = out
+    landed, split_now = place_associated(tables, beam, key, dim, (n_alive, p_assoc), (store, r * n_assoc, assoc),
+                                         splitting)
+    dim += 2 * n_assoc
+    lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
+    if store:
+        store_stream_record(r, beam[2], beam[3], ns, (lead, p_assoc, landed), kind, rec)
+    return (lead, p_assoc, landed), split_now, dim
+
+
+@kernel(inline=True)
+def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
+    """What the stream does at a surface, ``hit`` = (m, front, ng, ns): at a mirror or glass
+    (:func:`stream_at_specular`, before the side is known) or at a diffuse surface that scatters on this side
+    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Returns (scatters, smooth, ng, ns turned to the ray, the
+    stream, split photons added, dim)."""
+    _, mats, _, _ = tables
+    m, front, ng, ns = hit
+    smooth = mats.flags[m] & SMOOTH
+    k = 0
+    if not smooth:
+        stream, k = stream_at_specular(tables, key, beam, stream, splitting)
+    scatters, ng, ns = oriented(mats, m, front, ng, ns)
+    if scatters and smooth:
+        stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting)
+    return scatters, smooth, ng, ns, stream, k, dim
+
+
+@kernel(inline=True)
+def stream_bounce(tables, surface, d, key, dim, stream, decay):
+    """The leading photon's bounce at ``surface`` = (p, ng, ns, uv, ng_front, m, shape, medium) (normals from
+    :func:`stream_at_surface`; :func:`~caustica.photons.trace.bounce`) and, after a non-delta lobe, stream decay
+    (:func:`associated_decay`, n_assoc numbers); ``decay`` = (n_assoc, termination).
+    Returns (alive, the new origin, direction and medium, the stream, delta, dim)."""
+    _, mats, _, media = tables
+    p, ng, ns, uv, ng_front, m, shape, medium = surface
+    lead, p_assoc, n_alive = stream
+    n_assoc, termination = decay
+    alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+    if alive:
+        lead = vec.mul(vec.hadamard(lead, weight), inv_q)
+        if not delta:
+            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination)
+            dim += n_assoc
+    o = vec.offset_origin(p, ng, d_new)
+    return alive, o, d_new, medium_after(media, shape, ng_front, d_new, medium), (lead, p_assoc, n_alive), delta, dim
+
+
 @kernel
 def trace_stream(tables, key, start, rules, i, buf):
-    """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium);
-    it owns records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``.
-
-    ``rules`` = (n_assoc, r_s, max_bounces, termination, split, spread).  In a medium the leading
-    photon samples the free flights and every photon of the stream takes the flight's weight, so the
-    stream moves and is attenuated as one; null boundaries are crossed.  At a scattering event in a
-    medium the associated photons spread over the disc of radius r_s about it (``spread``) or merge;
-    a volume stream record is stored there.  ``split`` (``--specular split``): associated photons do
-    not merge at mirrors and glass but leave the stream as photons of their own
-    (:func:`split_at_specular` at the leading photon's mirror or glass, :func:`place_associated` at a
-    diffuse hit), in the stream's split paths [i * n_assoc, (i + 1) * n_assoc) of mr + 1 slots each
-    (an associated photon splits off at most once: it never rejoins).
+    """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium)
+    into records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``; ``rules`` = (n_assoc, r_s, mr, termination, split,
+    spread).  The stream moves as one: in a medium every photon takes the leading photon's flight weight.  At a
+    medium event, a surface and a bounce: :func:`stream_medium_event`, :func:`stream_at_surface`, :func:`stream_bounce`.
     """
     geom, mats, _, media = tables
     o, d, e_s, n_from, medium = start
@@ -297,52 +407,36 @@ def trace_stream(tables, key, start, rules, i, buf):
     slots = max_bounces + 1
     share = 1.0 / (n_assoc + 1)
     zero = (0.0, 0.0, 0.0)
-    lead = vec.mul(e_s, share)
-    p_assoc = vec.mul(e_s, share)
-    n_alive = n_assoc
+    stream = (vec.mul(e_s, share), vec.mul(e_s, share), n_assoc)
     dim = 8
     bounces = 0           # diffuse and medium scattering events
-    specular_events = 0
+    specular_events = stored = crossings = 0
     scattered = False     # any event so far: what is stored from now on is not direct light
     diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
-    crossings = 0
-    stored = 0
     n_split = 0           # associated photons split off so far
     while True:
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
             break
-        if medium >= 0:
-            if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
-                break
-            lead = vec.hadamard(lead, w)
-            p_assoc = vec.hadamard(p_assoc, w)
+        alive, stream = attenuate_stream(stream, medium, w)
+        if not alive:
+            break
         store = scattered and stored < slots
         r = i * slots + stored
         if prim < 0:
             # ---- a scattering event in the medium
             x = vec.madd(o, d, t)
-            landed = 0
-            if spread and n_alive > 0:
-                landed = spread_in_medium(geom, (o, zero, x, d, r_s), key, dim, n_alive, (store, r * n_assoc, assoc))
-            dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
-            n_alive = landed
-            if store:
-                store_stream_record(r, x, d, zero, (lead, p_assoc, landed),
-                                    VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec)
-                stored += 1
-            if bounces >= max_bounces:
-                break
-            alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim, termination == TERMINATION_ROULETTE)
+            alive, wo, stream, dim = stream_medium_event(
+                tables, medium, (o, zero, x, d, r_s), key, dim, stream,
+                (n_assoc, spread, termination, bounces >= max_bounces),
+                (store, r, VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec, assoc))
+            stored += 1 if store else 0
             if not alive:
                 break
-            lead = vec.mul(vec.mul(lead, inv_q), weight)
-            p_assoc = vec.mul(vec.mul(p_assoc, inv_q), weight)
-            o, d, n_from = x, wo, zero   # a point in a medium: no surface the associated photons could aim into
+            # a point in a medium: no surface the associated photons could aim into
+            o, d, n_from, crossings = x, wo, zero, 0
             bounces += 1
             scattered = diffuse_like = True
-            crossings = 0
             continue
         # ---- a surface
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
@@ -353,54 +447,31 @@ def trace_stream(tables, key, start, rules, i, buf):
         if nxt == TRAPPED:
             break
         ng_front = ng
-        beam = (o, n_from, p, d, r_s)
-        splitting = (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf)
-        smooth = mats.flags[m] & SMOOTH
-        if not smooth:
-            # mirror or glass: the associated photons split off (--specular split; once per stream at
-            # most, as none is left after it) or merge into the leading one
-            if split and n_alive > 0:
-                lead, k = split_at_specular(tables, key, beam, (n_alive, p_assoc), lead, splitting)
-                n_split += k
-                n_alive = 0
-            lead = vec.madd(lead, p_assoc, float(n_alive))
-            n_alive = 0
-        scatters, ng, ns = oriented(mats, m, front, ng, ns)
+        # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
+        # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
+        scatters, smooth, ng, ns, stream, k, dim = stream_at_surface(
+            tables, key, dim, (o, n_from, p, d, r_s), stream, (m, front, ng, ns),
+            (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
+            (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf))
+        n_split += k
         if not scatters:
             break  # absorbed by the black back of a one-sided surface
         if smooth:
-            landed, split_now = place_associated(tables, beam, key, dim, (n_alive, p_assoc),
-                                                 (store, r * n_assoc, assoc), splitting)
-            n_split += split_now
-            dim += 2 * n_assoc
-            lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
-            n_alive = landed
-            if store:
-                # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
-                # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-                store_stream_record(r, p, d, ns, (lead, p_assoc, landed), INDIRECT if diffuse_like else CAUSTIC, rec)
-                stored += 1
+            stored += 1 if store else 0
             if bounces >= max_bounces:
                 break
-        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+        alive, o, d, medium, stream, delta, dim = stream_bounce(
+            tables, (p, ng, ns, uv, ng_front, m, shape, medium), d, key, dim, stream, (n_assoc, termination))
         if not alive:
             break
-        lead = vec.mul(vec.hadamard(lead, weight), inv_q)
         if delta:
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            n_from = zero     # associated photons are placed from here only after a split
         else:
-            # stream decay
-            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination)
-            dim += n_assoc
             bounces += 1
             diffuse_like = True
-            n_from = ng
-        medium = medium_after(media, shape, ng_front, d_new, medium)
-        o = vec.offset_origin(p, ng, d_new)
-        d = d_new
+        n_from = zero if delta else ng   # associated photons are placed from a mirror or glass only after a split
         scattered = True
 
 

@@ -50,11 +50,10 @@ TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled b
 @kernel(inline=True)
 def store_record(s, p, d, power, n, kind, buf):
     """Write one photon record (position, direction of travel, power, normal, kind) into slot s of ``buf``."""
-    for c in range(3):
-        buf.position[s, c] = p[c]
-        buf.direction[s, c] = d[c]
-        buf.power[s, c] = power[c]
-        buf.normal[s, c] = n[c]
+    vec.set_row(buf.position, s, p)
+    vec.set_row(buf.direction, s, d)
+    vec.set_row(buf.power, s, power)
+    vec.set_row(buf.normal, s, n)
     buf.kind[s] = kind
 
 
@@ -103,6 +102,31 @@ def storing_probability(mats, own, uv, side):
     return p
 
 
+@kernel(inline=True)
+def scatter_photon(media, medium, d, key, dim, power, roulette):
+    """A photon at a scattering event in ``medium`` samples the phase function (Russian roulette if ``roulette``).
+    Returns (alive, the new direction, its power times the roulette's 1 / p and the phase weight, dim)."""
+    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim, roulette)
+    if alive:
+        power = vec.mul(vec.mul(power, inv_q), weight)
+    return alive, wo, power, dim
+
+
+@kernel(inline=True)
+def record_power(geom, mats, hit, d, power):
+    """The power a photon arriving along d stores at a diffuse hit, ``hit`` = (prim, m, uv, front, ng, ns) (m the
+    material it resolved to, normals turned to the ray): at a coated diffuse lobe times its factor B
+    (:func:`caustica.bsdfs.coat`); at a mixture's part divided by the chance of resolving to a part that stores
+    there (:func:`storing_probability`)."""
+    prim, m, uv, front, ng, ns = hit
+    if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
+        power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
+    own = geom.prim_material[prim]
+    if own != m:
+        power = vec.mul(power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
+    return power
+
+
 @kernel
 def trace_one(tables, key, photon, rules, out):
     """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
@@ -121,8 +145,7 @@ def trace_one(tables, key, photon, rules, out):
     dim = 8
     specular_events = 0
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
-    crossings = 0
-    stored = 0
+    crossings = stored = 0
     while True:
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
@@ -140,16 +163,13 @@ def trace_one(tables, key, photon, rules, out):
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim,
-                                                           termination == TERMINATION_ROULETTE)
+            alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power,
+                                                   termination == TERMINATION_ROULETTE)
             if not alive:
                 break
-            power = vec.mul(vec.mul(power, inv_q), weight)
-            o, d = p, wo
+            o, d, crossings = p, wo, 0
             diffuse_bounces += 1
-            scattered = True
-            diffuse_like = True
-            crossings = 0
+            scattered = diffuse_like = True
             continue
         # ---- a surface
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
@@ -164,14 +184,8 @@ def trace_one(tables, key, photon, rules, out):
             break  # the black back of a one-sided surface absorbs
         if mats.flags[m] & DIFFUSE_REFLECTION:
             if scattered and stored < slots:
-                stored_power = power
-                if mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
-                    stored_power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
-                own = geom.prim_material[prim]
-                if own != m:
-                    # a mixture's part: stored with 1 / the chance of resolving to a part that stores here
-                    stored_power = vec.mul(stored_power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
-                store_record(slot0 + stored, p, d, stored_power, ns, INDIRECT if diffuse_like else CAUSTIC, buf)
+                store_record(slot0 + stored, p, d, record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
+                             ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
@@ -186,16 +200,12 @@ def trace_one(tables, key, photon, rules, out):
                 break
             if mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
                 # a coating's reflection (plastic), or a blend's delta or glossy part beside a diffuse one: no caustic
-                # caster (tables.py: the flags of the surface's own material, a mixture's those of all its parts), so
-                # the caustic photons never carry what follows; its records are INDIRECT, though it is no diffuse
-                # bounce
+                # caster (tables.py), so records after it are INDIRECT, though it is no diffuse bounce
                 diffuse_like = True
         else:
             diffuse_bounces += 1
             diffuse_like = True
-        medium = medium_after(media, shape, ng_front, d_new, medium)
-        o = vec.offset_origin(p, ng, d_new)
-        d = d_new
+        o, d, medium = vec.offset_origin(p, ng, d_new), d_new, medium_after(media, shape, ng_front, d_new, medium)
         scattered = True
     return stored
 

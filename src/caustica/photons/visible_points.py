@@ -216,6 +216,41 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
     return w, vec.hadamard(w, E)
 
 
+@kernel(inline=True)
+def coating_step(tables, at, m, d, path, branch, last):
+    """At a delta coating over a diffuse lobe (plastic): the coating's reflection taken with its sampling
+    probability P (0 at the ``last`` specular vertex allowed), the emitters it reflects added in expectation,
+    as glass's.  ``path`` = (L, β); ``branch`` = (first_glass, numbers, dim), the state :func:`branch_number`
+    takes.  Returns (take the coating, (wc, P, its weight, A) of :func:`caustica.bsdfs.coat`, L, first_glass, dim)."""
+    mats, media = tables[1], tables[3]
+    L, beta = path
+    first_glass, numbers, dim = branch
+    wc, P, w_coat, A = coat(mats, m, d, at.ng, at.ns, at.uv)
+    if last:
+        P = 0.0
+    take = False
+    if P > 0.0:
+        u, first_glass, dim = branch_number(first_glass, numbers, dim)
+        Lr = emitted_along(tables, vec.offset_origin(at.p, at.ng, wc), wc,
+                           medium_after(media, at.shape, at.ng_front, wc, at.medium))
+        L = vec.add(L, vec.mul(vec.hadamard(beta, vec.hadamard(w_coat, Lr)), P))
+        take = u < P
+    return take, (wc, P, w_coat, A), L, first_glass, dim
+
+
+@kernel(inline=True)
+def delta_vertex(tables, at, m, d, path, branch):
+    """The path at a mirror or glass (:func:`delta_step`), glass's branch number drawn first
+    (:func:`branch_number`; ``branch`` = (first_glass, numbers, dim)).
+    Returns (L, direction, β, whether the next hit's emission was already added, first_glass, dim)."""
+    first_glass, numbers, dim = branch
+    u = 0.0
+    if tables[1].flags[m] & TRANSMISSION:
+        u, first_glass, dim = branch_number(first_glass, numbers, dim)
+    L, wi, beta, counted = delta_step(tables, at, m, d, path, u)
+    return L, wi, beta, counted, first_glass, dim
+
+
 @kernel
 def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
@@ -227,19 +262,16 @@ def visible_point(tables, o, d, numbers, params, out):
     geom, mats, lights, media = tables
     key = numbers[0]
     max_specular = params[2]
-    L = (0.0, 0.0, 0.0)
+    L = zero = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
-    zero = (0.0, 0.0, 0.0)
     dim = 2
-    depth = 0
+    depth = n_seg = crossings = 0
     first_glass = True
     counted = False   # the next surface's emission was already added, in expectation, at the glass before it
     specular = True   # no glossy scattering yet, or a delta one since: emitters the path meets count in full
     pdf_last = 0.0    # after a glossy scattering: its sampled direction's density, and where it was (MIS)
     p_last = o
     medium = media.camera[0]
-    n_seg = 0
-    crossings = 0
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if medium >= 0:
@@ -281,20 +313,12 @@ def visible_point(tables, o, d, numbers, params, out):
             specular = lobe & DELTA != 0
             p_last = p
         else:
-            take_coat = False
-            wc, P, w_coat, A = zero, -1.0, zero, zero
+            take_coat, coating = False, (zero, -1.0, zero, zero)   # (wc, P, w_coat, A): P < 0 without a coating
             if flags & SMOOTH and flags & DELTA:
-                # a delta coating over a diffuse lobe (plastic): the coating with its sampling probability P (the
-                # emitters it reflects added in expectation, as glass's), else the visible point here
-                wc, P, w_coat, A = coat(mats, m, d, ng, ns, uv)
-                if depth >= max_specular:
-                    P = 0.0
-                if P > 0.0:
-                    u, first_glass, dim = branch_number(first_glass, numbers, dim)
-                    Lr = emitted_along(tables, vec.offset_origin(p, ng, wc), wc,
-                                       medium_after(media, shape, ng_front, wc, medium))
-                    L = vec.add(L, vec.mul(vec.hadamard(beta, vec.hadamard(w_coat, Lr)), P))
-                    take_coat = u < P
+                # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
+                take_coat, coating, L, first_glass, dim = coating_step(
+                    tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)
+            wc, P, w_coat, A = coating
             if flags & SMOOTH and not take_coat:
                 w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
                 return True, p, ns, w, vec.add(L, Ld), n_seg
@@ -303,17 +327,11 @@ def visible_point(tables, o, d, numbers, params, out):
                 return False, zero, zero, zero, L, n_seg
             specular = True
             if take_coat:
-                wi = wc
-                beta = vec.hadamard(beta, w_coat)
-                counted = True   # the reflection's first hit's emission was added above
+                wi, beta, counted = wc, vec.hadamard(beta, w_coat), True   # its first hit's emission: added above
             else:
-                u = 0.0
-                if flags & TRANSMISSION:
-                    u, first_glass, dim = branch_number(first_glass, numbers, dim)
-                L, wi, beta, counted = delta_step(tables, at, m, d, (L, beta), u)
-        medium = medium_after(media, shape, ng_front, wi, medium)
-        o = vec.offset_origin(p, ng, wi)
-        d = wi
+                L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta),
+                                                                      (first_glass, numbers, dim))
+        o, d, medium = vec.offset_origin(p, ng, wi), wi, medium_after(media, shape, ng_front, wi, medium)
 
 
 @kernel
@@ -337,11 +355,10 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
                                                  (i * MEDIUM_SEGMENTS, segments))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
-        for c in range(3):
-            points.position[i, c] = p[c]
-            points.normal[i, c] = n[c]
-            points.weight[i, c] = w[c]
-            points.direct[i, c] = L[c]
+        vec.set_row(points.position, i, p)
+        vec.set_row(points.normal, i, n)
+        vec.set_row(points.weight, i, w)
+        vec.set_row(points.direct, i, L)
         points.found[i] = found
         segments.count[i] = n_seg
 
