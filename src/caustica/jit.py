@@ -52,8 +52,8 @@ A fresh install compiles every kernel of its first render (``make render``: abou
 that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
 calls are typed with plain, never literal, argument types (one specialisation per
 kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
-carries no reference counts, so binding one generates no code; ``inline`` (Numba
-IR inlining, typed again at each call site) only for small helpers.
+carries no reference counts, so binding one generates no code; helpers are inlined by LLVM
+(``inline``), never by Numba's IR inlining, which compiles the helper again at every call site.
 """
 from __future__ import annotations
 
@@ -129,9 +129,9 @@ class Kernel(CPUDispatcher):
     which doubled the compile time of the kernels called that way.
     """
 
-    def __init__(self, py_func, inline, hot):
-        options = dict(_OPTIONS, inline="always" if inline else "never", forceinline=hot,
-                       no_cpython_wrapper=True, no_cfunc_wrapper=True)
+    def __init__(self, py_func, inline):
+        options = dict(_OPTIONS, inline="never", forceinline=inline, no_cpython_wrapper=True,
+                       no_cfunc_wrapper=True)
         super().__init__(py_func=py_func, locals={}, targetoptions=options)
         if CACHE_SERIAL:
             self.enable_caching()
@@ -163,21 +163,23 @@ class Kernel(CPUDispatcher):
                                          {k: types.unliteral(v) for k, v in kws.items()})
 
 
-def kernel(fn=None, *, inline: bool = False, hot: bool = False):
+def kernel(fn=None, *, inline: bool = False):
     """Compile a serial kernel or device function (nogil; cached per CACHE_SERIAL; see :class:`Kernel`).
 
-    ``inline``: Numba inlines the function's code into each caller before typing
-    (each call site is typed and compiled again: use it for small helpers only).
-    ``hot``: compiled once, and LLVM always inlines the machine-level code into its
-    callers.  For per-ray helpers that take the scene tables: Numba passes a tuple
-    argument as all of its fields, so a call that is not inlined copies some 300
-    values (a Geometry and a LightTable) -- on the path tracer's next-event estimate
-    and BVH traversal that was a third of the render time.
+    ``inline``: compiled once (per argument types), and LLVM always inlines its machine-level code into its
+    callers.  For small helpers and for per-ray helpers that take the scene tables: Numba passes a tuple argument
+    as all of its fields, so a call that is not inlined copies some 300 values (a Geometry and a LightTable) --
+    on the path tracer's next-event estimate and BVH traversal that was a third of the render time.
+
+    Not Numba's own ``inline="always"``, which inlines the function's IR into each caller before typing: it
+    translates, types and lowers the function again at every call site, recursively, and was most of the
+    compile time (the photon, stream and camera loops took 14-31 s each, 1.8-3.1 s inlined by LLVM; the whole
+    of ``benchmarks/bench_compile.py``'s spm render 114 s -> 59 s, 2026-12-04).
     """
     def wrap(f):
         if numba.config.DISABLE_JIT:
             return f
-        return Kernel(f, inline, hot)
+        return Kernel(f, inline)
     return wrap(fn) if fn is not None else wrap
 
 

@@ -196,7 +196,7 @@ def shadow_transmittance(geom, mats, media, o, target, medium):
     return transmittance(geom, mats, media, o, target, medium)
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def transmittance(geom, mats, media, o, target, medium):
     """(T per channel, rays traced) along the segment from o to target, starting in ``medium``.
 
@@ -347,7 +347,7 @@ def shadow_ray_start(media, at, wi, towards, through):
     return True, cos_s, vec.offset_origin(p, ng, towards), medium_after(media, shape, ng_front, wi, medium)
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def light_sample(tables, at, u, through):
     """One light sample seen from ``at`` through media and null boundaries (next-event estimation).
 

@@ -455,13 +455,13 @@ def _near_first(axis, d):
     return d[2] < 0.0
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def _traverse(arrays, o, d, tmax, any_hit):
     """The BVH walk for both queries: the closest hit ``(prim, t, b1, b2)`` in (0, tmax), or with
     ``any_hit`` the first hit found (its ``prim`` >= 0; a miss is ``prim = -1``, ``t = tmax``).
 
     ``arrays`` as :func:`_arrays` gives them.  Compiled once by Numba; LLVM inlines it into each
-    caller (``hot``), where the constant ``any_hit`` folds away.
+    caller (``inline``), where the constant ``any_hit`` folds away.
     """
     box, node, order, prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local = arrays
     prims = (prim_kind, prim_index, tri_p0, tri_e1, tri_e2, ana_to_local)

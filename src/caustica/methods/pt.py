@@ -63,7 +63,7 @@ SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
 NULL_THIN_INTEGRATORS = ("volpath", "volpathmis")
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def medium_event(tables, at, d, acc, key, dim):
     """A scattering event in a medium at ``at`` (:func:`caustica.transport.in_medium`) on a path arriving along d
     with ``acc`` = (L, β, shadow rays so far): next-event estimation with the phase function (MIS against it for
@@ -76,7 +76,7 @@ def medium_event(tables, at, d, acc, key, dim):
     return L, vec.mul(beta, weight), n_shadow + shadow, pdf > 0.0, wo, pdf, dim + 2
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def surface_event(tables, at, m, d, acc, key, dim):
     """Scattering at surface point ``at`` of material m on a path arriving along d with ``acc`` = (L, β, shadow rays
     so far): next-event estimation where the BSDF has a smooth lobe, then a BSDF-sampled direction.  Returns
@@ -119,7 +119,7 @@ def russian_roulette(beta, eta_scale, key, dim):
     return True, vec.mul(beta, 1.0 / q), dim + 1
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def radiance(tables, o, d, key, depths):
     """Radiance arriving at o from direction -d along one random path (from the camera's medium), with ``depths`` =
     (max_depth, rr_depth, hide_emitters), Mitsuba's settings (hide_emitters: emitters and the environment the camera

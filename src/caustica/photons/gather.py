@@ -59,7 +59,7 @@ def push_branch(scratch, top, o, d, beta, depth):
     return top + 1
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim):
     """What arrives at the diffuse point ``at`` as an irradiance-like E (the caller scales it by f_r): shadow rays
     to every emitter (numbers from ``dim`` on; weighted by B of plastic ``lobe_b``'s coating, -1 for none) and

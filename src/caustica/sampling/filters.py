@@ -158,7 +158,7 @@ def sample_filter(kind, radius, stddev, lo, hi, u):
     return lo + u * (hi - lo)   # box
 
 
-@kernel(hot=True)
+@kernel(inline=True)
 def film_position(kind, radius, stddev, sample_border, p, n, u):
     """The film coordinate (in pixels, 0 at the film's first edge) of a sample of pixel p of n along
     one axis, drawn with the uniform number u from the filter centred on the pixel (see the module).
