@@ -4,7 +4,7 @@ scene (the description and its loader) → tables (geometry, materials, lights, 
 the compiled scene that assembles them) → transport (light paths, photon and stream tracing, the
 camera passes) → methods → driver (passes, checkpoints, results) → api and cluster → experiments →
 the command line.  Below them all, base modules that know nothing of rendering (errors, limits,
-memory, the JIT policy, random numbers, vector maths, image files, the film's accumulation).  A module may import its own layer and
+memory, the JIT policy and feature-specialised tables, random numbers, vector maths, image files, the film's accumulation).  A module may import its own layer and
 the ones below.  Imports are read from the source (``ast``), so the test runs nothing.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1] / "src" / "caustica"
 LAYERS = (
     ("base", ("caustica.errors", "caustica.limits", "caustica.memory", "caustica.jit", "caustica.sampling",
               "caustica.geometry.vec", "caustica.imageio", "caustica.version", "caustica.film",
-              "caustica.interrupts", "caustica.arrays")),
+              "caustica.interrupts", "caustica.arrays", "caustica.features")),
     ("scene", ("caustica.scene",)),
     ("tables", ("caustica.geometry", "caustica.bsdfs", "caustica.emitters", "caustica.media", "caustica.camera",
                 "caustica.tables")),

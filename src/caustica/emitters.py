@@ -53,6 +53,7 @@ import numpy as np
 from .bsdfs.textures import NEAREST, REPEAT, texture_columns, texture_rgb, wrap
 from .geometry import vec
 from .geometry.scene_geometry import Geometry, sample_on_primitive
+from .features import has, specialisable
 from .jit import kernel
 from .sampling.warps import square_to_uniform_sphere
 from .scene.description import BITMAP, CHECKERBOARD, SceneDescription
@@ -73,6 +74,7 @@ INV_4PI = 1.0 / (4.0 * math.pi)
 LUMINANCE = (0.212671, 0.715160, 0.072169)
 
 
+@specialisable
 class LightTable(NamedTuple):
     kind: np.ndarray          # int32[L]: AREA, POINT, SPOT, DIRECTIONAL or ENV
     radiance: np.ndarray      # float64[L, 3]: radiance (area), intensity W/sr (point, spot: on its axis),
@@ -424,7 +426,7 @@ def profile(lights, e, d):
     x = vec.dot(vec.row(lights.edge1, e), d)
     y = vec.dot(vec.row(lights.edge2, e), d)
     z = vec.dot(vec.row(lights.normal, e), d)
-    if lights.kind[e] == SPOT:
+    if has(lights, SPOT) and lights.kind[e] == SPOT:
         f = spot_falloff(lights, e, d)
         if not (f > 0.0 and z > 0.0):
             return zero
@@ -446,7 +448,8 @@ def profile(lights, e, d):
 @kernel(inline=True)
 def profiled(lights, e):
     """Whether light e's intensity varies by :func:`profile` (a projector, a textured spot)."""
-    return lights.kind[e] == PROJECTOR or (lights.kind[e] == SPOT and lights.tex_int[e, TEX_OF] == 1)
+    return (has(lights, PROJECTOR) and lights.kind[e] == PROJECTOR
+            or has(lights, SPOT) and lights.kind[e] == SPOT and lights.tex_int[e, TEX_OF] == 1)
 
 
 @kernel

@@ -18,6 +18,8 @@ from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_sample, profile, profiled, \
     sample_area_emitter, spot_falloff
 from .geometry import vec
+from .features import has
+from .scene.description import PLASTIC
 from .jit import kernel
 from .media import env_shadow_length, escape_transmittance, light_sample, medium_after, phase_pdf, phase_value, \
     power_heuristic, shadow_transmittance
@@ -69,7 +71,7 @@ def env_direct(tables, at, key, dim, strata, coated):
             w = 1.0
             if not constant:
                 w = power_heuristic(cos_c * INV_PI, env_pdf(lights, wc))
-            if coated >= 0:
+            if has(mats, PLASTIC) and coated >= 0:
                 w *= entry(mats, coated, cos_c)
             T = env_transmittance(tables, at, wc)
             acc = vec.madd(acc, vec.hadamard(env_radiance(lights, wc), T), math.pi * w)
@@ -79,7 +81,7 @@ def env_direct(tables, at, key, dim, strata, coated):
         cos_e = vec.dot(ns, we)
         if pdf_e > 0.0 and cos_e > 0.0 and vec.dot(ng, we) > 0.0:
             w = power_heuristic(pdf_e, cos_e * INV_PI)
-            if coated >= 0:
+            if has(mats, PLASTIC) and coated >= 0:
                 w *= entry(mats, coated, cos_e)
             T = env_transmittance(tables, at, we)
             acc = vec.madd(acc, vec.hadamard(Le, T), cos_e * w / pdf_e)
@@ -120,7 +122,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):
         rad = vec.row(lights.radiance, li)
-        if lights.kind[li] == ENV:
+        if has(lights, ENV) and lights.kind[li] == ENV:
             E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated))
         elif lights.kind[li] == AREA:
             acc = (0.0, 0.0, 0.0)
@@ -140,18 +142,18 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                                      vec.offset_origin(q, nq, vec.neg(to_l)),
                                      medium_after(media, shape, ng_front, wi, medium))
                 g = cos_s * cos_l / dist2
-                if coated >= 0:
+                if has(mats, PLASTIC) and coated >= 0:
                     g *= entry(mats, coated, cos_s)
                 acc = vec.madd(acc, T, g)
             area = lights.area[li]
             E = (E[0] + rad[0] * (acc[0] * area / n_total), E[1] + rad[1] * (acc[1] * area / n_total),
                  E[2] + rad[2] * (acc[2] * area / n_total))
-        elif lights.kind[li] == DIRECTIONAL:
+        elif has(lights, DIRECTIONAL) and lights.kind[li] == DIRECTIONAL:
             wi = vec.neg(vec.row(lights.normal, li))
             cos_s = vec.dot(ns, wi)
             if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                 continue
-            if coated >= 0:
+            if has(mats, PLASTIC) and coated >= 0:
                 cos_s *= entry(mats, coated, cos_s)
             E = vec.madd(E, vec.hadamard(rad, env_transmittance(tables, at, wi)), cos_s)
         elif profiled(lights, li):
@@ -166,15 +168,15 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             cos_s = vec.dot(ns, wi)
             if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                 continue
-            falloff = spot_falloff(lights, li, vec.neg(wi)) if lights.kind[li] == SPOT else 1.0
+            falloff = spot_falloff(lights, li, vec.neg(wi)) if has(lights, SPOT) and lights.kind[li] == SPOT else 1.0
             if not falloff > 0.0:
                 continue
             T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                  medium_after(media, shape, ng_front, wi, medium))
             g = cos_s / dist2
-            if coated >= 0:
+            if has(mats, PLASTIC) and coated >= 0:
                 g *= entry(mats, coated, cos_s)
-            if lights.kind[li] == SPOT:
+            if has(lights, SPOT) and lights.kind[li] == SPOT:
                 g *= falloff
             E = vec.madd(E, vec.hadamard(rad, T), g)
     return E
@@ -202,7 +204,7 @@ def profiled_direct(tables, at, li, coated):
     T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                 medium_after(media, shape, ng_front, wi, medium))
     g = cos_s / dist2
-    if coated >= 0:
+    if has(mats, PLASTIC) and coated >= 0:
         g *= entry(mats, coated, cos_s)
     return vec.mul(vec.hadamard(intensity, T), g)
 

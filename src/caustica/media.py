@@ -33,15 +33,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .bsdfs import NULL_TRANSMISSION, null_transmission
+from .bsdfs import NULL_TRANSMISSION, TEXTURED, null_transmission
 from .bsdfs.mixtures import pass_probability
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, profile, profiled, sample_area_emitter, \
     spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, surface_uv
+from .features import has
 from .jit import kernel
 from .sampling.rng import uniform
-from .scene.description import BLEND, HENYEY_GREENSTEIN, MASK, NULL, SceneDescription
+from .scene.description import BLEND, HENYEY_GREENSTEIN, MASK, NULL, THINDIELECTRIC, SceneDescription
 
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -206,7 +207,7 @@ def transmittance(geom, mats, media, o, target, medium):
     material flagged ``NULL_TRANSMISSION`` (thindielectric in ``pt`` for a volpath scene) 1 - R (:func:`crossing`).
     The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so
     a shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
-    ``hot`` (inlined by LLVM): called per shadow ray in every scene with media or null surfaces, and a call would
+    Inlined by LLVM: called per shadow ray in every scene with media or null surfaces, and a call would
     copy every array of three scene tables (the fog box's ``pt`` ran 2.6-3.9x slower per pass that way).
     """
     T = (1.0, 1.0, 1.0)
@@ -246,11 +247,11 @@ def crossing(geom, mats, prim, ray):
     if kind == NULL:
         return (1.0, 1.0, 1.0)
     o, d, t, b1, b2 = ray
-    if mats.flags[m] & NULL_TRANSMISSION:
+    if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION:
         _, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-        uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 else NO_UV
+        uv = surface_uv(geom, prim, o, d, t, b1, b2) if has(mats, TEXTURED) and mats.texture[m] >= 0 else NO_UV
         return null_transmission(mats, m, d, ng, ns, uv)
-    if kind != MASK and kind != BLEND:
+    if not (has(mats, MASK) and kind == MASK or has(mats, BLEND) and kind == BLEND):
         return (0.0, 0.0, 0.0)
     s = pass_probability(mats, m, surface_uv(geom, prim, o, d, t, b1, b2))
     return (s, s, s)
@@ -370,9 +371,9 @@ def light_sample(tables, at, u, through):
     if lights.kind.shape[0] == 0:
         return zero, zero, 0.0, 0.0, False, False, 0
     li, sel_pdf, _ = choose_light(lights, u0)
-    if lights.kind[li] == ENV:
+    if has(lights, ENV) and lights.kind[li] == ENV:
         return env_light_sample(tables, at, sel_pdf, (u1, u2), through)
-    if lights.kind[li] == DIRECTIONAL:
+    if has(lights, DIRECTIONAL) and lights.kind[li] == DIRECTIONAL:
         return directional_light_sample(tables, at, li, sel_pdf, through)
     if profiled(lights, li):
         return profiled_light_sample(tables, at, li, sel_pdf, through)
@@ -393,7 +394,7 @@ def light_sample(tables, at, u, through):
         if cos_l <= 0.0:
             return zero, wi, 0.0, 0.0, True, False, 0
         pdf = sel_pdf * dist2 / (lights.area[li] * cos_l)
-    falloff = spot_falloff(lights, li, vec.neg(wi)) if lights.kind[li] == SPOT else 1.0
+    falloff = spot_falloff(lights, li, vec.neg(wi)) if has(lights, SPOT) and lights.kind[li] == SPOT else 1.0
     if not falloff > 0.0:
         return zero, wi, 0.0, 0.0, False, False, 0
     faces, cos_s, o, medium = shadow_ray_start(media, at, wi, to_l, through)
@@ -404,7 +405,7 @@ def light_sample(tables, at, u, through):
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, is_area, False, rays
     Le = vec.hadamard(vec.row(lights.radiance, li), T)
-    if lights.kind[li] == SPOT:
+    if has(lights, SPOT) and lights.kind[li] == SPOT:
         Le = vec.mul(Le, falloff)
     return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \
         rays
@@ -596,11 +597,11 @@ def light_medium(geom, lights, media, e):
     (:func:`medium_at`), says where it is.  A point, spot or projector is probed from its position.
     """
     fallback = media.camera[0]
-    if lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
+    if has(lights, ENV) and lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
         d = vec.normalize((0.3, 0.5, 0.81))
         c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
         return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)
-    if lights.kind[e] == DIRECTIONAL:
+    if has(lights, DIRECTIONAL) and lights.kind[e] == DIRECTIONAL:
         d = vec.row(lights.normal, e)
         c = (lights.env_data[0], lights.env_data[1], lights.env_data[2])
         return medium_at(geom, media, vec.madd(c, d, -2.0 * lights.env_data[3]), d, fallback)

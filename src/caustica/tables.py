@@ -13,14 +13,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features
 from .camera import CameraParams, camera_params
-from .emitters import LightTable, build_light_table
+from .emitters import AREA, POINT, LightTable, build_light_table
 from .errors import SceneError
+from .features import ALL, specialised
 from .geometry.bounds import shape_bounding_sphere
 from .geometry.scene_geometry import Geometry, build_geometry
 from .media import MediumTable, build_medium_table
-from .scene.description import SceneDescription
+from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, SceneDescription
 from .scene.transforms import MAX_ABS_FLOAT
 
 
@@ -101,9 +102,29 @@ def compile_scene(desc: SceneDescription) -> Scene:
                          f"inside a shape, an <emitter type=\"point\">, \"spot\", \"projector\", \"directional\", \"constant\" or "
                          f"\"envmap\"")
     _check_light_power(desc, lights)
-    mats = build_material_table(desc)
+    mats, lights = specialise(build_material_table(desc), lights)
     media = build_medium_table(desc)
     return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0}, media)
+
+
+def _bits(*codes: int) -> int:
+    return sum(1 << c for c in set(codes))
+
+
+#: The feature sets kernels are compiled for (:mod:`caustica.features`): a scene whose materials and lights all lie
+#: in these (the paper's scenes: diffuse walls, mirrors, glass, media behind null boundaries, area and point lights)
+#: gets kernels with the code of these kinds alone; any other scene gets every kind's code.  Two sets, so a kernel
+#: compiles at most twice (each set once, then cached), and the paper's scenes compile about a third of the code.
+CORE_MATERIALS = _bits(DIFFUSE, CONDUCTOR, DIELECTRIC, NULL)
+CORE_LIGHTS = _bits(AREA, POINT)
+
+
+def specialise(mats: MaterialTable, lights: LightTable) -> tuple[MaterialTable, LightTable]:
+    """The material and light tables as instances of the classes of their feature set (CORE_*, or ALL)."""
+    light_bits = _bits(*(int(k) for k in lights.kind))
+    core = material_features(mats) & ~CORE_MATERIALS == 0 and light_bits & ~CORE_LIGHTS == 0
+    return (specialised(MaterialTable, CORE_MATERIALS if core else ALL)(*mats),
+            specialised(LightTable, CORE_LIGHTS if core else ALL)(*lights))
 
 
 def _check_light_power(desc: SceneDescription, lights: LightTable) -> None:

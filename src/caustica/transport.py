@@ -18,7 +18,9 @@ from typing import NamedTuple
 
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, surface_at, surface_tangents, surface_uv
+from .features import has
 from .jit import borrowed, kernel
+from .bsdfs.flags import TEXTURED
 from .bsdfs.mixtures import resolve
 from .bsdfs.perturb import perturbed_normal
 from .media import cross_null
@@ -78,22 +80,22 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     kind = mats.kind[m]
     shape = geom.prim_shape[prim]
     uv = NO_UV
-    mixture = kind == MASK or kind == BLEND
+    mixture = has(mats, MASK) and kind == MASK or has(mats, BLEND) and kind == BLEND
     if mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
         m, dim = resolve(mats, m, uv, key, dim)
         kind = NULL if m < 0 else mats.kind[m]
         m = max(m, 0)
-    if kind == NULL:
+    if has(mats, NULL) and kind == NULL:
         medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
         return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED, dim
-    if kind == NORMALMAP or kind == BUMPMAP:
+    if has(mats, NORMALMAP) and kind == NORMALMAP or has(mats, BUMPMAP) and kind == BUMPMAP:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
         dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
         ns = perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv)
         m = mats.nested[m, 0]
         kind = mats.kind[m]
         mixture = True   # uv is known
-    if mats.texture[m] >= 0 and not mixture:
+    if has(mats, TEXTURED) and mats.texture[m] >= 0 and not mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
     return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..geometry import vec
+from ..features import has, specialisable
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, ROUGHCONDUCTOR, \
     ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
@@ -44,9 +45,9 @@ from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, rou
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
-from ..scene.description import BLEND, MASK
+from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
 from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
-    GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
+    GLOSSY_LOBES, GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
@@ -54,6 +55,7 @@ BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCO
          PPLASTIC: pplastic}
 
 
+@specialisable
 class MaterialTable(NamedTuple):
     kind: np.ndarray       # int32[M]: the BSDF's KIND (or NULL)
     flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
@@ -129,6 +131,18 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                          attribute_table(desc))
 
 
+def material_features(mats: MaterialTable) -> int:
+    """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES."""
+    bits = 0
+    for k in np.unique(mats.kind):
+        bits |= 1 << int(k)
+    if (mats.texture >= 0).any() or (mats.mix_texture >= 0).any():
+        bits |= 1 << TEXTURED
+    if (mats.flags & GLOSSY).any():
+        bits |= 1 << GLOSSY_LOBES
+    return bits
+
+
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
     """A copy of ``mats`` whose thindielectric rows carry ``NULL_TRANSMISSION`` (their straight-on lobe is Mitsuba's
     ``Null`` one, as its ``volpath`` integrator treats it), or None when no row is a thindielectric.  The scene's
@@ -173,7 +187,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     uv for its textures), with numbers (key, dim, ...): (ok, wi, weight, pdf, lobe, eta, dim past the numbers
     used).  On a wrapper's nested row the weight carries the bump terminator's shadowing (:mod:`.perturb`)."""
     ok, wi, weight, pdf, lobe, eta, dim = sample_kind(mats, m, d, ng, ns, uv, key, dim)
-    if mats.terminator[m]:
+    if (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.terminator[m]:
         weight = vec.mul(weight, terminator(ng, ns, wi))
     return ok, wi, weight, pdf, lobe, eta, dim
 
@@ -182,21 +196,21 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 def sample_kind(mats, m, d, ng, ns, uv, key, dim):
     """:func:`sample` by material m's kind."""
     kind = mats.kind[m]
-    if kind == DIFFUSE:
+    if has(mats, DIFFUSE) and kind == DIFFUSE:
         return diffuse.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == CONDUCTOR:
+    if has(mats, CONDUCTOR) and kind == CONDUCTOR:
         return conductor.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == ROUGHCONDUCTOR:
+    if has(mats, ROUGHCONDUCTOR) and kind == ROUGHCONDUCTOR:
         return roughconductor.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == ROUGHDIELECTRIC:
+    if has(mats, ROUGHDIELECTRIC) and kind == ROUGHDIELECTRIC:
         return roughdielectric.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == PLASTIC:
+    if has(mats, PLASTIC) and kind == PLASTIC:
         return plastic.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == ROUGHPLASTIC:
+    if has(mats, ROUGHPLASTIC) and kind == ROUGHPLASTIC:
         return roughplastic.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == PPLASTIC:
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
         return pplastic.sample(mats, m, d, ng, ns, uv, key, dim)
-    if kind == THINDIELECTRIC:
+    if has(mats, THINDIELECTRIC) and kind == THINDIELECTRIC:
         return thindielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
 
@@ -208,7 +222,7 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     :func:`sample` returns wi (its lobe choice included).  On a wrapper's nested row the scale carries the bump
     terminator's shadowing (:mod:`.perturb`)."""
     c, scale, pdf = eval_pdf_kind(mats, m, d, ng, ns, uv, wi)
-    if mats.terminator[m]:
+    if (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.terminator[m]:
         scale *= terminator(ng, ns, wi)
     return c, scale, pdf
 
@@ -217,17 +231,17 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
 def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
     """:func:`eval_pdf` by material m's kind."""
     kind = mats.kind[m]
-    if kind == DIFFUSE:
+    if has(mats, DIFFUSE) and kind == DIFFUSE:
         return diffuse.eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if kind == ROUGHCONDUCTOR:
+    if has(mats, ROUGHCONDUCTOR) and kind == ROUGHCONDUCTOR:
         return roughconductor.eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if kind == ROUGHDIELECTRIC:
+    if has(mats, ROUGHDIELECTRIC) and kind == ROUGHDIELECTRIC:
         return roughdielectric.eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if kind == PLASTIC:
+    if has(mats, PLASTIC) and kind == PLASTIC:
         return plastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if kind == ROUGHPLASTIC:
+    if has(mats, ROUGHPLASTIC) and kind == ROUGHPLASTIC:
         return roughplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if kind == PPLASTIC:
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
         return pplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
@@ -236,7 +250,7 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 def camera_scale(mats, m, d, ng, ns, wi):
     """The factor a camera path (radiance) applies to :func:`eval_pdf`'s f towards wi: 1 / eta² when wi is
     refracted by a glossy transmission lobe, else 1 (:func:`sample`'s weight leaves it to the caller too)."""
-    if mats.kind[m] == ROUGHDIELECTRIC:
+    if has(mats, ROUGHDIELECTRIC) and mats.kind[m] == ROUGHDIELECTRIC:
         return roughdielectric.camera_scale(mats, m, d, ng, ns, wi)
     return 1.0
 
@@ -267,8 +281,8 @@ def delta_branches(mats, m, d, ng, ns, uv):
     with number u.
     """
     kind = mats.kind[m]
-    if kind == CONDUCTOR:
+    if has(mats, CONDUCTOR) and kind == CONDUCTOR:
         return conductor.delta_branches(mats, m, d, ng, ns, uv)
-    if kind == THINDIELECTRIC:
+    if has(mats, THINDIELECTRIC) and kind == THINDIELECTRIC:
         return thindielectric.delta_branches(mats, m, d, ng, ns, uv)
     return dielectric.delta_branches(mats, m, d, ng, ns, uv)

@@ -22,3 +22,8 @@ DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
 GLOSSY = GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 SMOOTH = DIFFUSE_REFLECTION | GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 TRANSMISSION = GLOSSY_TRANSMISSION | DELTA_TRANSMISSION
+
+#: Feature codes of a material table beyond its kinds (:mod:`caustica.features`; a kind's code is the kind itself):
+#: some colour, opacity, weight or normal comes from a texture; some BSDF has a glossy lobe.
+TEXTURED = 30
+GLOSSY_LOBES = 29

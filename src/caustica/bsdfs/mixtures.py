@@ -23,9 +23,11 @@ import math
 
 import numpy as np
 
+from ..features import has
 from ..jit import kernel
 from ..sampling.rng import uniform
 from ..scene.description import BLEND, CHECKERBOARD, MASK, MESH_ATTRIBUTE, MIXTURES, NULL, WRAPPERS
+from .flags import TEXTURED
 from .textures import COLOR0, COLOR1, KIND, LUMINANCE, ROW0, TO_UV, attribute_rgb, texture_rgb
 
 
@@ -45,7 +47,7 @@ def mixture_columns(materials) -> tuple:
 @kernel(inline=True)
 def weight(mats, m, uv):
     """Mixture m's opacity (mask) or weight of its second part (blend) at surface coordinates uv, in [0, 1]."""
-    t = mats.mix_texture[m]
+    t = mats.mix_texture[m] if has(mats, TEXTURED) else -1
     if t < 0:
         return mats.mix[m]
     if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:   # its eval_1: a 1-channel attribute (the loader checks)
@@ -70,7 +72,7 @@ def resolve(mats, m, uv, key, dim):
     """The part of mixture m a ray meeting it at uv takes, with number (key, dim): (material, dim + 1); material
     -1 for no surface (a mask where it is off).  Any other material is returned as it is, no number used."""
     kind = mats.kind[m]
-    if kind != MASK and kind != BLEND:
+    if not (has(mats, MASK) and kind == MASK or has(mats, BLEND) and kind == BLEND):
         return m, dim
     w = weight(mats, m, uv)
     u = uniform(key, dim)
@@ -86,10 +88,10 @@ def pass_probability(mats, m, uv):
     kind = mats.kind[m]
     if kind == NULL:
         return 1.0
-    if kind == MASK:
+    if has(mats, MASK) and kind == MASK:
         o = weight(mats, m, uv)
         return 1.0 if mats.kind[mats.nested[m, 0]] == NULL else 1.0 - o
-    if kind == BLEND:
+    if has(mats, BLEND) and kind == BLEND:
         w = weight(mats, m, uv)
         p0 = 1.0 if mats.kind[mats.nested[m, 0]] == NULL else 0.0
         p1 = 1.0 if mats.kind[mats.nested[m, 1]] == NULL else 0.0

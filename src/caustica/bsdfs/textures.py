@@ -25,8 +25,10 @@ import math
 import numpy as np
 
 from ..geometry import vec
+from ..features import has
 from ..jit import kernel
 from ..scene.description import CHECKERBOARD, MESH, MESH_ATTRIBUTE
+from .flags import TEXTURED
 
 NEAREST, BILINEAR = 0, 1
 REPEAT, MIRROR, CLAMP = 0, 1, 2
@@ -201,7 +203,7 @@ def attribute_rgb(attr, slot, scale, hit):
 def colour(mats, m, uv):
     """Material m's colour (its ``rgb``: reflectance, specular reflectance, glass scale) at the hit's surface
     coordinates uv = (u, v, triangle, b1, b2): ``rgb[m]`` itself when untextured."""
-    t = mats.texture[m]
+    t = mats.texture[m] if has(mats, TEXTURED) else -1
     if t < 0:
         return vec.row(mats.rgb, m)
     if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:
@@ -212,6 +214,6 @@ def colour(mats, m, uv):
 @kernel(inline=True)
 def albedo_mean(mats, m, rgb):
     """The mean of material m's colour ``rgb`` (from :func:`colour`): photons' survival probability at a bounce."""
-    if mats.texture[m] < 0:
+    if not has(mats, TEXTURED) or mats.texture[m] < 0:
         return mats.albedo_mean[m]
     return (rgb[0] + rgb[1] + rgb[2]) / 3.0

@@ -43,6 +43,9 @@ from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmi
 from ..camera import generate_ray
 from ..errors import ParameterError
 from ..geometry import vec
+from ..emitters import ENV
+from ..features import has
+from ..scene.description import THINDIELECTRIC
 from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import cross_null, free_flight, medium_after, phase_sample
@@ -140,7 +143,7 @@ def radiance(tables, o, d, key, depths):
         n_ext += 1
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
-            if lights.env[0] >= 0 and not (hide_emitters and depth == 0):
+            if has(lights, ENV) and lights.env[0] >= 0 and not (hide_emitters and depth == 0):
                 L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, (specular, pdf_last))))
             break
         if medium >= 0:
@@ -171,7 +174,7 @@ def radiance(tables, o, d, key, depths):
                 break
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
-            null_lobe = mats.flags[m] & NULL_TRANSMISSION != 0   # sampled at the last depth too, as volpath does
+            null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0   # sampled at the last depth too, as volpath does
             if not scatters or (depth + 1 >= max_depth and not null_lobe):
                 break
             L, beta, n_shadow, (alive, wi, pdf, lobe, eta2), dim = surface_event(

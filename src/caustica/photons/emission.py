@@ -47,6 +47,7 @@ import math
 from ..emitters import AREA, DIRECTIONAL, ENV, PROJECTOR, SPOT, TEX_OF, choose_light, env_sample, light_texture, \
     profile, profiled, projector_sample_uv, sample_area_emitter, spot_falloff
 from ..geometry import vec
+from ..features import has
 from ..jit import kernel
 from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_disk, \
@@ -59,13 +60,13 @@ FOUR_PI = 4.0 * math.pi
 def emit_photon(geom, lights, key, n_paths):
     """A photon leaving a light: (origin, unit direction, power RGB in W, front normal or zero)."""
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
-    if lights.kind[li] == ENV:
+    if has(lights, ENV) and lights.kind[li] == ENV:
         return emit_env_photon(lights, sel_pdf, key, n_paths)
-    if lights.kind[li] == DIRECTIONAL:
+    if has(lights, DIRECTIONAL) and lights.kind[li] == DIRECTIONAL:
         return emit_directional_photon(lights, li, sel_pdf, key, n_paths)
-    if lights.kind[li] == SPOT:
+    if has(lights, SPOT) and lights.kind[li] == SPOT:
         return emit_spot_photon(lights, li, sel_pdf, key, n_paths)
-    if lights.kind[li] == PROJECTOR:
+    if has(lights, PROJECTOR) and lights.kind[li] == PROJECTOR:
         return emit_projector_photon(lights, li, sel_pdf, key, n_paths)
     if lights.kind[li] == AREA:
         p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
@@ -108,9 +109,9 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
     one-sided emitter sends nothing there); such a photon still counts in n_paths.
     """
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))
-    if lights.kind[li] == ENV:
+    if has(lights, ENV) and lights.kind[li] == ENV:
         return emit_env_caustic_photon(lights, spheres, sel_pdf, key, n_paths)
-    if lights.kind[li] == DIRECTIONAL:
+    if has(lights, DIRECTIONAL) and lights.kind[li] == DIRECTIONAL:
         return emit_directional_caustic_photon(lights, li, spheres, sel_pdf, key, n_paths)
     is_area = lights.kind[li] == AREA
     if is_area:
@@ -146,7 +147,7 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
     if profiled(lights, li):
         power = vec.hadamard(vec.mul(vec.row(lights.radiance, li), w), profile(lights, li, d))
         return p, d, power, power[0] > 0.0 or power[1] > 0.0 or power[2] > 0.0
-    if lights.kind[li] == SPOT:
+    if has(lights, SPOT) and lights.kind[li] == SPOT:
         w *= spot_falloff(lights, li, d)
         if not w > 0.0:
             return p, d, zero, False

@@ -27,15 +27,16 @@ import math
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, coat, colour, delta_branches, oriented, resolve
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
 from ..camera import generate_ray
-from ..emitters import env_radiance
+from ..emitters import ENV, env_radiance
+from ..features import has
 from ..geometry import vec
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import BLEND, NULL
+from ..scene.description import BLEND, NULL, PLASTIC
 from ..transport import ShadingPoint, borrow_tables
 from .estimate import flux_density
 from .visible_points import escape_weight, glossy_step, seen_weight
@@ -103,7 +104,7 @@ def diffuse_or_coating(mats, m, d, at, path, stack, key, dim):
     fr = vec.mul(colour(mats, m, at.uv), INV_PI)
     lobe_b = -1
     wc, w_coat = d, fr
-    if mats.flags[m] & DELTA:
+    if has(mats, PLASTIC) and mats.flags[m] & DELTA:
         wc, P, w_coat, A = coat(mats, m, d, at.ng, at.ns, at.uv)
         fr, lobe_b = A, m
         if depth < max_specular and P > 0.0:
@@ -166,7 +167,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
             if prim < 0:
-                if lights.env[0] >= 0:   # the environment, seen directly or through mirrors, glass or glossy
+                if has(lights, ENV) and lights.env[0] >= 0:   # the environment, seen directly or through mirrors, glass or glossy
                     L = vec.madd(L, vec.hadamard(beta, env_radiance(lights, d)), escape_weight(lights, d, last))
                 break
             p, ng, ns, front, m, uv, passed, dim = camera_surface(geom, mats, (prim, t, b1, b2), o, d, key, dim)
@@ -183,7 +184,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 break
             flags = mats.flags[m]
             at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
-            if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
+            if has(mats, GLOSSY_LOBES) and flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
                 # a glossy surface: no estimate here, the path goes on by the BSDF's sample (as SPPM's camera paths)
                 depth += 1
                 if depth > max_specular:

@@ -21,7 +21,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emitters import env_pdf, env_radiance
+from ..emitters import ENV, env_pdf, env_radiance
+from ..features import has
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import kernel
@@ -91,7 +92,7 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
     for _ in range(NULL_CROSSINGS_CAP):
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if prim < 0:
-            if lights.env[0] >= 0:
+            if has(lights, ENV) and lights.env[0] >= 0:
                 w = 1.0
                 if pdf_dir >= 0.0:
                     w = power_heuristic(pdf_dir, lights.select_pdf[lights.env[0]] * env_pdf(lights, d))

@@ -64,12 +64,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, sample
 from ..camera import generate_ray
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import kernel, parallel_for
-from ..emitters import env_pdf
+from ..emitters import ENV, env_pdf
+from ..features import has
+from ..scene.description import PLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import attenuation, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
@@ -281,7 +283,7 @@ def visible_point(tables, o, d, numbers, params, out):
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
-            if lights.env[0] >= 0 and not counted:
+            if has(lights, ENV) and lights.env[0] >= 0 and not counted:
                 L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
                              escape_weight(lights, d, (specular, pdf_last, p_last)))
             return False, zero, zero, zero, L, n_seg
@@ -303,7 +305,7 @@ def visible_point(tables, o, d, numbers, params, out):
             return False, zero, zero, zero, L, n_seg
         at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
         flags = mats.flags[m]
-        if flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
+        if has(mats, GLOSSY_LOBES) and flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
             depth += 1
             if depth > max_specular:
                 return False, zero, zero, zero, L, n_seg
@@ -314,7 +316,7 @@ def visible_point(tables, o, d, numbers, params, out):
             p_last = p
         else:
             take_coat, coating = False, (zero, -1.0, zero, zero)   # (wc, P, w_coat, A): P < 0 without a coating
-            if flags & SMOOTH and flags & DELTA:
+            if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
                 # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
                 take_coat, coating, L, first_glass, dim = coating_step(
                     tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)

@@ -1,0 +1,75 @@
+"""Feature-specialised tables (caustica.features): kernels compiled for a scene's kinds alone render the same bits.
+
+A scene's material and light tables are instances of classes that say which kinds they may hold; kernels compile
+the code of those kinds only (``has``).  The paper's scenes get the core set; any other kind gets every kind's
+code.  The images must not depend on it: the bit pins (tests/test_bit_pins.py) are rendered with the core set,
+and here the same cases with tables of the base classes (every kind compiled) give the pinned bits too.
+"""
+from __future__ import annotations
+
+import hashlib
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica.bsdfs import MaterialTable
+from caustica.emitters import LightTable
+from caustica.features import ALL, features_of, has, specialised
+from caustica.jit import kernel
+from caustica.scene.description import CONDUCTOR, DIELECTRIC, PLASTIC
+from caustica.tables import CORE_LIGHTS, CORE_MATERIALS
+
+from test_bit_pins import CASES, load_pins
+
+SCENES = Path(__file__).resolve().parent / "scenes"
+
+
+@pytest.mark.parametrize("name", ["cornell-diacaustic", "cornell-catacaustic", "cornell-diacaustic-fog"])
+def test_the_papers_scenes_compile_the_core_kinds(name):
+    scene = caustica.load_scene(name)
+    assert features_of(scene.materials) == CORE_MATERIALS
+    assert features_of(scene.lights) == CORE_LIGHTS
+
+
+def test_a_scene_beyond_the_core_compiles_every_kind():
+    scene = caustica.load_scene(str(SCENES / "glossy-caustic.xml"))   # a rough conductor ring
+    assert type(scene.materials) is MaterialTable and type(scene.lights) is LightTable
+    assert features_of(scene.materials) == ALL
+
+
+def test_specialised_tables_keep_their_class_through_replace_and_pickle():
+    mats = caustica.load_scene("cornell-diacaustic").materials
+    cls = type(mats)
+    assert cls is not MaterialTable and isinstance(mats, MaterialTable)
+    assert type(mats._replace(flags=mats.flags.copy())) is cls
+    back = pickle.loads(pickle.dumps(mats))
+    assert type(back) is cls and all(np.array_equal(a, b) for a, b in zip(back, mats))
+    assert pickle.loads(pickle.dumps(cls)) is cls   # as Numba's cache index stores the class
+    assert specialised(MaterialTable, ALL) is MaterialTable
+
+
+@kernel
+def _has_plastic_and_conductor(mats):
+    return has(mats, PLASTIC), has(mats, CONDUCTOR)
+
+
+def test_has_is_decided_by_the_tables_type():
+    core = caustica.load_scene("cornell-diacaustic").materials
+    assert _has_plastic_and_conductor(core) == (False, True)
+    assert _has_plastic_and_conductor(MaterialTable(*core)) == (True, True)
+    only_glass = specialised(MaterialTable, 1 << DIELECTRIC)(*core)
+    assert _has_plastic_and_conductor(only_glass) == (False, False)
+
+
+@pytest.mark.parametrize("name", ["pt", "pm", "spm", "sppm", "pspm-split", "pt-fog", "sppm-fog"])
+def test_every_kind_compiled_gives_the_pinned_bits(name):
+    scene_name, method, kw = CASES[name]
+    scene = caustica.load_scene(scene_name)
+    scene.materials = MaterialTable(*scene.materials)
+    scene.lights = LightTable(*scene.lights)
+    result = caustica.render(scene, method=method, seed=3, threads=2, **kw)
+    image = np.ascontiguousarray(result.image, dtype=np.float32)
+    assert hashlib.sha256(image.tobytes()).hexdigest()[:20] == load_pins()[name]
