@@ -66,6 +66,12 @@ def camera_params(cam: Camera, width: int | None = None, height: int | None = No
                         float(cam.focus_distance))
 
 
+@kernel(inline=True)
+def pixel_of(cam, i):
+    """The pixel (px, py) of index i in row-major order, the order of the camera passes' ranges of pixels."""
+    return i % cam.width, i // cam.width
+
+
 @kernel
 def generate_ray(cam, px, py, u1, u2, key):
     """The primary ray of a sample of pixel (px, py) drawn with the uniform numbers (u1, u2): (origin, unit direction).

@@ -14,9 +14,10 @@ eta is the relative IOR int_ior / ext_ior (Mitsuba's defaults polypropylene, 1.4
 Sampling picks the glossy lobe with probability w = mean(specular_reflectance) / (mean(diffuse_reflectance) +
 mean(specular_reflectance)), Mitsuba's fixed specular sampling weight (no Fresnel term in it, unlike the plastics;
 the ``spec_weight`` column of :mod:`.plastic`), on the first number, then a visible normal and the reflection about
-it or a cosine-weighted direction on the next two (:func:`.roughplastic.lobe_direction`).  The density is the
-mixture w D(h) G1(wo, h) / (4 cos θ_o) + (1 - w) cos θ_i / π, which :func:`eval_pdf` gives too, and the weight the
-whole f cos θ_i over it, as Mitsuba's.  Directions below the shading or the geometric surface are refused.
+it or a cosine-weighted direction on the next two (:func:`.roughplastic.two_lobe_sample`, with this module's
+lobe probability and :func:`local_eval`).  The density is the mixture w D(h) G1(wo, h) / (4 cos θ_o) + (1 - w)
+cos θ_i / π, which :func:`eval_pdf` gives too, and the weight the whole f cos θ_i over it, as Mitsuba's.
+Directions below the shading or the geometric surface are refused.
 Flags ``GLOSSY_REFLECTION | DIFFUSE_REFLECTION``: rendered by ``pt``; the photon methods refuse it as they refuse
 roughplastic (``api.check_bsdfs``).
 """
@@ -31,7 +32,7 @@ from . import microfacet as mf
 from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric
 from .plastic import SPEC_WEIGHT, specular
-from .roughplastic import lobe_direction
+from .roughplastic import two_lobe_eval_pdf, two_lobe_sample
 from .textures import colour
 
 KIND = PPLASTIC
@@ -58,31 +59,19 @@ def local_eval(mats, m, wo, wl, uv):
     return f, pdf
 
 
+@kernel(inline=True)
+def glossy_probability(mats, m, wo):
+    """The probability w of sampling the glossy lobe: Mitsuba's fixed specular sampling weight, whatever wo."""
+    return mats.coating[m, SPEC_WEIGHT]
+
+
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
-    """The glossy lobe with probability w (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
-    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
-    texture is read)."""
-    zero = (0.0, 0.0, 0.0)
-    s, t, wo = mf.local_frame(ns, d)
-    if wo[2] <= 0.0:
-        return False, zero, zero, 0.0, DIFFUSE_REFLECTION, 1.0, dim + 3
-    wl, lobe = lobe_direction(mats, m, wo, mats.coating[m, SPEC_WEIGHT], key, dim)
-    wi = vec.from_local(s, t, ns, wl)
-    if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
-        return False, wi, zero, 0.0, lobe, 1.0, dim + 3
-    f, pdf = local_eval(mats, m, wo, wl, uv)
-    if not pdf > 0.0:
-        return False, wi, zero, 0.0, lobe, 1.0, dim + 3
-    return True, wi, vec.mul(f, wl[2] / pdf), pdf, lobe, 1.0, dim + 3
+    """:func:`caustica.bsdfs.sample`: :func:`.roughplastic.two_lobe_sample` with the fixed glossy probability w."""
+    return two_lobe_sample(glossy_probability, local_eval, mats, m, (d, ng, ns), uv, key, dim)
 
 
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
-    """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
-    s, t, wo = mf.local_frame(ns, d)
-    wl = mf.to_local(s, t, ns, wi)
-    if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
-        return (0.0, 0.0, 0.0), 0.0, 0.0
-    f, pdf = local_eval(mats, m, wo, wl, uv)
-    return f, 1.0, pdf
+    """:func:`caustica.bsdfs.eval_pdf`: :func:`.roughplastic.two_lobe_eval_pdf` with this module's local_eval."""
+    return two_lobe_eval_pdf(local_eval, mats, m, (d, ng, ns), uv, wi)

@@ -128,16 +128,23 @@ def lobe_direction(mats, m, wo, P, key, dim):
     return square_to_cosine_hemisphere(u1, u2), DIFFUSE_REFLECTION
 
 
-@kernel
-def sample(mats, m, d, ng, ns, uv, key, dim):
-    """The glossy lobe with probability P (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
-    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
-    texture is read)."""
+@kernel(inline=True)
+def glossy_probability(mats, m, wo):
+    """The probability P of sampling the glossy lobe from wo (the transmittance's :func:`choice`)."""
+    return choice(mats, m, transmittance(mats, m, wo[2]))
+
+
+@kernel(inline=True)
+def two_lobe_sample(probability, local_eval, mats, m, frame, uv, key, dim):
+    """:func:`sample` for a glossy lobe beside a diffuse one, shared with :mod:`.pplastic`, whose sampling differs
+    only in the kernels ``probability(mats, m, wo)`` (of the glossy lobe) and ``local_eval``; ``frame`` = (d, ng, ns).
+    Passed as arguments, not in a tuple (which Numba would make a run-time function pointer): calls stay static."""
+    d, ng, ns = frame
     zero = (0.0, 0.0, 0.0)
     s, t, wo = mf.local_frame(ns, d)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, DIFFUSE_REFLECTION, 1.0, dim + 3
-    wl, lobe = lobe_direction(mats, m, wo, choice(mats, m, transmittance(mats, m, wo[2])), key, dim)
+    wl, lobe = lobe_direction(mats, m, wo, probability(mats, m, wo), key, dim)
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
         return False, wi, zero, 0.0, lobe, 1.0, dim + 3
@@ -147,12 +154,28 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     return True, wi, vec.mul(f, wl[2] / pdf), pdf, lobe, 1.0, dim + 3
 
 
-@kernel
-def eval_pdf(mats, m, d, ng, ns, uv, wi):
-    """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
+@kernel(inline=True)
+def two_lobe_eval_pdf(local_eval, mats, m, frame, uv, wi):
+    """:func:`eval_pdf` for a glossy lobe beside a diffuse one, shared with :mod:`.pplastic` (which differs only in
+    ``local_eval``); ``frame`` = (d, ng, ns)."""
+    d, ng, ns = frame
     s, t, wo = mf.local_frame(ns, d)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0
     f, pdf = local_eval(mats, m, wo, wl, uv)
     return f, 1.0, pdf
+
+
+@kernel
+def sample(mats, m, d, ng, ns, uv, key, dim):
+    """The glossy lobe with probability P (number dim), else the diffuse one (numbers dim + 1, dim + 2 for either's
+    direction): see :func:`caustica.bsdfs.sample` and the module's docstring (uv: where the diffuse reflectance's
+    texture is read)."""
+    return two_lobe_sample(glossy_probability, local_eval, mats, m, (d, ng, ns), uv, key, dim)
+
+
+@kernel
+def eval_pdf(mats, m, d, ng, ns, uv, wi):
+    """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
+    return two_lobe_eval_pdf(local_eval, mats, m, (d, ng, ns), uv, wi)

@@ -58,12 +58,18 @@ ONE_SHOT_VOLUME_PARAMS = (
 )
 
 
+def radius_setting(scene, settings, name: str, fraction: float) -> float:
+    """settings[name] when set, else ``fraction`` of the scene's bounding-box diagonal: the photon methods' radii
+    default to a size relative to the scene."""
+    if settings[name] is not None:
+        return settings[name]
+    box = scene.geometry.scene_box
+    return fraction * float(np.linalg.norm(box[3:] - box[:3]))
+
+
 def one_shot_volume_radius(scene, settings) -> float:
     """The one-shot methods' volume radius: ``volume_radius``, else VOLUME_RADIUS_FRACTION of the diagonal."""
-    if settings["volume_radius"] is not None:
-        return settings["volume_radius"]
-    box = scene.geometry.scene_box
-    return VOLUME_RADIUS_FRACTION * float(np.linalg.norm(box[3:] - box[:3]))
+    return radius_setting(scene, settings, "volume_radius", VOLUME_RADIUS_FRACTION)
 
 
 def check_media_settings(scene, settings) -> None:

@@ -42,7 +42,7 @@ from ..photons.visible_points import camera_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
-from .photon_common import ESTIMATE_PARAMS
+from .photon_common import ESTIMATE_PARAMS, radius_setting
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
@@ -214,10 +214,8 @@ def update_statistics(alpha, old, vp_found, vp_weight, gathered, new):
 
 
 def initial_radius(scene, settings) -> float:
-    if settings["radius"] is not None:
-        return settings["radius"]
-    box = scene.geometry.scene_box
-    return RADIUS_FRACTION * float(np.linalg.norm(box[3:] - box[:3]))
+    """R_0 of the surface estimate: ``radius``, else RADIUS_FRACTION of the scene's bounding-box diagonal."""
+    return radius_setting(scene, settings, "radius", RADIUS_FRACTION)
 
 
 def initial_volume_radius(scene, settings) -> float:

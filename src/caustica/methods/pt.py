@@ -40,7 +40,7 @@ import time
 import numpy as np
 
 from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmitting, oriented, sample
-from ..camera import generate_ray
+from ..camera import generate_ray, pixel_of
 from ..errors import ParameterError
 from ..geometry import vec
 from ..emitters import ENV
@@ -216,13 +216,11 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
     seed, stream = keys
     spp, max_depth, rr_depth, hide_emitters = params
     image, rays = out
-    width = cam.width
     for i in range(i0, i1):
-        y = i // width
-        x = i % width
+        x, y = pixel_of(cam, i)
         acc = (0.0, 0.0, 0.0)
         for s in range(spp):
-            key = path_key(seed, stream, (y * width + x) * spp + s)
+            key = path_key(seed, stream, i * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
             L, n_ext, n_shadow = radiance(tables, o, d, key, (max_depth, rr_depth, hide_emitters))
             rays[i, 0] += n_ext

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
-from ..camera import generate_ray
+from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance
 from ..features import has
 from ..geometry import vec
@@ -228,11 +228,9 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
     cam, seed, spp = camera
     k_g, _, k_c, _, _ = estimate
     image, knn_queries = out
-    width = cam.width
     kmax = max(k_g, k_c, 1)
     for i in range(i0, i1):
-        y = i // width
-        x = i % width
+        x, y = pixel_of(cam, i)
         st_o = np.empty((SPLIT_STACK, 3))
         st_d = np.empty((SPLIT_STACK, 3))
         st_beta = np.empty((SPLIT_STACK, 3))
@@ -242,7 +240,7 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
         acc = (0.0, 0.0, 0.0)
         nq = 0
         for s in range(spp):
-            key = path_key(seed, STREAM_CAMERA, (y * width + x) * spp + s)
+            key = path_key(seed, STREAM_CAMERA, i * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
             L, q = gather_radiance(tables, maps, estimate, params, o, d, key, (st_o, st_d, st_beta, st_depth, idx, d2))
             nq += q

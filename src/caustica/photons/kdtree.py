@@ -153,12 +153,20 @@ def _range_stack(n, leaf_size):
     return stk_lo, stk_hi, (1 if n > leaf_size else 0)
 
 
+@kernel(inline=True)
+def _pop_node(stk_lo, stk_hi, sp):
+    """Pop the builds' next range [lo, hi) with its node m = (lo + hi) >> 1, the median that
+    :func:`_push_children` splits it at: (lo, m, hi, sp)."""
+    sp -= 1
+    lo, hi = stk_lo[sp], stk_hi[sp]
+    return lo, (lo + hi) >> 1, hi, sp
+
+
 @kernel
 def _build(pts, idx, axis, leaf_size):
     stk_lo, stk_hi, sp = _range_stack(pts.shape[0], leaf_size)
     while sp > 0:
-        sp -= 1
-        lo, hi = stk_lo[sp], stk_hi[sp]
+        lo, m, hi, sp = _pop_node(stk_lo, stk_hi, sp)
         # axis of largest extent
         mn0 = mx0 = pts[lo, 0]
         mn1 = mx1 = pts[lo, 1]
@@ -189,7 +197,6 @@ def _build(pts, idx, axis, leaf_size):
                 ax = 2
         elif e2 > e0:
             ax = 2
-        m = (lo + hi) >> 1
         _select(pts, idx, lo, hi, m, ax)
         axis[m] = ax
         sp = _push_children(stk_lo, stk_hi, sp, (lo, m, hi), leaf_size)
@@ -217,9 +224,7 @@ def build_kdtree(points: np.ndarray) -> KdTree:
 def _normal_bounds(index, normals, leaf_size, out):
     stk_lo, stk_hi, sp = _range_stack(index.shape[0], leaf_size)
     while sp > 0:
-        sp -= 1
-        lo, hi = stk_lo[sp], stk_hi[sp]
-        m = (lo + hi) >> 1
+        lo, m, hi, sp = _pop_node(stk_lo, stk_hi, sp)
         for a in range(3):
             mn = 1.0
             mx = -1.0
@@ -258,6 +263,13 @@ def memory_bytes(tree: KdTree) -> int:
 # ----------------------------------------------------------------------------- search
 
 @kernel(inline=True)
+def _heap_set(out_idx, out_d2, c, i, d2):
+    """Write the entry (i, d2) to heap slot c: the heap is the two arrays side by side, moved in step."""
+    out_d2[c] = d2
+    out_idx[c] = i
+
+
+@kernel(inline=True)
 def _heap_push(out_idx, out_d2, count, i, d2):
     """Insert into the max-heap out_d2[:count] (count < capacity); returns count + 1."""
     c = count
@@ -265,11 +277,9 @@ def _heap_push(out_idx, out_d2, count, i, d2):
         p = (c - 1) >> 1
         if out_d2[p] >= d2:
             break
-        out_d2[c] = out_d2[p]
-        out_idx[c] = out_idx[p]
+        _heap_set(out_idx, out_d2, c, out_idx[p], out_d2[p])
         c = p
-    out_d2[c] = d2
-    out_idx[c] = i
+    _heap_set(out_idx, out_d2, c, i, d2)
     return count + 1
 
 
@@ -285,11 +295,9 @@ def _heap_replace_top(out_idx, out_d2, count, i, d2):
             ch += 1
         if out_d2[ch] <= d2:
             break
-        out_d2[c] = out_d2[ch]
-        out_idx[c] = out_idx[ch]
+        _heap_set(out_idx, out_d2, c, out_idx[ch], out_d2[ch])
         c = ch
-    out_d2[c] = d2
-    out_idx[c] = i
+    _heap_set(out_idx, out_d2, c, i, d2)
 
 
 @kernel(inline=True)

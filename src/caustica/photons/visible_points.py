@@ -65,7 +65,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, sample
-from ..camera import generate_ray
+from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import kernel, parallel_for
@@ -344,10 +344,8 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
     tables = borrow_tables(tables)
     seed, stream, vstream, pass_index = keys
     points, segments = out
-    width = cam.width
     for i in range(i0, i1):
-        y = i // width
-        x = i % width
+        x, y = pixel_of(cam, i)
         key = path_key(seed, stream, i)
         qkey = path_key(seed, STREAM_CAMERA_SCRAMBLE, i)
         vkey = path_key(seed, vstream, i)

@@ -1160,15 +1160,20 @@ class _Loader:
                                                 f"{values[-1]}) is not supported", supported=["alpha_u = alpha_v"])
         return DISTRIBUTIONS[dist], max(float(values[0]), 1e-4)
 
+    def element_index(self, node: Node, tag: str, index_of_node: dict[int, int], entries: list, build) -> int:
+        """Index in ``entries`` of what ``build`` makes of a <tag> element (or <ref> to one): built once per
+        element, so that every reference to it shares the entry (appended after building: nested ones come first)."""
+        node = self.resolve(node, tag)
+        key = id(node)
+        if key not in index_of_node:
+            entry = build(node)
+            index_of_node[key] = len(entries)
+            entries.append(entry)
+        return index_of_node[key]
+
     def material_index(self, node: Node) -> int:
         """Index of the Material of a <bsdf> (or <ref> to one); each element becomes one entry."""
-        node = self.resolve(node, "bsdf")
-        key = id(node)
-        if key not in self.material_of_node:
-            mat = self.build_material(node)
-            self.material_of_node[key] = len(self.materials)
-            self.materials.append(mat)
-        return self.material_of_node[key]
+        return self.element_index(node, "bsdf", self.material_of_node, self.materials, self.build_material)
 
     def default_material_index(self, emitter: bool) -> int:
         """The default BSDF of a shape without one (created once): black for an emitter, as in Mitsuba 3."""
@@ -1181,13 +1186,7 @@ class _Loader:
     # -- media ------------------------------------------------------------------------
     def medium_index(self, node: Node) -> int:
         """Index of the Medium of a <medium> (or <ref> to one); each element becomes one entry."""
-        node = self.resolve(node, "medium")
-        key = id(node)
-        if key not in self.medium_of_node:
-            medium = self.build_medium(node)
-            self.medium_of_node[key] = len(self.media)
-            self.media.append(medium)
-        return self.medium_of_node[key]
+        return self.element_index(node, "medium", self.medium_of_node, self.media, self.build_medium)
 
     def build_medium(self, node: Node) -> Medium:
         """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults)."""
