@@ -48,7 +48,7 @@ Caching policy
 Compile time
 ------------
 A fresh install compiles every kernel of its first render (``make render``: about
-65, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
+260, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
 that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
 calls are typed with plain, never literal, argument types (one specialisation per
 kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
