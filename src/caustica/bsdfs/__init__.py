@@ -23,7 +23,7 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
 
 Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf`` for a smooth one or
 ``delta_branches`` for a delta one), add it to :data:`BSDFS` and one line to each dispatch function
-below, and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
+below (``if has(mats, FOO) and kind == FOO:``, so scenes without it compile none of its code: :mod:`caustica.features`), and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
 walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
 delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
 scaled by 1 / eta² (solid-angle compression); camera paths apply it, photons (importance) do not; for
