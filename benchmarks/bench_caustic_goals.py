@@ -2,7 +2,7 @@
 
     python benchmarks/bench_caustic_goals.py [--scene glossy|envmap] [--budget 30] [--res 96] [--ref-spp 8192]
                                              [--ptracer-spp 16384] [--seeds 0] [--dist ggx] [--alpha 0.1]
-                                             [--threads N] [--reference-only]
+                                             [--threads N] [--reference-only] [--sppm LABEL=KEY:VALUE,...]
 
 Scenes (``--scene``):
 
@@ -154,6 +154,22 @@ def caustic_region(ref, direct, floor):
     return floor & (excess >= level)
 
 
+def parse_config(text: str) -> tuple[str, dict]:
+    """``LABEL=KEY:VALUE,KEY:VALUE`` -> (label, sppm parameters); numbers are read as int or float."""
+    label, _, rest = text.partition("=")
+    config = {}
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition(":")
+        for kind in (int, float):
+            try:
+                value = kind(value)
+                break
+            except ValueError:
+                pass
+        config[key.strip().replace("-", "_")] = value
+    return label.strip(), config
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="glossy", choices=sorted(SCENES))
@@ -167,7 +183,11 @@ def main() -> None:
     ap.add_argument("--ptracer-spp", type=int, default=16384,
                     help="the particle tracer's reference, samples per pixel (default 16384)")
     ap.add_argument("--reference-only", action="store_true", help="make (or check) the cached reference and stop")
+    ap.add_argument("--sppm", action="append", metavar="LABEL=KEY:VALUE,...",
+                    help="an sppm configuration to time instead of the built-in ones (repeatable), e.g. "
+                         "'alpha 0.5=alpha:0.5' or 'defaults='")
     args = ap.parse_args()
+    configs = CONFIGS if not args.sppm else tuple(parse_config(c) for c in args.sppm)
     mi = mitsuba_module()
     if mi is None:
         raise SystemExit("Mitsuba 3 (scalar_rgb) is needed: pip install mitsuba")
@@ -190,11 +210,11 @@ def main() -> None:
           "whole relRMSE (noise out) | load |")
     print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     scene = caustica.load_scene(path, **params)
-    for _, config in CONFIGS:   # warm-up: compile or load the kernels
+    for _, config in configs:   # warm-up: compile or load the kernels
         caustica.render(scene, "sppm", res=args.res, passes=2, threads=args.threads, **config)
     for seed in (int(s) for s in args.seeds.split(",")):
         rows = []
-        for label, config in CONFIGS:
+        for label, config in configs:
             load = os.getloadavg()[0]
             t0 = time.perf_counter()
             r = caustica.render(scene, "sppm", res=args.res, seed=seed, time_s=args.budget, threads=args.threads,
@@ -211,7 +231,7 @@ def main() -> None:
             print(f"| {seed} | {label} | {count} | {wall:.1f} | {image.mean() / ref.mean():.4f} | "
                   f"{e['caustic']:.4f} ({out['caustic']:.4f}) | {e['whole']:.4f} ({out['whole']:.4f}) | {load:.2f} |",
                   flush=True)
-        best = min(range(len(CONFIGS)), key=lambda i: errors[i]["caustic"])
+        best = min(range(len(configs)), key=lambda i: errors[i]["caustic"])
         ratio = {k: f"{errors[-1][k] / errors[best][k]:.2f}x" if errors[best][k] > 0 else "n/a (below the "
                  "reference's noise)" for k in ("caustic", "whole")}
         print(f"| {seed} | **ratio Mitsuba / best ({rows[best][0]}), noise out** |  |  |  | **{ratio['caustic']}** | "
