@@ -126,3 +126,44 @@ def test_stable_sort_matches_numpy_mergesort_argsort():
         assert np.array_equal(o, want)
         assert np.array_equal(k[lo:hi], keys[lo:hi][perm], equal_nan=True)
         assert np.array_equal(o[:lo], order[:lo]) and np.array_equal(o[hi:], order[hi:])
+
+
+_KERNEL_ARGUMENT_MODULE = '''
+from caustica.jit import kernel
+
+@kernel(inline=True)
+def twice(x):
+    return 2.0 * x
+
+@kernel
+def apply(f, x):
+    return f(x)
+
+@kernel
+def first(x):
+    return apply(twice, x)
+
+@kernel
+def second(x):
+    return apply(twice, x) + 1.0
+'''
+
+
+def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
+    """A kernel passed to a kernel is part of the callee's signature, which Numba's cache index pickles: another
+    process compiling a new caller must read that index back (kernels pickle by reference) and load the callee from
+    it, not crash (as it did when a kernel pickled as a new dispatcher) or compile it again."""
+    (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
+    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(tmp_path),
+               CAUSTICA_NO_CACHE="0")
+    env.pop("NUMBA_CACHE_DIR", None)
+    script = ("import pickle, sys, kernel_argument_module as m\n"
+              "assert pickle.loads(pickle.dumps(m.twice)) is m.twice\n"
+              "print(getattr(m, sys.argv[1])(3.0), sum(m.apply.stats.cache_hits.values()),"
+              " sum(m.apply.stats.cache_misses.values()))")
+    runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
+                           timeout=300) for name in ("first", "second")]
+    for run in runs:
+        assert run.returncode == 0, run.stderr
+    assert runs[0].stdout.split() == ["6.0", "0", "1"]   # compiled and written to the cache
+    assert runs[1].stdout.split() == ["7.0", "1", "0"]   # read back for a new caller

@@ -58,6 +58,7 @@ carries no reference counts, so binding one generates no code; helpers are inlin
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 import queue
 import threading
@@ -154,6 +155,12 @@ class Kernel(CPUDispatcher):
     def __call__(self, *args, **kwargs):
         return self.from_python(*args, **kwargs)
 
+    def __reduce__(self):
+        """Pickled by reference (its module and name), as a function is.  Numba's cache index pickles the types of a
+        kernel's arguments; where a kernel is an argument (``roughplastic.two_lobe_sample``), every process must find
+        the same kernel object there, or the index cannot be read back (and would never match)."""
+        return _kernel_named, (self.py_func.__module__, self.py_func.__qualname__)
+
     def compiled_for_python(self) -> bool:
         """Whether a call from Python has compiled (or loaded) this kernel in this process."""
         return self._from_python is not None and len(self._from_python.signatures) > 0
@@ -161,6 +168,13 @@ class Kernel(CPUDispatcher):
     def get_call_template(self, args, kws):
         return super().get_call_template(tuple(types.unliteral(a) for a in args),
                                          {k: types.unliteral(v) for k, v in kws.items()})
+
+
+def _kernel_named(module: str, qualname: str) -> Kernel:
+    obj = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj
 
 
 def kernel(fn=None, *, inline: bool = False):
