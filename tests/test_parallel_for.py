@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from caustica.jit import kernel, parallel_for
+from caustica.jit import _Chunks, kernel, parallel_for
 
 
 @kernel
@@ -57,6 +57,24 @@ def test_every_item_runs_exactly_once(threads):
     parallel_for(_mark, out.size, (out, 10), threads=threads, progress=bar)
     assert np.all(out == 1.0)
     assert bar.items == out.size
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_later_calls_sized_by_the_last_one_run_every_item_once(threads):
+    for n in (10_001, 37, 20_000):   # the second and third calls start from the first's time per item
+        out = np.zeros(n)
+        bar = _Bar(after=-1)
+        parallel_for(_mark, out.size, (out, 10), threads=threads, progress=bar)
+        assert np.all(out == 1.0) and bar.items == n
+
+
+def test_no_chunk_but_the_last_is_below_the_floor():
+    chunks = _Chunks(0, 1000, 2, None, floor=100)
+    sizes = []
+    while (r := chunks.take(10_000)) is not None:
+        sizes.append(r[1] - r[0])
+    assert sum(sizes) == 1000 and min(sizes[:-1]) >= 100
+    assert sizes[0] == 250   # a quarter of the work at first: the other thread's share is left to it
 
 
 @pytest.mark.parametrize("chunk", [1, 7, 100_000])

@@ -216,16 +216,23 @@ def default_threads() -> int:
 #: nothing in comparison, short enough that progress moves and an interrupted
 #: render frees its threads soon after.
 CHUNK_SECONDS = 0.05
+#: The smallest chunk's duration (but the last one's), once a kernel's time per item is known: a chunk costs its
+#: thread some 40 µs of Python, with the interpreter's lock held (the kernel call's arguments, the queue), so a
+#: pass of a few milliseconds (SPPM at 96²) lost a third of its time to the ever smaller chunks of its tail.
+CHUNK_FLOOR_SECONDS = 0.002
+#: Seconds per item of each range kernel's last call (see :func:`parallel_for`).
+_ITEM_SECONDS: dict = {}
 
 
 class _Chunks:
     """Hands out ranges [i0, i1) of the work items [start, stop) to worker threads, until cancelled."""
 
-    def __init__(self, start: int, stop: int, threads: int, fixed: int | None):
+    def __init__(self, start: int, stop: int, threads: int, fixed: int | None, floor: int = 1):
         self.next = start
         self.stop = stop
         self.threads = threads
         self.fixed = fixed
+        self.floor = floor   # the smallest chunk handed out before the last (items worth CHUNK_FLOOR_SECONDS)
         self.cancelled = False
         self.lock = threading.Lock()
 
@@ -236,7 +243,7 @@ class _Chunks:
             if self.fixed:
                 size = self.fixed
             else:   # leave work for the other threads near the end, so they finish together
-                size = max(1, min(size, -(-(self.stop - self.next) // (2 * self.threads))))
+                size = max(self.floor, min(size, -(-(self.stop - self.next) // (2 * self.threads))))
             i0 = self.next
             self.next = min(self.stop, i0 + size)
             return i0, self.next
@@ -246,13 +253,17 @@ class _Chunks:
             self.cancelled = True
 
 
-def _run_chunks(range_kernel, args, start: int, stop: int, threads: int, chunk, progress) -> None:
-    """Run [start, stop) on ``threads`` daemon threads; this thread waits and reports progress."""
-    chunks = _Chunks(start, stop, threads, chunk)
+def _run_chunks(range_kernel, args, start: int, stop: int, threads: int, chunk, progress,
+                item_s: float | None = None) -> None:
+    """Run [start, stop) on ``threads`` daemon threads; this thread waits and reports progress.  ``item_s``: the
+    seconds one item took in this kernel's last call, if any, which sizes the first chunks and the smallest."""
+    floor = max(1, int(CHUNK_FLOOR_SECONDS / item_s)) if item_s else 1
+    chunks = _Chunks(start, stop, threads, chunk, floor)
     done: queue.Queue = queue.Queue()
 
     def worker():
-        size = 1   # grows (or shrinks) towards CHUNK_SECONDS of work per chunk
+        # grows (or shrinks) towards CHUNK_SECONDS of work per chunk, from a quarter of that at the last call's rate
+        size = max(1, int(CHUNK_SECONDS / 4 / item_s)) if item_s else 1
         try:
             while (r := chunks.take(size)) is not None:
                 t0 = time.perf_counter()
@@ -291,7 +302,8 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
     The first single item runs alone, so Numba compiles (or loads from the cache)
     before the threads start; its duration is returned as the compile time in
     seconds (it includes one work item, which is negligible).  ``chunk`` fixes the
-    number of items per chunk (default: sized to take about CHUNK_SECONDS each).
+    number of items per chunk (default: sized to take about CHUNK_SECONDS each, starting and ending, once the
+    kernel has run here before, from its last call's time per item: see CHUNK_FLOOR_SECONDS).
     ``progress`` is a tqdm-like bar advanced by the number of items as chunks
     finish.  The kernels run on worker threads even when ``threads`` is 1, so the
     calling thread receives Ctrl-C at once (see the module's docstring).
@@ -303,7 +315,10 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
     _run_chunks(range_kernel, args, 0, 1, 1, 1, progress)
     compile_s = time.perf_counter() - t0
     if n_items > 1:
-        _run_chunks(range_kernel, args, 1, n_items, min(threads, n_items - 1), chunk, progress)
+        workers = min(threads, n_items - 1)
+        t1 = time.perf_counter()
+        _run_chunks(range_kernel, args, 1, n_items, workers, chunk, progress, _ITEM_SECONDS.get(range_kernel))
+        _ITEM_SECONDS[range_kernel] = (time.perf_counter() - t1) * workers / (n_items - 1)
     return compile_s
 
 
