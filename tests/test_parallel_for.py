@@ -68,6 +68,18 @@ def test_later_calls_sized_by_the_last_one_run_every_item_once(threads):
         assert np.all(out == 1.0) and bar.items == n
 
 
+def test_items_far_slower_than_the_last_calls_get_small_chunks_again():
+    """The floor and first chunks come from the last call's time per item; when item 0 shows this call's items are
+    far slower, the chunks start from one item again (else a chunk could run for seconds)."""
+    fast = np.zeros(20_000)
+    parallel_for(_mark, fast.size, (fast, 1), threads=2)
+    slow = np.zeros(200)
+    bar = _Bar(after=-1)
+    parallel_for(_mark, slow.size, (slow, 1_000_000), threads=2, progress=bar)   # about 2 ms per item
+    assert np.all(slow == 1.0)
+    assert bar.updates >= 8
+
+
 def test_no_chunk_but_the_last_is_below_the_floor():
     chunks = _Chunks(0, 1000, 2, None, floor=100)
     sizes = []
