@@ -27,6 +27,14 @@ _BASES: dict[str, type] = {}
 _CLASSES: dict[tuple[str, int], type] = {}
 
 
+def bits(*codes: int) -> int:
+    """The feature set holding exactly ``codes`` (kind or feature codes)."""
+    out = 0
+    for c in codes:
+        out |= 1 << int(c)
+    return out
+
+
 def specialisable(base: type) -> type:
     """Class decorator: a named tuple of scene tables that :func:`specialised` may subclass."""
     _BASES[base.__name__] = base

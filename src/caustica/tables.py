@@ -17,7 +17,7 @@ from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_mater
 from .camera import CameraParams, camera_params
 from .emitters import AREA, POINT, LightTable, build_light_table
 from .errors import SceneError
-from .features import ALL, specialised
+from .features import ALL, bits, specialised
 from .geometry.bounds import shape_bounding_sphere
 from .geometry.scene_geometry import Geometry, build_geometry
 from .media import MediumTable, build_medium_table
@@ -107,22 +107,18 @@ def compile_scene(desc: SceneDescription) -> Scene:
     return Scene(desc, geom, mats, lights, {"geometry_build_s": t1 - t0}, media)
 
 
-def _bits(*codes: int) -> int:
-    return sum(1 << c for c in set(codes))
-
-
 #: The feature sets kernels are compiled for (:mod:`caustica.features`): a scene whose materials and lights all lie
 #: in these (the paper's scenes: diffuse walls, mirrors, glass, media behind null boundaries, area and point lights)
 #: gets kernels with the code of these kinds alone; any other scene gets every kind's code.  Two sets, so a kernel
-#: compiles at most twice (each set once, then cached), and the paper's scenes compile about a third of the code.
-CORE_MATERIALS = _bits(DIFFUSE, CONDUCTOR, DIELECTRIC, NULL)
-CORE_LIGHTS = _bits(AREA, POINT)
+#: compiles at most twice (each set once, then cached).  The diacaustic scene's spm render compiled in 53 CPU s with
+#: the core set, 80 s with every kind (docs/results.md, 2026-12-04).
+CORE_MATERIALS = bits(DIFFUSE, CONDUCTOR, DIELECTRIC, NULL)
+CORE_LIGHTS = bits(AREA, POINT)
 
 
 def specialise(mats: MaterialTable, lights: LightTable) -> tuple[MaterialTable, LightTable]:
     """The material and light tables as instances of the classes of their feature set (CORE_*, or ALL)."""
-    light_bits = _bits(*(int(k) for k in lights.kind))
-    core = material_features(mats) & ~CORE_MATERIALS == 0 and light_bits & ~CORE_LIGHTS == 0
+    core = material_features(mats) & ~CORE_MATERIALS == 0 and bits(*np.unique(lights.kind)) & ~CORE_LIGHTS == 0
     return (specialised(MaterialTable, CORE_MATERIALS if core else ALL)(*mats),
             specialised(LightTable, CORE_LIGHTS if core else ALL)(*lights))
 

@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..geometry import vec
-from ..features import has, specialisable
+from ..features import bits, has, specialisable
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, ROUGHCONDUCTOR, \
     ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
@@ -133,14 +133,9 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
 
 def material_features(mats: MaterialTable) -> int:
     """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES."""
-    bits = 0
-    for k in np.unique(mats.kind):
-        bits |= 1 << int(k)
-    if (mats.texture >= 0).any() or (mats.mix_texture >= 0).any():
-        bits |= 1 << TEXTURED
-    if (mats.flags & GLOSSY).any():
-        bits |= 1 << GLOSSY_LOBES
-    return bits
+    textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any()
+    return bits(*np.unique(mats.kind), *([TEXTURED] if textured else []),
+                *([GLOSSY_LOBES] if (mats.flags & GLOSSY).any() else []))
 
 
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
