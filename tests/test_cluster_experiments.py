@@ -88,7 +88,6 @@ def test_timed_renders_run_alone_on_a_worker_with_all_its_threads(tmp_path, monk
 
     from caustica.experiments import convergence, runner
     monkeypatch.setattr(convergence, "SCENES", ("cornell-diacaustic",))
-    monkeypatch.setattr(runner, "CONVERGENCE_SCENES", ("cornell-diacaustic",))
     monkeypatch.setattr(convergence, "PROGRESSIVE", (("pt", "pt", {}), ("SPPM", "sppm", {})))
     monkeypatch.setattr(convergence, "QUICK_BUDGETS_S", (0.3,))
     monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))

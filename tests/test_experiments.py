@@ -14,8 +14,8 @@ from caustica import imageio
 from caustica.cli import main
 from caustica.experiments import metrics as M
 from caustica.experiments.reference import noise_stats
-from caustica.experiments.runner import ABLATION, ABLATION_SCENES, CONFIGS, EQUAL_METRIC, FLOOR_LABEL, \
-    equal_comparison
+from caustica.experiments.config import ABLATION, ABLATION_SCENES, CONFIGS, EQUAL_METRIC, FLOOR_LABEL
+from caustica.experiments.statistics import equal_comparison
 
 
 def _image(seed=0, shape=(32, 40)):
@@ -74,7 +74,7 @@ def test_mean_err_is_the_signed_energy_difference():
 
 
 def test_seed_statistics_are_mean_and_sample_sd():
-    from caustica.experiments.runner import seed_statistics
+    from caustica.experiments.statistics import seed_statistics
     from caustica.experiments.tables import _cell
     st = seed_statistics([{"caustic_block_err": 0.1, "ssim": 0.5}, {"caustic_block_err": 0.3, "ssim": 0.7}])
     assert st["caustic_block_err"] == pytest.approx(0.2)
@@ -88,7 +88,7 @@ def test_seed_statistics_are_mean_and_sample_sd():
 
 
 def test_paired_differences_cancel_noise_shared_by_both_rows():
-    from caustica.experiments.runner import paired, seed_statistics
+    from caustica.experiments.statistics import paired, seed_statistics
     rng = np.random.default_rng(7)
     common = rng.normal(0.0, 0.1, 5)                  # e.g. the camera pass's noise, the same for both rows
     a = seed_statistics([{"e": 0.30 + c} for c in common])
@@ -367,7 +367,6 @@ def test_convergence_experiment_end_to_end(tmp_path, monkeypatch):
     import json
     from caustica.experiments import convergence, runner
     monkeypatch.setattr(convergence, "SCENES", ("cornell-diacaustic",))
-    monkeypatch.setattr(runner, "CONVERGENCE_SCENES", ("cornell-diacaustic",))
     monkeypatch.setattr(convergence, "PROGRESSIVE", (("pt", "pt", {}), ("SPPM", "sppm", {})))
     monkeypatch.setattr(convergence, "QUICK_BUDGETS_S", (0.4,))
     monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))
@@ -415,9 +414,8 @@ def test_the_reference_noise_estimated_from_the_peer_renders():
 
 def _cut_down_convergence(monkeypatch, budget=0.4):
     """The convergence study on one scene, pt and SPPM at one budget, PM+C at one count."""
-    from caustica.experiments import convergence, runner
+    from caustica.experiments import convergence
     monkeypatch.setattr(convergence, "SCENES", ("cornell-diacaustic",))
-    monkeypatch.setattr(runner, "CONVERGENCE_SCENES", ("cornell-diacaustic",))
     monkeypatch.setattr(convergence, "PROGRESSIVE", (("pt", "pt", {}), ("SPPM", "sppm", {})))
     monkeypatch.setattr(convergence, "QUICK_BUDGETS_S", (budget,))
     monkeypatch.setattr(convergence, "QUICK_PMC_PHOTONS", (2000,))

@@ -296,16 +296,16 @@ def _cmd_photons(args) -> int:
 
 
 def _cmd_experiment(args) -> int:
-    from .experiments import runner
+    from .experiments import config as experiment_config, runner
     params = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
-    names = runner.expand(args.names)          # unknown names fail before anything is written
+    names = experiment_config.expand(args.names)          # unknown names fail before anything is written
     log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     # Config checks every setting and method parameter (and -o), run() the references, every planned
     # render and the reference cache, all before anything is created.
-    config = runner.Config(out=args.output, res=args.res, seed=args.seed, quick=args.quick,
-                           reference_spp=args.reference_spp, references=args.reference or [], params=params,
-                           threads=args.threads, cache_dir=args.cache_dir, repeat=args.repeat, seeds=args.seeds,
-                           progress=not args.quiet, log=log, dask=args.dask, workers=args.workers)
+    config = experiment_config.Config(
+        out=args.output, res=args.res, seed=args.seed, quick=args.quick, reference_spp=args.reference_spp,
+        references=args.reference or [], params=params, threads=args.threads, cache_dir=args.cache_dir,
+        repeat=args.repeat, seeds=args.seeds, progress=not args.quiet, log=log, dask=args.dask, workers=args.workers)
     out = config.out
     _check_outputs([out / "report.md"], args.output)
     try:

@@ -4,7 +4,8 @@
 :mod:`metrics`.  See docs/experiments.md.
 """
 from .metrics import METRICS, all_metrics, block_err, flip, mean_err, rel_mse, ssim
-from .runner import EXPERIMENTS, Config, run
+from .config import EXPERIMENTS, Config
+from .runner import run
 
 __all__ = ["EXPERIMENTS", "METRICS", "Config", "all_metrics", "block_err", "flip", "mean_err", "rel_mse", "run",
            "ssim"]

@@ -9,212 +9,40 @@ present, so experiments run one at a time still make one report).
 Every measured configuration is rendered with ``config.seeds`` seeds (seed, seed + 1,
 ...); its errors are the mean over them, with the standard deviation beside each
 (``*_sd``), so a difference can be told from seed-to-seed noise.
+
+What each experiment renders is :mod:`.config`; the statistics over seeds and the equal-time /
+equal-error fit :mod:`.statistics`; the report's sentences :mod:`.summaries`; this module submits
+the renders, measures them and writes each experiment's folder.
 """
 from __future__ import annotations
 
 import contextlib
-import math
 import re
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import driver, methods
-from ..api import check_common, load_scene, resolve_settings
-from ..errors import ParameterError, SceneError, quoted
+from ..api import load_scene, resolve_settings
+from ..errors import ParameterError, SceneError
 from ..imageio import atomic_write, write_json, write_png
-from ..limits import MAX_PIXELS, MAX_SEED, MAX_SPP, MAX_THREADS
-from ..methods.params import Param, non_negative, positive, resolve
 from . import metrics as M
-from .convergence import RES as CONVERGENCE_RES, SCENES as CONVERGENCE_SCENES, Convergence, shared_refs_dir
+from .config import ABLATION, ABLATION_FIXED, ABLATION_SCENES, BUDGET_FACTORS, BUDGET_KEYS, CONFIGS, EQUAL_METRIC, \
+    EQUAL_NAME, FIG_SCENES, FLOOR_LABEL, FLOOR_MAX_BOUNCES, HEADERS, QUICK_BUDGET_FACTORS, REFERENCE_SEED_OFFSET, \
+    ROW_COLUMNS, SWEEP_ASSOC, SWEEP_RS, SWEEP_STREAMS, TABLE1_SCENE, TABLE_SCENES, UNMEASURED, Config, \
+    check_references, expand, measured_scenes, split_reference
+from . import convergence
+from .convergence import RES as CONVERGENCE_RES, Convergence, shared_refs_dir
 from .masks import caustic_mask
 from .reference import Reference, _spp_halves, cache_folder, check_cache_writable, is_cached, pt_reference, \
     submit_halves, user_reference
 from .renders import LocalRenders
-from .tables import _fmt, markdown_table, write_csv
-
-EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6", "fig8", "fig9", "merge-ablation", "convergence")
-#: What ``all`` runs: the paper's experiments and the ablation (``convergence`` takes half an hour: ask for it).
-ALL = EXPERIMENTS[:-1]
-
-PAPER_RES = 512
-QUICK_RES = 48
-DEFAULT_REFERENCE_SPP = 1024
-QUICK_REFERENCE_SPP = 64
-DEFAULT_SEEDS = 3
-QUICK_SEEDS = 1
-#: Seeds stay below the pt reference's (seed + 1000, seed + 1001), so no render shares its numbers.
-MAX_SEEDS = 100
-TABLE1_SCENE = "cornell-diacaustic"
-TABLE_SCENES = {"table2": "cornell-diacaustic", "table3": "cornell-catacaustic"}
-FIG_SCENES = {"fig5": "cornell-pyramid", "fig6": "cornell-bunny", "fig8": "cornell-diacaustic",
-              "fig9": "cornell-catacaustic"}
-#: Figures that show images without measuring them (no reference).
-UNMEASURED = ("fig5", "fig6")
-BUDGET_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
-QUICK_BUDGET_FACTORS = (0.5, 1.0, 2.0)
-SWEEP_STREAMS = (1000, 5000, 10000)
-SWEEP_ASSOC = (10, 50, 100)
-SWEEP_RS = (0.1, 2.5, 5.0)
-
-# The paper's three configurations of Tables 2 and 3; `fixed` are keys no override touches.
-CONFIGS = {
-    "SPM": {"method": "spm", "params": {"streams": 10_000, "assoc": 10, "stream_radius": 5.0}, "fixed": ()},
-    "PM": {"method": "pm", "params": {"photons": 100_000, "caustic_photons": 0}, "fixed": ("caustic_photons",)},
-    "PM+C": {"method": "pm", "params": {"photons": 100_000, "caustic_photons": 100_000}, "fixed": ()},
-}
-BUDGET_KEYS = {"SPM": ("streams",), "PM": ("photons",), "PM+C": ("photons", "caustic_photons")}
-#: The truncation floor of Tables 2 and 3: PM as in the paper but with mr = 64 diffuse bounces
-#: (the references have unlimited depth; after 64 bounces at most 0.75^64 ~ 1e-8 of a photon's power is left).
-FLOOR_LABEL = "PM, mr = 64"
-FLOOR_MAX_BOUNCES = 64
-#: The merge ablation (docs/experiments.md): SPM's caustic against PM with as many photons as SPM
-#: has streams, under both estimators.  Each: (label, method, parameters no override touches).
-#: "estimator" is left out for the default (stream) so the renders are shared with Tables 2 and 3.
-ABLATION_SCENES = ("cornell-diacaustic", "cornell-catacaustic")
-ABLATION_PASSES = 16
-ABLATION = (
-    ("SPM 10,000 x 10, eq. 2 (stream estimator)", "spm", {"streams": 10_000, "assoc": 10, "stream_radius": 5.0}),
-    ("SPM 10,000 x 10, photons estimator", "spm",
-     {"streams": 10_000, "assoc": 10, "stream_radius": 5.0, "estimator": "photons"}),
-    ("SPM 10,000 x 0 (no associated photons)", "spm", {"streams": 10_000, "assoc": 0, "stream_radius": 5.0}),
-    ("PM 10,000 (as many photons as SPM has streams)", "pm", {"photons": 10_000, "caustic_photons": 0}),
-    ("SPM 100,000 x 10, eq. 2", "spm", {"streams": 100_000, "assoc": 10, "stream_radius": 5.0}),
-    ("PM 100,000", "pm", {"photons": 100_000, "caustic_photons": 0}),
-    # the merge itself, removed: only progressive SPM has --specular split (a different estimator)
-    (f"pspm, {ABLATION_PASSES} passes, --specular merge (the paper's rule)", "pspm",
-     {"passes": ABLATION_PASSES, "specular": "merge"}),
-    (f"pspm, {ABLATION_PASSES} passes, --specular split (no merge)", "pspm",
-     {"passes": ABLATION_PASSES, "specular": "split"}),
-)
-ABLATION_FIXED = ("streams", "assoc", "stream_radius", "estimator", "photons", "caustic_photons", "specular")
-#: The error that equal-time / equal-error compare.
-#: relMSE over the ~1000 caustic pixels is dominated by a few outlier pixels and is not monotone
-#: in the photon budget (it cannot be inverted); the block-mean error falls steadily.
-EQUAL_METRIC = "caustic_block_err"
-EQUAL_NAME = "caustic block err"
-#: How far beyond the budget sweep (as a factor) equal-error may extrapolate.
-MAX_EXTRAPOLATION = 2.0
-#: The pt reference's two halves use seeds seed + REFERENCE_SEED_OFFSET and that + 1.
-REFERENCE_SEED_OFFSET = 1000
-
-#: The experiment's own settings, checked (with the bounds of caustica.limits) before anything is written.
-SETTINGS = (
-    Param("res", int, None, "image size", lambda v: v >= 8, ">= 8", max=math.isqrt(MAX_PIXELS)),
-    Param("seed", int, 0, "random seed", non_negative, ">= 0", max=MAX_SEED - REFERENCE_SEED_OFFSET - 1),
-    Param("threads", int, None, "worker threads", positive, ">= 1", max=MAX_THREADS),
-    Param("reference_spp", int, None, "samples per pixel of the pt reference", lambda v: v >= 2,
-          ">= 2 (two halves)", max=2 * MAX_SPP),
-    Param("repeat", int, None, "renders per configuration", positive, ">= 1", max=100),
-    Param("seeds", int, None, "seeds per measured configuration", positive, ">= 1", max=MAX_SEEDS),
-)
-
-ROW_COLUMNS = ("experiment", "scene", "label", "method", "streams", "assoc", "stream_radius", "photons",
-               "caustic_photons", "photons_emitted", "photons_stored", "map_mb", "time_s",
-               "seeds", "rel_mse", "block_err", "mean_err", "ssim", "flip",
-               "caustic_rel_mse", "caustic_block_err", "caustic_mean_err", "caustic_ssim", "caustic_flip",
-               "rel_mse_sd", "block_err_sd", "mean_err_sd", "ssim_sd", "flip_sd",
-               "caustic_rel_mse_sd", "caustic_block_err_sd", "caustic_mean_err_sd", "caustic_ssim_sd",
-               "caustic_flip_sd", "image")
-
-
-@dataclass
-class Config:
-    out: Path
-    res: int | None = None
-    seed: int = 0
-    quick: bool = False
-    reference_spp: int | None = None
-    references: list = field(default_factory=list)   # "PATH" | "SCENE=PATH" | a folder
-    params: dict = field(default_factory=dict)       # method parameters given by the user
-    threads: int | None = None
-    cache_dir: Path | None = None
-    repeat: int | None = None                        # renders per configuration, time = the fastest
-    seeds: int | None = None                         # seeds per measured configuration (errors: mean, s.d.)
-    progress: bool = True
-    log: object = None
-    dask: object = None                              # a scheduler's address (or a distributed.Client)
-    workers: int | None = None                       # or a local cluster of this many worker processes
-
-    def __post_init__(self):
-        if not str(self.out).strip():   # Path("") is the working directory: never write there unasked
-            raise ParameterError("-o: the output folder is empty; give e.g. -o out/experiments")
-        self.out = Path(self.out)
-        self.res_given = self.res is not None
-        if self.res is None:
-            self.res = QUICK_RES if self.quick else PAPER_RES
-        if self.reference_spp is None:
-            self.reference_spp = QUICK_REFERENCE_SPP if self.quick else DEFAULT_REFERENCE_SPP
-        if self.repeat is None:
-            self.repeat = 1 if self.quick else 2
-        if self.seeds is None:
-            self.seeds = QUICK_SEEDS if self.quick else DEFAULT_SEEDS
-        checked = resolve("experiment", SETTINGS, {p.name: getattr(self, p.name) for p in SETTINGS})
-        for name, value in checked.items():
-            setattr(self, name, value)
-        check_common(spp=1, width=self.res, height=self.res, seed=self.seed, threads=self.threads)
-        # every method parameter given, against the photon methods' tables (the experiments render pm and spm)
-        specs = {p.name: p for m in ("pm", "spm") for p in methods.get(m).params}
-        resolve("pm/spm", tuple(specs.values()), self.params)
-        if self.on_cluster:
-            from ..cluster import check_args
-            check_args(self.dask, self.workers)
-            if self.threads is not None:
-                raise ParameterError("--threads: with --dask or --workers every render runs on all the threads of "
-                                     "its worker; leave --threads out")
-
-    @property
-    def on_cluster(self) -> bool:
-        return self.dask is not None or self.workers is not None
-
-
-HEADERS = {"label": "configuration", "photons_emitted": "photons", "map_mb": "map MB", "time_s": "time s",
-           "rel_mse": "relMSE", "block_err": "block err", "mean_err": "mean err", "ssim": "SSIM", "flip": "FLIP",
-           "caustic_rel_mse": "caustic relMSE", "caustic_block_err": "caustic block err",
-           "caustic_mean_err": "caustic mean err",
-           "caustic_ssim": "caustic SSIM", "caustic_flip": "caustic FLIP", "stream_radius": "r_s"}
-
-
-def seed_statistics(per_seed: list[dict]) -> dict:
-    """Mean of every metric over the seeds' renders, its sample standard deviation as ``<metric>_sd``
-    and the values themselves as ``<metric>_per_seed`` (results.json; for paired comparisons)."""
-    out = {}
-    for k in per_seed[0]:
-        v = np.array([m[k] for m in per_seed], dtype=np.float64)
-        out[k] = float(v.mean())
-        out[k + "_sd"] = float(v.std(ddof=1)) if len(v) > 1 else float("nan")
-        out[k + "_per_seed"] = [float(x) for x in v]
-    return out
-
-
-def paired(a: dict, b: dict, key: str):
-    """(mean of a - b, its standard error, z) over the seeds both rows share, or None below two seeds.
-
-    Rows rendered with the same seeds share the camera pass's random numbers (pixel jitter,
-    direct light), so the per-seed difference cancels that common noise: a paired comparison
-    sees differences that the two rows' own spreads would hide.
-    """
-    va, vb = a.get(key + "_per_seed"), b.get(key + "_per_seed")
-    if not va or not vb or len(va) != len(vb) or len(va) < 2:
-        return None
-    d = np.asarray(va) - np.asarray(vb)
-    if not np.all(np.isfinite(d)):
-        return None
-    se = float(d.std(ddof=1) / math.sqrt(len(d)))
-    mean = float(d.mean())
-    z = mean / se if se > 0 else (0.0 if mean == 0 else math.copysign(math.inf, mean))
-    return mean, se, z
-
-
-def _paired_text(a: dict, b: dict, key: str) -> str:
-    p = paired(a, b, key)
-    if p is None:
-        return "n/a"
-    mean, se, z = p
-    return f"{mean:+.3g} ± {se:.2g} (z = {z:+.1f})"
+from .statistics import equal_comparison, seed_statistics
+from .summaries import ablation_summary, equal_summary, floor_summary, seed_pair_summary, table1_summary
+from .tables import markdown_table, write_csv
 
 
 def _file_stem(label: str) -> str:
@@ -673,7 +501,7 @@ class Runner:
             res = self.merge_ablation(folder)
         elif name == "convergence":
             res = self.convergence().run(folder)
-            res["scenes"] = list(CONVERGENCE_SCENES)
+            res["scenes"] = list(convergence.SCENES)
         else:
             res = self.figure(name, folder)
         res["name"] = name
@@ -701,288 +529,6 @@ class Runner:
             res["settings"]["cluster"] = where
         write_json(folder / "results.json", res)
         return res
-
-
-# ---------------------------------------------------------------------- equal time / equal error
-
-
-def _interp_loglog(x, y, x0):
-    """Piecewise-linear interpolation of log y against log x at x0; (value, extrapolated)."""
-    lx, ly = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
-    l0 = math.log(x0)
-    if l0 < lx[0] or l0 > lx[-1]:
-        i = 0 if l0 < lx[0] else len(lx) - 2
-        slope = (ly[i + 1] - ly[i]) / (lx[i + 1] - lx[i])
-        return float(math.exp(ly[i] + slope * (l0 - lx[i]))), True
-    return float(math.exp(np.interp(l0, lx, ly))), False
-
-
-def equal_comparison(sweep: dict, anchor: str) -> dict:
-    """Equal-error time and equal-time error of every configuration against ``anchor``'s 1x budget.
-
-    Per configuration: time(budget) is fitted as a + c * budget (least squares: a fixed
-    camera pass plus a cost per photon), error(budget) interpolated piecewise-linearly
-    on log-log over the sweep (extrapolated from the end segment outside it).
-    Equal error: the budget b* where error = anchor's error, time = a + c b*.
-    Equal time: the budget b with a + c b = anchor's time, error = error(b).
-    """
-    base = {r["budget_factor"]: r for r in sweep[anchor]}[1.0]
-    target_err, target_t = base[EQUAL_METRIC], base["time_s"]
-    out = {}
-    for label, rows in sweep.items():
-        rows = sorted(rows, key=lambda r: r["budget_factor"])
-        b = np.array([r["budget_factor"] for r in rows])
-        t = np.array([r["time_s"] for r in rows])
-        e = np.array([r[EQUAL_METRIC] for r in rows])
-        c, a = np.polyfit(b, t, 1) if len(b) > 1 else (0.0, t[0])
-        if c < 0:   # timing noise larger than the photon cost: time does not grow with the budget
-            c, a = 0.0, float(np.mean(t))
-        res = {"time_fit_fixed_s": float(a), "time_fit_per_budget_s": float(c)}
-        if label == anchor:
-            res.update(equal_error_time_s=float(target_t), equal_error_extrapolated=False,
-                       equal_time_error=float(target_err), equal_time_extrapolated=False)
-        ok = np.isfinite(e) & (e > 0)
-        if label != anchor and ok.sum() >= 2 and math.isfinite(target_err) and target_err > 0:
-            # equal error: invert error(budget); error is interpolated on log-log
-            bb, ee = b[ok], e[ok]
-            found = None
-            for i in range(len(bb) - 1):
-                lo, hi = sorted((ee[i], ee[i + 1]))
-                if lo <= target_err <= hi and ee[i] != ee[i + 1]:
-                    found = (_interp_loglog(ee[i:i + 2][::-1] if ee[i] > ee[i + 1] else ee[i:i + 2],
-                                            bb[i:i + 2][::-1] if ee[i] > ee[i + 1] else bb[i:i + 2],
-                                            target_err)[0], False)
-                    break
-            if found is None:
-                # outside the sweep: extrapolate along the end segment nearer the target, if it falls
-                i = 0 if target_err > ee.max() else len(bb) - 2
-                slope = (math.log(ee[i + 1]) - math.log(ee[i])) / (math.log(bb[i + 1]) - math.log(bb[i]))
-                if slope < -1e-6:
-                    lb = math.log(bb[i]) + (math.log(target_err) - math.log(ee[i])) / slope
-                    found = (math.exp(lb), True)
-            if found is not None and found[0] > 0 and found[1] and not (
-                    bb[0] / MAX_EXTRAPOLATION <= found[0] <= bb[-1] * MAX_EXTRAPOLATION):
-                res["equal_error_time_s"] = float("nan")
-                res["equal_error_extrapolated"] = True
-                res["equal_error_budget"] = found[0]
-                res["equal_error_note"] = (
-                    f"its error is {'below' if found[0] < bb[0] else 'above'} the target at every budget of the "
-                    f"sweep (x{bb[0]:g} .. x{bb[-1]:g}); log-log extrapolation puts it at x{found[0]:.3g}, too far "
-                    "to trust")
-            elif found is not None and found[0] > 0:
-                res["equal_error_budget"] = found[0]
-                res["equal_error_time_s"] = float(a + c * found[0])
-                res["equal_error_extrapolated"] = found[1]
-            else:
-                res["equal_error_time_s"] = float("nan")
-                res["equal_error_extrapolated"] = True
-                res["equal_error_note"] = "not reached: its error does not fall towards the target"
-            # equal time
-            if c > 0 and target_t > a:
-                b_t = (target_t - a) / c
-                val, extra = _interp_loglog(bb, ee, b_t)
-                res["equal_time_budget"] = b_t
-                res["equal_time_error"] = val
-                res["equal_time_extrapolated"] = extra
-            elif c == 0 and target_t >= a:
-                res["equal_time_budget"] = float(bb[-1])
-                res["equal_time_error"] = float(ee[-1])
-                res["equal_time_extrapolated"] = True
-                res["equal_time_note"] = "its time does not measurably grow with the budget: the error " \
-                                         "at the largest budget of the sweep"
-            else:
-                res["equal_time_error"] = float("nan")
-                res["equal_time_extrapolated"] = True
-                res["equal_time_note"] = "its fixed cost alone exceeds the target time"
-        for key, flag in (("equal_error_time_s", "equal_error_extrapolated"),
-                          ("equal_time_error", "equal_time_extrapolated")):
-            v = res.get(key)
-            if v is None:
-                res[key + "_text"] = "n/a"
-            else:
-                res[key + "_text"] = _fmt(v) + ("*" if res.get(flag) and math.isfinite(v) else "")
-        out[label] = res
-    return out
-
-
-def _pm(row: dict, key: str, digits: int = 3) -> str:
-    """ "0.123 ± 0.004" (mean ± s.d. over seeds) or "0.123" with one seed."""
-    v, sd = row.get(key), row.get(key + "_sd")
-    if isinstance(sd, float) and math.isfinite(sd):
-        return f"{_fmt(v, digits)} ± {_fmt(sd, 2)}"
-    return _fmt(v, digits)
-
-
-def _pct(v: float) -> str:
-    return f"{100 * v:+.1f} %" if isinstance(v, float) and math.isfinite(v) else "n/a"
-
-
-def seed_pair_summary(rows_main: list[dict]) -> str:
-    """The caustic block err differences between the paper's configurations, paired over the seeds."""
-    by = {r["config"]: r for r in rows_main}
-    k = EQUAL_METRIC
-    parts = [f"{a} - {b} {_paired_text(by[a], by[b], k)}" for a, b in (("SPM", "PM+C"), ("SPM", "PM"), ("PM", "PM+C"))
-             if a in by and b in by and paired(by[a], by[b], k) is not None]
-    return f"Paired over the seeds, {EQUAL_NAME}: " + "; ".join(parts) + "." if parts else ""
-
-
-def floor_summary(pm: dict, floor: dict) -> str:
-    """One sentence: what PM's cut at mr diffuse bounces costs against the unlimited-depth reference."""
-    if pm.get("mean_err") is None or floor.get("mean_err") is None:
-        return ""
-    d = paired(floor, pm, "mean_err")
-    gain = f" (paired difference {_pct(d[0])} ± {100 * d[1]:.2g} %)" if d else ""
-    return (f"Truncation floor: with the paper's mr = 4 PM's image mean is {_pct(pm['mean_err'])} off the "
-            f"reference's, with mr = {FLOOR_MAX_BOUNCES} {_pct(floor['mean_err'])}{gain}; block err "
-            f"{_pm(pm, 'block_err')} -> {_pm(floor, 'block_err')} (whole image), "
-            f"{_pm(pm, 'caustic_block_err')} -> {_pm(floor, 'caustic_block_err')} (caustic region).")
-
-
-def ablation_summary(rows: list[dict]) -> str:
-    """Plain sentences on the merge ablation of one scene (rows in ABLATION's order)."""
-    by = {label: r for (label, _m, _p), r in zip(ABLATION, rows)}
-    spm, spm_ph, spm0, pm_n, spm_big, pm_big, merge, split = (by[a[0]] for a in ABLATION)
-    k = "caustic_block_err"
-    return (f"caustic block err (mean ± s.d. over {spm.get('seeds')} seeds): SPM 10,000 x 10 "
-            f"{_pm(spm, k)} with eq. 2, {_pm(spm_ph, k)} with the photons estimator "
-            f"(paired difference photons - eq. 2: {_paired_text(spm_ph, spm, k)}), {_pm(spm0, k)} with no "
-            f"associated photons; PM with 10,000 photons {_pm(pm_n, k)} (SPM eq. 2 - PM 10,000: "
-            f"{_paired_text(spm, pm_n, k)}); SPM 100,000 x 10 {_pm(spm_big, k)}, PM 100,000 {_pm(pm_big, k)} "
-            f"(difference {_paired_text(spm_big, pm_big, k)}). Without the merge (pspm, {ABLATION_PASSES} passes): "
-            f"merge {_pm(merge, k)}, split {_pm(split, k)} (split - merge {_paired_text(split, merge, k)}); "
-            f"caustic mean err merge {_pm(merge, 'caustic_mean_err')}, split {_pm(split, 'caustic_mean_err')}; "
-            f"whole-image mean err merge {_pm(merge, 'mean_err')}, split {_pm(split, 'mean_err')}.")
-
-
-def table1_summary(rows: list[dict]) -> str:
-    """What each swept parameter changes in the caustic block err, in one or two sentences."""
-    def spread(key_fixed):
-        groups = {}
-        for r in rows:
-            v = r.get("caustic_block_err")
-            if v is not None and math.isfinite(v):
-                groups.setdefault(tuple(r[k] for k in key_fixed), []).append(v)
-        worst = [max(g) / min(g) - 1 for g in groups.values() if len(g) > 1 and min(g) > 0]
-        return max(worst) if worst else float("nan")
-    parts = []
-    for name, fixed in (("r_s", ("streams", "assoc")), ("assoc", ("streams", "stream_radius")),
-                        ("streams", ("assoc", "stream_radius"))):
-        sp = spread(fixed)
-        if math.isfinite(sp):
-            parts.append(f"{name} changes the caustic block err by up to {100 * sp:.0f} %")
-    rel_sd = [r["caustic_block_err_sd"] / r["caustic_block_err"] for r in rows
-              if isinstance(r.get("caustic_block_err_sd"), float) and math.isfinite(r["caustic_block_err_sd"])
-              and r.get("caustic_block_err")]
-    noise = (f" Seed to seed, a configuration's caustic block err varies by {100 * float(np.median(rel_sd)):.0f} % "
-             f"(median s.d. / mean over {rows[0].get('seeds')} seeds): differences below that are noise."
-             if rel_sd else "")
-    return ("At fixed other parameters, " + "; ".join(parts) + "." + noise) if parts else ""
-
-
-def equal_summary(eq: dict, rows_main: list[dict], eq_pmc: dict | None = None) -> str:
-    """Plain sentences: does SPM beat PM+C at equal time and at equal error?"""
-    main = {r["config"]: r for r in rows_main}
-    spm, pmc = main.get("SPM"), main.get("PM+C")
-    if spm is None or pmc is None:
-        return ""
-    e_spm, t_spm = spm[EQUAL_METRIC], spm["time_s"]
-    q = eq.get("PM+C", {})
-    x = lambda d, k: " (extrapolated)" if d.get(k) else ""
-    lines = []
-    e_pmc = q.get("equal_time_error", float("nan"))
-    if math.isfinite(e_pmc):
-        verdict = "beats" if e_spm < e_pmc else "does not beat"
-        lines.append(f"Equal time ({t_spm:.1f} s): SPM's {EQUAL_NAME} is {_fmt(e_spm)}, PM+C's about "
-                     f"{_fmt(e_pmc)}{x(q, 'equal_time_extrapolated')}: SPM {verdict} PM+C.")
-    else:
-        lines.append(f"Equal time ({t_spm:.1f} s): PM+C cannot render in SPM's time "
-                     f"({q.get('equal_time_note', 'n/a')}); at its own {pmc['time_s']:.1f} s its {EQUAL_NAME} "
-                     f"is {_fmt(pmc[EQUAL_METRIC])} against SPM's {_fmt(e_spm)}.")
-    t_pmc = q.get("equal_error_time_s", float("nan"))
-    if math.isfinite(t_pmc):
-        verdict = "beats" if t_spm < t_pmc else "does not beat"
-        lines.append(f"Equal error at SPM's level ({EQUAL_NAME} {_fmt(e_spm)}): SPM {t_spm:.1f} s, "
-                     f"PM+C about {t_pmc:.1f} s"
-                     f"{x(q, 'equal_error_extrapolated')}: SPM {verdict} PM+C.")
-    else:
-        lines.append(f"Equal error at SPM's level ({EQUAL_NAME} {_fmt(e_spm)}): "
-                     f"PM+C: {q.get('equal_error_note', 'n/a')}.")
-    if eq_pmc:
-        r = eq_pmc.get("SPM", {})
-        t_s = r.get("equal_error_time_s", float("nan"))
-        if math.isfinite(t_s):
-            verdict = "beats" if t_s < pmc["time_s"] else "does not beat"
-            lines.append(f"Equal error at PM+C's level ({EQUAL_NAME} {_fmt(pmc[EQUAL_METRIC])}): "
-                         f"PM+C {pmc['time_s']:.1f} s, "
-                         f"SPM about {t_s:.1f} s{x(r, 'equal_error_extrapolated')}: SPM {verdict} PM+C.")
-        else:
-            lines.append(f"Equal error at PM+C's level ({EQUAL_NAME} {_fmt(pmc[EQUAL_METRIC])}): SPM: "
-                         f"{r.get('equal_error_note', 'n/a')}: SPM does not beat PM+C.")
-    return " ".join(lines)
-
-
-# ---------------------------------------------------------------------- entry point
-
-
-def expand(names) -> list[str]:
-    out = []
-    for n in names:
-        if n == "all":
-            out.extend(ALL)
-        elif n in EXPERIMENTS:
-            out.append(n)
-        else:
-            raise ParameterError(f"unknown experiment '{n}'; choose from {', '.join(EXPERIMENTS)} or all")
-    seen = set()
-    return [n for n in out if not (n in seen or seen.add(n))]
-
-
-def scenes_of(name: str) -> tuple[str, ...]:
-    """The scenes an experiment renders."""
-    if name == "table1":
-        return (TABLE1_SCENE,)
-    if name == "merge-ablation":
-        return ABLATION_SCENES
-    if name == "convergence":
-        return CONVERGENCE_SCENES
-    return (TABLE_SCENES.get(name) or FIG_SCENES[name],)
-
-
-def measured_scenes(names) -> set[str]:
-    """The scenes whose renders these experiments measure against a reference."""
-    return {scene for n in names if n not in UNMEASURED for scene in scenes_of(n)}
-
-
-def split_reference(item: str) -> tuple[str | None, Path]:
-    """``--reference`` as (scene or None, path): SCENE=PATH, or a path (which may hold '=' if it exists)."""
-    if "=" in item and not Path(item).exists():
-        scene, path = item.split("=", 1)
-        return scene, Path(path)
-    return None, Path(item)
-
-
-def check_references(references, measured) -> None:
-    """Every --reference names an existing file or folder and, as SCENE=PATH, a scene these experiments
-    measure (once); a plain file only when they measure one scene."""
-    seen = {}
-    for item in references:
-        scene, path = split_reference(item)
-        if not path.exists():
-            raise ParameterError(f"--reference {quoted(item)}: no such file or folder: {quoted(str(path))}")
-        if scene is None:
-            if not path.is_dir() and len(measured) > 1:
-                raise ParameterError(f"--reference {item}: these experiments measure {len(measured)} scenes "
-                                     f"({', '.join(sorted(measured))}); give SCENE=PATH for each, or a folder")
-            continue
-        if scene not in measured:
-            what = f"the scenes measured: {', '.join(sorted(measured))}" if measured else \
-                "these experiments measure no scene (their figures are not compared with a reference)"
-            raise ParameterError(f"--reference {quoted(item)}: {quoted(scene)} is not a scene these experiments "
-                                 f"measure; {what}")
-        if scene in seen:
-            raise ParameterError(f"--reference {quoted(item)}: {scene} has a reference already ({seen[scene]}); "
-                                 f"give one per scene")
-        seen[scene] = item
 
 
 @contextlib.contextmanager
