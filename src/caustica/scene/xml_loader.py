@@ -35,8 +35,9 @@ from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR
                           BUMPMAP, NORMALMAP, WRAPPERS,
                           PLASTIC, PPLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
-                          Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
+                          Mesh, Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
+from .curves import curve_mesh, read_curves
 from .serialized import load_serialized
 from .textures import read_texels
 
@@ -65,6 +66,8 @@ SHAPE_PROPS = {
     "obj": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "ply": {"filename": STR, "face_normals": BOOL, "flip_tex_coords": BOOL},
     "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
+    "linearcurve": {"filename": STR},
+    "bsplinecurve": {"filename": STR},
     # shapes declared once and placed by instances (each instance becomes copies of them)
     "shapegroup": {},
     "instance": {},
@@ -1350,6 +1353,8 @@ class _Loader:
                 # A file without vertex normals shades smoothly in Mitsuba 3: it computes them (in world space)
                 mesh.normals = vertex_normals_by_angle(mesh.positions, mesh.triangles)
             return Shape(MESH, mesh=mesh, to_world=to_world, **common)
+        if kind in ("linearcurve", "bsplinecurve"):
+            return Shape(MESH, mesh=self.curve(node, props, kind, to_world), to_world=to_world, **common)
         if kind == "sphere":
             radius = self.number(props, "radius", 1.0, positive=True)
             center = props.get("center", np.zeros(3))
@@ -1365,7 +1370,8 @@ class _Loader:
         if self.materials[material].kind in WRAPPERS:
             self.fail(node, f"a {MATERIAL_NAMES[self.materials[material].kind]} on a {kind} is not supported (its "
                             f"position partials dp/du, dp/dv are not implemented)",
-                      supported=["rectangle", "cube", "obj", "ply", "serialized", "sphere"])
+                      supported=["rectangle", "cube", "obj", "ply", "serialized", "linearcurve", "bsplinecurve",
+                                 "sphere"])
         if kind == "disk":
             return Shape(DISK, to_world=to_world, **common)
         # cylinder (Mitsuba: to_world @ translate(p0) @ to_frame(dir) @ scale(r, r, length))
@@ -1386,6 +1392,17 @@ class _Loader:
             self.fail(props.node_of("to_world"), "a cylinder's to_world must keep its cross-section "
                                                  "circular (no shear or non-uniform scaling across the axis)")
         return Shape(CYLINDER, to_world=m, **common)
+
+    def curve(self, node: Node, props, kind: str, to_world: np.ndarray) -> Mesh:
+        """A curve shape's tessellation in world space (:mod:`.curves`)."""
+        if not props.has("filename"):
+            self.fail(node, f"a {kind} shape needs <string name=\"filename\" .../>")
+        try:
+            path = self.find_file(props.node_of("filename"), props.get("filename"))
+            self.files.append(Path(path))
+            return curve_mesh(read_curves(path, kind), kind, to_world)
+        except SceneError as exc:
+            self.fail(props.node_of("filename"), str(exc))
 
     def placement(self, node: Node, m: np.ndarray, what: str) -> np.ndarray:
         """The matrix placing an analytic shape, checked like every transform (SceneError at node)."""
