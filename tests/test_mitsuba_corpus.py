@@ -60,6 +60,12 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_diffuse_stokes.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_specular.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_pplastic_specular_stokes.xml",
+    # curves (tessellated)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_bsplinecurve_basic.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_bsplinecurve_parameterization.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_linearcurve_basic.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_linearcurve_parameterization.xml",
+    "mitsuba-renderer+mitsuba-tutorials/scenes/shadow_art.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),
