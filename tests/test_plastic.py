@@ -285,6 +285,20 @@ def test_photon_methods_render_plastic_as_mitsuba(mi, plastic_and_glass, method,
     assert_images_agree(ours, theirs, label=f"{method} plastic")
 
 
+@pytest.mark.parametrize("dist, alpha", [("beckmann", "0.2"), ("ggx", "0.05")])
+def test_sppm_renders_roughplastic_as_mitsuba(mi, test_scenes_dir, dist, alpha):
+    """The rough coating's lobes apart (visible points weighted by A, photons and shadow rays by the tabulated
+    transmittance B, the glossy lobe sampled alone with probability P): tests/scenes/plastic.xml with its rough ball,
+    sppm after 48 passes against Mitsuba's path tracer, with the same criteria as the smooth plastics'."""
+    path = test_scenes_dir / "plastic.xml"
+    scene = caustica.load_scene(path, dist=dist, alpha=alpha)
+    ours = [caustica.render(scene, "sppm", res=32, seed=s, termination="roulette", max_bounces=64, passes=48,
+                            photons=20_000).image for s in range(4)]
+    theirs_scene = mi.load_file(str(path), res=32, spp=512, dist=dist, alpha=alpha)
+    theirs = [np.array(mi.render(theirs_scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    assert_images_agree(ours, theirs, label=f"roughplastic {dist} {alpha}, sppm")
+
+
 # --------------------------------------------------------------------------- input
 
 BAD = {
@@ -326,10 +340,11 @@ def test_loader_reads_the_plastics(tmp_path):
     assert (m.kind, m.twosided) == (PLASTIC, True)
 
 
-@pytest.mark.parametrize("method, bsdf", [(m, "roughplastic") for m in ("pm", "spm", "sppm", "pspm")]
+@pytest.mark.parametrize("method, bsdf", [(m, "roughplastic") for m in ("pm", "spm", "pspm")]
                          + [("spm", "plastic"), ("pspm", "plastic")])
 def test_photon_methods_refuse_plastics(cli, tmp_path, method, bsdf):
-    """roughplastic is glossy (refused by every photon method); plastic by the stream methods only."""
+    """roughplastic has a glossy lobe (refused by every photon method but sppm); plastic by the stream methods
+    only."""
     path = write_scene(tmp_path, f'<bsdf type="{bsdf}"/>')
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
@@ -339,8 +354,9 @@ def test_photon_methods_refuse_plastics(cli, tmp_path, method, bsdf):
 
 
 def test_methods_that_render_plastic_accept_it(tmp_path):
-    """pt renders both, pm and sppm plastic: a finite, non-black image."""
-    for bsdf, method in (("plastic", "pt"), ("roughplastic", "pt"), ("plastic", "pm"), ("plastic", "sppm")):
+    """pt renders both, pm plastic, sppm both: a finite, non-black image."""
+    for bsdf, method in (("plastic", "pt"), ("roughplastic", "pt"), ("plastic", "pm"), ("plastic", "sppm"),
+                         ("roughplastic", "sppm")):
         img = caustica.render(write_scene(tmp_path, f'<bsdf type="{bsdf}"/>'), method, res=8).image
         assert np.all(np.isfinite(img)) and img.mean() > 0, (bsdf, method)
 

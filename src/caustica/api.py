@@ -26,7 +26,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.description import MATERIAL_NAMES, MIXTURES, WRAPPERS
+from .scene.description import MATERIAL_NAMES, MIXTURES, ROUGHPLASTIC, WRAPPERS
 from .tables import Scene, compile_scene
 
 
@@ -113,9 +113,9 @@ def check_bsdfs(cls, scene) -> None:
     (``pm``, ``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
-    normalmap and bumpmap (``pt``).  A glossy lobe beside a diffuse one
-    (roughplastic, pplastic) needs the gather to evaluate the BSDF with each photon's direction, which no photon method
-    does yet (issue 20).
+    normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
+    (roughplastic: ``sppm``, its lobes apart as plastic's).  Another glossy lobe beside a diffuse one (pplastic)
+    needs the gather to evaluate the BSDF with each photon's direction, which no photon method does yet (issue 20).
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
@@ -142,6 +142,8 @@ def check_bsdfs(cls, scene) -> None:
         if mat.kind in MIXTURES + WRAPPERS:
             continue   # resolved at each hit to one of its parts, each a material of its own, checked as such
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
+            if mat.kind == ROUGHPLASTIC and getattr(cls, "renders_rough_coated", False):
+                continue
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "
                                  f"beside a diffuse one yet (its gather would treat both as Lambertian); use "

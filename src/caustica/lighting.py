@@ -19,7 +19,7 @@ from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_s
     sample_area_emitter, spot_falloff
 from .geometry import vec
 from .features import has
-from .scene.description import PLASTIC
+from .scene.description import PLASTIC, ROUGHPLASTIC
 from .jit import kernel
 from .media import env_shadow_length, escape_transmittance, light_sample, medium_after, phase_pdf, phase_value, \
     power_heuristic, shadow_transmittance
@@ -71,7 +71,7 @@ def env_direct(tables, at, key, dim, strata, coated):
             w = 1.0
             if not constant:
                 w = power_heuristic(cos_c * INV_PI, env_pdf(lights, wc))
-            if has(mats, PLASTIC) and coated >= 0:
+            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 w *= entry(mats, coated, cos_c)
             T = env_transmittance(tables, at, wc)
             acc = vec.madd(acc, vec.hadamard(env_radiance(lights, wc), T), math.pi * w)
@@ -81,7 +81,7 @@ def env_direct(tables, at, key, dim, strata, coated):
         cos_e = vec.dot(ns, we)
         if pdf_e > 0.0 and cos_e > 0.0 and vec.dot(ng, we) > 0.0:
             w = power_heuristic(pdf_e, cos_e * INV_PI)
-            if has(mats, PLASTIC) and coated >= 0:
+            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 w *= entry(mats, coated, cos_e)
             T = env_transmittance(tables, at, we)
             acc = vec.madd(acc, vec.hadamard(Le, T), cos_e * w / pdf_e)
@@ -112,8 +112,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     spot's by :func:`profiled_direct`), a directional light by one shadow ray against its direction (E cos θ T); the environment by :func:`env_direct`.  Each shadow ray's
     visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
     light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on
-    the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta coating over a diffuse lobe
-    (:func:`caustica.bsdfs.coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
+    the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta or glossy coating over a diffuse
+    lobe (:func:`caustica.bsdfs.coat`, :func:`caustica.bsdfs.rough_coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
     """
     geom, mats, lights, media = tables
@@ -142,7 +142,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                                      vec.offset_origin(q, nq, vec.neg(to_l)),
                                      medium_after(media, shape, ng_front, wi, medium))
                 g = cos_s * cos_l / dist2
-                if has(mats, PLASTIC) and coated >= 0:
+                if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                     g *= entry(mats, coated, cos_s)
                 acc = vec.madd(acc, T, g)
             area = lights.area[li]
@@ -153,7 +153,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             cos_s = vec.dot(ns, wi)
             if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
                 continue
-            if has(mats, PLASTIC) and coated >= 0:
+            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 cos_s *= entry(mats, coated, cos_s)
             E = vec.madd(E, vec.hadamard(rad, env_transmittance(tables, at, wi)), cos_s)
         elif profiled(lights, li):
@@ -174,7 +174,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                  medium_after(media, shape, ng_front, wi, medium))
             g = cos_s / dist2
-            if has(mats, PLASTIC) and coated >= 0:
+            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 g *= entry(mats, coated, cos_s)
             if has(lights, SPOT) and lights.kind[li] == SPOT:
                 g *= falloff
@@ -204,7 +204,7 @@ def profiled_direct(tables, at, li, coated):
     T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
                                 medium_after(media, shape, ng_front, wi, medium))
     g = cos_s / dist2
-    if has(mats, PLASTIC) and coated >= 0:
+    if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
         g *= entry(mats, coated, cos_s)
     return vec.mul(vec.hadamard(intensity, T), g)
 

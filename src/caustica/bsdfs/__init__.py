@@ -262,8 +262,25 @@ def coat(mats, m, d, ng, ns, uv):
 
 @kernel(inline=True)
 def entry(mats, m, cos_o):
-    """The factor B of :func:`coat`'s separable diffuse lobe for light arriving at cosine cos_o (shading normal)."""
+    """The factor B of :func:`coat`'s (or :func:`rough_coat`'s) separable diffuse lobe for light arriving at cosine
+    cos_o (shading normal)."""
+    if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
+        return roughplastic.entry(mats, m, cos_o)
     return plastic.entry(mats, m, cos_o)
+
+
+@kernel(inline=True)
+def rough_coat(mats, m, d, ns, uv):
+    """For a glossy coating over a diffuse lobe (``roughplastic``), the lobes apart: (P, A), P the probability that
+    :func:`sample` picks the glossy lobe, A the diffuse lobe's factor on the path's side, f_diffuse = A(d) ·
+    :func:`entry` (wi), as :func:`coat`'s; :func:`sample_coating` samples the glossy lobe alone."""
+    return roughplastic.coat(mats, m, d, ns, uv)
+
+
+@kernel(inline=True)
+def sample_coating(mats, m, d, ng, ns, key, dim):
+    """:func:`rough_coat`'s glossy lobe alone: (ok, wi, weight f cos / pdf of that lobe, dim past its two numbers)."""
+    return roughplastic.sample_coating(mats, m, d, ng, ns, key, dim)
 
 
 @kernel(inline=True)

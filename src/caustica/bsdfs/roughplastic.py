@@ -17,7 +17,8 @@ specular sampling weight (as :mod:`.plastic`), on the first number: a visible no
 about it, else a cosine-weighted direction, on the next two.  Its density is the mixture
 P D G1(wo, h) / (4 cos θ_o) + (1 - P) cos θ_i / π, which :func:`eval_pdf` gives too, and its weight is the whole f
 cos θ_i over that density, as in Mitsuba.  Directions below the shading or the geometric surface are refused.
-Flags ``GLOSSY_REFLECTION | DIFFUSE_REFLECTION``: rendered by ``pt`` only, as the other glossy BSDFs.
+Flags ``GLOSSY_REFLECTION | DIFFUSE_REFLECTION``: rendered by ``pt``, and by ``sppm`` with its lobes apart
+(:func:`coat`, :func:`entry`, :func:`sample_coating`; :mod:`caustica.photons.visible_points`).
 """
 from __future__ import annotations
 
@@ -179,3 +180,47 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1), both lobes, and :func:`sample`'s density of wi (zero below either surface)."""
     return two_lobe_eval_pdf(local_eval, mats, m, (d, ng, ns), uv, wi)
+
+
+# ---------------------------------------------------------------- the lobes apart, for the photon methods
+
+
+@kernel
+def coat(mats, m, d, ns, uv):
+    """The two lobes apart (see :func:`caustica.bsdfs.rough_coat`): (P, A), P the probability that :func:`sample`
+    picks the glossy lobe for a path arriving along d, A = base T(cos θ_o) / (π eta²) the diffuse lobe's factor on
+    the path's side (its colour at uv); P = 0 and A = 0 seen from below."""
+    zero = (0.0, 0.0, 0.0)
+    cos_o = -vec.dot(d, ns)
+    if cos_o <= 0.0:
+        return 0.0, zero
+    t_o = transmittance(mats, m, cos_o)
+    eta = mats.eta[m]
+    return choice(mats, m, t_o), vec.mul(base(mats, m, uv), t_o * INV_PI / (eta * eta))
+
+
+@kernel
+def entry(mats, m, cos_i):
+    """The diffuse lobe's factor on the light's side, B = T(cos θ_i): f_diffuse = A B (:func:`coat`)."""
+    if cos_i <= 0.0:
+        return 0.0
+    return transmittance(mats, m, cos_i)
+
+
+@kernel
+def sample_coating(mats, m, d, ng, ns, key, dim):
+    """The glossy lobe alone, by a visible normal from wo and the reflection about it (numbers dim, dim + 1):
+    (ok, wi, weight f_glossy cos θ_i / pdf_glossy = specular F(wo·h) G1(wi, h), dim + 2)."""
+    zero = (0.0, 0.0, 0.0)
+    s, t, wo = mf.local_frame(ns, d)
+    if wo[2] <= 0.0:
+        return False, zero, zero, dim + 2
+    dist, alpha = mats.distribution[m], mats.alpha[m]
+    h = mf.sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
+    c = vec.dot(wo, h)
+    wl = mf.reflect(wo, h, c)
+    wi = vec.from_local(s, t, ns, wl)
+    if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
+        return False, wi, zero, dim + 2
+    F, _ = fresnel_dielectric(c, mats.eta[m])
+    return True, wi, vec.mul(specular(mats, m), F * mf.smith_g1(dist, alpha, wl, h)), dim + 2

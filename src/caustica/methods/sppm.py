@@ -49,6 +49,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     name = "sppm"
     summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass"
     renders_coated = True    # plastic: its lobes apart in visible_point and trace_one (api.check_bsdfs)
+    renders_rough_coated = True   # roughplastic: the same, its glossy lobe sampled alone
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     params = (

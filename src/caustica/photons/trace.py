@@ -38,7 +38,7 @@ from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..scene.description import BLEND, PLASTIC
+from ..scene.description import BLEND, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
@@ -120,7 +120,8 @@ def record_power(geom, mats, hit, d, power):
     (:func:`caustica.bsdfs.coat`); at a mixture's part divided by the chance of resolving to a part that stores
     there (:func:`storing_probability`)."""
     prim, m, uv, front, ng, ns = hit
-    if has(mats, PLASTIC) and mats.flags[m] & DELTA:    # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat)
+    if (has(mats, PLASTIC) and mats.flags[m] & DELTA) or (has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC):
+        # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat, bsdfs.rough_coat)
         power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
     own = geom.prim_material[prim]
     if own != m:

@@ -27,6 +27,13 @@ gathered there carry the lobe's other factor B (:mod:`caustica.photons.trace`), 
 of its direct light.  The emitters the coating reflects are added in expectation, β F_i specular Le, as
 glass's are.  Each pass is an unbiased sample of both lobes, as of glass's two branches.
 
+**A glossy coating over a diffuse lobe** (roughplastic, :func:`caustica.bsdfs.rough_coat`) is split the same way:
+its diffuse lobe is separable too (f = A(wo) B(wi), B the coating's tabulated transmittance), so the visible point
+takes W = β A / (1 − P) and the photons and shadow rays B; with the probability P of the BSDF's own sampling the
+path takes the glossy lobe instead, sampled alone (:func:`caustica.bsdfs.sample_coating`, weight f cos / (pdf P)),
+and goes on as after a mirror: no light sample is taken for that lobe, so the emitter it meets next counts in full
+(unbiased; noisier than a light sample would be where the coating reflects a small light).
+
 **Glossy surfaces** (rough metal and glass: smooth lobes, none diffuse) hold no visible point, as in pbrt-v4's
 SPPM: the path takes one light sample there, MIS-weighted against the BSDF's sampling (the path tracer's
 :func:`caustica.lighting.next_event`), and goes on by the BSDF's sample; an emitter or the environment it meets
@@ -64,14 +71,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, \
+    rough_coat, sample, sample_coating
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import kernel, parallel_for
 from ..emitters import ENV, env_pdf
 from ..features import has
-from ..scene.description import PLASTIC
+from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import attenuation, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
@@ -241,6 +249,30 @@ def coating_step(tables, at, m, d, path, branch, last):
 
 
 @kernel(inline=True)
+def rough_coating_step(tables, at, m, d, branch, last):
+    """At a glossy coating over a diffuse lobe (roughplastic): the coating's glossy lobe taken with the probability P
+    that the BSDF's own sampling gives it (0 at the ``last`` specular vertex allowed), by sampling that lobe alone,
+    weight f cos / (pdf P); else the visible point here.  No light sample is taken for the glossy lobe: the emitter
+    the path meets next counts in full.  ``branch`` = (first_glass, numbers, dim) as for :func:`coating_step`.
+    Returns (take the coating, (direction, P, its weight, A) as :func:`coating_step`'s, first_glass, dim); a
+    sample below the surface comes back taken with weight zero (the path ends)."""
+    mats = tables[1]
+    first_glass, numbers, dim = branch
+    P, A = rough_coat(mats, m, d, at.ns, at.uv)
+    if last:
+        P = 0.0
+    wc = w_coat = zero = (0.0, 0.0, 0.0)
+    take = False
+    if P > 0.0:
+        u, first_glass, dim = branch_number(first_glass, numbers, dim)
+        take = u < P
+        if take:
+            ok, wc, w, dim = sample_coating(mats, m, d, at.ng, at.ns, numbers[0], dim)
+            w_coat = vec.mul(w, 1.0 / P) if ok else zero
+    return take, (wc, P, w_coat, A), first_glass, dim
+
+
+@kernel(inline=True)
 def delta_vertex(tables, at, m, d, path, branch):
     """The path at a mirror or glass (:func:`delta_step`), glass's branch number drawn first
     (:func:`branch_number`; ``branch`` = (first_glass, numbers, dim)).
@@ -320,6 +352,10 @@ def visible_point(tables, o, d, numbers, params, out):
                 # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
                 take_coat, coating, L, first_glass, dim = coating_step(
                     tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)
+            elif has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
+                # a glossy coating over a diffuse lobe: the coating's lobe, else the visible point here
+                take_coat, coating, first_glass, dim = rough_coating_step(
+                    tables, at, m, d, (first_glass, numbers, dim), depth >= max_specular)
             wc, P, w_coat, A = coating
             if flags & SMOOTH and not take_coat:
                 w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
@@ -329,7 +365,10 @@ def visible_point(tables, o, d, numbers, params, out):
                 return False, zero, zero, zero, L, n_seg
             specular = True
             if take_coat:
-                wi, beta, counted = wc, vec.hadamard(beta, w_coat), True   # its first hit's emission: added above
+                # plastic's delta coating added its first hit's emission above; a glossy one did not
+                wi, beta, counted = wc, vec.hadamard(beta, w_coat), flags & DELTA != 0
+                if not counted and w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
+                    return False, zero, zero, zero, L, n_seg   # the glossy lobe's sample fell below the surface
             else:
                 L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta),
                                                                       (first_glass, numbers, dim))
