@@ -353,6 +353,16 @@ def test_photon_methods_refuse_plastics(cli, tmp_path, method, bsdf):
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.parametrize("coated", ["plastic", "roughplastic"])
+def test_sppm_refuses_a_blend_of_a_coated_and_another_diffuse_lobe(cli, tmp_path, coated):
+    """A photon's record carries the factor B of the part it met, which the other part's visible points would read:
+    refused in one line, for the glossy coating as for the delta one."""
+    path = write_scene(tmp_path, f'<bsdf type="blendbsdf"><float name="weight" value="0.5"/><bsdf type="{coated}"/>'
+                                 f'<bsdf type="diffuse"/></bsdf>')
+    code, _, err = cli("render", path, "-m", "sppm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
+    assert code == 2 and err.count("\n") == 1 and "blendbsdf" in err and "coated diffuse lobe" in err, err
+
+
 def test_methods_that_render_plastic_accept_it(tmp_path):
     """pt renders both, pm plastic, sppm both: a finite, non-black image."""
     for bsdf, method in (("plastic", "pt"), ("roughplastic", "pt"), ("plastic", "pm"), ("plastic", "sppm"),

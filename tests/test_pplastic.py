@@ -15,7 +15,7 @@
    directly, a two-sided panel seen from its back): pt's image mean within 2 % and every 4x4 block within 5 sigmas
    of both renderers' noise (tests/imagestats.py), for beckmann and ggx.
 4. Input and methods: Mitsuba's defaults; bad values exit 2 in one line naming file and line; the photon methods
-   refuse pplastic (a glossy lobe beside a diffuse one) in one line, as roughplastic.
+   refuse pplastic (a glossy lobe beside a diffuse one) in one line, as all but sppm refuse roughplastic.
 """
 from __future__ import annotations
 

@@ -131,9 +131,10 @@ def check_bsdfs(cls, scene) -> None:
     flags_of = scene.materials.flags
     for mat in scene.description.materials:
         parts = [k for k in mat.nested if flags_of[k] & DIFFUSE_REFLECTION] if mat.kind in MIXTURES else []
-        if len(parts) == 2 and parts[0] != parts[1] and any(flags_of[k] & DELTA for k in parts):
+        coated = [k for k in parts if flags_of[k] & DELTA or scene.materials.kind[k] == ROUGHPLASTIC]
+        if len(parts) == 2 and parts[0] != parts[1] and coated:
             raise SceneError(f"{mat.source}: <bsdf type=\"blendbsdf\">: method {cls.name} does not render a blend "
-                             f"of a coated diffuse lobe (plastic) with another diffuse lobe yet (a photon's record "
+                             f"of a coated diffuse lobe (plastic, roughplastic) with another diffuse lobe yet (a photon's record "
                              f"carries the factor of the part it met, which the other part's visible points would "
                              f"read); use --method pt")
     for mat, flags in zip(scene.description.materials, scene.materials.flags):
