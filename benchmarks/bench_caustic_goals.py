@@ -1,6 +1,6 @@
 """Issue 20's caustic goals: SPPM against Mitsuba 3's path tracer at equal wall time.
 
-    python benchmarks/bench_caustic_goals.py [--scene glossy|envmap] [--budget 30] [--res 96] [--ref-spp 8192]
+    python benchmarks/bench_caustic_goals.py [--scene glossy|envmap|plastic] [--budget 30] [--res 96] [--ref-spp 8192]
                                              [--ptracer-spp 16384] [--seeds 0] [--dist ggx] [--alpha 0.1]
                                              [--threads N] [--reference-only] [--sppm LABEL=KEY:VALUE,...]
 
@@ -12,6 +12,8 @@ Scenes (``--scene``):
 * ``envmap``: benchmarks/scenes/envmap-caustic.xml, a glass ball on a diffuse floor under a sky with a small sun
   (:func:`sun_sky_map`, written with a copy of the scene to out/envmap-caustic/).  Goal: sppm within 3 % of the
   reference, its caustic error at 30 s at least 5x below Mitsuba's.
+* ``plastic``: benchmarks/scenes/plastic-caustic.xml, a glass ball on a rough plastic floor (GGX, alpha 0.15) under a
+  small square light: the caustic lands on a BSDF with a glossy lobe beside its diffuse one (no goal of its own).
 
 * References, Mitsuba 3 (``scalar_rgb``), each in two halves of independent seeds, cached in out/refs/: for the
   whole image its path tracer at ``--ref-spp`` samples per pixel; for the caustic region its particle tracer
@@ -48,7 +50,8 @@ from caustica.imageio import write_exr
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = {"glossy": REPO / "tests" / "scenes" / "glossy-caustic.xml",
-          "envmap": REPO / "benchmarks" / "scenes" / "envmap-caustic.xml"}
+          "envmap": REPO / "benchmarks" / "scenes" / "envmap-caustic.xml",
+          "plastic": REPO / "benchmarks" / "scenes" / "plastic-caustic.xml"}
 REF_SPP_PER_CALL = 256
 #: sppm configurations: (label, parameters).  Its defaults: one photon per pixel per pass, half of them aimed at the
 #: caustic casters (the ball and the ring; the glass ball), with the caustic events' own statistics.
@@ -95,7 +98,7 @@ def scene_file(args) -> Path:
 
 def reference(mi, args, path, params):
     """(reference, its first half, its second half, the direct-light-only render), cached in out/refs/."""
-    tag = f"glossy-caustic-{args.dist}-{args.alpha}" if args.scene == "glossy" else "envmap-caustic"
+    tag = f"glossy-caustic-{args.dist}-{args.alpha}" if args.scene == "glossy" else f"{args.scene}-caustic"
     cache = REPO / "out" / "refs" / f"{tag}-{args.res}-{args.ref_spp}.npz"
     if cache.is_file():
         z = np.load(cache)
@@ -116,7 +119,7 @@ def reference(mi, args, path, params):
 
 def particle_reference(mi, args, path, params):
     """(the particle tracer's reference, its first half, its second half), cached in out/refs/."""
-    tag = f"glossy-caustic-{args.dist}-{args.alpha}" if args.scene == "glossy" else "envmap-caustic"
+    tag = f"glossy-caustic-{args.dist}-{args.alpha}" if args.scene == "glossy" else f"{args.scene}-caustic"
     cache = REPO / "out" / "refs" / f"{tag}-{args.res}-ptracer-{args.ptracer_spp}.npz"
     if cache.is_file():
         z = np.load(cache)

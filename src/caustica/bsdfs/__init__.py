@@ -279,8 +279,15 @@ def rough_coat(mats, m, d, ns, uv):
 
 @kernel(inline=True)
 def sample_coating(mats, m, d, ng, ns, key, dim):
-    """:func:`rough_coat`'s glossy lobe alone: (ok, wi, weight f cos / pdf of that lobe, dim past its two numbers)."""
+    """:func:`rough_coat`'s glossy lobe alone: (ok, wi, weight f cos / pdf of that lobe, that pdf, dim past its two
+    numbers)."""
     return roughplastic.sample_coating(mats, m, d, ng, ns, key, dim)
+
+
+@kernel(inline=True)
+def eval_coating(mats, m, d, ng, ns, wi):
+    """:func:`rough_coat`'s glossy lobe alone towards wi: (f RGB, the density :func:`sample_coating` gives wi)."""
+    return roughplastic.eval_coating(mats, m, d, ng, ns, wi)
 
 
 @kernel(inline=True)

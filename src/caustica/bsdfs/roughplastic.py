@@ -210,17 +210,36 @@ def entry(mats, m, cos_i):
 @kernel
 def sample_coating(mats, m, d, ng, ns, key, dim):
     """The glossy lobe alone, by a visible normal from wo and the reflection about it (numbers dim, dim + 1):
-    (ok, wi, weight f_glossy cos θ_i / pdf_glossy = specular F(wo·h) G1(wi, h), dim + 2)."""
+    (ok, wi, weight f_glossy cos θ_i / pdf_glossy = specular F(wo·h) G1(wi, h), pdf_glossy, dim + 2)."""
     zero = (0.0, 0.0, 0.0)
     s, t, wo = mf.local_frame(ns, d)
     if wo[2] <= 0.0:
-        return False, zero, zero, dim + 2
+        return False, zero, zero, 0.0, dim + 2
     dist, alpha = mats.distribution[m], mats.alpha[m]
     h = mf.sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
     c = vec.dot(wo, h)
     wl = mf.reflect(wo, h, c)
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or vec.dot(wi, ng) <= 0.0:
-        return False, wi, zero, dim + 2
+        return False, wi, zero, 0.0, dim + 2
     F, _ = fresnel_dielectric(c, mats.eta[m])
-    return True, wi, vec.mul(specular(mats, m), F * mf.smith_g1(dist, alpha, wl, h)), dim + 2
+    pdf = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) / (4.0 * wo[2])
+    return True, wi, vec.mul(specular(mats, m), F * mf.smith_g1(dist, alpha, wl, h)), pdf, dim + 2
+
+
+@kernel
+def eval_coating(mats, m, d, ng, ns, wi):
+    """The glossy lobe alone towards wi: (f RGB, the density :func:`sample_coating` gives wi); zero below either
+    surface."""
+    zero = (0.0, 0.0, 0.0)
+    s, t, wo = mf.local_frame(ns, d)
+    wl = mf.to_local(s, t, ns, wi)
+    if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return zero, 0.0
+    dist, alpha = mats.distribution[m], mats.alpha[m]
+    h = vec.normalize(vec.add(wo, wl))
+    dh = mf.D(dist, alpha, h)
+    g1o = mf.smith_g1(dist, alpha, wo, h)
+    F, _ = fresnel_dielectric(vec.dot(wo, h), mats.eta[m])
+    f = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
+    return vec.mul(specular(mats, m), f), dh * g1o / (4.0 * wo[2])
