@@ -41,14 +41,15 @@ NG = (0.0, 0.0, 1.0)
 UV = NO_UV   # surface coordinates off any texture
 
 
-def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None):
-    """A one-material table (as build_material_table makes it)."""
+def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None, alpha_v=None):
+    """A one-material table (as build_material_table makes it); alpha_v: anisotropic, alpha being alpha_u."""
     flags = bsdfs.BSDFS[kind].FLAGS
     fresnel = 0 if ior is None else 1
     ce, ck = ior if ior is not None else ((1.0,) * 3, (0.0,) * 3)
     return MaterialTable(np.array([kind], np.int32), np.array([flags], np.int32), np.array([rgb], np.float64),
                          np.array([eta]), np.zeros(1, np.int8), np.array([np.mean(rgb)]), np.array([dist], np.int32),
-                         np.array([alpha]), np.array([fresnel], np.int8), np.array([ce], np.float64),
+                         np.array([alpha]), np.array([alpha if alpha_v is None else alpha_v]),
+                         np.array([fresnel], np.int8), np.array([ce], np.float64),
                          np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)),
                          *texture_columns([]), *mixture_columns([]), np.zeros(1, np.int8),
                          np.zeros((1, 1, 9), np.float32))
@@ -274,8 +275,8 @@ BAD = {
     "negative alpha": ('<bsdf type="roughconductor"><float name="alpha" value="-0.1"/></bsdf>', ["alpha", "negative"]),
     "unknown distribution": ('<bsdf type="roughdielectric"><string name="distribution" value="phong"/></bsdf>',
                              ["phong", "beckmann, ggx"]),
-    "anisotropic": ('<bsdf type="roughconductor"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/>'
-                    '</bsdf>', ["anisotropic", "alpha_u = alpha_v"]),
+    "anisotropic": ('<bsdf type="roughplastic"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.2"/>'
+                    '</bsdf>', ["anisotropic", "alpha_u = alpha_v"]),   # (roughconductor, roughdielectric take it)
     "alpha and alpha_u": ('<bsdf type="roughconductor"><float name="alpha" value="0.1"/>'
                           '<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.1"/></bsdf>', ["alpha"]),
     "unknown material": ('<bsdf type="roughconductor"><string name="material" value="Gold"/></bsdf>', ["Gold", "Au"]),

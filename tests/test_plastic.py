@@ -378,7 +378,7 @@ def eval_at(mats, d, uvs, dirs, out):
     """out[i] = (f·|cos| rgb, pdf, A·B·|cos| rgb (coat's A times entry's B)) towards dirs[i] at surface point uvs[i]."""
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        uv = (uvs[i, 0], uvs[i, 1], -1.0, 0.0, 0.0)   # surface coordinates (u, v, triangle, b1, b2), off any mesh
+        uv = (uvs[i, 0], uvs[i, 1], -1.0, 0.0, 0.0, 0.0, 0.0, 0.0)   # (u, v, triangle, b1, b2, dp/du), off any mesh
         f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, uv, wi)
         c = abs(wi[2])
         out[i, 0], out[i, 1], out[i, 2] = f[0] * s * c, f[1] * s * c, f[2] * s * c

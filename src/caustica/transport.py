@@ -20,7 +20,7 @@ from .geometry import vec
 from .geometry.scene_geometry import NO_UV, surface_at, surface_tangents, surface_uv
 from .features import has
 from .jit import borrowed, kernel
-from .bsdfs.flags import TEXTURED
+from .bsdfs.flags import ANISOTROPIC, TEXTURED
 from .bsdfs.mixtures import resolve
 from .bsdfs.perturb import perturbed_normal
 from .media import cross_null
@@ -34,7 +34,8 @@ class ShadingPoint(NamedTuple):
     ng_front: tuple   # the front geometric normal: which side leads to the exterior medium
     shape: int        # the shape, or -1 for a point in a medium
     medium: int       # the medium the path is in
-    uv: tuple = NO_UV   # surface coordinates (u, v, triangle, b1, b2) for the material's textures (NO_UV: none)
+    uv: tuple = NO_UV   # surface coordinates (u, v, triangle, b1, b2, dp/du) for the material's textures and an
+    #                     anisotropic BSDF's frame (NO_UV: none)
 
 
 @kernel(inline=True)
@@ -98,4 +99,16 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
         mixture = True   # uv is known
     if has(mats, TEXTURED) and mats.texture[m] >= 0 and not mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
+    if has(mats, ANISOTROPIC) and mats.alpha_v[m] != mats.alpha[m]:
+        uv = with_tangent(geom, prim, (o, d, t, b1, b2), uv if mixture else surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim
+
+
+@kernel
+def with_tangent(geom, prim, ray, uv):
+    """The surface coordinates uv with the position partial dp/du of the hit of ``ray`` = (o, d, t, b1, b2) on prim
+    (:func:`caustica.geometry.scene_geometry.surface_tangents`): an anisotropic BSDF's shading frame
+    (:func:`caustica.bsdfs.microfacet.shading_frame`)."""
+    o, d, t, _, _ = ray
+    dp_du, _ = surface_tangents(geom, prim, o, d, t)
+    return (uv[0], uv[1], uv[2], uv[3], uv[4], dp_du[0], dp_du[1], dp_du[2])

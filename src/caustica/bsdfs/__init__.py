@@ -1,7 +1,7 @@
 """The scattering interface: every BSDF behind the same four functions, chosen by the material's kind.
 
 A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindielectric``, ``roughconductor``,
-``roughdielectric``, ``plastic``, ``roughplastic``, ``pplastic``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
+``roughdielectric``, ``plastic``, ``roughplastic``, ``pplastic``, ``principled``; the microfacet distribution the rough ones share is :mod:`.microfacet`) with its
 ``KIND`` (the code the loader writes into :class:`~caustica.scene.description.Material`), its ``FLAGS``
 (:mod:`.flags`) and its kernels; the transport loops call only the functions below, and decide by flags, never by name:
 
@@ -38,21 +38,21 @@ import numpy as np
 from ..geometry import vec
 from ..features import bits, has, specialisable
 from ..jit import kernel
-from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, ROUGHCONDUCTOR, \
-    ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
-from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, roughconductor, roughdielectric, \
-    roughplastic, thindielectric
+from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, PRINCIPLED, \
+    ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, principled, roughconductor, \
+    roughdielectric, roughplastic, thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
-from .flags import DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
+from .flags import ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_LOBES, GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
          ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic, THINDIELECTRIC: thindielectric,
-         PPLASTIC: pplastic}
+         PPLASTIC: pplastic, PRINCIPLED: principled}
 
 
 @specialisable
@@ -66,13 +66,15 @@ class MaterialTable(NamedTuple):
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
     albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
     distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
-    alpha: np.ndarray      # float64[M]: microfacet roughness (rough BSDFs)
+    alpha: np.ndarray      # float64[M]: microfacet roughness (rough BSDFs); alpha_u where anisotropic
+    alpha_v: np.ndarray    # float64[M]: the roughness across dp/du (= alpha where isotropic; microfacet.shading_frame)
     fresnel: np.ndarray    # int8[M]: 1 when a conductor has a complex IOR (cond_eta + i cond_k), 0: F = 1
     cond_eta: np.ndarray   # float64[M, 3]: a conductor's IOR, real part (RGB)
     cond_k: np.ndarray     # float64[M, 3]: a conductor's IOR, imaginary part (RGB)
     coating: np.ndarray    # float64[M, plastic.COATING_COLUMNS]: a plastic's parameters (specular_reflectance,
     #                        sampling weight, Fdr, nonlinear, a rough coating's transmittance table; plastic.py);
-    #                        a pplastic's specular_reflectance and sampling weight
+    #                        a pplastic's specular_reflectance and sampling weight; a principled's parameters
+    #                        (principled.py)
     # Textures (bsdfs/textures.py), X of them: the one giving material m's rgb, and each texture's columns.
     texture: np.ndarray    # int32[M]: the texture that gives rgb at each surface point, -1 for none
     tex_int: np.ndarray    # int64[X, 6]: kind, filter, wrap mode, a bitmap's width, height, first row in texels
@@ -95,7 +97,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     rgb = np.full((m, 3), 0.5)
     eta = np.ones(m)
     twosided = np.zeros(m, np.int8)
-    distribution, alpha = np.zeros(m, np.int32), np.zeros(m)
+    distribution, alpha, alpha_v = np.zeros(m, np.int32), np.zeros(m), np.zeros(m)
     fresnel, cond_eta, cond_k = np.zeros(m, np.int8), np.ones((m, 3)), np.zeros((m, 3))
     coating = np.zeros((m, plastic.COATING_COLUMNS))
     coatings = {}    # (distribution, alpha, eta) -> a rough coating's tables, computed once
@@ -110,8 +112,13 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
         distribution[i], alpha[i] = mat.distribution, max(mat.alpha, microfacet.ALPHA_MIN)
+        alpha_v[i] = max(mat.alpha_v, microfacet.ALPHA_MIN) if mat.anisotropic else alpha[i]
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
+        if mat.kind == PRINCIPLED:
+            coating[i, :len(principled.PARAMS)] = principled.row(mat.principled)
+            if coating[i, principled.SPEC_TRANS] != 0.0 and coating[i, principled.METALLIC] < 1.0:
+                flags[i] |= GLOSSY_TRANSMISSION   # an interface: both sides scatter
         if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
             row = coating[i]
             row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
@@ -125,17 +132,19 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                 if c not in coatings:
                     coatings[c] = roughplastic.coating_tables(*c)
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
-    return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, fresnel, cond_eta,
+    return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, alpha_v, fresnel,
+                         cond_eta,
                          cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
                          np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
                          attribute_table(desc))
 
 
 def material_features(mats: MaterialTable) -> int:
-    """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES."""
+    """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES, ANISOTROPIC."""
     textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any()
     return bits(*np.unique(mats.kind), *([TEXTURED] if textured else []),
-                *([GLOSSY_LOBES] if (mats.flags & GLOSSY).any() else []))
+                *([GLOSSY_LOBES] if (mats.flags & GLOSSY).any() else []),
+                *([ANISOTROPIC] if (mats.alpha_v != mats.alpha).any() else []))
 
 
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
@@ -205,6 +214,8 @@ def sample_kind(mats, m, d, ng, ns, uv, key, dim):
         return roughplastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if has(mats, PPLASTIC) and kind == PPLASTIC:
         return pplastic.sample(mats, m, d, ng, ns, uv, key, dim)
+    if has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        return principled.sample(mats, m, d, ng, ns, uv, key, dim)
     if has(mats, THINDIELECTRIC) and kind == THINDIELECTRIC:
         return thindielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
@@ -238,6 +249,8 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
         return roughplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if has(mats, PPLASTIC) and kind == PPLASTIC:
         return pplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
+    if has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        return principled.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 
@@ -247,6 +260,8 @@ def camera_scale(mats, m, d, ng, ns, wi):
     refracted by a glossy transmission lobe, else 1 (:func:`sample`'s weight leaves it to the caller too)."""
     if has(mats, ROUGHDIELECTRIC) and mats.kind[m] == ROUGHDIELECTRIC:
         return roughdielectric.camera_scale(mats, m, d, ng, ns, wi)
+    if has(mats, PRINCIPLED) and mats.kind[m] == PRINCIPLED:
+        return principled.camera_scale(mats, m, d, ng, ns, wi)
     return 1.0
 
 

@@ -24,6 +24,8 @@ SMOOTH = DIFFUSE_REFLECTION | GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 TRANSMISSION = GLOSSY_TRANSMISSION | DELTA_TRANSMISSION
 
 #: Feature codes of a material table beyond its kinds (:mod:`caustica.features`; a kind's code is the kind itself):
-#: some colour, opacity, weight or normal comes from a texture; some BSDF has a glossy lobe.
+#: some colour, opacity, weight or normal comes from a texture; some BSDF has a glossy lobe; some microfacet roughness
+#: is anisotropic (its BSDF reads the shading frame from dp/du).
 TEXTURED = 30
 GLOSSY_LOBES = 29
+ANISOTROPIC = 28

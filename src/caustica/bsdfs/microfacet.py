@@ -1,5 +1,6 @@
-"""Mitsuba 3's microfacet distribution (isotropic): the normal distribution D, Smith's shadowing G1 and G,
-and the sampling of visible normals with its density.
+"""Mitsuba 3's microfacet distribution: the normal distribution D, Smith's shadowing G1 and G, and the sampling of
+visible normals with its density; isotropic (one alpha) or anisotropic (alpha_u along the tangent s, alpha_v along
+t = n x s: the ``*_uv`` kernels, which call the isotropic ones where alpha_u = alpha_v, so those keep their bits).
 
 The definitions are those of Mitsuba 3 (``include/mitsuba/render/microfacet.h``, after Walter et al. 2007
 and Heitz 2014), written here independently:
@@ -19,7 +20,13 @@ and Heitz 2014), written here independently:
   (1 + erf(x) + tan θ e^(-x²) / √π, normalised at x = cot θ) with safeguarded Newton steps to
   convergence (Mitsuba does three), the other slope a normal deviate with variance 1/2.
 
-Vectors are in the local frame of the macro-surface (z the normal).  Mitsuba's ``sample_visible=false``
+Anisotropic (Mitsuba's ``alpha_u``, ``alpha_v``): the same forms with the slopes scaled per axis, m_x / α_u and
+m_y / α_v in D (and α_u α_v for α² in its normalisation), α_u² v_x² + α_v² v_y² for α² (v_x² + v_y²) in G1, and
+wi stretched to (α_u wi_x, α_v wi_y, wi_z) before the α = 1 sampling and the normal unstretched the same way.
+
+Vectors are in the local frame of the macro-surface (z the normal).  An isotropic BSDF's frame is any frame about the
+normal (:func:`local_frame`); an anisotropic one's is Mitsuba's shading frame (:func:`shading_frame`): s the position
+partial dp/du made orthogonal to the normal (Gram-Schmidt), t = n x s.  Mitsuba's ``sample_visible=false``
 (sampling D cos θ_m) is not implemented: the loader accepts it and samples visible normals all the same,
 which changes how an image converges, not what it converges to.
 """
@@ -170,3 +177,96 @@ def sample_half(dist, alpha, wo, key, dim):
 def reflect(wo, h, c):
     """wo mirrored about the microfacet normal h, c = wo · h (local frame)."""
     return (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
+
+
+@kernel
+def D_uv(dist, au, av, m):
+    """:func:`D` with roughness au along the frame's s axis and av along t (anisotropic)."""
+    if au == av:
+        return D(dist, au, m)
+    c = m[2]
+    if c <= 0.0:
+        return 0.0
+    c2 = c * c
+    x = m[0] / au
+    y = m[1] / av
+    xy2 = x * x + y * y
+    if dist == BECKMANN:
+        r = math.exp(-xy2 / c2) / (math.pi * au * av * c2 * c2)
+    else:
+        t = xy2 + c2
+        r = 1.0 / (math.pi * au * av * t * t)
+    return r if r * c > 1e-20 else 0.0
+
+
+@kernel
+def smith_g1_uv(dist, au, av, v, m):
+    """:func:`smith_g1` with roughness au along s and av along t (anisotropic)."""
+    if au == av:
+        return smith_g1(dist, au, v, m)
+    if vec.dot(v, m) * v[2] <= 0.0:
+        return 0.0
+    x = au * v[0]
+    y = av * v[1]
+    xy2 = x * x + y * y
+    if xy2 == 0.0:
+        return 1.0
+    t2 = xy2 / (v[2] * v[2])      # the projected roughness squared times tan²θ_v
+    if dist == BECKMANN:
+        a = 1.0 / math.sqrt(t2)
+        lam = 0.5 * (math.exp(-a * a) * INV_SQRT_PI / a - math.erfc(a))
+        return 1.0 / (1.0 + lam)
+    return 2.0 / (1.0 + math.sqrt(1.0 + t2))
+
+
+@kernel
+def sample_visible_uv(dist, au, av, wi, u1, u2):
+    """:func:`sample_visible` with roughness au along s and av along t: the density is G1 |wi·m| D / cos θ_wi with
+    :func:`D_uv` and :func:`smith_g1_uv`."""
+    if au == av:
+        return sample_visible(dist, au, wi, u1, u2)
+    st = vec.normalize((au * wi[0], av * wi[1], wi[2]))   # stretched to α = 1
+    if dist == GGX:
+        n = sample_ggx_11(st, u1, u2)
+        return vec.normalize((au * n[0], av * n[1], max(n[2], 1e-30)))
+    sin_t = math.sqrt(max(0.0, 1.0 - st[2] * st[2]))
+    tan_t = sin_t / st[2]
+    sx = beckmann_slope(u1, tan_t)
+    sy = beckmann_slope(u2, 0.0)
+    if sin_t > 0.0:
+        cp = st[0] / sin_t
+        sp = st[1] / sin_t
+    else:
+        cp = 1.0
+        sp = 0.0
+    x = (cp * sx - sp * sy) * au
+    y = (sp * sx + cp * sy) * av
+    return vec.normalize((-x, -y, 1.0))
+
+
+@kernel
+def sample_half_uv(dist, au, av, wo, key, dim):
+    """:func:`sample_half` with roughness au along s and av along t."""
+    h = sample_visible_uv(dist, au, av, wo, uniform(key, dim), uniform(key, dim + 1))
+    return h, vec.dot(wo, h)
+
+
+@kernel(inline=True)
+def tangent(uv):
+    """The position partial dp/du that :func:`caustica.transport.surface_interaction` puts in the surface
+    coordinates of an anisotropic material's hit (zero elsewhere)."""
+    return (uv[5], uv[6], uv[7])
+
+
+@kernel
+def shading_frame(n, d, uv):
+    """Mitsuba's shading frame about the normal n: s = dp/du (from uv, :func:`tangent`) made orthogonal to n, t = n x s,
+    and wo = -d in it: (s, t, wo).  Without a tangent (an isotropic material's hit, or dp/du along n) the frame of
+    :func:`local_frame`, so isotropic BSDFs keep their numbers."""
+    dp = tangent(uv)
+    s = vec.sub(dp, vec.mul(n, vec.dot(n, dp)))
+    if vec.dot(s, s) > 0.0:
+        s = vec.normalize(s)
+        t = vec.cross(n, s)
+        return s, t, to_local(s, t, n, vec.neg(d))
+    return local_frame(n, d)

@@ -4,15 +4,18 @@ reflectance, f = specular_reflectance · F(wo·h) D(h) G(wo, wi, h) / (4 cos θ_
 ``wo`` = -d is the direction the path came from (Mitsuba's ``wi``).  F is the Fresnel reflectance of the RGB complex
 IOR ``conductor_eta`` + i ``conductor_k`` at the microfacet, or 1 for ``material="none"``.  Sampling draws a visible
 normal from wo and reflects about it, so the weight f cos θ_i / pdf is specular_reflectance · F · G1(wi, h).
-Directions below the shading or the geometric surface are refused (zero f).
+Directions below the shading or the geometric surface are refused (zero f).  With anisotropic roughness (Mitsuba's
+``alpha_u`` along dp/du, ``alpha_v`` across it) the distribution's ``*_uv`` forms in Mitsuba's shading frame
+(:func:`.microfacet.shading_frame`).
 """
 from __future__ import annotations
 
 from ..geometry import vec
+from ..features import has
 from ..jit import kernel
 from ..scene.description import ROUGHCONDUCTOR
 from . import microfacet as mf
-from .flags import GLOSSY_REFLECTION
+from .flags import ANISOTROPIC, GLOSSY_REFLECTION
 from .optics import fresnel_conductor
 from .textures import colour
 
@@ -30,22 +33,29 @@ def fresnel_rgb(mats, m, cos_i):
             fresnel_conductor(cos_i, mats.cond_eta[m, 2], mats.cond_k[m, 2]))
 
 
+@kernel(inline=True)
+def roughness(mats, m):
+    """(distribution, alpha_u, alpha_v) of material m (alpha_v = alpha_u unless the scene has anisotropic rows)."""
+    au = mats.alpha[m]
+    return mats.distribution[m], au, mats.alpha_v[m] if has(mats, ANISOTROPIC) else au
+
+
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
     :func:`caustica.bsdfs.sample`."""
-    dist, alpha = mats.distribution[m], mats.alpha[m]
-    s, t, wo = mf.local_frame(ns, d)
+    dist, au, av = roughness(mats, m)
+    s, t, wo = mf.shading_frame(ns, d, uv)
     zero = (0.0, 0.0, 0.0)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
-    h, c = mf.sample_half(dist, alpha, wo, key, dim)
+    h, c = mf.sample_half_uv(dist, au, av, wo, key, dim)
     wl = mf.reflect(wo, h, c)
     wi = vec.from_local(s, t, ns, wl)
     if wl[2] <= 0.0 or c <= 0.0 or vec.dot(wi, ng) <= 0.0:
         return False, wi, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 2
-    pdf = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) / (4.0 * wo[2])
-    g1 = mf.smith_g1(dist, alpha, wl, h)
+    pdf = mf.D_uv(dist, au, av, h) * mf.smith_g1_uv(dist, au, av, wo, h) / (4.0 * wo[2])
+    g1 = mf.smith_g1_uv(dist, au, av, wl, h)
     weight = vec.mul(vec.hadamard(colour(mats, m, uv), fresnel_rgb(mats, m, c)), g1)
     return pdf > 0.0, wi, weight, pdf, GLOSSY_REFLECTION, 1.0, dim + 2
 
@@ -53,14 +63,14 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
-    dist, alpha = mats.distribution[m], mats.alpha[m]
-    s, t, wo = mf.local_frame(ns, d)
+    dist, au, av = roughness(mats, m)
+    s, t, wo = mf.shading_frame(ns, d, uv)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0
     h = vec.normalize(vec.add(wo, wl))
-    dh = mf.D(dist, alpha, h)
-    g1o = mf.smith_g1(dist, alpha, wo, h)
-    scale = dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
+    dh = mf.D_uv(dist, au, av, h)
+    g1o = mf.smith_g1_uv(dist, au, av, wo, h)
+    scale = dh * g1o * mf.smith_g1_uv(dist, au, av, wl, h) / (4.0 * wo[2] * wl[2])
     pdf = dh * g1o / (4.0 * wo[2])
     return vec.hadamard(colour(mats, m, uv), fresnel_rgb(mats, m, vec.dot(wo, h))), scale, pdf

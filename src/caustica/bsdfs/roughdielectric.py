@@ -12,7 +12,8 @@ with h the microfacet normal (above the surface) and F = F_dielectric(wo·h):
   :mod:`caustica.bsdfs`).
 
 Sampling draws a visible normal from wo (numbers dim, dim + 1), then reflection with probability F, else
-refraction (number dim + 2), so both weights f |cos θ_i| / pdf are G1(wi, h) (times the colour, 1).
+refraction (number dim + 2), so both weights f |cos θ_i| / pdf are G1(wi, h) (times the colour, 1).  Anisotropic
+roughness as :mod:`.roughconductor`'s (the frame's s from dp/du on either side: D and G1 are even in each slope).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from ..jit import kernel
 from ..sampling.rng import uniform
 from ..scene.description import ROUGHDIELECTRIC
 from . import microfacet as mf
+from .roughconductor import roughness
 from .flags import GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric, refract
 from .textures import colour
@@ -60,17 +62,17 @@ def same_side(wi, n_geo, reflect):
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
-    dist, alpha = mats.distribution[m], mats.alpha[m]
+    dist, au, av = roughness(mats, m)
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
-    s, t, wo = mf.local_frame(n, d)
+    s, t, wo = mf.shading_frame(n, d, uv)
     zero = (0.0, 0.0, 0.0)
     if wo[2] <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
-    h, c = mf.sample_half(dist, alpha, wo, key, dim)
+    h, c = mf.sample_half_uv(dist, au, av, wo, key, dim)
     if c <= 0.0:
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
     F, cos_t = fresnel_dielectric(c, eta)
-    p_h = mf.D(dist, alpha, h) * mf.smith_g1(dist, alpha, wo, h) * c / wo[2]
+    p_h = mf.D_uv(dist, au, av, h) * mf.smith_g1_uv(dist, au, av, wo, h) * c / wo[2]
     if uniform(key, dim + 2) < F:
         wl = mf.reflect(wo, h, c)
         pdf = F * p_h / (4.0 * c)
@@ -83,7 +85,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
         pdf = (1.0 - F) * p_h * eta * eta * abs(ci) / (den * den)
         lobe, eta_out = GLOSSY_TRANSMISSION, eta
         ok = wl[2] < 0.0 and abs(den) > DEGENERATE_HALF_VECTOR
-    g1 = mf.smith_g1(dist, alpha, wl, h)
+    g1 = mf.smith_g1_uv(dist, au, av, wl, h)
     wi = vec.from_local(s, t, n, wl)
     ok = ok and same_side(wi, n_geo, lobe == GLOSSY_REFLECTION)
     return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(colour(mats, m, uv), g1), pdf, lobe, eta_out, dim + 3
@@ -92,9 +94,9 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
-    dist, alpha = mats.distribution[m], mats.alpha[m]
+    dist, au, av = roughness(mats, m)
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
-    s, t, wo = mf.local_frame(n, d)
+    s, t, wo = mf.shading_frame(n, d, uv)
     wl = mf.to_local(s, t, n, wi)
     zero = (0.0, 0.0, 0.0)
     reflect = wl[2] > 0.0
@@ -104,9 +106,9 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     if wo[2] <= 0.0 or wl[2] == 0.0 or not hl > DEGENERATE_HALF_VECTOR or not same_side(wi, n_geo, reflect):
         return zero, 0.0, 0.0
     h = vec.mul(hv, (1.0 if hv[2] >= 0.0 else -1.0) / hl)
-    dh = mf.D(dist, alpha, h)
-    g1o = mf.smith_g1(dist, alpha, wo, h)
-    g = g1o * mf.smith_g1(dist, alpha, wl, h)
+    dh = mf.D_uv(dist, au, av, h)
+    g1o = mf.smith_g1_uv(dist, au, av, wo, h)
+    g = g1o * mf.smith_g1_uv(dist, au, av, wl, h)
     if dh * g == 0.0:
         return zero, 0.0, 0.0
     c = vec.dot(wo, h)

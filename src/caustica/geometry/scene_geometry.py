@@ -360,7 +360,7 @@ def build_geometry(desc: SceneDescription) -> Geometry:
     tri_n0, tri_n1, tri_n2 = cat(5), cat(6), cat(7)
     tri_area = np.concatenate([p[8] for p in tri_parts]) if tri_parts else np.zeros(0)
     textured = any(getattr(m, "texture", None) is not None or getattr(m, "mix_texture", None) is not None
-                   for m in desc.materials)
+                   or getattr(m, "anisotropic", False) for m in desc.materials)   # (anisotropic: dp/du from uv)
     tri_uv = (_f64(np.concatenate([p[9] for p in tri_parts]), (6,)) if textured and tri_parts
               else np.zeros((0, 6)))
     tri_shape = (np.concatenate([np.full(len(p[1]), p[0]) for p in tri_parts])
@@ -467,8 +467,9 @@ def surface_at(geom, prim, o, d, t, b1, b2):
     return p, ng, ng
 
 
-#: The surface coordinates of a point without a texture (or in a medium): (u, v, triangle, b1, b2).
-NO_UV = (0.0, 0.0, -1.0, 0.0, 0.0)
+#: The surface coordinates of a point without a texture (or in a medium): (u, v, triangle, b1, b2, dp/du), dp/du
+#: (three numbers) set only at an anisotropic material's hit (caustica.transport.surface_interaction), zero elsewhere.
+NO_UV = (0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @kernel(inline=True)
@@ -476,7 +477,8 @@ def surface_uv(geom, prim, o, d, t, b1, b2):
     """Mitsuba's surface coordinates (u, v) at a hit from :func:`intersect`: a triangle's corner coordinates
     interpolated with the barycentrics, an analytic shape's parametrisation
     (:func:`caustica.geometry.primitives.analytic_uv`); returned as (u, v, triangle, b1, b2), the triangle's row
-    and barycentrics for mesh attributes (-1, 0, 0 on an analytic shape; :data:`NO_UV` where there is no texture).  Only for scenes with a texture (``tri_uv`` is empty
+    and barycentrics for mesh attributes (-1, 0, 0 on an analytic shape; :data:`NO_UV` where there is no texture), then
+    a zero tangent (:data:`NO_UV`).  Only for scenes with a texture (``tri_uv`` is empty
     otherwise)."""
     return hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (o, d, t), (b1, b2))
 
@@ -493,9 +495,9 @@ def hit_uv(arrays, prim, ray, bary):
     if prim_kind[prim] == TRIANGLE:
         b0 = 1.0 - b1 - b2
         return (b0 * w[j, 0] + b1 * w[j, 2] + b2 * w[j, 4], b0 * w[j, 1] + b1 * w[j, 3] + b2 * w[j, 5],
-                float(j), b1, b2)
+                float(j), b1, b2, 0.0, 0.0, 0.0)
     u, v = pr.analytic_uv(prim_kind[prim], to_local, j, o, d, t)
-    return u, v, -1.0, 0.0, 0.0
+    return u, v, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
 @kernel(inline=True)

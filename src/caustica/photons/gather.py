@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance
 from ..features import has
@@ -37,7 +37,7 @@ from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import BLEND, NULL, PLASTIC
-from ..transport import ShadingPoint, borrow_tables
+from ..transport import ShadingPoint, borrow_tables, with_tangent
 from .estimate import flux_density
 from .visible_points import escape_weight, glossy_step, seen_weight
 
@@ -89,6 +89,8 @@ def camera_surface(geom, mats, hit, o, d, key, dim):
     if mats.kind[m] == BLEND:
         m, dim = resolve(mats, m, uv, key, dim)
         passed = mats.kind[m] == NULL
+    if has(mats, ANISOTROPIC) and mats.alpha_v[m] != mats.alpha[m]:
+        uv = with_tangent(geom, prim, (o, d, t, b1, b2), surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, front, m, uv, passed, dim
 
 

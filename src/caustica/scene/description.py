@@ -29,10 +29,17 @@ BLEND = 10           # Mitsuba's blendbsdf: (1 - weight) f0 + weight f1 of two n
 NORMALMAP = 11       # Mitsuba's normalmap: its nested BSDF with a shading normal from a bitmap (bsdfs/perturb.py)
 BUMPMAP = 12         # Mitsuba's bumpmap: its nested BSDF with a shading normal from a height field (bsdfs/perturb.py)
 PPLASTIC = 13        # Mitsuba's pplastic (RGB): a microfacet reflection plus a Fresnel-weighted diffuse lobe (bsdfs/pplastic.py)
+PRINCIPLED = 14      # Mitsuba's principled: Disney's BSDF as Mitsuba 3 writes it (bsdfs/principled.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
                   ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf",
-                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap", PPLASTIC: "pplastic"}
+                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap", PPLASTIC: "pplastic", PRINCIPLED: "principled"}
+#: A principled BSDF's scalar parameters (Mitsuba's names, in the order of its table columns: bsdfs/principled.py)
+#: and their defaults; base_color, anisotropic and eta / specular are read apart.
+PRINCIPLED_PARAMS = {"roughness": 0.5, "metallic": 0.0, "spec_trans": 0.0, "spec_tint": 0.0, "sheen": 0.0,
+                     "sheen_tint": 0.0, "clearcoat": 0.0, "clearcoat_gloss": 0.0, "flatness": 0.0,
+                     "main_specular_sampling_rate": 1.0, "clearcoat_sampling_rate": 1.0,
+                     "diffuse_reflectance_sampling_rate": 1.0}
 #: The mixtures: a hit on one of them is resolved to one of its nested BSDFs (or to no surface) with one random
 #: number (bsdfs/mixtures.py), so that no loop ever scatters at a mixture itself.
 MIXTURES = (MASK, BLEND)
@@ -58,12 +65,15 @@ class Material:
     slab (a pane as one sheet), ``int_ior`` / ``ext_ior`` and ``rgb`` as DIELECTRIC's, light reflected or
     passing straight on.
     ROUGHCONDUCTOR and ROUGHDIELECTRIC are the microfacet versions of CONDUCTOR and DIELECTRIC, with
-    ``distribution`` (BECKMANN or GGX) and ``alpha`` (isotropic roughness).  A conductor (smooth or
+    ``distribution`` (BECKMANN or GGX) and ``alpha`` (roughness; with ``alpha_v`` set and different, alpha is
+    Mitsuba's alpha_u along dp/du and alpha_v the roughness across it: :attr:`anisotropic`).  A conductor (smooth or
     rough) with ``conductor_eta`` / ``conductor_k`` (RGB complex IOR) has their Fresnel reflectance;
     without them (Mitsuba's ``material="none"``) F = 1.
     PLASTIC and ROUGHPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, the
     coating's ``int_ior`` / ``ext_ior`` (defaults polypropylene and air), ``nonlinear``; ROUGHPLASTIC also
     ``distribution`` and ``alpha``.
+    PRINCIPLED: ``rgb`` = base_color (or ``texture``), ``principled`` its other parameters, ``distribution`` GGX and
+    ``alpha``, ``alpha_v`` from its roughness and anisotropic, ``int_ior`` its eta.
     PPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, ``distribution``, ``alpha`` and the
     relative IOR ``int_ior`` / ``ext_ior`` (Mitsuba's ``eta`` is read as int_ior = eta, ext_ior = 1).
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
@@ -99,6 +109,13 @@ class Material:
     mix_texture: "Texture | None" = None   # gives ``mix`` at each surface point instead (its luminance); a
     #                                        wrapper's normal or height map
     terminator: bool = False            # the nested row of a wrapper with use_shadowing_function
+    alpha_v: float | None = None        # anisotropic roughness across dp/du (``alpha`` is then alpha_u); None: alpha
+    principled: dict | None = None      # a principled BSDF's parameters by Mitsuba's names (bsdfs/principled.py)
+
+    @property
+    def anisotropic(self) -> bool:
+        """Whether the microfacet roughness differs along and across dp/du (the BSDF needs the shading frame)."""
+        return self.alpha_v is not None and self.alpha_v != self.alpha
 
     @property
     def is_specular(self) -> bool:

@@ -33,8 +33,8 @@ from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
                           FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
-                          PLASTIC, PPLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
-                          Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
+                          PLASTIC, PPLASTIC, PRINCIPLED, PRINCIPLED_PARAMS, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
+                          GGX, Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
                           Mesh, Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .curves import curve_mesh, read_curves
@@ -96,6 +96,12 @@ BSDF_PROPS = {
     "pplastic": {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": FLOAT + STR,
                  "ext_ior": FLOAT + STR, "eta": FLOAT,
                  "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT, "sample_visible": BOOL},
+    # Mitsuba's principled (bsdfs/principled.py): its scalar parameters are constants here, base_color may be a texture
+    "principled": {"base_color": COLOR, "roughness": FLOAT, "anisotropic": FLOAT, "metallic": FLOAT, "spec_trans": FLOAT,
+                   "eta": FLOAT, "specular": FLOAT, "spec_tint": FLOAT, "sheen": FLOAT, "sheen_tint": FLOAT,
+                   "clearcoat": FLOAT, "clearcoat_gloss": FLOAT, "flatness": FLOAT,
+                   "main_specular_sampling_rate": FLOAT, "clearcoat_sampling_rate": FLOAT,
+                   "diffuse_reflectance_sampling_rate": FLOAT},
     "twosided": {},
     "null": {},
     # the mixtures (bsdfs/mixtures.py): a constant here, or a nested <texture name="opacity"/"weight">
@@ -123,7 +129,29 @@ BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
                    "roughconductor": ("specular_reflectance",), "plastic": ("diffuse_reflectance",),
-                   "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",)}
+                   "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",),
+                   "principled": ("base_color",)}
+def principled_roughness(roughness: float, anisotropic: float) -> tuple[float, float]:
+    """A principled BSDF's (alpha_u, alpha_v), as Mitsuba's ``calc_dist_params``: roughness², stretched by
+    sqrt(1 - 0.9 anisotropic) along dp/du and shrunk by it across, each at least 0.001."""
+    r2 = roughness * roughness
+    if anisotropic == 0.0:
+        return max(0.001, r2), max(0.001, r2)
+    a = math.sqrt(1.0 - 0.9 * anisotropic)
+    return max(0.001, r2 / a), max(0.001, r2 * a)
+
+
+def principled_eta(specular: float | None, eta: float | None, spec_trans: float) -> float:
+    """A principled BSDF's relative IOR from Mitsuba's ``eta`` or ``specular`` s (default 0.5; eta = 2 / (1 -
+    sqrt(0.08 s)) - 1), with Mitsuba's guards where the surface transmits (eta 1 -> 1.001, s 0 -> 0.001)."""
+    if eta is not None:
+        return 1.001 if spec_trans != 0.0 and eta == 1.0 else eta
+    s = 0.5 if specular is None else specular
+    if spec_trans != 0.0 and s == 0.0:
+        s = 1e-3
+    return 2.0 / (1.0 - math.sqrt(0.08 * s)) - 1.0
+
+
 EMITTER_PROPS = {
     "area": {"radiance": COLOR},
     "point": {"position": POINT, "to_world": XFORM, "intensity": COLOR},
@@ -828,7 +856,7 @@ class _Loader:
                            else texture_mean(tex), name=name, conductor_eta=eta, conductor_k=k, texture=tex)
             if kind == "roughconductor":
                 mat.kind, mat.source = ROUGHCONDUCTOR, self.at(node)
-                mat.distribution, mat.alpha = self.microfacet(props)
+                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True)
             return mat
         if kind == "null":
             return Material(NULL, (1.0, 1.0, 1.0), name=name)
@@ -846,10 +874,12 @@ class _Loader:
                     self.fail(node, f"roughdielectric: int_ior and ext_ior are both {int_ior:g}; they must differ, "
                                     f"as Mitsuba 3 requires (an interface between equal media scatters nothing)")
                 mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
-                mat.distribution, mat.alpha = self.microfacet(props)
+                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True)
             return mat
         if kind == "pplastic":
             return self.pplastic(node, props, textures.get("diffuse_reflectance"), name)
+        if kind == "principled":
+            return self.principled(node, props, textures.get("base_color"), name)
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
             tex = textures.get("diffuse_reflectance")
@@ -866,7 +896,7 @@ class _Loader:
                     self.fail(node, f"roughplastic: int_ior and ext_ior are both {int_ior:g}; they must differ, "
                                     f"as Mitsuba 3 requires")
                 mat.kind = ROUGHPLASTIC
-                mat.distribution, mat.alpha = self.microfacet(props)
+                mat.distribution, mat.alpha, _ = self.microfacet(props)
             return mat
         # twosided
         if len(props.objects) != 1:
@@ -882,7 +912,8 @@ class _Loader:
             self.fail(props.objects[0], "twosided around a blendbsdf is not supported; put twosided around each of "
                                         "its nested BSDFs instead (the same BSDF)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
-        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK):
+        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK) or (
+                inner.kind == PRINCIPLED and inner.principled.get("spec_trans", 0.0) != 0.0):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
@@ -1113,6 +1144,36 @@ class _Loader:
                       supported=["none"] + list(CONDUCTOR_IOR))
         return CONDUCTOR_IOR[mat.strip()]
 
+    def principled(self, node: Node, props: Props, tex, name: str) -> Material:
+        """Mitsuba's ``principled`` (bsdfs/principled.py): base_color (default 0.5, or a texture), its other parameters
+        constants with Mitsuba's defaults, each weight in [0, 1]; ``eta`` or ``specular`` (not both, as Mitsuba)."""
+        params = {}
+        for p, default in PRINCIPLED_PARAMS.items():
+            v = self.number(props, p, default, nonneg=True)
+            if not math.isfinite(v) or (not p.endswith("_rate") and v > 1.0):
+                self.fail(props.node_of(p), f"principled: '{p}' must be in [0, 1], got {v}",
+                          supported=["a number from 0 to 1"] if not p.endswith("_rate") else None)
+            params[p] = float(v)
+        anisotropic = self.number(props, "anisotropic", 0.0, nonneg=True)
+        if not anisotropic <= 1.0:
+            self.fail(props.node_of("anisotropic"), f"principled: 'anisotropic' must be in [0, 1], got {anisotropic}")
+        if props.has("eta") and props.has("specular"):
+            self.fail(props.node_of("specular"), "principled: give either eta or specular, not both (as Mitsuba)")
+        eta = self.number(props, "eta", None, positive=True)
+        if eta is not None and not math.isfinite(eta):
+            self.fail(props.node_of("eta"), f"principled: 'eta' must be finite, got {eta}")
+        specular = self.number(props, "specular", None, nonneg=True)
+        if specular is not None and not specular <= 1.0:
+            self.fail(props.node_of("specular"), f"principled: 'specular' must be in [0, 1], got {specular}")
+        eta = principled_eta(specular, eta, params["spec_trans"])
+        if eta == 1.0:
+            self.fail(props.node_of("eta") if props.has("eta") else node,
+                      "principled: eta 1 (or specular 0) makes no interface to reflect from", supported=["eta != 1"])
+        au, av = principled_roughness(params["roughness"], float(anisotropic))
+        return Material(PRINCIPLED, self.color(props, "base_color", DEFAULT_REFLECTANCE) if tex is None
+                        else texture_mean(tex), int_ior=eta, ext_ior=1.0, name=name, distribution=GGX, alpha=au,
+                        alpha_v=av if av != au else None, principled=params, source=self.at(node), texture=tex)
+
     def pplastic(self, node: Node, props: Props, tex, name: str) -> Material:
         """Mitsuba's ``pplastic`` (its RGB branch, bsdfs/pplastic.py): diffuse_reflectance (default 0.5, a texture
         allowed), specular_reflectance (default 1), the microfacet distribution and roughness, and the relative IOR:
@@ -1138,12 +1199,18 @@ class _Loader:
                        else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name,
                        specular=self.color(props, "specular_reflectance", (1.0,) * 3), source=self.at(node),
                        texture=tex)
-        mat.distribution, mat.alpha = self.microfacet(props)
+        mat.distribution, mat.alpha, _ = self.microfacet(props)
         return mat
 
-    def microfacet(self, props: Props) -> tuple[int, float]:
-        """(distribution code, alpha) of a rough BSDF: Mitsuba's distribution (default beckmann) and isotropic
-        roughness ``alpha`` (default 0.1; ``alpha_u`` = ``alpha_v`` also; clamped to 1e-4 as Mitsuba does)."""
+    def needs_tangent(self, i: int) -> bool:
+        """Whether material i (or a BSDF it nests) is anisotropic: its shading frame needs dp/du."""
+        mat = self.materials[i]
+        return mat.anisotropic or any(self.needs_tangent(j) for j in mat.nested)
+
+    def microfacet(self, props: Props, anisotropic: bool = False) -> tuple[int, float, float | None]:
+        """(distribution code, alpha, alpha_v) of a rough BSDF: Mitsuba's distribution (default beckmann) and roughness
+        ``alpha`` (default 0.1), or ``alpha_u`` and ``alpha_v`` (alpha_v None where they are equal; a BSDF that is not
+        ``anisotropic`` refuses them different), clamped to 1e-4 as Mitsuba does."""
         dist = props.get("distribution", "beckmann")
         if dist not in DISTRIBUTIONS:
             self.fail(props.node_of("distribution"), f"unknown microfacet distribution {quoted(dist)}",
@@ -1158,10 +1225,12 @@ class _Loader:
         for p, v in zip(names, values):
             if not math.isfinite(v):
                 self.fail(props.node_of(p), f"'{p}' must be finite, got {v}")
-        if values[0] != values[-1]:
+        if values[0] != values[-1] and not anisotropic:
             self.fail(props.node_of("alpha_v"), f"anisotropic roughness (alpha_u {values[0]} != alpha_v "
-                                                f"{values[-1]}) is not supported", supported=["alpha_u = alpha_v"])
-        return DISTRIBUTIONS[dist], max(float(values[0]), 1e-4)
+                                                f"{values[-1]}) is not supported here (roughconductor and "
+                                                f"roughdielectric take it)", supported=["alpha_u = alpha_v"])
+        au, av = max(float(values[0]), 1e-4), max(float(values[-1]), 1e-4)
+        return DISTRIBUTIONS[dist], au, (av if av != au else None)
 
     def element_index(self, node: Node, tag: str, index_of_node: dict[int, int], entries: list, build) -> int:
         """Index in ``entries`` of what ``build`` makes of a <tag> element (or <ref> to one): built once per
@@ -1367,8 +1436,10 @@ class _Loader:
                 self.fail(props.node_of("to_world"), "a sphere's to_world must not shear or scale "
                                                      "non-uniformly (Mitsuba's sphere stays round)")
             return Shape(SPHERE, to_world=m, **common)
-        if self.materials[material].kind in WRAPPERS:
-            self.fail(node, f"a {MATERIAL_NAMES[self.materials[material].kind]} on a {kind} is not supported (its "
+        if self.materials[material].kind in WRAPPERS or self.needs_tangent(material):
+            what = (MATERIAL_NAMES[self.materials[material].kind] if self.materials[material].kind in WRAPPERS
+                    else f"BSDF with anisotropic roughness ({MATERIAL_NAMES[self.materials[material].kind]})")
+            self.fail(node, f"a {what} on a {kind} is not supported (its "
                             f"position partials dp/du, dp/dv are not implemented)",
                       supported=["rectangle", "cube", "obj", "ply", "serialized", "linearcurve", "bsplinecurve",
                                  "sphere"])
