@@ -387,3 +387,38 @@ def test_bad_textures_exit_2_one_line(cli, tmp_path, case):
     assert "\n" not in msg and f"bad.xml:{line}" in msg, msg
     for w in words:
         assert w in msg, (w, msg)
+
+
+RAW_SCENE = """<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/>
+            <rfilter type="box"/></film></sensor>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+    <shape type="sphere"><bsdf type="diffuse">{reflectance}</bsdf></shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("given", ['<float name="value" value="0.3"/>', '<rgb name="value" value="0.3, 0.3, 0.3"/>',
+                                   '<vector name="value" value="0.3, 0.3, 0.3"/>'])
+def test_rawconstant_is_its_value_everywhere(tmp_path, given):
+    """Mitsuba's rawconstant (a value as given, no colour conversion): a sphere whose reflectance is a rawconstant 0.3
+    renders as one whose reflectance is 0.3 (the same numbers, up to the texel's float32)."""
+    import caustica
+    images = []
+    for reflectance in (f'<texture type="rawconstant" name="reflectance">{given}</texture>',
+                        '<rgb name="reflectance" value="0.3"/>'):
+        path = tmp_path / "s.xml"
+        path.write_text(RAW_SCENE.format(reflectance=reflectance))
+        images.append(caustica.render(path, "pt", spp=4, seed=1).image)
+    assert np.allclose(images[0], images[1], rtol=1e-6, atol=0)
+
+
+def test_rawconstant_without_a_value_is_refused(tmp_path):
+    from caustica.errors import SceneError
+    from caustica.scene import load_scene_description
+    path = tmp_path / "s.xml"
+    path.write_text(RAW_SCENE.format(reflectance='<texture type="rawconstant" name="reflectance"/>'))
+    with pytest.raises(SceneError) as exc:
+        load_scene_description(str(path))
+    assert "rawconstant" in str(exc.value) and "s.xml:7" in str(exc.value), str(exc.value)

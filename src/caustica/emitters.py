@@ -278,7 +278,7 @@ def _light_textures(desc: SceneDescription, n_area: int, n: int) -> dict:
     empty), and a projector's bitmap's sampling tables (Mitsuba's DiscreteDistribution2D over the texels'
     luminance)."""
     lights = list(desc.point_lights) + list(desc.projectors)
-    index, ints, floats, texels, _ = texture_columns([_Textured(x.texture) for x in lights])
+    index, ints, floats, texels, _, _ = texture_columns([_Textured(x.texture) for x in lights])
     tex_int = np.zeros((n, 8), np.int64)
     tex_int[:, TEX_CDF] = -1
     tex_float = np.zeros((n, 12))

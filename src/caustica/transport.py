@@ -23,6 +23,7 @@ from .jit import borrowed, kernel
 from .bsdfs.flags import ANISOTROPIC, TEXTURED
 from .bsdfs.mixtures import resolve
 from .bsdfs.perturb import perturbed_normal
+from .bsdfs.textures import needs_tangent, needs_uv
 from .media import cross_null
 from .scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL
 
@@ -97,9 +98,9 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
         m = mats.nested[m, 0]
         kind = mats.kind[m]
         mixture = True   # uv is known
-    if has(mats, TEXTURED) and mats.texture[m] >= 0 and not mixture:
+    if has(mats, TEXTURED) and needs_uv(mats, m) and not mixture:
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
-    if has(mats, ANISOTROPIC) and mats.alpha_v[m] != mats.alpha[m]:
+    if has(mats, ANISOTROPIC) and needs_tangent(mats, m):
         uv = with_tangent(geom, prim, (o, d, t, b1, b2), uv if mixture else surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim
 

@@ -82,6 +82,8 @@ class MaterialTable(NamedTuple):
     texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
     # Mixtures (mask, blendbsdf; bsdfs/mixtures.py): resolved at the hit to one of their nested materials.
     mix_texture: np.ndarray   # int32[M]: the texture giving a mixture's opacity or weight (mixtures.weight), -1: none
+    alpha_texture: np.ndarray  # int32[M, 2]: the textures giving a rough BSDF's alpha_u, alpha_v (their eval_1 at the
+    #                            surface point, at least ALPHA_MIN; microfacet roughness), -1: alpha, alpha_v above
     mix: np.ndarray        # float64[M]: a mask's opacity, a blend's weight of nested[m, 1]
     nested: np.ndarray     # int32[M, 2]: a mixture's or wrapper's nested materials (-1: none)
     # Wrappers (normalmap, bumpmap; bsdfs/perturb.py): resolved at the hit to nested[m, 0] with a perturbed ns; their
@@ -112,7 +114,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
         distribution[i], alpha[i] = mat.distribution, max(mat.alpha, microfacet.ALPHA_MIN)
-        alpha_v[i] = max(mat.alpha_v, microfacet.ALPHA_MIN) if mat.anisotropic else alpha[i]
+        alpha_v[i] = max(mat.alpha_v, microfacet.ALPHA_MIN) if mat.alpha_v is not None else alpha[i]
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
         if mat.kind == PRINCIPLED:
@@ -141,10 +143,11 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
 
 def material_features(mats: MaterialTable) -> int:
     """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES, ANISOTROPIC."""
-    textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any()
+    textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any() or (mats.alpha_texture >= 0).any()
+    anisotropic = (mats.alpha_v != mats.alpha).any() or (mats.alpha_texture[:, 0] != mats.alpha_texture[:, 1]).any()
     return bits(*np.unique(mats.kind), *([TEXTURED] if textured else []),
                 *([GLOSSY_LOBES] if (mats.flags & GLOSSY).any() else []),
-                *([ANISOTROPIC] if (mats.alpha_v != mats.alpha).any() else []))
+                *([ANISOTROPIC] if anisotropic else []))
 
 
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:

@@ -19,16 +19,15 @@ inside a mixture).
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from ..features import has
 from ..jit import kernel
 from ..sampling.rng import uniform
-from ..scene.description import BLEND, CHECKERBOARD, MASK, MESH_ATTRIBUTE, MIXTURES, NULL, WRAPPERS
+from ..scene.description import BLEND, MASK, MIXTURES, NULL, WRAPPERS
 from .flags import TEXTURED
-from .textures import COLOR0, COLOR1, KIND, LUMINANCE, ROW0, TO_UV, attribute_rgb, texture_rgb
+from .textures import texture_value
 
 
 def mixture_columns(materials) -> tuple:
@@ -50,21 +49,7 @@ def weight(mats, m, uv):
     t = mats.mix_texture[m] if has(mats, TEXTURED) else -1
     if t < 0:
         return mats.mix[m]
-    if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:   # its eval_1: a 1-channel attribute (the loader checks)
-        return min(max(attribute_rgb(mats.attr, mats.tex_int[t, ROW0], mats.tex_float[t, COLOR0], uv)[0], 0.0), 1.0)
-    if mats.tex_int[t, KIND] == CHECKERBOARD:
-        # Mitsuba's checkerboard eval_1 (what a mask or blend reads) picks color0 where its eval (a colour) picks
-        # color1, and the other way round (src/textures/checkerboard.cpp: != against ==): followed here
-        a = mats.tex_float
-        u = a[t, TO_UV] * uv[0] + a[t, TO_UV + 1] * uv[1] + a[t, TO_UV + 2]
-        v = a[t, TO_UV + 3] * uv[0] + a[t, TO_UV + 4] * uv[1] + a[t, TO_UV + 5]
-        if not (abs(u) < 1e15 and abs(v) < 1e15):
-            return 0.0
-        k = COLOR1 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR0
-        # a colour's eval_1 is the mean of its channels (Mitsuba's srgb spectrum: mean())
-        return min(max((a[t, k] + a[t, k + 1] + a[t, k + 2]) / 3.0, 0.0), 1.0)
-    c = texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, (uv[0], uv[1]))   # a bitmap's eval_1: its luminance
-    return min(max(LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2], 0.0), 1.0)
+    return min(max(texture_value(mats, t, uv), 0.0), 1.0)
 
 
 @kernel(inline=True)

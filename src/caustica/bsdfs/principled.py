@@ -204,7 +204,7 @@ def local_eval(mats, m, wo, wi, uv):
     """(f RGB, density) towards the local direction wi from wo (cos θ_o != 0), Mitsuba's ``eval`` over |cos θ_i| and
     its ``pdf`` (module docstring); the base colour read at uv."""
     p = mats.coating[m]
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     eta = mats.eta[m]
     base = colour(mats, m, uv)
     metallic, spec_trans = p[METALLIC], p[SPEC_TRANS]
@@ -288,7 +288,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     bsdf = (1.0 - p[METALLIC]) * p[SPEC_TRANS]
     if wo[2] == 0.0 or not (front or bsdf > 0.0):
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     u0, u1, u2 = uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2)
     sign = 1.0 if front else -1.0
     hm = mf.sample_visible_uv(dist, au, av, vec.mul(wo, sign), u1, u2)

@@ -15,9 +15,9 @@ from ..features import has
 from ..jit import kernel
 from ..scene.description import ROUGHCONDUCTOR
 from . import microfacet as mf
-from .flags import ANISOTROPIC, GLOSSY_REFLECTION
+from .flags import ANISOTROPIC, GLOSSY_REFLECTION, TEXTURED
 from .optics import fresnel_conductor
-from .textures import colour
+from .textures import colour, texture_value
 
 KIND = ROUGHCONDUCTOR
 FLAGS = GLOSSY_REFLECTION
@@ -34,17 +34,27 @@ def fresnel_rgb(mats, m, cos_i):
 
 
 @kernel(inline=True)
-def roughness(mats, m):
-    """(distribution, alpha_u, alpha_v) of material m (alpha_v = alpha_u unless the scene has anisotropic rows)."""
+def roughness(mats, m, uv):
+    """(distribution, alpha_u, alpha_v) of material m at surface coordinates uv (alpha_v = alpha_u unless the scene
+    has anisotropic rows): its textures' values there (at least ALPHA_MIN, as Mitsuba clamps), or its constants."""
     au = mats.alpha[m]
-    return mats.distribution[m], au, mats.alpha_v[m] if has(mats, ANISOTROPIC) else au
+    av = mats.alpha_v[m] if has(mats, ANISOTROPIC) else au
+    if has(mats, TEXTURED):
+        tu, tv = mats.alpha_texture[m, 0], mats.alpha_texture[m, 1]
+        if tu >= 0:
+            au = max(texture_value(mats, tu, uv), mf.ALPHA_MIN)
+        if tv == tu and tu >= 0:   # one texture gives both ("alpha")
+            av = au
+        elif tv >= 0:
+            av = max(texture_value(mats, tv, uv), mf.ALPHA_MIN)
+    return mats.distribution[m], au, av
 
 
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """A visible microfacet normal from -d (numbers dim, dim + 1) and the reflection about it: see
     :func:`caustica.bsdfs.sample`."""
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     s, t, wo = mf.shading_frame(ns, d, uv)
     zero = (0.0, 0.0, 0.0)
     if wo[2] <= 0.0:
@@ -63,7 +73,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (specular_reflectance · F, D G / (4 cos θ_o cos θ_i)) and :func:`sample`'s density of wi."""
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     s, t, wo = mf.shading_frame(ns, d, uv)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:

@@ -62,7 +62,7 @@ def same_side(wi, n_geo, reflect):
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample`: ``eta`` is the relative IOR crossed (1 when reflecting)."""
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
     s, t, wo = mf.shading_frame(n, d, uv)
     zero = (0.0, 0.0, 0.0)
@@ -94,7 +94,7 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
-    dist, au, av = roughness(mats, m)
+    dist, au, av = roughness(mats, m, uv)
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
     s, t, wo = mf.shading_frame(n, d, uv)
     wl = mf.to_local(s, t, n, wi)

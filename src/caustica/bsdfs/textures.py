@@ -41,19 +41,23 @@ TO_UV, COLOR0, COLOR1 = 0, 6, 9
 
 def texture_columns(materials) -> tuple:
     """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels,
-    mix_texture); a texture shared by several materials (or giving a colour and a mixture's weight) is stored
-    once."""
+    mix_texture, alpha_texture); a texture shared by several materials (or giving a colour and a mixture's weight, or
+    both roughnesses) is stored once."""
     index, textures = {}, []
     texture = np.full(max(1, len(materials)), -1, np.int32)
     mix_texture = np.full(max(1, len(materials)), -1, np.int32)
+    alpha_texture = np.full((max(1, len(materials)), 2), -1, np.int32)
     for i, mat in enumerate(materials):
-        for column, tex in ((texture, getattr(mat, "texture", None)), (mix_texture, getattr(mat, "mix_texture", None))):
+        alphas = getattr(mat, "alpha_textures", (None, None))
+        for column, tex in ((texture[i:i + 1], getattr(mat, "texture", None)),
+                            (mix_texture[i:i + 1], getattr(mat, "mix_texture", None)),
+                            (alpha_texture[i, 0:1], alphas[0]), (alpha_texture[i, 1:2], alphas[1])):
             if tex is None:
                 continue
             if id(tex) not in index:
                 index[id(tex)] = len(textures)
                 textures.append(tex)
-            column[i] = index[id(tex)]
+            column[0] = index[id(tex)]
     x = max(1, len(textures))
     ints = np.zeros((x, 6), np.int64)
     floats = np.zeros((x, 12))
@@ -73,7 +77,7 @@ def texture_columns(materials) -> tuple:
             chunks.append(tex.texels.reshape(-1, 3))
             rows += w * h
     texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
-    return texture, ints, floats, texels, mix_texture
+    return texture, ints, floats, texels, mix_texture, alpha_texture
 
 
 def attribute_slots(textures) -> dict:
@@ -217,3 +221,34 @@ def albedo_mean(mats, m, rgb):
     if not has(mats, TEXTURED) or mats.texture[m] < 0:
         return mats.albedo_mean[m]
     return (rgb[0] + rgb[1] + rgb[2]) / 3.0
+
+
+@kernel
+def texture_value(mats, t, uv):
+    """Texture t's value where a BSDF reads a number (Mitsuba's ``eval_1``) at surface coordinates uv: a
+    ``mesh_attribute``'s first channel; a checkerboard's colour mean, with color0 and color1 the other way round from
+    its colour lookup (Mitsuba's checkerboard.cpp compares with != in eval_1 where eval has ==); a bitmap's luminance."""
+    if mats.tex_int[t, KIND] == MESH_ATTRIBUTE:   # a 1-channel attribute (the loader checks)
+        return attribute_rgb(mats.attr, mats.tex_int[t, ROW0], mats.tex_float[t, COLOR0], uv)[0]
+    if mats.tex_int[t, KIND] == CHECKERBOARD:
+        a = mats.tex_float
+        u = a[t, TO_UV] * uv[0] + a[t, TO_UV + 1] * uv[1] + a[t, TO_UV + 2]
+        v = a[t, TO_UV + 3] * uv[0] + a[t, TO_UV + 4] * uv[1] + a[t, TO_UV + 5]
+        if not (abs(u) < 1e15 and abs(v) < 1e15):
+            return 0.0
+        k = COLOR1 if (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5) else COLOR0
+        return (a[t, k] + a[t, k + 1] + a[t, k + 2]) / 3.0   # a colour's eval_1: the mean (Mitsuba's srgb mean())
+    c = texture_rgb((mats.tex_int, mats.tex_float, mats.texels), t, (uv[0], uv[1]))
+    return LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2]
+
+
+@kernel(inline=True)
+def needs_uv(mats, m):
+    """Whether a texture gives material m's colour or roughness: its hits need their surface coordinates."""
+    return mats.texture[m] >= 0 or mats.alpha_texture[m, 0] >= 0 or mats.alpha_texture[m, 1] >= 0
+
+
+@kernel(inline=True)
+def needs_tangent(mats, m):
+    """Whether material m's roughness may differ along and across dp/du (its shading frame needs the tangent)."""
+    return mats.alpha_v[m] != mats.alpha[m] or mats.alpha_texture[m, 0] != mats.alpha_texture[m, 1]

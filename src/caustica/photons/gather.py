@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
+from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance
 from ..features import has
@@ -84,12 +85,12 @@ def camera_surface(geom, mats, hit, o, d, key, dim):
     p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
     front = vec.dot(d, ng) < 0.0
     m = geom.prim_material[prim]
-    uv = surface_uv(geom, prim, o, d, t, b1, b2) if mats.texture[m] >= 0 or mats.kind[m] == BLEND else NO_UV
+    uv = surface_uv(geom, prim, o, d, t, b1, b2) if needs_uv(mats, m) or mats.kind[m] == BLEND else NO_UV
     passed = False
     if mats.kind[m] == BLEND:
         m, dim = resolve(mats, m, uv, key, dim)
         passed = mats.kind[m] == NULL
-    if has(mats, ANISOTROPIC) and mats.alpha_v[m] != mats.alpha[m]:
+    if has(mats, ANISOTROPIC) and needs_tangent(mats, m):
         uv = with_tangent(geom, prim, (o, d, t, b1, b2), surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, front, m, uv, passed, dim
 

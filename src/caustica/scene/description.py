@@ -110,12 +110,14 @@ class Material:
     #                                        wrapper's normal or height map
     terminator: bool = False            # the nested row of a wrapper with use_shadowing_function
     alpha_v: float | None = None        # anisotropic roughness across dp/du (``alpha`` is then alpha_u); None: alpha
+    alpha_textures: tuple = (None, None)   # Textures giving alpha_u and alpha_v instead (their eval_1), or None each
     principled: dict | None = None      # a principled BSDF's parameters by Mitsuba's names (bsdfs/principled.py)
 
     @property
     def anisotropic(self) -> bool:
         """Whether the microfacet roughness differs along and across dp/du (the BSDF needs the shading frame)."""
-        return self.alpha_v is not None and self.alpha_v != self.alpha
+        u, v = self.alpha_textures
+        return (self.alpha_v is not None and self.alpha_v != self.alpha) or u is not v
 
     @property
     def is_specular(self) -> bool:

@@ -124,11 +124,14 @@ TEXTURE_PROPS = {
                "accel": BOOL},
     # a mesh's own per-vertex or per-face values (PLY properties), looked up at the hit's triangle
     "mesh_attribute": {"name": STR, "scale": FLOAT},
+    # one value everywhere, as given (no colour conversion): a float, an rgb or a vector
+    "rawconstant": {"value": COLOR + POINT},
 }
 BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
-                   "roughconductor": ("specular_reflectance",), "plastic": ("diffuse_reflectance",),
+                   "roughconductor": ("specular_reflectance", "alpha", "alpha_u", "alpha_v"),
+                   "roughdielectric": ("alpha", "alpha_u", "alpha_v"), "plastic": ("diffuse_reflectance",),
                    "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",),
                    "principled": ("base_color",)}
 def principled_roughness(roughness: float, anisotropic: float) -> tuple[float, float]:
@@ -856,7 +859,8 @@ class _Loader:
                            else texture_mean(tex), name=name, conductor_eta=eta, conductor_k=k, texture=tex)
             if kind == "roughconductor":
                 mat.kind, mat.source = ROUGHCONDUCTOR, self.at(node)
-                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True)
+                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True, textures=textures)
+                mat.alpha_textures = self.roughness_textures(textures)
             return mat
         if kind == "null":
             return Material(NULL, (1.0, 1.0, 1.0), name=name)
@@ -874,7 +878,8 @@ class _Loader:
                     self.fail(node, f"roughdielectric: int_ior and ext_ior are both {int_ior:g}; they must differ, "
                                     f"as Mitsuba 3 requires (an interface between equal media scatters nothing)")
                 mat.kind, mat.source = ROUGHDIELECTRIC, self.at(node)
-                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True)
+                mat.distribution, mat.alpha, mat.alpha_v = self.microfacet(props, anisotropic=True, textures=textures)
+                mat.alpha_textures = self.roughness_textures(textures)
             return mat
         if kind == "pplastic":
             return self.pplastic(node, props, textures.get("diffuse_reflectance"), name)
@@ -1030,7 +1035,7 @@ class _Loader:
         return self.texture_of_node[id(node)]
 
     def build_texture(self, node: Node) -> Texture:
-        """A <texture type="checkerboard"> or <texture type="bitmap">, with Mitsuba's defaults."""
+        """A <texture type="checkerboard">, "bitmap", "mesh_attribute" or "rawconstant", with Mitsuba's defaults."""
         props = self.plugin(node, TEXTURE_PROPS, ("texture", "ref"))
         if props.objects:
             self.fail(props.objects[0], "a texture inside a texture is not supported",
@@ -1048,6 +1053,16 @@ class _Loader:
                                                  f"(as in Mitsuba), got {quoted(attr)}")
             common["to_uv"] = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
             return Texture(MESH_ATTRIBUTE, attribute=attr, scale=self.number(props, "scale", 1.0), **common)
+        if node.attrs["type"] == "rawconstant":   # a 1 x 1 image of the value: every lookup and eval_1 reads it
+            if not props.has("value"):
+                self.fail(node, "a rawconstant texture needs its <float>, <rgb> or <vector name=\"value\" .../>")
+            v = props.get("value")
+            value = tuple(float(x) for x in np.ravel(v)) if not isinstance(v, (int, float)) else (float(v),) * 3
+            if len(value) != 3 or not all(math.isfinite(x) for x in value):
+                self.fail(props.node_of("value"), f"a rawconstant's value must be one or three finite numbers, "
+                                                  f"got {quoted(v)}")
+            return Texture(BITMAP, texels=np.array(value, np.float32).reshape(1, 1, 3), filter=FILTER_TYPES["nearest"],
+                           wrap=WRAP_MODES["repeat"], **common)
         if node.attrs["type"] == "checkerboard":
             return Texture(CHECKERBOARD, color0=self.color(props, "color0", (0.4, 0.4, 0.4)),
                            color1=self.color(props, "color1", (0.2, 0.2, 0.2)), **common)
@@ -1207,20 +1222,26 @@ class _Loader:
         mat = self.materials[i]
         return mat.anisotropic or any(self.needs_tangent(j) for j in mat.nested)
 
-    def microfacet(self, props: Props, anisotropic: bool = False) -> tuple[int, float, float | None]:
+    def microfacet(self, props: Props, anisotropic: bool = False, textures: dict | None = None) \
+            -> tuple[int, float, float | None]:
         """(distribution code, alpha, alpha_v) of a rough BSDF: Mitsuba's distribution (default beckmann) and roughness
         ``alpha`` (default 0.1), or ``alpha_u`` and ``alpha_v`` (alpha_v None where they are equal; a BSDF that is not
-        ``anisotropic`` refuses them different), clamped to 1e-4 as Mitsuba does."""
+        ``anisotropic`` refuses them different), clamped to 1e-4 as Mitsuba does.  A roughness given by one of
+        ``textures`` (:meth:`roughness_textures`) counts as given; its number here is the default, unused."""
         dist = props.get("distribution", "beckmann")
         if dist not in DISTRIBUTIONS:
             self.fail(props.node_of("distribution"), f"unknown microfacet distribution {quoted(dist)}",
                       supported=list(DISTRIBUTIONS))
-        if props.has("alpha") and (props.has("alpha_u") or props.has("alpha_v")):
-            self.fail(props.node_of("alpha"), "give either alpha or alpha_u and alpha_v, not both (as Mitsuba)")
-        if props.has("alpha_u") != props.has("alpha_v"):
-            self.fail(props.node_of("alpha_u" if props.has("alpha_u") else "alpha_v"),
+        textures = textures or {}
+        given = {p: props.has(p) or p in textures for p in ("alpha", "alpha_u", "alpha_v")}
+        def where(p):   # the element that gives p: a property, or a texture
+            return props.node_of(p) if props.has(p) else next(o for o in props.objects if o.attrs.get("name") == p)
+        if given["alpha"] and (given["alpha_u"] or given["alpha_v"]):
+            self.fail(where("alpha"), "give either alpha or alpha_u and alpha_v, not both (as Mitsuba)")
+        if given["alpha_u"] != given["alpha_v"]:
+            self.fail(where("alpha_u" if given["alpha_u"] else "alpha_v"),
                       "alpha_u and alpha_v must be given together (as Mitsuba)")
-        names = ("alpha_u", "alpha_v") if props.has("alpha_u") else ("alpha",)
+        names = ("alpha_u", "alpha_v") if given["alpha_u"] else ("alpha",)
         values = [self.number(props, p, 0.1, nonneg=True) for p in names]
         for p, v in zip(names, values):
             if not math.isfinite(v):
@@ -1231,6 +1252,13 @@ class _Loader:
                                                 f"roughdielectric take it)", supported=["alpha_u = alpha_v"])
         au, av = max(float(values[0]), 1e-4), max(float(values[-1]), 1e-4)
         return DISTRIBUTIONS[dist], au, (av if av != au else None)
+
+    @staticmethod
+    def roughness_textures(textures: dict) -> tuple:
+        """The Textures that give a rough BSDF's (alpha_u, alpha_v) over its surface, or None each: ``alpha`` both."""
+        if "alpha" in textures:
+            return textures["alpha"], textures["alpha"]
+        return textures.get("alpha_u"), textures.get("alpha_v")
 
     def element_index(self, node: Node, tag: str, index_of_node: dict[int, int], entries: list, build) -> int:
         """Index in ``entries`` of what ``build`` makes of a <tag> element (or <ref> to one): built once per
