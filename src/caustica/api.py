@@ -26,7 +26,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.description import MATERIAL_NAMES, MIXTURES, WRAPPERS
+from .scene.description import HETEROGENEOUS, MATERIAL_NAMES, MIXTURES, WRAPPERS
 from .tables import Scene, compile_scene
 
 
@@ -155,6 +155,22 @@ def check_bsdfs(cls, scene) -> None:
                              f"reflection); use --method pt, pm or sppm")
 
 
+def check_media(cls, scene) -> None:
+    """Refuse a scene whose shapes or camera hold a heterogeneous medium under a method that does not render one:
+    only ``renders_heterogeneous = True`` (``pt``) tracks free flights by null collisions; the photon methods'
+    media estimates (their segments' closed-form transmittance and distance sampling) assume homogeneous media."""
+    if getattr(cls, "renders_heterogeneous", False):
+        return
+    desc = scene.description
+    used = {desc.camera.medium} | {s.interior for s in desc.shapes} | {s.exterior for s in desc.shapes}
+    for i, medium in enumerate(desc.media):
+        if i in used and medium.kind == HETEROGENEOUS:
+            name = f" {quoted(medium.id)}" if medium.id else ""
+            raise SceneError(f"{medium.source}: <medium type=\"heterogeneous\">{name}: method {cls.name} does not "
+                             f"render heterogeneous media yet (its media estimates assume constant coefficients); "
+                             f"use --method pt")
+
+
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,
                      multi_pass: bool = False, **params):
     """(scene, method class, settings): every render setting checked and defaulted in one place.
@@ -166,6 +182,7 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         scene = load_scene(scene)
     cls = methods.get(method)
     check_bsdfs(cls, scene)
+    check_media(cls, scene)
     width, height = _parse_res(res)
     width = scene.width if width is None else width
     height = scene.height if height is None else height
