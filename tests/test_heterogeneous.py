@@ -109,18 +109,19 @@ def gradient_grid():
     return np.stack([0.2 + 2.0 * x, 1.0 + y * z, 0.1 + 3.0 * x * (1 - y)], axis=-1).astype(np.float32)
 
 
-def optical_depth(data, o, d, s, nearest, n=20001):
+def optical_depth(data, o, d, s, mode, n=20001):
     """Per channel, the integral of sigma_t over [0, s] of o + t d (world = the box), by the trapezoid rule on
-    SciPy's interpolation of the grid (index = unit-cube coordinate x n - 1/2, edges clamped)."""
+    SciPy's interpolation of the grid (index = unit-cube coordinate x n - 1/2, edges clamped or wrapped round)."""
     t = np.linspace(0.0, s, n)
     p = np.asarray(o)[None, :] + t[:, None] * np.asarray(d)[None, :]
     unit = (p - np.array(BOX_LO)) / 2.0
     inside = np.all((unit >= 0.0) & (unit <= 1.0), axis=1)   # the medium exists inside its box only
     nz, ny, nx = data.shape[:3]
     idx = np.stack([unit[:, 2] * nz - 0.5, unit[:, 1] * ny - 0.5, unit[:, 0] * nx - 0.5])
-    if nearest:
+    if mode == "nearest":
         idx = np.floor(idx + 0.5)
-    sig = np.stack([map_coordinates(data[..., c], idx, order=0 if nearest else 1, mode="nearest")
+    sig = np.stack([map_coordinates(data[..., c], idx, order=0 if mode == "nearest" else 1,
+                                    mode="grid-wrap" if mode == "repeat" else "nearest")
                     for c in range(3)], axis=1) * inside[:, None]
     return np.trapezoid(sig, t, axis=0) if hasattr(np, "trapezoid") else np.trapz(sig, t, axis=0)
 
@@ -143,12 +144,14 @@ def _track_many(media, ray, s, n, delta):
     return out
 
 
-@pytest.mark.parametrize("nearest", [False, True], ids=["trilinear", "nearest"])
+@pytest.mark.parametrize("mode", ["trilinear", "nearest", "repeat"])
 @pytest.mark.parametrize("delta", [False, True], ids=["ratio", "delta"])
-def test_tracked_transmittance_matches_quadrature(tmp_path, nearest, delta):
+def test_tracked_transmittance_matches_quadrature(tmp_path, mode, delta):
+    """(repeat: within half a voxel of its faces the grid blends its first and last voxels.)"""
     data = gradient_grid()
     write_grid(tmp_path / "grad.vol", data)
-    extra = '<string name="filter_type" value="nearest"/>' if nearest else ""
+    extra = {"trilinear": "", "nearest": '<string name="filter_type" value="nearest"/>',
+             "repeat": '<string name="wrap_mode" value="repeat"/>'}[mode]
     scene = load(box_scene(grid_medium("grad.vol", '<float name="albedo" value="0.8"/>', extra=extra)), tmp_path)
     for o, target in (((-1.5, 1.0, 0.0), (1.5, 1.0, 0.0)), ((-0.9, 0.1, -0.8), (0.7, 1.9, 0.95)),
                       ((0.2, 2.5, 0.3), (0.1, -0.4, -0.2))):
@@ -156,7 +159,7 @@ def test_tracked_transmittance_matches_quadrature(tmp_path, nearest, delta):
         s = float(np.linalg.norm(seg))
         d = tuple(seg / s)
         est = _track_many(scene.media, (tuple(map(float, o)), d), s, 40000, delta)
-        want = np.exp(-optical_depth(data, o, d, s, nearest))
+        want = np.exp(-optical_depth(data, o, d, s, mode))
         se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
         assert np.all(np.abs(est.mean(axis=0) - want) <= N_SIGMA * se + 1e-4), (o, est.mean(axis=0), want, se)
 
@@ -176,11 +179,20 @@ def smoke_files(folder):
 
 
 @pytest.mark.mitsuba
-def test_a_box_of_smoke_matches_mitsuba_volpath(mi, tmp_path):
+@pytest.mark.parametrize("kind", ["smoke", "homogeneous-textured"])
+def test_a_box_of_smoke_matches_mitsuba_volpath(mi, tmp_path, kind):
+    """smoke: the density gradient and RGB albedo grid; homogeneous-textured: Mitsuba's homogeneous medium with a
+    <volume> albedo (the grid tiled twice across the box, wrap_mode repeat), which fills the box."""
     smoke_files(tmp_path)
     albedo = f'<volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>{BOX_TO_WORLD}' \
              f'</volume>'
-    text = box_scene(grid_medium("smoke.vol", albedo, scale=1.5), res=MI_RES, spp=MI_SPP)
+    medium = grid_medium("smoke.vol", albedo, scale=1.5)
+    if kind == "homogeneous-textured":
+        medium = f"""<medium type="homogeneous" name="interior"><float name="sigma_t" value="0.8"/>
+            <volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>
+            <string name="wrap_mode" value="repeat"/><transform name="to_world"><translate y="0.1"/></transform>
+            </volume></medium>"""
+    text = box_scene(medium, res=MI_RES, spp=MI_SPP)
     (tmp_path / "smoke.xml").write_text(text)
     ours = renders(caustica.load_scene(tmp_path / "smoke.xml"), MI_SPP, res=MI_RES)
     theirs_scene = mi.load_file(str(tmp_path / "smoke.xml"))

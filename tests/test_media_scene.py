@@ -106,8 +106,11 @@ BAD = {
                             "supported: homogeneous, heterogeneous"),
     "sigma_s (Mitsuba 0.6)": (MEDIUM.format('<float name="sigma_s" value="1"/>'), 5, '<float name="sigma_s">',
                               "supported: sigma_t, albedo, scale"),
-    "a volume texture": (MEDIUM.format('<volume type="gridvolume" name="albedo"/>'), 5, "<volume",
-                         "unexpected element"),
+    "a volume without its file": (MEDIUM.format('<volume type="gridvolume" name="albedo"/>'), 5, "<volume",
+                                  'a gridvolume needs <string name="filename"'),
+    "a grid of sigma_t in a homogeneous medium": (MEDIUM.format(
+        '<volume type="gridvolume" name="sigma_t"><string name="filename" value="x.vol"/></volume>'), 5, "<volume",
+        'needs <medium type="heterogeneous">'),
     "medium referenced but not defined": ('<shape type="cube"><bsdf type="null"/>\n<ref name="interior" id="fog"/>'
                                           '</shape>', 5, '<ref name="interior" id="fog">', "no element has id 'fog'"),
     "sensor's medium not defined": ('', 3, '<ref id="fog">', "no element has id 'fog'", '<ref id="fog"/>'),

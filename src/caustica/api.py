@@ -156,7 +156,8 @@ def check_bsdfs(cls, scene) -> None:
 
 
 def check_media(cls, scene) -> None:
-    """Refuse a scene whose shapes or camera hold a heterogeneous medium under a method that does not render one:
+    """Refuse a scene whose shapes or camera hold a heterogeneous medium (or a homogeneous one with a <volume> albedo,
+    tracked as one) under a method that does not render one:
     only ``renders_heterogeneous = True`` (``pt``) tracks free flights by null collisions; the photon methods'
     media estimates (their segments' closed-form transmittance and distance sampling) assume homogeneous media."""
     if getattr(cls, "renders_heterogeneous", False):
@@ -166,9 +167,11 @@ def check_media(cls, scene) -> None:
     for i, medium in enumerate(desc.media):
         if i in used and medium.kind == HETEROGENEOUS:
             name = f" {quoted(medium.id)}" if medium.id else ""
-            raise SceneError(f"{medium.source}: <medium type=\"heterogeneous\">{name}: method {cls.name} does not "
-                             f"render heterogeneous media yet (its media estimates assume constant coefficients); "
-                             f"use --method pt")
+            what = "<medium type=\"heterogeneous\">" if medium.bounded else "<medium type=\"homogeneous\"> with a " \
+                                                                          "<volume> albedo"
+            raise SceneError(f"{medium.source}: {what}{name}: method {cls.name} does not render media whose "
+                             f"coefficients vary in space yet (its media estimates assume constant ones); use "
+                             f"--method pt")
 
 
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,

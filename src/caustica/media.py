@@ -78,7 +78,7 @@ class MediumTable(NamedTuple):
     volumes: np.ndarray    # int32[K, 2]: the grids of sigma_t (scale applied) and albedo, -1 for a homogeneous medium
     majorant: np.ndarray   # float64[K]: the largest sigma_t of any voxel and channel
     bounds: np.ndarray     # float64[K, 6]: the world box (lo, hi) outside which the medium is vacuum
-    grid_shape: np.ndarray     # int64[G, 6]: nx, ny, nz, channels, first value in voxels, filter
+    grid_shape: np.ndarray     # int64[G, 7]: nx, ny, nz, channels, first value in voxels, filter, wrap
     grid_to_local: np.ndarray  # float64[G, 12]: world to the grid's unit cube, the 3 x 4 rows
     voxels: np.ndarray     # float32[N]: every grid's values, (z, y, x, channel) order, one grid after another
 

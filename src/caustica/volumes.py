@@ -18,7 +18,7 @@ scalar majorant, the largest sigma_t of any voxel and channel (scale applied), a
   :func:`caustica.media.transmittance` keep their signatures and homogeneous scenes their numbers.
 
 The grids live in four columns of :class:`caustica.media.MediumTable` (:func:`grid_columns`): ``volumes`` (each
-medium's sigma_t and albedo volume), ``grid_shape`` (nx, ny, nz, channels, first value, filter), ``grid_to_local``
+medium's sigma_t and albedo volume), ``grid_shape`` (nx, ny, nz, channels, first value, filter, wrap), ``grid_to_local``
 (world to the unit cube, 3 x 4) and ``voxels`` (every grid's float32 values, one after another).
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 from .geometry import vec
 from .jit import kernel
 from .sampling.rng import mix64, uniform
-from .scene.description import HETEROGENEOUS, NEAREST, SceneDescription, Volume
+from .scene.description import HETEROGENEOUS, NEAREST, REPEAT, SceneDescription, Volume
 
 #: Tentative collisions one tracked flight or shadow ray may take before it is given up (weight 0): a guard
 #: against a majorant so large that a ray would never finish; 2**20 collisions is a majorant times distance of
@@ -54,14 +54,14 @@ def grid_columns(desc: SceneDescription, k: int) -> dict:
             volumes[i, j] = len(grids)
             grids.append(vol)
         majorant[i] = float(m.sigma_t_volume.data.max())
-        lo, hi = m.sigma_t_volume.bounds()
+        lo, hi = m.sigma_t_volume.bounds() if m.bounded else ((-np.inf,) * 3, (np.inf,) * 3)
         bounds[i] = (*lo, *hi)
-    shape = np.zeros((max(1, len(grids)), 6), np.int64)
+    shape = np.zeros((max(1, len(grids)), 7), np.int64)
     to_local = np.zeros((max(1, len(grids)), 12))
     first = 0
     for g, vol in enumerate(grids):
         nz, ny, nx, channels = vol.data.shape
-        shape[g] = (nx, ny, nz, channels, first, vol.filter)
+        shape[g] = (nx, ny, nz, channels, first, vol.filter, vol.wrap)
         to_local[g] = np.asarray(vol.to_local, np.float64)[:3].reshape(12)
         first += vol.data.size
     voxels = np.concatenate([v.data.reshape(-1) for v in grids]) if grids else np.zeros(1, np.float32)
@@ -75,6 +75,14 @@ def grid_columns(desc: SceneDescription, k: int) -> dict:
 def _cell(f, n):
     """The voxel index of unit-cube coordinate times resolution f, clamped to [0, n - 1] (Mitsuba's clamp)."""
     return min(max(int(math.floor(min(max(f, -1.0), n + 1.0))), 0), n - 1)
+
+
+@kernel(inline=True)
+def _index(i, n, repeat):
+    """Voxel index i (which may lie one beyond either end) of a row of n: wrapped round (repeat) or clamped."""
+    if repeat:
+        return (i + n) % n
+    return min(max(i, 0), n - 1)
 
 
 @kernel(inline=True)
@@ -92,12 +100,15 @@ def _voxel(media, g, ix, iy, iz):
 @kernel(inline=True)
 def volume_at(media, g, p):
     """Grid volume g's value at world point p, RGB: voxel i's value sits at (i + 1/2) / n of the unit cube;
-    trilinear between those centres, or the nearest voxel, and the edge's value beyond them."""
+    trilinear between those centres, or the nearest voxel; beyond them the edge's value, or the grid repeated."""
     M = media.grid_to_local
     x = M[g, 0] * p[0] + M[g, 1] * p[1] + M[g, 2] * p[2] + M[g, 3]
     y = M[g, 4] * p[0] + M[g, 5] * p[1] + M[g, 6] * p[2] + M[g, 7]
     z = M[g, 8] * p[0] + M[g, 9] * p[1] + M[g, 10] * p[2] + M[g, 11]
     nx, ny, nz = media.grid_shape[g, 0], media.grid_shape[g, 1], media.grid_shape[g, 2]
+    repeat = media.grid_shape[g, 6] == REPEAT
+    if repeat:   # into [0, 1): the corners' indices then wrap round
+        x, y, z = x - math.floor(x), y - math.floor(y), z - math.floor(z)
     if media.grid_shape[g, 5] == NEAREST:
         return _voxel(media, g, _cell(x * nx, nx), _cell(y * ny, ny), _cell(z * nz, nz))
     fx = min(max(x * nx - 0.5, -1.0), nx + 1.0)
@@ -109,8 +120,8 @@ def volume_at(media, g, p):
     for k in range(8):
         w = (wx if k & 1 else 1.0 - wx) * (wy if k & 2 else 1.0 - wy) * (wz if k & 4 else 1.0 - wz)
         if w > 0.0:
-            c = _voxel(media, g, min(max(int(x0) + (k & 1), 0), nx - 1), min(max(int(y0) + (k >> 1 & 1), 0), ny - 1),
-                       min(max(int(z0) + (k >> 2 & 1), 0), nz - 1))
+            c = _voxel(media, g, _index(int(x0) + (k & 1), nx, repeat), _index(int(y0) + (k >> 1 & 1), ny, repeat),
+                       _index(int(z0) + (k >> 2 & 1), nz, repeat))
             out = vec.madd(out, c, w)
     return out
 

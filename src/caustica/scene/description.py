@@ -167,9 +167,11 @@ HOMOGENEOUS = 0     # Mitsuba's homogeneous: constant coefficients, free flights
 HETEROGENEOUS = 1   # Mitsuba's heterogeneous: coefficients from volumes (grids), null-collision tracking
 MEDIUM_NAMES = {HOMOGENEOUS: "homogeneous", HETEROGENEOUS: "heterogeneous"}
 
-# How a grid volume is read between its voxels (Mitsuba's filter_type).
+# How a grid volume is read between its voxels (Mitsuba's filter_type), and beyond its unit cube (wrap_mode).
 TRILINEAR = 0
 NEAREST = 1
+CLAMP = 0
+REPEAT = 1
 
 
 @dataclass(eq=False)
@@ -180,11 +182,13 @@ class Volume:
     data[z, y, x] as in Mitsuba's .vol files; a constant is a grid of one voxel.  ``to_local``: 4 x 4, world to
     the grid's unit cube [0, 1]³ (the inverse of its ``to_world``, and of the file's bounding box with
     ``use_grid_bbox``); voxel i's value sits at (i + 1/2) / n, a point between voxel centres is ``filter``ed
-    (TRILINEAR or NEAREST), and one beyond the outer centres takes the edge's value (Mitsuba's clamp).
+    (TRILINEAR or NEAREST), and one beyond the outer centres takes the edge's value (``wrap`` CLAMP, Mitsuba's
+    default) or the grid repeats (REPEAT).
     """
     data: np.ndarray
     to_local: np.ndarray
     filter: int = TRILINEAR
+    wrap: int = CLAMP
     filename: str = ""
     source: str = ""   # "file:line" for messages
 
@@ -207,7 +211,9 @@ class Medium:
     camera's ``medium`` are indices into :attr:`SceneDescription.media` (-1: none).
     A heterogeneous medium's coefficients are ``sigma_t_volume`` (``scale`` applied to its data) and
     ``albedo_volume``; as in Mitsuba it exists only inside the world box of its ``sigma_t`` volume
-    (:meth:`Volume.bounds`), and ``sigma_t`` / ``albedo`` hold zeros.
+    (:meth:`Volume.bounds`), and ``sigma_t`` / ``albedo`` hold zeros.  A homogeneous medium with a <volume> albedo
+    (Mitsuba's homogeneous takes one) is such a medium too, with a constant sigma_t and ``bounded`` False: it fills
+    its shapes, as every homogeneous medium does.
     """
     sigma_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
     albedo: tuple[float, float, float] = (0.75, 0.75, 0.75)
@@ -218,6 +224,7 @@ class Medium:
     kind: int = HOMOGENEOUS
     sigma_t_volume: Volume | None = None
     albedo_volume: Volume | None = None
+    bounded: bool = True
 
 
 # Shape kinds.

@@ -31,7 +31,8 @@ from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
-                          FILTER_TYPES, HENYEY_GREENSTEIN, HETEROGENEOUS, ISOTROPIC, NEAREST, TRILINEAR, Volume, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
+                          FILTER_TYPES, HENYEY_GREENSTEIN, HETEROGENEOUS, ISOTROPIC, NEAREST, TRILINEAR, Volume,
+                          CLAMP, REPEAT, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
                           PLASTIC, PPLASTIC, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
@@ -141,12 +142,13 @@ MEDIUM_PROPS = {kind: {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
                         # majorant): accepted, they change the noise, not the image's expectation
                         "sample_emitters": BOOL, "has_spectral_extinction": BOOL}
                 for kind in ("homogeneous", "heterogeneous")}
-#: A heterogeneous medium's sigma_t and albedo as volumes (Mitsuba 3's gridvolume and constvolume); ``raw`` and
-#: ``accel`` change nothing in RGB (no spectral upsampling, no GPU texture); wrap_mode is clamp, Mitsuba's default.
+#: A heterogeneous medium's sigma_t and albedo as volumes (Mitsuba 3's gridvolume and constvolume), and a homogeneous
+#: medium's albedo; ``raw`` and ``accel`` change nothing in RGB (no spectral upsampling, no GPU texture).
 VOLUME_PROPS = {"gridvolume": {"filename": STR, "to_world": XFORM, "filter_type": STR, "wrap_mode": STR, "raw": BOOL,
                                "use_grid_bbox": BOOL, "accel": BOOL},
                 "constvolume": {"value": COLOR, "to_world": XFORM}}
 VOLUME_FILTERS = {"trilinear": TRILINEAR, "nearest": NEAREST}
+VOLUME_WRAPS = {"clamp": CLAMP, "repeat": REPEAT}
 #: The properties of a heterogeneous medium a <volume> may give.
 MEDIUM_VOLUMES = ("sigma_t", "albedo")
 PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
@@ -1201,12 +1203,12 @@ class _Loader:
 
     def build_medium(self, node: Node) -> Medium:
         """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults); or
-        "heterogeneous" (:meth:`heterogeneous_medium`)."""
+        "heterogeneous", or homogeneous with a <volume> albedo (:meth:`heterogeneous_medium`)."""
         heterogeneous = node.attrs.get("type") == "heterogeneous"
-        props = self.plugin(node, MEDIUM_PROPS, ("phase", "volume") if heterogeneous else ("phase",))
+        props = self.plugin(node, MEDIUM_PROPS, ("phase", "volume"))
         scale = float(self.number(props, "scale", 1.0, nonneg=True))
-        if heterogeneous:
-            return self.heterogeneous_medium(node, props, scale)
+        if heterogeneous or any(obj.tag == "volume" for obj in props.objects):
+            return self.heterogeneous_medium(node, props, scale, bounded=heterogeneous)
         sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0), unbounded=True)
         albedo = self.color(props, "albedo", (0.75, 0.75, 0.75), unbounded=True)
         if max(albedo) > 1.0:
@@ -1232,9 +1234,10 @@ class _Loader:
                     self.fail(pprops.node_of("g"), f"'g' must lie strictly between -1 and 1, got {g}")
         return phase, g
 
-    def heterogeneous_medium(self, node: Node, props: Props, scale: float) -> Medium:
+    def heterogeneous_medium(self, node: Node, props: Props, scale: float, bounded: bool = True) -> Medium:
         """A <medium type="heterogeneous">: its sigma_t (times scale) and albedo, each a number, an <rgb> or a
-        <volume> (:meth:`medium_volume`), and its <phase>."""
+        <volume> (:meth:`medium_volume`), and its <phase>.  Not ``bounded``: a homogeneous medium whose albedo is a
+        <volume>, which fills its shapes (no box) and whose sigma_t must be constant."""
         given: dict[str, Node] = {}
         for obj in props.objects:
             if obj.tag != "volume":
@@ -1245,18 +1248,21 @@ class _Loader:
                           supported=list(MEDIUM_VOLUMES))
             if name in given or props.has(name):
                 self.fail(obj, f"the medium's {name} is given twice")
+            if name == "sigma_t" and not bounded and obj.attrs.get("type") != "constvolume":
+                self.fail(obj, "a homogeneous medium's sigma_t is constant (a number, an <rgb> or a constvolume); "
+                               "a grid of sigma_t needs <medium type=\"heterogeneous\">")
             given[name] = obj
         sigma_t = self.medium_volume(props, given.get("sigma_t"), "sigma_t", 1.0, scale)
         albedo = self.medium_volume(props, given.get("albedo"), "albedo", 0.75, 1.0)
         phase, g = self.phase_function(props.objects)
         return Medium((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), phase, g, id=node.attrs.get("id", ""), source=self.at(node),
-                      kind=HETEROGENEOUS, sigma_t_volume=sigma_t, albedo_volume=albedo)
+                      kind=HETEROGENEOUS, sigma_t_volume=sigma_t, albedo_volume=albedo, bounded=bounded)
 
     def medium_volume(self, props: Props, vnode: Node | None, name: str, default: float, scale: float) -> Volume:
         """A heterogeneous medium's ``name`` (sigma_t or albedo) as a :class:`Volume` with ``scale`` applied: a
         <volume> (gridvolume, constvolume), or a number or <rgb>, which is Mitsuba's constvolume over the unit cube
         [0, 1]³ (so a medium whose sigma_t is a number exists only there, as in Mitsuba)."""
-        to_world, filt, filename = np.eye(4), TRILINEAR, ""
+        to_world, filt, wrap, filename = np.eye(4), TRILINEAR, CLAMP, ""
         if vnode is None:
             where = props.node_of(name)
             rgb = self.color(props, name, (default,) * 3, unbounded=True)
@@ -1271,7 +1277,7 @@ class _Loader:
             if vnode.attrs["type"] == "constvolume":
                 data = np.asarray(self.color(vprops, "value", (1.0,) * 3, unbounded=True), np.float32).reshape(1, 1, 1, 3)
             else:
-                data, filt, filename, to_world = self.grid_volume(vnode, vprops, to_world)
+                data, (filt, wrap), filename, to_world = self.grid_volume(vnode, vprops, to_world)
         if not data.min() >= 0.0:
             what = f"grid volume {quoted(filename)}" if filename else "the value"
             self.fail(where, f"{name}: {what} holds a negative value ({float(data.min()):g}); a medium's sigma_t and "
@@ -1282,19 +1288,20 @@ class _Loader:
         if not np.all(data <= tf.MAX_ABS_FLOAT):
             self.fail(where, f"{name} x scale = {float(data.max() / max(scale, 1e-300)):g} x {scale:g} is beyond "
                              f"{tf.MAX_ABS_FLOAT:.3g} (float32)")
-        return Volume(data.astype(np.float32), np.linalg.inv(to_world), filt, filename, source=self.at(where))
+        return Volume(data.astype(np.float32), np.linalg.inv(to_world), filt, wrap, filename, source=self.at(where))
 
     def grid_volume(self, vnode: Node, vprops: Props, to_world: np.ndarray):
-        """(data, filter, filename, to_world) of a <volume type="gridvolume">: its .vol file read
+        """(data, (filter, wrap), filename, to_world) of a <volume type="gridvolume">: its .vol file read
         (:func:`~caustica.scene.volume_files.read_grid`), with ``use_grid_bbox`` the file's box mapped to the unit
         cube first (Mitsuba's default ignores that box: the grid fills the unit cube, placed by ``to_world``)."""
         filt = vprops.get("filter_type", "trilinear")
         if filt not in VOLUME_FILTERS:
             self.fail(vprops.node_of("filter_type"), f"unknown filter_type {quoted(filt)}",
                       supported=list(VOLUME_FILTERS))
-        if vprops.get("wrap_mode", "clamp") != "clamp":
-            self.fail(vprops.node_of("wrap_mode"), f"wrap_mode {quoted(vprops.get('wrap_mode'))} is not supported",
-                      supported=["clamp"])
+        wrap = vprops.get("wrap_mode", "clamp")
+        if wrap not in VOLUME_WRAPS:
+            self.fail(vprops.node_of("wrap_mode"), f"wrap_mode {quoted(wrap)} is not supported",
+                      supported=list(VOLUME_WRAPS))
         if not vprops.has("filename"):
             self.fail(vnode, "a gridvolume needs <string name=\"filename\" .../> (a Mitsuba .vol file)")
         filename = vprops.get("filename")
@@ -1311,7 +1318,7 @@ class _Loader:
                 self.fail(vprops.node_of("use_grid_bbox"), f"grid volume {quoted(filename)}'s bounding box "
                                                            f"{bbox.tolist()} is empty; use_grid_bbox needs a box")
             to_world = to_world @ _translation(bbox[0]) @ np.diag([*extent, 1.0])
-        return data, VOLUME_FILTERS[filt], filename, to_world
+        return data, (VOLUME_FILTERS[filt], VOLUME_WRAPS[wrap]), filename, to_world
 
     def is_medium(self, obj: Node) -> bool:
         """Whether a shape's or sensor's child is a medium: a <medium>, or a <ref> named like one or
