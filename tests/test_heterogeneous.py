@@ -188,7 +188,7 @@ def test_a_box_of_smoke_matches_mitsuba_volpath(mi, tmp_path, kind):
              f'</volume>'
     medium = grid_medium("smoke.vol", albedo, scale=1.5)
     if kind == "homogeneous-textured":
-        medium = f"""<medium type="homogeneous" name="interior"><float name="sigma_t" value="0.8"/>
+        medium = """<medium type="homogeneous" name="interior"><float name="sigma_t" value="0.8"/>
             <volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>
             <string name="wrap_mode" value="repeat"/><transform name="to_world"><translate y="0.1"/></transform>
             </volume></medium>"""
