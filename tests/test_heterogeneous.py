@@ -3,8 +3,9 @@
 1. A constant grid renders as the equivalent homogeneous medium: the same image within the noise of both
    (tests/imagestats.py), RGB coefficients so that the majorant's null collisions carry per-channel weights.
 2. The trackers against quadrature: ratio tracking's mean transmittance, and delta tracking's weight of the
-   flights that pass, through an RGB grid (trilinear and nearest), equal exp(-integral of sigma_t) per channel
-   computed with SciPy's own interpolation of the grid (Mitsuba's convention: voxel i at (i + 1/2) / n, clamped).
+   flights that pass, through an RGB grid (trilinear, nearest, repeated), equal exp(-integral of sigma_t) per
+   channel computed with SciPy's own interpolation of the grid (Mitsuba's convention: voxel i at (i + 1/2) / n,
+   clamped); the majorant grid bounds sigma_t wherever a ray reads it.
 3. A box of smoke made from a synthetic .vol (a density gradient, an RGB albedo grid) under an area light, against
    Mitsuba 3's volpath (scalar_rgb), image mean within 2 % and block means within both renders' noise.
 4. Bad input: a missing, foreign, truncated or too large .vol, a negative density, a wrong channel count, each one
@@ -28,7 +29,8 @@ from caustica.media import MediumTable
 from caustica.scene import parse_scene_string
 from caustica.scene.volume_files import write_grid
 from caustica.tables import compile_scene
-from caustica.volumes import delta_tracking, ratio_tracking
+from caustica.scene.description import NEAREST, TRILINEAR, Volume
+from caustica.volumes import delta_tracking, majorant_grid, ratio_tracking
 from imagestats import N_SIGMA, assert_images_agree
 
 RES = 16
@@ -98,7 +100,7 @@ def test_a_constant_grid_renders_as_the_homogeneous_medium(tmp_path):
 
 # --------------------------------------------------------------------------- 2. the trackers
 
-N_GRID = (6, 5, 4)   # nx, ny, nz
+N_GRID = (40, 5, 20)   # nx, ny, nz: more voxels than majorant cells along x and z
 
 
 def gradient_grid():
@@ -162,6 +164,26 @@ def test_tracked_transmittance_matches_quadrature(tmp_path, mode, delta):
         want = np.exp(-optical_depth(data, o, d, s, mode))
         se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
         assert np.all(np.abs(est.mean(axis=0) - want) <= N_SIGMA * se + 1e-4), (o, est.mean(axis=0), want, se)
+
+
+@pytest.mark.parametrize("mode", ["trilinear", "nearest"])
+def test_the_majorant_grid_bounds_sigma_t_wherever_a_ray_reads_it(mode):
+    """Each cell's majorant is at least sigma_t at every point of the cell, and beyond the unit cube at every point
+    whose cell index is clamped to it (the walk's convention), for a grid of more voxels than cells on two axes."""
+    rng = np.random.default_rng(5)
+    data = rng.gamma(0.5, 2.0, size=(33, 7, 20, 3)).astype(np.float32)   # (nz, ny, nx, channels)
+    vol = Volume(data, np.eye(4), NEAREST if mode == "nearest" else TRILINEAR)
+    maj = majorant_grid(vol)
+    cz, cy, cx = maj.shape
+    assert (cz, cy, cx) == (16, 7, 16) and maj.max() == data.max()
+    p = rng.uniform(-0.2, 1.2, size=(200000, 3))
+    idx = np.stack([p[:, 2] * 33 - 0.5, p[:, 1] * 7 - 0.5, p[:, 0] * 20 - 0.5])
+    if mode == "nearest":
+        idx = np.floor(idx + 0.5)
+    value = np.max([map_coordinates(data[..., c], idx, order=0 if mode == "nearest" else 1, mode="nearest")
+                    for c in range(3)], axis=0)
+    cell = [np.clip(np.floor(p[:, a] * n), 0, n - 1).astype(int) for a, n in ((2, cz), (1, cy), (0, cx))]
+    assert np.all(value <= maj[cell[0], cell[1], cell[2]] * (1 + 1e-6))
 
 
 # --------------------------------------------------------------------------- 3. against Mitsuba 3

@@ -76,11 +76,13 @@ class MediumTable(NamedTuple):
     # heterogeneous media (caustica.volumes, feature HETEROGENEOUS; trivial columns in a scene without them):
     kind: np.ndarray       # int32[K]: HOMOGENEOUS or HETEROGENEOUS
     volumes: np.ndarray    # int32[K, 2]: the grids of sigma_t (scale applied) and albedo, -1 for a homogeneous medium
-    majorant: np.ndarray   # float64[K]: the largest sigma_t of any voxel and channel
     bounds: np.ndarray     # float64[K, 6]: the world box (lo, hi) outside which the medium is vacuum
     grid_shape: np.ndarray     # int64[G, 7]: nx, ny, nz, channels, first value in voxels, filter, wrap
     grid_to_local: np.ndarray  # float64[G, 12]: world to the grid's unit cube, the 3 x 4 rows
     voxels: np.ndarray     # float32[N]: every grid's values, (z, y, x, channel) order, one grid after another
+    cells: np.ndarray      # int64[K, 4]: the majorant grid's cells along x, y, z over the sigma_t grid's unit cube,
+    #                        and its first value in cell_majorant
+    cell_majorant: np.ndarray  # float64[C]: per cell, the largest sigma_t a point of it reads, (z, y, x) order
 
 
 def build_medium_table(desc: SceneDescription) -> MediumTable:

@@ -3,8 +3,11 @@ by null collisions (docs/media.md#heterogeneous-media).
 
 A heterogeneous medium (Mitsuba 3's ``heterogeneous``) takes its extinction sigma_t(x) and its albedo(x) from
 volumes, grids of voxels or constants (:class:`caustica.scene.description.Volume`), and, as in Mitsuba, exists
-only inside the world box of its sigma_t volume: outside it a ray crosses vacuum.  Inside, each medium has one
-scalar majorant, the largest sigma_t of any voxel and channel (scale applied), and
+only inside the world box of its sigma_t volume: outside it a ray crosses vacuum.  Inside, a coarse *majorant
+grid* over the sigma_t volume's unit cube (at most :data:`MAJORANT_CELLS` cells an axis) bounds sigma_t: each cell
+holds the largest sigma_t of any channel of any voxel a point of the cell may read (:func:`majorant_grid`), and a ray
+walks the cells it crosses (:func:`advance`: the majorant is constant in each, so its exponential distances are
+drawn cell by cell).  With the majorant of the cell a tentative collision falls in,
 
 * a free flight is *delta tracked*: tentative collisions at the majorant's exponential distances; at each, the
   path scatters with probability P_s = mean(sigma_s) / (mean(sigma_s) + mean(sigma_n)) (the channels' means;
@@ -17,9 +20,10 @@ scalar majorant, the largest sigma_t of any voxel and channel (scale applied), a
   the shadow ray's origin and direction (:func:`ray_key`), so that the callers of
   :func:`caustica.media.transmittance` keep their signatures and homogeneous scenes their numbers.
 
-The grids live in four columns of :class:`caustica.media.MediumTable` (:func:`grid_columns`): ``volumes`` (each
+The grids live in columns of :class:`caustica.media.MediumTable` (:func:`grid_columns`): ``volumes`` (each
 medium's sigma_t and albedo volume), ``grid_shape`` (nx, ny, nz, channels, first value, filter, wrap), ``grid_to_local``
-(world to the unit cube, 3 x 4) and ``voxels`` (every grid's float32 values, one after another).
+(world to the unit cube, 3 x 4), ``voxels`` (every grid's float32 values, one after another), and each medium's
+majorant grid: ``cells`` (cells along x, y, z, first value) and ``cell_majorant``.
 """
 from __future__ import annotations
 
@@ -36,24 +40,51 @@ from .scene.description import HETEROGENEOUS, NEAREST, REPEAT, SceneDescription,
 #: against a majorant so large that a ray would never finish; 2**20 collisions is a majorant times distance of
 #: about a million, optical depths no scene file means.
 TRACKING_CAP = 1 << 20
+#: The majorant grid's cells along an axis, at most (fewer for a grid of fewer voxels; one for a constant or a
+#: repeated grid).  16³ cells: a 4 KB table per medium, whose walk costs a few cell steps a flight.
+MAJORANT_CELLS = 16
+
+
+def majorant_grid(vol: Volume) -> np.ndarray:
+    """(cz, cy, cx): per cell of the unit cube split in at most MAJORANT_CELLS along each axis, the largest value of
+    any channel of any voxel that a point of the cell reads (trilinear: voxels floor(x n - 1/2) and the next, which
+    covers nearest's floor(x n); a point beyond the cube reads the edge's voxels, as the edge cells do)."""
+    v = vol.data.max(axis=3)
+    if vol.wrap == REPEAT:
+        return np.full((1, 1, 1), v.max())
+    for axis in range(3):
+        n = v.shape[axis]
+        cells = min(MAJORANT_CELLS, n)
+        parts = []
+        for i in range(cells):
+            lo = max(math.floor(i * n / cells - 0.5), 0)
+            hi = min(math.floor((i + 1) * n / cells - 0.5) + 1, n - 1)
+            parts.append(np.take(v, np.arange(lo, hi + 1), axis=axis).max(axis=axis))
+        v = np.stack(parts, axis=axis)
+    return v
 
 
 def grid_columns(desc: SceneDescription, k: int) -> dict:
     """The medium table's columns of the heterogeneous media among ``desc.media`` (``k`` rows): kind, volumes,
-    majorant, bounds and the grids.  Homogeneous rows have volumes -1 and no grid."""
+    bounds, the grids and the majorant grids.  Homogeneous rows have volumes -1, no grid and one cell of majorant 0."""
     kind = np.zeros(k, np.int32)
     volumes = np.full((k, 2), -1, np.int32)
-    majorant = np.zeros(k)
     bounds = np.zeros((k, 6))
+    cells = np.zeros((k, 4), np.int64)
+    majorants = []
     grids: list[Volume] = []
     for i, m in enumerate(desc.media):
+        cells[i] = (1, 1, 1, sum(a.size for a in majorants))
         if m.kind != HETEROGENEOUS:
+            majorants.append(np.zeros(1))
             continue
         kind[i] = HETEROGENEOUS
         for j, vol in enumerate((m.sigma_t_volume, m.albedo_volume)):
             volumes[i, j] = len(grids)
             grids.append(vol)
-        majorant[i] = float(m.sigma_t_volume.data.max())
+        maj = majorant_grid(m.sigma_t_volume)
+        cells[i, :3] = maj.shape[::-1]
+        majorants.append(maj.reshape(-1).astype(np.float64))
         lo, hi = m.sigma_t_volume.bounds() if m.bounded else ((-np.inf,) * 3, (np.inf,) * 3)
         bounds[i] = (*lo, *hi)
     shape = np.zeros((max(1, len(grids)), 7), np.int64)
@@ -65,8 +96,9 @@ def grid_columns(desc: SceneDescription, k: int) -> dict:
         to_local[g] = np.asarray(vol.to_local, np.float64)[:3].reshape(12)
         first += vol.data.size
     voxels = np.concatenate([v.data.reshape(-1) for v in grids]) if grids else np.zeros(1, np.float32)
-    return dict(kind=kind, volumes=volumes, majorant=majorant, bounds=bounds, grid_shape=shape,
-                grid_to_local=to_local, voxels=np.ascontiguousarray(voxels, np.float32))
+    return dict(kind=kind, volumes=volumes, bounds=bounds, grid_shape=shape, grid_to_local=to_local,
+                voxels=np.ascontiguousarray(voxels, np.float32), cells=cells,
+                cell_majorant=np.concatenate(majorants) if majorants else np.zeros(1))
 
 
 # ----------------------------------------------------------------------------- looking a volume up
@@ -147,26 +179,90 @@ def clip(media, m, o, d, t_max):
     return t0, t1
 
 
+# ----------------------------------------------------------------------------- the majorant grid's walk
+
+@kernel(inline=True)
+def _axis_exit(x0, dx, i, cells):
+    """Where (in t) the ray x0 + t dx leaves cell i of ``cells`` along one axis of the unit cube: at the plane between
+    it and the next cell it moves towards, never at the cube's faces (beyond them the edge cell goes on); inf if the
+    ray does not move towards another cell."""
+    if dx > 0.0 and i < cells - 1:
+        return ((i + 1) / cells - x0) / dx
+    if dx < 0.0 and i > 0:
+        return (i / cells - x0) / dx
+    return np.inf
+
+
+@kernel(inline=True)
+def walk_start(media, m, ray, t):
+    """The walk of ``ray`` = (o, d) through medium m's majorant cells from t: (local ray, state), the local ray the
+    sigma_t grid's unit-cube coordinates o' + t d' (an affine map keeps t), the state (t, ix, iy, iz, tx, ty, tz),
+    the cell and the t where the ray leaves it along each axis."""
+    o, d = ray
+    M, g = media.grid_to_local, media.volumes[m, 0]
+    ol = (M[g, 0] * o[0] + M[g, 1] * o[1] + M[g, 2] * o[2] + M[g, 3],
+          M[g, 4] * o[0] + M[g, 5] * o[1] + M[g, 6] * o[2] + M[g, 7],
+          M[g, 8] * o[0] + M[g, 9] * o[1] + M[g, 10] * o[2] + M[g, 11])
+    dl = (M[g, 0] * d[0] + M[g, 1] * d[1] + M[g, 2] * d[2], M[g, 4] * d[0] + M[g, 5] * d[1] + M[g, 6] * d[2],
+          M[g, 8] * d[0] + M[g, 9] * d[1] + M[g, 10] * d[2])
+    cx, cy, cz = media.cells[m, 0], media.cells[m, 1], media.cells[m, 2]
+    ix = _cell((ol[0] + t * dl[0]) * cx, cx)
+    iy = _cell((ol[1] + t * dl[1]) * cy, cy)
+    iz = _cell((ol[2] + t * dl[2]) * cz, cz)
+    return (ol, dl), (t, ix, iy, iz, _axis_exit(ol[0], dl[0], ix, cx), _axis_exit(ol[1], dl[1], iy, cy),
+                      _axis_exit(ol[2], dl[2], iz, cz))
+
+
+@kernel
+def advance(media, m, local, state, tau, t1):
+    """The next tentative collision: the walk ``state`` (:func:`walk_start`) moved on by optical depth tau of the
+    majorant, cell by cell.  Returns (state, the majorant there, True) at a collision before t1, else (state at t1,
+    0, False)."""
+    ol, dl = local
+    t, ix, iy, iz, tx, ty, tz = state
+    cx, cy, cz, first = media.cells[m, 0], media.cells[m, 1], media.cells[m, 2], media.cells[m, 3]
+    for _ in range(cx + cy + cz + 3):   # a straight ray crosses at most cx + cy + cz cells
+        mu = media.cell_majorant[first + (iz * cy + iy) * cx + ix]
+        t_exit = min(min(tx, ty), min(tz, t1))
+        if mu > 0.0:
+            if mu * (t_exit - t) > tau:
+                return (t + tau / mu, ix, iy, iz, tx, ty, tz), mu, True
+            tau -= mu * max(t_exit - t, 0.0)
+        t = max(t, t_exit)
+        if t_exit >= t1:
+            break
+        if tx <= ty and tx <= tz:
+            ix += 1 if dl[0] > 0.0 else -1
+            tx = _axis_exit(ol[0], dl[0], ix, cx)
+        elif ty <= tz:
+            iy += 1 if dl[1] > 0.0 else -1
+            ty = _axis_exit(ol[1], dl[1], iy, cy)
+        else:
+            iz += 1 if dl[2] > 0.0 else -1
+            tz = _axis_exit(ol[2], dl[2], iz, cz)
+    return (t1, ix, iy, iz, tx, ty, tz), 0.0, False
+
+
 # ----------------------------------------------------------------------------- tracking
 
 @kernel
 def delta_tracking(media, m, ray, t_max, key, dim):
     """A free flight in heterogeneous medium m along ``ray`` = (o, d) up to t_max (the next surface, or inf):
     (t, scattered, weight per channel, dim past the numbers used).  Scattered: a real collision at t, the weight
-    sigma_s,c / (majorant P_s) times the null collisions' before it; otherwise the flight passed t_max (or left
-    the medium's box for good) with the null collisions' weight, t = t_max.  Numbers dim, dim + 1, ... of key,
-    two per tentative collision."""
-    o, d = ray
+    sigma_s,c / (mu P_s) times the null collisions' before it (mu: the majorant of the cell); otherwise the flight
+    passed t_max (or left the medium's box for good) with the null collisions' weight, t = t_max.  Numbers dim,
+    dim + 1, ... of key, two per tentative collision."""
     w = (1.0, 1.0, 1.0)
-    mu = media.majorant[m]
-    t, t1 = clip(media, m, o, d, t_max)
-    if not (t < t1 and mu > 0.0):
+    t, t1 = clip(media, m, ray[0], ray[1], t_max)
+    if not t < t1:
         return t_max, False, w, dim
+    local, state = walk_start(media, m, ray, t)
     for _ in range(TRACKING_CAP):
-        t -= math.log(1.0 - uniform(key, dim)) / mu
-        if t >= t1:
+        state, mu, hit = advance(media, m, local, state, -math.log(1.0 - uniform(key, dim)), t1)
+        if not hit:
             return t_max, False, w, dim + 1
-        st, ss = coefficients(media, m, vec.madd(o, d, t))
+        t = state[0]
+        st, ss = coefficients(media, m, vec.madd(ray[0], ray[1], t))
         sn = (max(mu - st[0], 0.0), max(mu - st[1], 0.0), max(mu - st[2], 0.0))
         ms, mn = vec.mean(ss), vec.mean(sn)
         if not ms + mn > 0.0:   # all absorption: the path ends here
@@ -182,19 +278,18 @@ def delta_tracking(media, m, ray, t_max, key, dim):
 @kernel
 def ratio_tracking(media, m, ray, s, key):
     """Per channel, an unbiased estimate of exp(-integral of sigma_t over [0, s]) along ``ray`` = (o, d) in
-    heterogeneous medium m: the product of sigma_n,c / majorant at the majorant's tentative collisions (numbers
-    0, 1, ... of key)."""
-    o, d = ray
+    heterogeneous medium m: the product of sigma_n,c / mu at the majorant's tentative collisions (mu: the majorant
+    of the cell; numbers 0, 1, ... of key)."""
     T = (1.0, 1.0, 1.0)
-    mu = media.majorant[m]
-    t, t1 = clip(media, m, o, d, s)
-    if not (t < t1 and mu > 0.0):
+    t, t1 = clip(media, m, ray[0], ray[1], s)
+    if not t < t1:
         return T
+    local, state = walk_start(media, m, ray, t)
     for i in range(TRACKING_CAP):
-        t -= math.log(1.0 - uniform(key, i)) / mu
-        if t >= t1:
+        state, mu, hit = advance(media, m, local, state, -math.log(1.0 - uniform(key, i)), t1)
+        if not hit:
             return T
-        st = volume_at(media, media.volumes[m, 0], vec.madd(o, d, t))
+        st = volume_at(media, media.volumes[m, 0], vec.madd(ray[0], ray[1], state[0]))
         T = (T[0] * max(mu - st[0], 0.0) / mu, T[1] * max(mu - st[1], 0.0) / mu, T[2] * max(mu - st[2], 0.0) / mu)
         if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
             return T
