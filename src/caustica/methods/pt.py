@@ -114,6 +114,21 @@ def emitted(lights, e, acc, last, hit):
 
 
 @kernel(inline=True)
+def escaped_light(tables, acc, w, ray):
+    """L plus β times the environment a path sees that escaped along ``ray`` = (d, medium, (specular, pdf_last),
+    shown), MIS-weighted (:func:`caustica.lighting.environment_mis`); ``shown``: the environment counts (not hidden from the
+    camera).  In a heterogeneous medium β first takes the tracked flight's weight w; ``acc`` = (L, β)."""
+    L, beta = acc
+    lights, media = tables[2], tables[3]
+    d, medium, last, shown = ray
+    if has(media, HETEROGENEOUS) and medium >= 0:
+        beta = vec.hadamard(beta, w)   # the flight's null collisions (a homogeneous medium's escape weighs 1)
+    if has(lights, ENV) and lights.env[0] >= 0 and shown:
+        L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, last)))
+    return L
+
+
+@kernel(inline=True)
 def russian_roulette(beta, eta_scale, key, dim):
     """The path goes on with probability q = min(max β · eta_scale, 0.95) (number dim), then with β / q, as Mitsuba's.
     Returns (alive, β, dim)."""
@@ -144,10 +159,8 @@ def radiance(tables, o, d, key, depths):
         n_ext += 1
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
-            if has(media, HETEROGENEOUS) and medium >= 0:
-                beta = vec.hadamard(beta, w)   # the tracked flight's null collisions (1 in a homogeneous medium)
-            if has(lights, ENV) and lights.env[0] >= 0 and not (hide_emitters and depth == 0):
-                L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, (specular, pdf_last))))
+            shown = not (hide_emitters and depth == 0)
+            L = escaped_light(tables, (L, beta), w, (d, medium, (specular, pdf_last), shown))
             break
         if medium >= 0:
             beta = vec.hadamard(beta, w)
