@@ -99,7 +99,7 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
     interior = np.array([s.interior for s in desc.shapes], np.int32).reshape(-1)
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
     null = any(desc.may_pass(s.material) for s in desc.shapes)
-    grids = grid_columns(desc, k)
+    grids = grid_columns(desc.media, k)
     # kernels compile the heterogeneous media's code only for a scene that has one (caustica.features)
     features = ALL if np.any(grids["kind"] == HETEROGENEOUS) else bits(HOMOGENEOUS)
     return specialised(MediumTable, features)(sigma_t, albedo, phase, g, interior, exterior,

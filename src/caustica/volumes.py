@@ -34,7 +34,7 @@ import numpy as np
 from .geometry import vec
 from .jit import kernel
 from .sampling.rng import mix64, uniform
-from .scene.description import HETEROGENEOUS, NEAREST, REPEAT, SceneDescription, Volume
+from .scene.description import HETEROGENEOUS, NEAREST, REPEAT, Medium, Volume
 
 #: Tentative collisions one tracked flight or shadow ray may take before it is given up (weight 0): a guard
 #: against a majorant so large that a ray would never finish; 2**20 collisions is a majorant times distance of
@@ -64,20 +64,19 @@ def majorant_grid(vol: Volume) -> np.ndarray:
     return v
 
 
-def grid_columns(desc: SceneDescription, k: int) -> dict:
-    """The medium table's columns of the heterogeneous media among ``desc.media`` (``k`` rows): kind, volumes,
+def grid_columns(media: list[Medium], k: int) -> dict:
+    """The medium table's columns of the heterogeneous media among ``media`` (a scene's, ``k`` rows): kind, volumes,
     bounds, the grids and the majorant grids.  Homogeneous rows have volumes -1, no grid and one cell of majorant 0."""
     kind = np.zeros(k, np.int32)
     volumes = np.full((k, 2), -1, np.int32)
     bounds = np.zeros((k, 6))
-    cells = np.zeros((k, 4), np.int64)
-    majorants = []
+    cells = np.tile(np.array([1, 1, 1, 0], np.int64), (k, 1))   # one cell, value 0: the rows of no grid
+    majorants = [np.zeros(1)]
     grids: list[Volume] = []
-    for i, m in enumerate(desc.media):
-        cells[i] = (1, 1, 1, sum(a.size for a in majorants))
+    for i, m in enumerate(media):
         if m.kind != HETEROGENEOUS:
-            majorants.append(np.zeros(1))
             continue
+        cells[i, 3] = sum(a.size for a in majorants)
         kind[i] = HETEROGENEOUS
         for j, vol in enumerate((m.sigma_t_volume, m.albedo_volume)):
             volumes[i, j] = len(grids)
@@ -98,7 +97,7 @@ def grid_columns(desc: SceneDescription, k: int) -> dict:
     voxels = np.concatenate([v.data.reshape(-1) for v in grids]) if grids else np.zeros(1, np.float32)
     return dict(kind=kind, volumes=volumes, bounds=bounds, grid_shape=shape, grid_to_local=to_local,
                 voxels=np.ascontiguousarray(voxels, np.float32), cells=cells,
-                cell_majorant=np.concatenate(majorants) if majorants else np.zeros(1))
+                cell_majorant=np.concatenate(majorants))
 
 
 # ----------------------------------------------------------------------------- looking a volume up
