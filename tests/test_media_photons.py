@@ -33,6 +33,7 @@ from caustica.media import MediumTable
 from caustica.photons.beams import beam_gather, build_volume_grid
 from caustica.photons.visible_points import camera_pass
 from caustica.scene import builtin_scene_path
+from caustica.volumes import grid_columns
 from imagestats import N_SIGMA, assert_images_agree
 from test_media_pt import SHELL_A, SHELL_B, SHELL_I, rgb, scene_from_xml, sensor_xml, shell_scene, \
     single_scattering_shell
@@ -44,7 +45,7 @@ def medium_table(sigma, albedo, g):
     hg = g is not None
     return MediumTable(np.array([sigma], float), np.array([albedo], float), np.array([1 if hg else 0], np.int32),
                        np.array([g or 0.0]), np.full(1, -1, np.int32), np.full(1, -1, np.int32),
-                       np.zeros(1, np.int32), np.zeros(1, np.int8))
+                       np.zeros(1, np.int32), np.zeros(1, np.int8), **grid_columns([], 1))
 
 
 def hg(g, mu):

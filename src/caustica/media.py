@@ -1,5 +1,9 @@
 """Participating media: homogeneous media, their phase functions, free flights and transmittance.
 
+Heterogeneous media (Mitsuba's ``heterogeneous``: coefficients from grid volumes) are tracked by null collisions
+in :mod:`caustica.volumes`; :func:`free_flight` and :func:`transmittance` hand them over there, behind the medium
+table's feature ``HETEROGENEOUS`` (:mod:`caustica.features`), so a scene without one compiles none of that code.
+
 A scene's media live in a :class:`MediumTable` (structure of arrays, indexed by the
 medium's position in :attr:`SceneDescription.media`), with each shape's interior and
 exterior medium and the camera's.  -1 means no medium (vacuum).  Every scene has one: in a
@@ -39,10 +43,12 @@ from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, pr
     spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, surface_uv
-from .features import has
+from .features import ALL, bits, has, specialisable, specialised
 from .jit import kernel
 from .sampling.rng import uniform
-from .scene.description import BLEND, HENYEY_GREENSTEIN, MASK, NULL, THINDIELECTRIC, SceneDescription
+from .scene.description import BLEND, HENYEY_GREENSTEIN, HETEROGENEOUS, HOMOGENEOUS, MASK, NULL, THINDIELECTRIC, \
+    SceneDescription
+from .volumes import delta_tracking, grid_columns, ratio_tracking, ray_key
 
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -56,9 +62,10 @@ NULL_CROSSINGS_CAP = 256
 HG_ISOTROPIC_G = 1e-4
 
 
+@specialisable
 class MediumTable(NamedTuple):
-    sigma_t: np.ndarray    # float64[K, 3]: extinction per scene unit (scale applied)
-    albedo: np.ndarray     # float64[K, 3]: sigma_s / sigma_t
+    sigma_t: np.ndarray    # float64[K, 3]: extinction per scene unit (scale applied); 0 for a heterogeneous medium
+    albedo: np.ndarray     # float64[K, 3]: sigma_s / sigma_t; 0 for a heterogeneous medium
     phase: np.ndarray      # int32[K]: ISOTROPIC or HENYEY_GREENSTEIN
     g: np.ndarray          # float64[K]: HG asymmetry (0 for isotropic)
     interior: np.ndarray   # int32[S]: each shape's interior medium, -1 for none
@@ -66,6 +73,16 @@ class MediumTable(NamedTuple):
     camera: np.ndarray     # int32[1]: the medium the camera is in, -1 for none
     null_surfaces: np.ndarray  # int8[1]: 1 when a shape has the null BSDF or a mask (shadow rays may cross surfaces;
     #                            pt's copy for a volpath scene with thindielectric: 1 too)
+    # heterogeneous media (caustica.volumes, feature HETEROGENEOUS; trivial columns in a scene without them):
+    kind: np.ndarray       # int32[K]: HOMOGENEOUS or HETEROGENEOUS
+    volumes: np.ndarray    # int32[K, 2]: the grids of sigma_t (scale applied) and albedo, -1 for a homogeneous medium
+    bounds: np.ndarray     # float64[K, 6]: the world box (lo, hi) outside which the medium is vacuum
+    grid_shape: np.ndarray     # int64[G, 7]: nx, ny, nz, channels, first value in voxels, filter, wrap
+    grid_to_local: np.ndarray  # float64[G, 12]: world to the grid's unit cube, the 3 x 4 rows
+    voxels: np.ndarray     # float32[N]: every grid's values, (z, y, x, channel) order, one grid after another
+    cells: np.ndarray      # int64[K, 4]: the majorant grid's cells along x, y, z over the sigma_t grid's unit cube,
+    #                        and its first value in cell_majorant
+    cell_majorant: np.ndarray  # float64[C]: per cell, the largest sigma_t a point of it reads, (z, y, x) order
 
 
 def build_medium_table(desc: SceneDescription) -> MediumTable:
@@ -82,8 +99,12 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
     interior = np.array([s.interior for s in desc.shapes], np.int32).reshape(-1)
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
     null = any(desc.may_pass(s.material) for s in desc.shapes)
-    return MediumTable(sigma_t, albedo, phase, g, interior, exterior,
-                       np.array([desc.camera.medium], np.int32), np.array([1 if null else 0], np.int8))
+    grids = grid_columns(desc.media, k)
+    # kernels compile the heterogeneous media's code only for a scene that has one (caustica.features)
+    features = ALL if np.any(grids["kind"] == HETEROGENEOUS) else bits(HOMOGENEOUS)
+    return specialised(MediumTable, features)(sigma_t, albedo, phase, g, interior, exterior,
+                                              np.array([desc.camera.medium], np.int32),
+                                              np.array([1 if null else 0], np.int8), **grids)
 
 
 # ----------------------------------------------------------------------------- boundaries
@@ -135,6 +156,8 @@ def free_flight(geom, media, medium, o, d, key, dim):
     ``weight`` the flight's :func:`flight_weight`.  In vacuum only the surface, weight (1, 1, 1).
     ``escaped``: nothing ahead (vacuum, or a channel that does not attenuate, and no surface).
     """
+    if has(media, HETEROGENEOUS) and medium >= 0 and media.kind[medium] == HETEROGENEOUS:
+        return tracked_flight(geom, media, medium, o, d, key, dim)
     t_flight = np.inf
     if medium >= 0:
         t_flight = sample_distance(media, medium, uniform(key, dim), uniform(key, dim + 1))
@@ -143,6 +166,17 @@ def free_flight(geom, media, medium, o, d, key, dim):
     if medium < 0 or (prim < 0 and t_flight == np.inf):
         return prim, t, b1, b2, (1.0, 1.0, 1.0), dim, prim < 0
     return prim, t, b1, b2, flight_weight(media, medium, t, prim < 0), dim, False
+
+
+@kernel
+def tracked_flight(geom, media, m, o, d, key, dim):
+    """:func:`free_flight` in heterogeneous medium m: the next surface, then a delta-tracked flight up to it
+    (:func:`caustica.volumes.delta_tracking`).  ``escaped`` keeps the tracked weight, which the caller applies."""
+    prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+    t_scatter, scattered, w, dim = delta_tracking(media, m, (o, d), t, key, dim)
+    if scattered:
+        return -1, t_scatter, 0.0, 0.0, w, dim, False
+    return prim, t, b1, b2, w, dim, prim < 0
 
 
 @kernel
@@ -182,6 +216,15 @@ def attenuation(media, m, t):
 
 
 @kernel(inline=True)
+def segment_attenuation(media, m, ray, t):
+    """The transmittance of the first t of ``ray`` = (o, d) in medium m: :func:`attenuation`, or in a heterogeneous
+    medium its ratio-tracking estimate (:func:`caustica.volumes.ratio_tracking`, numbers keyed by the ray)."""
+    if has(media, HETEROGENEOUS) and m >= 0 and media.kind[m] == HETEROGENEOUS:
+        return ratio_tracking(media, m, ray, t, ray_key(ray[0], ray[1]))
+    return attenuation(media, m, t)
+
+
+@kernel(inline=True)
 def shadow_transmittance(geom, mats, media, o, target, medium):
     """:func:`transmittance`, with the case of every vacuum scene inlined into the caller: no medium and no
     null surface to cross, so the shadow ray is an any-hit test (visible: 1, blocked: 0).  Shadow rays are
@@ -205,8 +248,9 @@ def transmittance(geom, mats, media, o, target, medium):
     surface blocks (T = 0): glass too, as in Mitsuba's volpath.  A mask passes its chance of being off,
     1 - opacity at the point (:func:`caustica.bsdfs.pass_probability`, Mitsuba's ``eval_null_transmission``), a
     material flagged ``NULL_TRANSMISSION`` (thindielectric in ``pt`` for a volpath scene) 1 - R (:func:`crossing`).
-    The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly (homogeneous media), so
-    a shadow ray adds no noise of its own.  The caller moves both ends off their surfaces.
+    The transmittance of each medium segment is exp(-sigma_t length), evaluated exactly in homogeneous media, so
+    a shadow ray adds no noise of its own there; in a heterogeneous medium it is ratio tracked
+    (:func:`segment_attenuation`).  The caller moves both ends off their surfaces.
     Inlined by LLVM: called per shadow ray in every scene with media or null surfaces, and a call would
     copy every array of three scene tables (the fog box's ``pt`` ran 2.6-3.9x slower per pass that way).
     """
@@ -221,14 +265,14 @@ def transmittance(geom, mats, media, o, target, medium):
         rays += 1
         prim, t, b1, b2 = intersect(geom, o, d, dist)
         if prim < 0:
-            return vec.hadamard(T, attenuation(media, medium, dist)), rays
+            return vec.hadamard(T, segment_attenuation(media, medium, (o, d), dist)), rays
         m = geom.prim_material[prim]
         if mats.kind[m] != NULL:
             passing = crossing(geom, mats, prim, (o, d, t, b1, b2))
             if not (passing[0] > 0.0 or passing[1] > 0.0 or passing[2] > 0.0):
                 return (0.0, 0.0, 0.0), rays
             T = vec.hadamard(T, passing)
-        T = vec.hadamard(T, attenuation(media, medium, t))
+        T = vec.hadamard(T, segment_attenuation(media, medium, (o, d), t))
         p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
         medium = medium_after(media, geom.prim_shape[prim], ng, d, medium)
         o = vec.offset_origin(p, ng, d)
@@ -500,6 +544,7 @@ def env_shadow_length(lights, p):
 @kernel
 def escape_transmittance(media, medium):
     """Per channel, the transmittance of an unbounded ray in ``medium``: 1 in vacuum or where sigma_t is 0, else 0.
+    A heterogeneous medium's row has sigma_t 0: it ends at its box, and its tracked flight weighs the ray.
 
     An environment seen from inside a medium that nothing bounds is attenuated to nothing, except in
     channels that do not attenuate (docs/media.md)."""

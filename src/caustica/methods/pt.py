@@ -13,13 +13,14 @@ Through participating media it is a volumetric path tracer after Mitsuba 3's ``v
 * the current medium is tracked from the camera's through every boundary (a ray leaving a
   surface towards its front enters the shape's exterior medium, towards its back its interior;
   shapes without media leave it unchanged, :func:`caustica.media.medium_after`);
-* in a medium a free-flight distance is sampled (:func:`caustica.media.free_flight`); if it ends
-  before the next surface the path scatters there: next-event estimation with the phase function
+* in a medium a free-flight distance is sampled (:func:`caustica.media.free_flight`; delta tracking in a
+  heterogeneous medium, :mod:`caustica.volumes`); if it ends before the next surface the path scatters there: next-event estimation with the phase function
   (MIS against phase sampling for area lights), then a phase-sampled direction;
 * null-BSDF surfaces are crossed without scattering and without counting as a bounce (Mitsuba's
   depth), so a medium's boundary is invisible;
 * next-event estimation from surfaces and medium points traces its shadow ray through null
-  boundaries and media (exact transmittance, :func:`caustica.media.light_sample`); glass blocks
+  boundaries and media (exact transmittance, ratio tracked in a heterogeneous medium,
+  :func:`caustica.media.light_sample`); glass blocks
   it, as in Mitsuba.
 
 ``max_depth`` counts scattering events (surface and medium) as Mitsuba does.
@@ -45,7 +46,7 @@ from ..errors import ParameterError
 from ..geometry import vec
 from ..emitters import ENV
 from ..features import has
-from ..scene.description import THINDIELECTRIC
+from ..scene.description import HETEROGENEOUS, THINDIELECTRIC
 from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import cross_null, free_flight, medium_after, phase_sample
@@ -113,6 +114,21 @@ def emitted(lights, e, acc, last, hit):
 
 
 @kernel(inline=True)
+def escaped_light(tables, acc, w, ray):
+    """L plus β times the environment a path sees that escaped along ``ray`` = (d, medium, (specular, pdf_last),
+    shown), MIS-weighted (:func:`caustica.lighting.environment_mis`); ``shown``: the environment counts (not hidden from the
+    camera).  In a heterogeneous medium β first takes the tracked flight's weight w; ``acc`` = (L, β)."""
+    L, beta = acc
+    lights, media = tables[2], tables[3]
+    d, medium, last, shown = ray
+    if has(media, HETEROGENEOUS) and medium >= 0:
+        beta = vec.hadamard(beta, w)   # the flight's null collisions (a homogeneous medium's escape weighs 1)
+    if has(lights, ENV) and lights.env[0] >= 0 and shown:
+        L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, last)))
+    return L
+
+
+@kernel(inline=True)
 def russian_roulette(beta, eta_scale, key, dim):
     """The path goes on with probability q = min(max β · eta_scale, 0.95) (number dim), then with β / q, as Mitsuba's.
     Returns (alive, β, dim)."""
@@ -143,8 +159,8 @@ def radiance(tables, o, d, key, depths):
         n_ext += 1
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
-            if has(lights, ENV) and lights.env[0] >= 0 and not (hide_emitters and depth == 0):
-                L = vec.add(L, vec.hadamard(beta, environment_mis(lights, media, d, medium, (specular, pdf_last))))
+            shown = not (hide_emitters and depth == 0)
+            L = escaped_light(tables, (L, beta), w, (d, medium, (specular, pdf_last), shown))
             break
         if medium >= 0:
             beta = vec.hadamard(beta, w)
@@ -253,6 +269,7 @@ class PathTracer(IndependentPasses):
     renders_glossy = True    # the BSDFs' glossy lobes through eval_pdf and sample (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: resolved at each hit to the nested BSDF, ns perturbed
+    renders_heterogeneous = True  # heterogeneous media: delta and ratio tracking (caustica.volumes; api.check_media)
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited; a scene's "
               "path/volpath integrator sets the default",

@@ -181,16 +181,58 @@ ISOTROPIC = 0
 HENYEY_GREENSTEIN = 1
 PHASE_NAMES = {ISOTROPIC: "isotropic", HENYEY_GREENSTEIN: "hg"}
 
+# Kinds of medium (the medium table's feature codes, caustica.features).
+HOMOGENEOUS = 0     # Mitsuba's homogeneous: constant coefficients, free flights and transmittance in closed form
+HETEROGENEOUS = 1   # Mitsuba's heterogeneous: coefficients from volumes (grids), null-collision tracking
+MEDIUM_NAMES = {HOMOGENEOUS: "homogeneous", HETEROGENEOUS: "heterogeneous"}
+
+# How a grid volume is read between its voxels (Mitsuba's filter_type), and beyond its unit cube (wrap_mode).
+TRILINEAR = 0
+NEAREST = 1
+CLAMP = 0
+REPEAT = 1
+
+
+@dataclass(eq=False)
+class Volume:
+    """A heterogeneous medium's ``sigma_t`` or ``albedo``: Mitsuba's ``gridvolume`` or ``constvolume``.
+
+    ``data``: float32 (nz, ny, nx, channels), channels 1 (grey) or 3 (RGB), voxel (x, y, z) at
+    data[z, y, x] as in Mitsuba's .vol files; a constant is a grid of one voxel.  ``to_local``: 4 x 4, world to
+    the grid's unit cube [0, 1]³ (the inverse of its ``to_world``, and of the file's bounding box with
+    ``use_grid_bbox``); voxel i's value sits at (i + 1/2) / n, a point between voxel centres is ``filter``ed
+    (TRILINEAR or NEAREST), and one beyond the outer centres takes the edge's value (``wrap`` CLAMP, Mitsuba's
+    default) or the grid repeats (REPEAT).
+    """
+    data: np.ndarray
+    to_local: np.ndarray
+    filter: int = TRILINEAR
+    wrap: int = CLAMP
+    filename: str = ""
+    source: str = ""   # "file:line" for messages
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the world box holding the unit cube mapped by ``to_world`` (Mitsuba's volume bbox)."""
+        to_world = np.linalg.inv(self.to_local)
+        corners = np.array([[x, y, z, 1.0] for x in (0, 1) for y in (0, 1) for z in (0, 1)]) @ to_world.T
+        pts = corners[:, :3] / corners[:, 3:]
+        return pts.min(axis=0), pts.max(axis=0)
+
 
 @dataclass
 class Medium:
-    """A homogeneous participating medium (Mitsuba's ``homogeneous``).
+    """A participating medium: Mitsuba's ``homogeneous`` or ``heterogeneous`` (``kind``).
 
     ``sigma_t``: extinction coefficient per scene unit per RGB channel, already multiplied
     by the file's ``scale``; ``albedo``: single-scattering albedo sigma_s / sigma_t per
     channel, in [0, 1]; ``phase``: ISOTROPIC or HENYEY_GREENSTEIN with asymmetry ``g`` in
     (-1, 1) (g > 0 scatters forwards).  A shape's ``interior`` / ``exterior`` and the
     camera's ``medium`` are indices into :attr:`SceneDescription.media` (-1: none).
+    A heterogeneous medium's coefficients are ``sigma_t_volume`` (``scale`` applied to its data) and
+    ``albedo_volume``; as in Mitsuba it exists only inside the world box of its ``sigma_t`` volume
+    (:meth:`Volume.bounds`), and ``sigma_t`` / ``albedo`` hold zeros.  A homogeneous medium with a <volume> albedo
+    (Mitsuba's homogeneous takes one) is such a medium too, with a constant sigma_t and ``bounded`` False: it fills
+    its shapes, as every homogeneous medium does.
     """
     sigma_t: tuple[float, float, float] = (1.0, 1.0, 1.0)
     albedo: tuple[float, float, float] = (0.75, 0.75, 0.75)
@@ -198,6 +240,10 @@ class Medium:
     g: float = 0.0
     id: str = ""
     source: str = ""  # "file:line" for messages
+    kind: int = HOMOGENEOUS
+    sigma_t_volume: Volume | None = None
+    albedo_volume: Volume | None = None
+    bounded: bool = True
 
 
 # Shape kinds.

@@ -31,7 +31,8 @@ from . import transforms as tf
 from .builtin import find_data_file
 from .conductors import CONDUCTOR_IOR
 from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR, CYLINDER, DIELECTRIC, DIFFUSE, DISK, DISTRIBUTIONS,
-                          FILTER_TYPES, HENYEY_GREENSTEIN, ISOTROPIC, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
+                          FILTER_TYPES, HENYEY_GREENSTEIN, HETEROGENEOUS, ISOTROPIC, NEAREST, TRILINEAR, Volume,
+                          CLAMP, REPEAT, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
                           PLASTIC, PPLASTIC, PRINCIPLED, PRINCIPLED_PARAMS, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           GGX, Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
@@ -40,6 +41,7 @@ from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, ve
 from .curves import curve_mesh, read_curves
 from .serialized import load_serialized
 from .textures import read_texels
+from .volume_files import read_grid
 
 # ----------------------------------------------------------------------------- the subset
 
@@ -169,10 +171,20 @@ EMITTER_PROPS = {
 }
 #: Environment emitters (at most one per scene, as in Mitsuba).
 ENVIRONMENT_TYPES = ("constant", "envmap")
-MEDIUM_PROPS = {"homogeneous": {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
-                                 # how Mitsuba samples the medium (shadow rays from inside it, a spectral
-                                 # majorant): accepted, they change the noise, not the image's expectation
-                                 "sample_emitters": BOOL, "has_spectral_extinction": BOOL}}
+MEDIUM_PROPS = {kind: {"sigma_t": COLOR, "albedo": COLOR, "scale": FLOAT,
+                        # how Mitsuba samples the medium (shadow rays from inside it, a spectral
+                        # majorant): accepted, they change the noise, not the image's expectation
+                        "sample_emitters": BOOL, "has_spectral_extinction": BOOL}
+                for kind in ("homogeneous", "heterogeneous")}
+#: A heterogeneous medium's sigma_t and albedo as volumes (Mitsuba 3's gridvolume and constvolume), and a homogeneous
+#: medium's albedo; ``raw`` and ``accel`` change nothing in RGB (no spectral upsampling, no GPU texture).
+VOLUME_PROPS = {"gridvolume": {"filename": STR, "to_world": XFORM, "filter_type": STR, "wrap_mode": STR, "raw": BOOL,
+                               "use_grid_bbox": BOOL, "accel": BOOL},
+                "constvolume": {"value": COLOR, "to_world": XFORM}}
+VOLUME_FILTERS = {"trilinear": TRILINEAR, "nearest": NEAREST}
+VOLUME_WRAPS = {"clamp": CLAMP, "repeat": REPEAT}
+#: The properties of a heterogeneous medium a <volume> may give.
+MEDIUM_VOLUMES = ("sigma_t", "albedo")
 PHASE_PROPS = {"isotropic": {}, "hg": {"g": FLOAT}}
 #: The names a medium takes inside a shape (Mitsuba's interior and exterior media).
 SHAPE_MEDIUM_NAMES = ("interior", "exterior")
@@ -248,11 +260,12 @@ DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
 #: The plugin tables and nested elements the one report checks in elements it cannot build.
 LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
-                 "film": ("rfilter",), "medium": ("phase",), "bsdf": ("texture", "ref", "bsdf")}
+                 "film": ("rfilter",), "medium": ("phase", "volume"), "bsdf": ("texture", "ref", "bsdf")}
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
-             "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS, "texture": TEXTURE_PROPS}
+             "rfilter": RFILTER_PROPS, "medium": MEDIUM_PROPS, "phase": PHASE_PROPS, "texture": TEXTURE_PROPS,
+             "volume": VOLUME_PROPS}
 
 
 LINT_TABLES = SUPPORTED
@@ -1289,9 +1302,13 @@ class _Loader:
         return self.element_index(node, "medium", self.medium_of_node, self.media, self.build_medium)
 
     def build_medium(self, node: Node) -> Medium:
-        """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults)."""
-        props = self.plugin(node, MEDIUM_PROPS, ("phase",))
+        """A <medium type="homogeneous">: sigma_t x scale, albedo and its <phase> (Mitsuba's defaults); or
+        "heterogeneous", or homogeneous with a <volume> albedo (:meth:`heterogeneous_medium`)."""
+        heterogeneous = node.attrs.get("type") == "heterogeneous"
+        props = self.plugin(node, MEDIUM_PROPS, ("phase", "volume"))
         scale = float(self.number(props, "scale", 1.0, nonneg=True))
+        if heterogeneous or any(obj.tag == "volume" for obj in props.objects):
+            return self.heterogeneous_medium(node, props, scale, bounded=heterogeneous)
         sigma_t = self.color(props, "sigma_t", (1.0, 1.0, 1.0), unbounded=True)
         albedo = self.color(props, "albedo", (0.75, 0.75, 0.75), unbounded=True)
         if max(albedo) > 1.0:
@@ -1300,16 +1317,108 @@ class _Loader:
         if not all(math.isfinite(c) and c <= tf.MAX_ABS_FLOAT for c in sigma):
             self.fail(props.node_of("scale" if props.has("scale") else "sigma_t"),
                       f"sigma_t x scale = {max(sigma_t)} x {scale} is beyond {tf.MAX_ABS_FLOAT:.3g} (float32)")
+        phase, g = self.phase_function(props.objects)
+        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=self.at(node))
+
+    def phase_function(self, objects: list[Node]) -> tuple[int, float]:
+        """(phase, g) of a medium's <phase> among its nested ``objects`` (isotropic without one, as Mitsuba)."""
+        phases = [o for o in objects if o.tag == "phase"]
         phase, g = ISOTROPIC, 0.0
-        if len(props.objects) > 1:
-            self.fail(props.objects[1], "a medium takes only one <phase>")
-        for obj in props.objects:
+        if len(phases) > 1:
+            self.fail(phases[1], "a medium takes only one <phase>")
+        for obj in phases:
             pprops = self.plugin(obj, PHASE_PROPS)
             if obj.attrs["type"] == "hg":
                 phase, g = HENYEY_GREENSTEIN, float(pprops.get("g", 0.8))   # Mitsuba's default g
                 if not -1.0 < g < 1.0:
                     self.fail(pprops.node_of("g"), f"'g' must lie strictly between -1 and 1, got {g}")
-        return Medium(sigma, albedo, phase, g, id=node.attrs.get("id", ""), source=self.at(node))
+        return phase, g
+
+    def heterogeneous_medium(self, node: Node, props: Props, scale: float, bounded: bool = True) -> Medium:
+        """A <medium type="heterogeneous">: its sigma_t (times scale) and albedo, each a number, an <rgb> or a
+        <volume> (:meth:`medium_volume`), and its <phase>.  Not ``bounded``: a homogeneous medium whose albedo is a
+        <volume>, which fills its shapes (no box) and whose sigma_t must be constant."""
+        given: dict[str, Node] = {}
+        for obj in props.objects:
+            if obj.tag != "volume":
+                continue
+            name = obj.attrs.get("name")
+            if name not in MEDIUM_VOLUMES:
+                self.fail(obj, "a medium's <volume> needs name=\"sigma_t\" or name=\"albedo\"",
+                          supported=list(MEDIUM_VOLUMES))
+            if name in given or props.has(name):
+                self.fail(obj, f"the medium's {name} is given twice")
+            if name == "sigma_t" and not bounded and obj.attrs.get("type") != "constvolume":
+                self.fail(obj, "a homogeneous medium's sigma_t is constant (a number, an <rgb> or a constvolume); "
+                               "a grid of sigma_t needs <medium type=\"heterogeneous\">")
+            given[name] = obj
+        sigma_t = self.medium_volume(props, given.get("sigma_t"), "sigma_t", 1.0, scale)
+        albedo = self.medium_volume(props, given.get("albedo"), "albedo", 0.75, 1.0)
+        phase, g = self.phase_function(props.objects)
+        return Medium((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), phase, g, id=node.attrs.get("id", ""), source=self.at(node),
+                      kind=HETEROGENEOUS, sigma_t_volume=sigma_t, albedo_volume=albedo, bounded=bounded)
+
+    def medium_volume(self, props: Props, vnode: Node | None, name: str, default: float, scale: float) -> Volume:
+        """A heterogeneous medium's ``name`` (sigma_t or albedo) as a :class:`Volume` with ``scale`` applied: a
+        <volume> (gridvolume, constvolume), or a number or <rgb>, which is Mitsuba's constvolume over the unit cube
+        [0, 1]³ (so a medium whose sigma_t is a number exists only there, as in Mitsuba)."""
+        to_world, filt, wrap, filename = np.eye(4), TRILINEAR, CLAMP, ""
+        if vnode is None:
+            where = props.node_of(name)
+            rgb = self.color(props, name, (default,) * 3, unbounded=True)
+            if name == "albedo" and max(rgb) > 1.0:
+                self.fail(where, f"'albedo' is sigma_s / sigma_t and must lie in [0, 1], got {rgb}")
+            data = np.asarray(rgb, np.float32).reshape(1, 1, 1, 3)
+        else:
+            where = vnode
+            vprops = self.plugin(vnode, VOLUME_PROPS)
+            if vprops.has("to_world"):
+                to_world = np.asarray(vprops.get("to_world"), np.float64)
+            if vnode.attrs["type"] == "constvolume":
+                data = np.asarray(self.color(vprops, "value", (1.0,) * 3, unbounded=True), np.float32).reshape(1, 1, 1, 3)
+            else:
+                data, (filt, wrap), filename, to_world = self.grid_volume(vnode, vprops, to_world)
+        if not data.min() >= 0.0:
+            what = f"grid volume {quoted(filename)}" if filename else "the value"
+            self.fail(where, f"{name}: {what} holds a negative value ({float(data.min()):g}); a medium's sigma_t and "
+                             f"albedo must not be negative")
+        if abs(np.linalg.det(to_world[:3, :3])) < 1e-300 or not np.all(np.isfinite(to_world)):
+            self.fail(where, f"{name}: the volume's to_world is singular (it maps the unit cube to nothing)")
+        data = data.astype(np.float64) * scale
+        if not np.all(data <= tf.MAX_ABS_FLOAT):
+            self.fail(where, f"{name} x scale = {float(data.max() / max(scale, 1e-300)):g} x {scale:g} is beyond "
+                             f"{tf.MAX_ABS_FLOAT:.3g} (float32)")
+        return Volume(data.astype(np.float32), np.linalg.inv(to_world), filt, wrap, filename, source=self.at(where))
+
+    def grid_volume(self, vnode: Node, vprops: Props, to_world: np.ndarray):
+        """(data, (filter, wrap), filename, to_world) of a <volume type="gridvolume">: its .vol file read
+        (:func:`~caustica.scene.volume_files.read_grid`), with ``use_grid_bbox`` the file's box mapped to the unit
+        cube first (Mitsuba's default ignores that box: the grid fills the unit cube, placed by ``to_world``)."""
+        filt = vprops.get("filter_type", "trilinear")
+        if filt not in VOLUME_FILTERS:
+            self.fail(vprops.node_of("filter_type"), f"unknown filter_type {quoted(filt)}",
+                      supported=list(VOLUME_FILTERS))
+        wrap = vprops.get("wrap_mode", "clamp")
+        if wrap not in VOLUME_WRAPS:
+            self.fail(vprops.node_of("wrap_mode"), f"wrap_mode {quoted(wrap)} is not supported",
+                      supported=list(VOLUME_WRAPS))
+        if not vprops.has("filename"):
+            self.fail(vnode, "a gridvolume needs <string name=\"filename\" .../> (a Mitsuba .vol file)")
+        filename = vprops.get("filename")
+        where = vprops.node_of("filename")
+        try:
+            path = self.find_file(where, filename, "grid volume")
+            self.files.append(Path(path))
+            data, bbox = read_grid(path)
+        except SceneError as exc:
+            self.fail(where, str(exc))
+        if vprops.get("use_grid_bbox", False):
+            extent = bbox[1] - bbox[0]
+            if not np.all(extent > 0.0):
+                self.fail(vprops.node_of("use_grid_bbox"), f"grid volume {quoted(filename)}'s bounding box "
+                                                           f"{bbox.tolist()} is empty; use_grid_bbox needs a box")
+            to_world = to_world @ _translation(bbox[0]) @ np.diag([*extent, 1.0])
+        return data, (VOLUME_FILTERS[filt], VOLUME_WRAPS[wrap]), filename, to_world
 
     def is_medium(self, obj: Node) -> bool:
         """Whether a shape's or sensor's child is a medium: a <medium>, or a <ref> named like one or
@@ -2151,3 +2260,9 @@ def load_scene_file(path: str | Path, defaults: dict[str, str] | None = None) ->
     desc = parse_scene_string(data, path.parent, defaults, str(path), main_file=path.resolve())
     desc.files.insert(0, path)
     return desc
+
+
+def _translation(t) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = t
+    return m

@@ -1,0 +1,299 @@
+"""Heterogeneous media (Mitsuba 3's ``heterogeneous`` with ``gridvolume`` and ``constvolume``) in ``pt``.
+
+1. A constant grid renders as the equivalent homogeneous medium: the same image within the noise of both
+   (tests/imagestats.py), RGB coefficients so that the majorant's null collisions carry per-channel weights.
+2. The trackers against quadrature: ratio tracking's mean transmittance, and delta tracking's weight of the
+   flights that pass, through an RGB grid (trilinear, nearest, repeated), equal exp(-integral of sigma_t) per
+   channel computed with SciPy's own interpolation of the grid (Mitsuba's convention: voxel i at (i + 1/2) / n,
+   clamped); the majorant grid bounds sigma_t wherever a ray reads it.
+3. A box of smoke made from a synthetic .vol (a density gradient, an RGB albedo grid) under an area light, against
+   Mitsuba 3's volpath (scalar_rgb), image mean within 2 % and block means within both renders' noise.
+4. Bad input: a missing, foreign, truncated or too large .vol, a negative density, a wrong channel count, each one
+   line with the file and line from the CLI (exit 2); the photon methods refuse the medium in one line.
+5. Bits: the homogeneous fog keeps its pinned image with the heterogeneous code compiled in.
+
+Tolerances come from the estimators' own statistics (standard errors over seeds or samples), 5 sigma.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+
+import numpy as np
+import pytest
+from scipy.ndimage import map_coordinates
+
+import caustica
+from caustica.jit import kernel
+from caustica.media import MediumTable
+from caustica.scene import parse_scene_string
+from caustica.scene.volume_files import write_grid
+from caustica.tables import compile_scene
+from caustica.scene.description import NEAREST, TRILINEAR, Volume
+from caustica.volumes import delta_tracking, majorant_grid, ratio_tracking
+from imagestats import N_SIGMA, assert_images_agree
+
+RES = 16
+SEEDS = (1, 2, 3, 4)
+
+
+def sensor(res=RES, spp=16):
+    return f"""<sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 1.2, 4.5" target="0, 0.3, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+            <rfilter type="box"/></film>
+        <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler></sensor>"""
+
+
+def box_scene(medium: str, res=RES, spp=16) -> str:
+    """A null-bounded box [-1, 1] x [0.1, 2.1] x [-1, 1] holding ``medium`` (a <medium> named interior), above a
+    grey floor (a box standing on the floor would share its face: which of two coincident surfaces a ray meets is
+    up to rounding), under a square area light."""
+    return f"""<scene version="3.0.0">
+        <integrator type="volpath"/>
+        {sensor(res, spp)}
+        <shape type="cube"><transform name="to_world"><translate y="1.1"/></transform>
+            <bsdf type="null"/>{medium}</shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="0.6"/><rotate x="1" angle="90"/>
+            <translate x="0.4" y="3"/></transform>
+            <emitter type="area"><rgb name="radiance" value="8, 7, 6"/></emitter></shape>
+    </scene>"""
+
+
+#: The box's unit cube -> [-1, 1] x [0.1, 2.1] x [-1, 1].
+BOX_LO = (-1.0, 0.1, -1.0)
+BOX_TO_WORLD = '<transform name="to_world"><scale value="2"/><translate x="-1" y="0.1" z="-1"/></transform>'
+
+
+def grid_medium(sigma_file, albedo, scale=1.0, extra="") -> str:
+    return f"""<medium type="heterogeneous" name="interior"><float name="scale" value="{scale}"/>
+        <volume type="gridvolume" name="sigma_t"><string name="filename" value="{sigma_file}"/>{BOX_TO_WORLD}{extra}
+        </volume>{albedo}<phase type="hg"><float name="g" value="0.3"/></phase></medium>"""
+
+
+def load(text, base_dir):
+    return compile_scene(parse_scene_string(text, base_dir=base_dir))
+
+
+def renders(scene, spp, res=RES):
+    return [caustica.render(scene, "pt", spp=spp, res=res, seed=s, threads=2).image for s in SEEDS]
+
+
+# --------------------------------------------------------------------------- 1. a constant grid
+
+SIGMA = (0.5, 1.0, 2.0)
+ALBEDO = (0.9, 0.6, 0.3)
+
+
+def test_a_constant_grid_renders_as_the_homogeneous_medium(tmp_path):
+    write_grid(tmp_path / "const.vol", np.broadcast_to(np.float32(SIGMA), (3, 4, 5, 3)) / 2.0)
+    albedo = f'<rgb name="albedo" value="{", ".join(map(str, ALBEDO))}"/>'
+    hetero = load(box_scene(grid_medium("const.vol", albedo, scale=2.0)), tmp_path)
+    homo = load(box_scene(f"""<medium type="homogeneous" name="interior"><rgb name="sigma_t"
+        value="{", ".join(map(str, SIGMA))}"/>{albedo}<phase type="hg"><float name="g" value="0.3"/></phase>
+        </medium>"""), tmp_path)
+    assert type(hetero.media) is MediumTable and type(homo.media) is not MediumTable   # every kind vs homogeneous
+    assert_images_agree(renders(hetero, 64), renders(homo, 64), label="constant grid vs homogeneous")
+
+
+# --------------------------------------------------------------------------- 2. the trackers
+
+N_GRID = (40, 5, 20)   # nx, ny, nz: more voxels than majorant cells along x and z
+
+
+def gradient_grid():
+    """An RGB grid, (nz, ny, nx, 3): densities rising along x, y and z at different rates per channel."""
+    nx, ny, nz = N_GRID
+    z, y, x = np.meshgrid((np.arange(nz) + 0.5) / nz, (np.arange(ny) + 0.5) / ny, (np.arange(nx) + 0.5) / nx,
+                          indexing="ij")
+    return np.stack([0.2 + 2.0 * x, 1.0 + y * z, 0.1 + 3.0 * x * (1 - y)], axis=-1).astype(np.float32)
+
+
+def optical_depth(data, o, d, s, mode, n=20001):
+    """Per channel, the integral of sigma_t over [0, s] of o + t d (world = the box), by the trapezoid rule on
+    SciPy's interpolation of the grid (index = unit-cube coordinate x n - 1/2, edges clamped or wrapped round)."""
+    t = np.linspace(0.0, s, n)
+    p = np.asarray(o)[None, :] + t[:, None] * np.asarray(d)[None, :]
+    unit = (p - np.array(BOX_LO)) / 2.0
+    inside = np.all((unit >= 0.0) & (unit <= 1.0), axis=1)   # the medium exists inside its box only
+    nz, ny, nx = data.shape[:3]
+    idx = np.stack([unit[:, 2] * nz - 0.5, unit[:, 1] * ny - 0.5, unit[:, 0] * nx - 0.5])
+    if mode == "nearest":
+        idx = np.floor(idx + 0.5)
+    sig = np.stack([map_coordinates(data[..., c], idx, order=0 if mode == "nearest" else 1,
+                                    mode="grid-wrap" if mode == "repeat" else "nearest")
+                    for c in range(3)], axis=1) * inside[:, None]
+    return np.trapezoid(sig, t, axis=0) if hasattr(np, "trapezoid") else np.trapz(sig, t, axis=0)
+
+
+@kernel
+def _track_many(media, ray, s, n, delta):
+    """n estimates of the transmittance over [0, s]: ratio tracking's, or delta tracking's weight of a flight
+    that passes s (0 for one that scatters first)."""
+    out = np.zeros((n, 3))
+    for i in range(n):
+        if delta:
+            _, scattered, w, _ = delta_tracking(media, 0, ray, s, np.uint64(i * 7919 + 1), 0)
+            if scattered:
+                w = (0.0, 0.0, 0.0)
+        else:
+            w = ratio_tracking(media, 0, ray, s, np.uint64(i * 7919 + 1))
+        out[i, 0] = w[0]
+        out[i, 1] = w[1]
+        out[i, 2] = w[2]
+    return out
+
+
+@pytest.mark.parametrize("mode", ["trilinear", "nearest", "repeat"])
+@pytest.mark.parametrize("delta", [False, True], ids=["ratio", "delta"])
+def test_tracked_transmittance_matches_quadrature(tmp_path, mode, delta):
+    """(repeat: within half a voxel of its faces the grid blends its first and last voxels.)"""
+    data = gradient_grid()
+    write_grid(tmp_path / "grad.vol", data)
+    extra = {"trilinear": "", "nearest": '<string name="filter_type" value="nearest"/>',
+             "repeat": '<string name="wrap_mode" value="repeat"/>'}[mode]
+    scene = load(box_scene(grid_medium("grad.vol", '<float name="albedo" value="0.8"/>', extra=extra)), tmp_path)
+    for o, target in (((-1.5, 1.0, 0.0), (1.5, 1.0, 0.0)), ((-0.9, 0.1, -0.8), (0.7, 1.9, 0.95)),
+                      ((0.2, 2.5, 0.3), (0.1, -0.4, -0.2))):
+        seg = np.subtract(target, o)
+        s = float(np.linalg.norm(seg))
+        d = tuple(seg / s)
+        est = _track_many(scene.media, (tuple(map(float, o)), d), s, 40000, delta)
+        want = np.exp(-optical_depth(data, o, d, s, mode))
+        se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
+        assert np.all(np.abs(est.mean(axis=0) - want) <= N_SIGMA * se + 1e-4), (o, est.mean(axis=0), want, se)
+
+
+@pytest.mark.parametrize("mode", ["trilinear", "nearest"])
+def test_the_majorant_grid_bounds_sigma_t_wherever_a_ray_reads_it(mode):
+    """Each cell's majorant is at least sigma_t at every point of the cell, and beyond the unit cube at every point
+    whose cell index is clamped to it (the walk's convention), for a grid of more voxels than cells on two axes."""
+    rng = np.random.default_rng(5)
+    data = rng.gamma(0.5, 2.0, size=(33, 7, 20, 3)).astype(np.float32)   # (nz, ny, nx, channels)
+    vol = Volume(data, np.eye(4), NEAREST if mode == "nearest" else TRILINEAR)
+    maj = majorant_grid(vol)
+    cz, cy, cx = maj.shape
+    assert (cz, cy, cx) == (16, 7, 16) and maj.max() == data.max()
+    p = rng.uniform(-0.2, 1.2, size=(200000, 3))
+    idx = np.stack([p[:, 2] * 33 - 0.5, p[:, 1] * 7 - 0.5, p[:, 0] * 20 - 0.5])
+    if mode == "nearest":
+        idx = np.floor(idx + 0.5)
+    value = np.max([map_coordinates(data[..., c], idx, order=0 if mode == "nearest" else 1, mode="nearest")
+                    for c in range(3)], axis=0)
+    cell = [np.clip(np.floor(p[:, a] * n), 0, n - 1).astype(int) for a, n in ((2, cz), (1, cy), (0, cx))]
+    assert np.all(value <= maj[cell[0], cell[1], cell[2]] * (1 + 1e-6))
+
+
+# --------------------------------------------------------------------------- 3. against Mitsuba 3
+
+MI_RES, MI_SPP = 32, 128
+
+
+def smoke_files(folder):
+    """A density gradient (rising with height, thinning towards the box's sides) and an RGB albedo grid."""
+    nx, ny, nz = 8, 12, 8
+    z, y, x = np.meshgrid((np.arange(nz) + 0.5) / nz, (np.arange(ny) + 0.5) / ny, (np.arange(nx) + 0.5) / nx,
+                          indexing="ij")
+    write_grid(folder / "smoke.vol", (0.2 + 1.5 * y) * (1.0 - 0.8 * np.abs(x - 0.5)))
+    write_grid(folder / "albedo.vol", np.stack([0.9 - 0.3 * y, 0.5 + 0.4 * x, 0.8 * np.ones_like(z)], axis=-1))
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("kind", ["smoke", "homogeneous-textured"])
+def test_a_box_of_smoke_matches_mitsuba_volpath(mi, tmp_path, kind):
+    """smoke: the density gradient and RGB albedo grid; homogeneous-textured: Mitsuba's homogeneous medium with a
+    <volume> albedo (the grid tiled twice across the box, wrap_mode repeat), which fills the box."""
+    smoke_files(tmp_path)
+    albedo = f'<volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>{BOX_TO_WORLD}' \
+             f'</volume>'
+    medium = grid_medium("smoke.vol", albedo, scale=1.5)
+    if kind == "homogeneous-textured":
+        medium = """<medium type="homogeneous" name="interior"><float name="sigma_t" value="0.8"/>
+            <volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>
+            <string name="wrap_mode" value="repeat"/><transform name="to_world"><translate y="0.1"/></transform>
+            </volume></medium>"""
+    text = box_scene(medium, res=MI_RES, spp=MI_SPP)
+    (tmp_path / "smoke.xml").write_text(text)
+    ours = renders(caustica.load_scene(tmp_path / "smoke.xml"), MI_SPP, res=MI_RES)
+    theirs_scene = mi.load_file(str(tmp_path / "smoke.xml"))
+    theirs = [np.array(mi.render(theirs_scene, spp=MI_SPP, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
+    assert_images_agree(ours, theirs, label="box of smoke vs Mitsuba volpath")
+
+
+# --------------------------------------------------------------------------- 4. bad input
+
+def _scene_file(tmp_path, medium):
+    """The box scene without its integrator (a volpath integrator under a photon method prints a note)."""
+    path = tmp_path / "scene.xml"
+    path.write_text(box_scene(medium).replace('<integrator type="volpath"/>', ""))
+    return path
+
+
+def _refused(cli, tmp_path, scene, *args):
+    out = tmp_path / "out"
+    code, _, err = cli("render", scene, "--res", "8", "--spp", "1", "-q", "-o", out / "x.exr", *args)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("caustica: error: "), err
+    assert "Traceback" not in err and not out.exists()
+    return lines[0]
+
+
+def _header(nx, ny, nz, channels, magic=b"VOL", version=3):
+    return magic + bytes([version]) + np.array([1, nx, ny, nz, channels], "<i4").tobytes() + \
+        np.array([0, 0, 0, 1, 1, 1], "<f4").tobytes()
+
+
+@pytest.mark.parametrize("case, words", [
+    ("missing", ("nothere.vol", "not found")),
+    ("magic", ("not a Mitsuba .vol file",)),
+    ("truncated", ("truncated", "4 x 4 x 4 voxels x 1 channels")),
+    ("negative", ("negative value (-0.5)",)),
+    ("channels", ("2 channels", "1 (grey) or 3 (RGB)")),
+    ("memory", ("GB", "more than the", "coarser grid")),
+])
+def test_bad_grid_files_are_one_line_with_file_and_line(cli, tmp_path, case, words):
+    grid = tmp_path / "grid.vol"
+    if case == "magic":
+        grid.write_bytes(b"PNG" + bytes(100))
+    elif case == "truncated":
+        grid.write_bytes(_header(4, 4, 4, 1) + bytes(4 * 60))
+    elif case == "negative":
+        write_grid(grid, np.full((2, 2, 2), -0.5))
+    elif case == "channels":
+        grid.write_bytes(_header(2, 2, 2, 2) + bytes(4 * 16))
+    elif case == "memory":
+        grid.write_bytes(_header(1 << 15, 1 << 15, 1 << 15, 3) + bytes(64))
+    name = "nothere.vol" if case == "missing" else "grid.vol"
+    line = _refused(cli, tmp_path, _scene_file(tmp_path, grid_medium(name, "")))
+    assert "scene.xml:" in line, line
+    for w in words:
+        assert w in line, (w, line)
+
+
+def test_a_grid_of_the_wrong_channel_count_names_its_element(cli, tmp_path):
+    write_grid(tmp_path / "grid.vol", np.ones((2, 2, 2, 3)))
+    line = _refused(cli, tmp_path, _scene_file(tmp_path, grid_medium("grid.vol", "").replace(
+        'name="sigma_t"', 'name="density"')))
+    assert "name=\"sigma_t\" or name=\"albedo\"" in line, line
+
+
+@pytest.mark.parametrize("method", ["pm", "sppm", "spm", "pspm"])
+def test_the_photon_methods_refuse_a_heterogeneous_medium_in_one_line(cli, tmp_path, method):
+    write_grid(tmp_path / "grid.vol", np.ones((2, 2, 2)))
+    line = _refused(cli, tmp_path, _scene_file(tmp_path, grid_medium("grid.vol", "")), "--method", method)
+    for w in ("scene.xml:", "heterogeneous", f"method {method}", "--method pt"):
+        assert w in line, (w, line)
+
+
+# --------------------------------------------------------------------------- 5. bits
+
+def test_the_homogeneous_fog_keeps_its_bits_with_the_heterogeneous_code_compiled():
+    from test_bit_pins import CASES, load_pins
+    scene_name, method, kw = CASES["pt-fog"]
+    scene = caustica.load_scene(scene_name)
+    assert type(scene.media) is not MediumTable   # compiled without the heterogeneous code by default
+    scene.media = MediumTable(*scene.media)       # every kind of medium compiled
+    image = np.ascontiguousarray(caustica.render(scene, method=method, seed=3, threads=2, **kw).image, np.float32)
+    assert hashlib.sha256(image.tobytes()).hexdigest()[:20] == load_pins()["pt-fog"]
