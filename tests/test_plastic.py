@@ -363,6 +363,19 @@ def test_sppm_refuses_a_blend_of_a_coated_and_another_diffuse_lobe(cli, tmp_path
     assert code == 2 and err.count("\n") == 1 and "blendbsdf" in err and "coated diffuse lobe" in err, err
 
 
+def test_a_refusal_is_alone_on_stderr_under_a_scene_integrator(cli, tmp_path):
+    """A scene whose <integrator> the method does not follow gets a note on stderr, but not before a refusal: the
+    refusal is the one line (the note came first until 2026-12-04)."""
+    path = write_scene(tmp_path, '<bsdf type="roughplastic"/>')
+    path.write_text(path.read_text().replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
+                                             '<integrator type="volpath"/>'))
+    code, _, err = cli("render", path, "-m", "pm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
+    assert code == 2 and err.count("\n") == 1 and err.startswith("caustica: error: "), err
+    path.write_text(path.read_text().replace('<bsdf type="roughplastic"/>', '<bsdf type="diffuse"/>'))
+    code, _, err = cli("render", path, "-m", "pm", "--res", "8", "--photons", "1000", "-q", "-o", tmp_path / "p.exr")
+    assert code == 0 and "note: integrator 'volpath'" in err, err
+
+
 def test_methods_that_render_plastic_accept_it(tmp_path):
     """pt renders both, pm plastic, sppm both: a finite, non-black image."""
     for bsdf, method in (("plastic", "pt"), ("roughplastic", "pt"), ("plastic", "pm"), ("plastic", "sppm"),

@@ -359,6 +359,7 @@ def visible_point(tables, o, d, numbers, params, out):
             p_last = p
         else:
             take_coat, coating = False, (zero, -1.0, zero, zero)   # (wc, P, w_coat, A): P < 0 without a coating
+            pdf_coat = 0.0   # a glossy coating's sampled direction's density
             if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
                 # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
                 take_coat, coating, L, first_glass, dim = coating_step(
