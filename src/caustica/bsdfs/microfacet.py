@@ -72,7 +72,12 @@ def smith_g1(dist, alpha, v, m):
     xy2 = alpha * alpha * (v[0] * v[0] + v[1] * v[1])
     if xy2 == 0.0:
         return 1.0
-    t2 = xy2 / (v[2] * v[2])      # α² tan²θ_v
+    return g1_of(dist, xy2 / (v[2] * v[2]))      # α² tan²θ_v
+
+
+@kernel(inline=True)
+def g1_of(dist, t2):
+    """Smith's masking from t2 = α² tan²θ_v (the roughness projected on v's azimuth, where it is anisotropic)."""
     if dist == BECKMANN:
         a = 1.0 / math.sqrt(t2)
         lam = 0.5 * (math.exp(-a * a) * INV_SQRT_PI / a - math.erfc(a))
@@ -133,24 +138,7 @@ def sample_ggx_11(wi, u1, u2):
 def sample_visible(dist, alpha, wi, u1, u2):
     """A microfacet normal m seen from wi (local, cos θ_wi > 0), with density (per solid angle of m)
     G1(wi, m) |wi·m| D(m) / cos θ_wi, which the BSDFs write out where they need it."""
-    st = vec.normalize((alpha * wi[0], alpha * wi[1], wi[2]))   # stretched to α = 1
-    if dist == GGX:
-        n = sample_ggx_11(st, u1, u2)
-        return vec.normalize((alpha * n[0], alpha * n[1], max(n[2], 1e-30)))
-    sin_t = math.sqrt(max(0.0, 1.0 - st[2] * st[2]))
-    tan_t = sin_t / st[2]
-    sx = beckmann_slope(u1, tan_t)
-    sy = beckmann_slope(u2, 0.0)
-    if sin_t > 0.0:
-        cp = st[0] / sin_t
-        sp = st[1] / sin_t
-    else:
-        cp = 1.0
-        sp = 0.0
-    # rotate the slopes to wi's azimuth, unstretch; the normal of slope (x, y) is (-x, -y, 1)
-    x = (cp * sx - sp * sy) * alpha
-    y = (sp * sx + cp * sy) * alpha
-    return vec.normalize((-x, -y, 1.0))
+    return sample_visible_uv(dist, alpha, alpha, wi, u1, u2)
 
 
 @kernel
@@ -211,20 +199,13 @@ def smith_g1_uv(dist, au, av, v, m):
     xy2 = x * x + y * y
     if xy2 == 0.0:
         return 1.0
-    t2 = xy2 / (v[2] * v[2])      # the projected roughness squared times tan²θ_v
-    if dist == BECKMANN:
-        a = 1.0 / math.sqrt(t2)
-        lam = 0.5 * (math.exp(-a * a) * INV_SQRT_PI / a - math.erfc(a))
-        return 1.0 / (1.0 + lam)
-    return 2.0 / (1.0 + math.sqrt(1.0 + t2))
+    return g1_of(dist, xy2 / (v[2] * v[2]))      # the projected roughness squared times tan²θ_v
 
 
 @kernel
 def sample_visible_uv(dist, au, av, wi, u1, u2):
     """:func:`sample_visible` with roughness au along s and av along t: the density is G1 |wi·m| D / cos θ_wi with
-    :func:`D_uv` and :func:`smith_g1_uv`."""
-    if au == av:
-        return sample_visible(dist, au, wi, u1, u2)
+    :func:`D_uv` and :func:`smith_g1_uv` (with au = av the isotropic one's, with the same arithmetic)."""
     st = vec.normalize((au * wi[0], av * wi[1], wi[2]))   # stretched to α = 1
     if dist == GGX:
         n = sample_ggx_11(st, u1, u2)
@@ -239,6 +220,7 @@ def sample_visible_uv(dist, au, av, wi, u1, u2):
     else:
         cp = 1.0
         sp = 0.0
+    # rotate the slopes to wi's azimuth, unstretch; the normal of slope (x, y) is (-x, -y, 1)
     x = (cp * sx - sp * sy) * au
     y = (sp * sx + cp * sy) * av
     return vec.normalize((-x, -y, 1.0))
