@@ -37,6 +37,11 @@ is the sum over its bilinear patches of their mean radiance times their solid an
 as Mitsuba 3 does (:func:`env_lookup`) and sampled by luminance (:func:`env_sample`); a constant one
 uniformly over the sphere.
 
+An area emitter's radiance may be a texture (Mitsuba's ``<texture name="radiance">``): radiance[e] x T(uv) at the
+point's surface coordinates (:func:`area_radiance`).  Its points are still sampled uniformly by area, each weighted
+by the texture there (Mitsuba samples the texture's image instead: the same expectation), and its power is
+π ∫ T dA by a quadrature over that sampling (:func:`texture_area_mean`), which only chooses between lights.
+
 Points on an area emitter are sampled uniformly by area.  A rectangle (a
 parallelogram of two triangles) is sampled through its own (u, v) parametrisation,
 so a regular grid of (u, v) lands on a regular grid on the light (the paper's
@@ -52,7 +57,7 @@ import numpy as np
 
 from .bsdfs.textures import NEAREST, REPEAT, texture_columns, texture_rgb, wrap
 from .geometry import vec
-from .geometry.scene_geometry import Geometry, sample_on_primitive
+from .geometry.scene_geometry import Geometry, hit_uv, sample_on_primitive, surface_uv
 from .features import has, specialisable
 from .jit import kernel
 from .sampling.warps import square_to_uniform_sphere
@@ -64,6 +69,7 @@ ENV = 2
 SPOT = 3          # a point light with an angular falloff (its axis in LightTable.normal, its cone in .cone)
 DIRECTIONAL = 4   # a delta light at infinity (its direction of travel in LightTable.normal)
 PROJECTOR = 5     # a point light projecting an image (its frame in edge1, edge2, normal; its image in .cone)
+TEXTURED_AREA = 6  # not a kind: the feature code of a LightTable holding an area emitter with a texture
 ENV_TO_WORLD = 4   # offsets into LightTable.env_data
 TEX_OF, TEX_CDF = 6, 7   # columns of LightTable.tex_int past the texture's own: 1 if the light has a texture;
 #                          the offset of its sampling tables in tex_cdf (-1: none)
@@ -152,7 +158,7 @@ def _area_rows(c: dict, emissive: list, geom: Geometry) -> None:
         c["radiance"][e] = shape.emitter_radiance
         c["area"][e] = geom.emitter_area[e]
         c["power"][e] = math.pi * c["area"][e] * np.asarray(shape.emitter_radiance)
-        quad = _parallelogram(shape)
+        quad = _parallelogram(shape) if shape.emitter_texture is None else None   # textured: uv from the mesh
         if quad is not None:
             c["is_parallelogram"][e] = 1
             c["corner"][e], c["edge1"][e], c["edge2"][e], c["normal"][e] = quad
@@ -212,7 +218,7 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
     c = _light_columns(n)
     _area_rows(c, emissive, geom)
     _point_rows(c, desc, n_area)
-    textures = _light_textures(desc, n_area, n)
+    textures = _light_textures(desc, emissive, n)
     env = _environment_tables(desc, geom)
     disc = math.pi * env["env_data"][3] ** 2
     for j, light in enumerate(desc.directional_lights):
@@ -231,6 +237,9 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
                        prims=geom.emitter_prim_ids.astype(np.int32), prim_cdf=geom.emitter_cdf.astype(np.float64),
                        **env, **textures)
     power, radiance = c["power"], c["radiance"]
+    for e, shape in enumerate(emissive):
+        if shape.emitter_texture is not None:   # π A x the texture's mean over the emitter
+            power[e] = math.pi * c["area"][e] * radiance[e] * np.asarray(texture_area_mean(table, geom, e, 256))
     for j, light in enumerate(desc.point_lights):
         if light.texture is not None:   # a textured spot: I ∫ f T dω by quadrature
             i = n_area + j
@@ -273,25 +282,25 @@ def discrete_2d(prob: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return row_cdf, col_cdf
 
 
-def _light_textures(desc: SceneDescription, n_area: int, n: int) -> dict:
-    """The LightTable's texture columns: one row per light (rows of the area emitters and directional lights
-    empty), and a projector's bitmap's sampling tables (Mitsuba's DiscreteDistribution2D over the texels'
-    luminance)."""
-    lights = list(desc.point_lights) + list(desc.projectors)
-    index, ints, floats, texels, _, _ = texture_columns([_Textured(x.texture) for x in lights])
+def _light_textures(desc: SceneDescription, emissive: list, n: int) -> dict:
+    """The LightTable's texture columns: one row per light (rows of the untextured area emitters and of the
+    directional lights empty), and a projector's bitmap's sampling tables (Mitsuba's DiscreteDistribution2D over the
+    texels' luminance)."""
+    n_area = len(emissive)
+    textures = ([s.emitter_texture for s in emissive] + [x.texture for x in desc.point_lights]
+                + [x.texture for x in desc.projectors])
+    index, ints, floats, texels, _, _ = texture_columns([_Textured(t) for t in textures])
     tex_int = np.zeros((n, 8), np.int64)
     tex_int[:, TEX_CDF] = -1
     tex_float = np.zeros((n, 12))
     chunks, offset = [], 0
-    for j, light in enumerate(lights):
-        tex = light.texture
+    for i, tex in enumerate(textures):
         if tex is None:
             continue
-        i = n_area + j
-        tex_int[i, :6] = ints[index[j]]
-        tex_float[i] = floats[index[j]]
+        tex_int[i, :6] = ints[index[i]]
+        tex_float[i] = floats[index[i]]
         tex_int[i, TEX_OF] = 1
-        if j >= len(desc.point_lights) and tex.kind == BITMAP:
+        if i >= n_area + len(desc.point_lights) and tex.kind == BITMAP:
             lum = tex.texels.astype(np.float64) @ np.asarray(LUMINANCE)
             total = lum.sum()
             if not total > 0.0:
@@ -598,6 +607,70 @@ def sample_area_emitter(lights, geom, e, u1, u2):
     if lights.is_parallelogram[e] == 1:
         return parallelogram_point(lights, e, u1, u2)
     return sample_emitter_primitives(lights, geom, e, u1, u2)
+
+
+@kernel(inline=True)
+def area_radiance(lights, e, uv):
+    """Area emitter e's radiance at surface coordinates uv (its radiance row, times its texture there if it has
+    one; uv is read only then)."""
+    if has(lights, TEXTURED_AREA) and lights.tex_int[e, TEX_OF] != 0:
+        return vec.hadamard(vec.row(lights.radiance, e),
+                            texture_rgb((lights.tex_int, lights.tex_float, lights.texels), e, uv))
+    return vec.row(lights.radiance, e)
+
+
+@kernel(inline=True)
+def radiance_at_hit(geom, lights, e, prim, ray):
+    """The radiance area emitter e sends back along the ray that meets its primitive prim at ``ray`` = (o, d, t,
+    b1, b2) (on its front side: the caller checks); the surface coordinates are looked up only for a textured
+    emitter."""
+    if has(lights, TEXTURED_AREA) and lights.tex_int[e, TEX_OF] != 0:
+        o, d, t, b1, b2 = ray
+        return area_radiance(lights, e, surface_uv(geom, prim, o, d, t, b1, b2))
+    return vec.row(lights.radiance, e)
+
+
+@kernel
+def textured_emitter_point(lights, geom, e, u1, u2):
+    """:func:`sample_emitter_primitives`' point on textured area emitter e with the radiance leaving it there:
+    (position, front normal, radiance)."""
+    first = lights.prim_first[e]
+    j = find_cdf(lights.prim_cdf, first, lights.prim_count[e], u1)
+    lo = lights.prim_cdf[j - 1] if j > first else 0.0
+    width = lights.prim_cdf[j] - lo
+    u1r = min(max((u1 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
+    prim = lights.prims[j]
+    p, n = sample_on_primitive(geom, prim, u1r, u2)
+    s = math.sqrt(u1r)   # the barycentrics primitives.sample_triangle gives the point
+    uv = hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (p, (0.0, 0.0, 0.0), 0.0),
+                (1.0 - s, u2 * s))
+    return p, n, area_radiance(lights, e, uv)
+
+
+@kernel(inline=True)
+def emitter_point(lights, geom, e, u1, u2):
+    """:func:`sample_area_emitter`'s point on area emitter e with the radiance leaving it: (position, front normal,
+    radiance); pdf = 1 / area[e]."""
+    if has(lights, TEXTURED_AREA) and lights.tex_int[e, TEX_OF] != 0:
+        return textured_emitter_point(lights, geom, e, u1, u2)
+    p, n = sample_area_emitter(lights, geom, e, u1, u2)
+    return p, n, vec.row(lights.radiance, e)
+
+
+@kernel
+def texture_area_mean(lights, geom, e, n):
+    """The mean over area emitter e of its texture (per channel): the points of an n x n grid of cell centres
+    mapped by :func:`textured_emitter_point` (uniform by area), averaged; the power of a textured emitter is π
+    area x radiance x this."""
+    acc = (0.0, 0.0, 0.0)
+    for i in range(n):
+        for j in range(n):
+            _, _, L = textured_emitter_point(lights, geom, e, (i + 0.5) / n, (j + 0.5) / n)
+            acc = vec.add(acc, L)
+    r = vec.row(lights.radiance, e)
+    inv = 1.0 / (n * n)
+    return (acc[0] * inv / r[0] if r[0] > 0.0 else 0.0, acc[1] * inv / r[1] if r[1] > 0.0 else 0.0,
+            acc[2] * inv / r[2] if r[2] > 0.0 else 0.0)
 
 
 @kernel

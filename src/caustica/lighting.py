@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 
 from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf
-from .emitters import AREA, DIRECTIONAL, ENV, SPOT, env_pdf, env_radiance, env_sample, profile, profiled, \
-    sample_area_emitter, spot_falloff
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, TEX_OF, TEXTURED_AREA, emitter_point, env_pdf, env_radiance, \
+    env_sample, profile, profiled, spot_falloff
 from .geometry import vec
 from .features import has
 from .scene.description import PLASTIC, ROUGHPLASTIC
@@ -126,9 +126,10 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
             E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated))
         elif lights.kind[li] == AREA:
             acc = (0.0, 0.0, 0.0)
+            textured = has(lights, TEXTURED_AREA) and lights.tex_int[li, TEX_OF] != 0
             for s in range(n_total):
                 u1, u2 = stratum_point(s, key, dim, n_strata, fixed_grid, pass_index)
-                q, nq = sample_area_emitter(lights, geom, li, u1, u2)
+                q, nq, Lq = emitter_point(lights, geom, li, u1, u2)
                 to_l = vec.sub(q, p)
                 dist2 = vec.dot(to_l, to_l)
                 if not dist2 > 0.0:
@@ -144,7 +145,11 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                 g = cos_s * cos_l / dist2
                 if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                     g *= entry(mats, coated, cos_s)
+                if textured:
+                    T = vec.hadamard(T, Lq)   # the radiance there, the row's included
                 acc = vec.madd(acc, T, g)
+            if textured:
+                rad = (1.0, 1.0, 1.0)
             area = lights.area[li]
             E = (E[0] + rad[0] * (acc[0] * area / n_total), E[1] + rad[1] * (acc[1] * area / n_total),
                  E[2] + rad[2] * (acc[2] * area / n_total))

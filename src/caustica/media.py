@@ -39,8 +39,8 @@ import numpy as np
 
 from .bsdfs import NULL_TRANSMISSION, TEXTURED, null_transmission
 from .bsdfs.mixtures import pass_probability
-from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, env_sample, profile, profiled, sample_area_emitter, \
-    spot_falloff
+from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, emitter_point, env_sample, profile, profiled, \
+    sample_area_emitter, spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, surface_uv
 from .features import ALL, bits, has, specialisable, specialised
@@ -423,10 +423,11 @@ def light_sample(tables, at, u, through):
         return profiled_light_sample(tables, at, li, sel_pdf, through)
     is_area = lights.kind[li] == AREA
     if is_area:
-        q, nq = sample_area_emitter(lights, geom, li, u1, u2)
+        q, nq, Lq = emitter_point(lights, geom, li, u1, u2)
     else:
         q = vec.row(lights.position, li)
         nq = zero
+        Lq = vec.row(lights.radiance, li)
     to_l = vec.sub(q, p)
     dist2 = vec.dot(to_l, to_l)
     if not dist2 > 0.0:
@@ -448,7 +449,7 @@ def light_sample(tables, at, u, through):
     T, rays = shadow_transmittance(geom, mats, media, o, target, medium)
     if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
         return zero, wi, 0.0, 0.0, is_area, False, rays
-    Le = vec.hadamard(vec.row(lights.radiance, li), T)
+    Le = vec.hadamard(Lq, T)
     if has(lights, SPOT) and lights.kind[li] == SPOT:
         Le = vec.mul(Le, falloff)
     return vec.mul(Le, (cos_s if shape >= 0 else 1.0) / pdf), wi, pdf if is_area else 0.0, cos_s, is_area, True, \

@@ -15,7 +15,7 @@ import numpy as np
 
 from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features
 from .camera import CameraParams, camera_params
-from .emitters import AREA, POINT, LightTable, build_light_table
+from .emitters import AREA, POINT, TEX_OF, TEXTURED_AREA, LightTable, build_light_table
 from .errors import SceneError
 from .features import ALL, bits, specialised
 from .geometry.bounds import shape_bounding_sphere
@@ -118,7 +118,9 @@ CORE_LIGHTS = bits(AREA, POINT)
 
 def specialise(mats: MaterialTable, lights: LightTable) -> tuple[MaterialTable, LightTable]:
     """The material and light tables as instances of the classes of their feature set (CORE_*, or ALL)."""
-    core = material_features(mats) & ~CORE_MATERIALS == 0 and bits(*np.unique(lights.kind)) & ~CORE_LIGHTS == 0
+    textured = np.any((lights.kind == AREA) & (lights.tex_int[:, TEX_OF] != 0))
+    light_features = bits(*np.unique(lights.kind)) | (bits(TEXTURED_AREA) if textured else 0)
+    core = material_features(mats) & ~CORE_MATERIALS == 0 and light_features & ~CORE_LIGHTS == 0
     return (specialised(MaterialTable, CORE_MATERIALS if core else ALL)(*mats),
             specialised(LightTable, CORE_LIGHTS if core else ALL)(*lights))
 

@@ -361,6 +361,7 @@ def build_geometry(desc: SceneDescription) -> Geometry:
     tri_area = np.concatenate([p[8] for p in tri_parts]) if tri_parts else np.zeros(0)
     textured = any(getattr(m, "texture", None) is not None or getattr(m, "mix_texture", None) is not None
                    or getattr(m, "anisotropic", False) for m in desc.materials)   # (anisotropic: dp/du from uv)
+    textured = textured or any(s.emitter_texture is not None for s in desc.shapes)
     tri_uv = (_f64(np.concatenate([p[9] for p in tri_parts]), (6,)) if textured and tri_parts
               else np.zeros((0, 6)))
     tri_shape = (np.concatenate([np.full(len(p[1]), p[0]) for p in tri_parts])

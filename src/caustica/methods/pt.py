@@ -44,7 +44,7 @@ from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmi
 from ..camera import generate_ray, pixel_of
 from ..errors import ParameterError
 from ..geometry import vec
-from ..emitters import ENV
+from ..emitters import ENV, radiance_at_hit
 from ..features import has
 from ..scene.description import HETEROGENEOUS, THINDIELECTRIC
 from ..jit import kernel, parallel_for
@@ -103,14 +103,14 @@ def surface_event(tables, at, m, d, acc, key, dim):
 
 
 @kernel(inline=True)
-def emitted(lights, e, acc, last, hit):
-    """L plus β times emitter e's radiance reached at ``hit`` = (p, cos_l, t, null crossings since the last
-    scattering), MIS-weighted against light sampling from ``last`` = (specular, pdf_last, p_last)
+def emitted(lights, emitter, acc, last, hit):
+    """L plus β times the radiance Le of ``emitter`` = (e, Le) reached at ``hit`` = (p, cos_l, t, null crossings
+    since the last scattering), MIS-weighted against light sampling from ``last`` = (specular, pdf_last, p_last)
     (:func:`caustica.lighting.emission_mis`); ``acc`` = (L, β)."""
     L, beta = acc
+    e, Le = emitter
     p, cos_l, t, crossed = hit
-    return vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)), emission_mis(lights, e, last, cos_l, t, crossed,
-                                                                                     p))
+    return vec.madd(L, vec.hadamard(beta, Le), emission_mis(lights, e, last, cos_l, t, crossed, p))
 
 
 @kernel(inline=True)
@@ -179,11 +179,13 @@ def radiance(tables, o, d, key, depths):
             specular = False
         else:            # ---- a surface (an emitter on a null boundary shines too)
             crossed = crossings
+            ray = (o, d, t, b1, b2)
             p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
                 tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
             e = geom.prim_emitter[prim]
             if e >= 0 and front and not (hide_emitters and depth == 0):
-                L = emitted(lights, e, (L, beta), (specular, pdf_last, p_last), (p, -vec.dot(d, ng), t, crossed))
+                L = emitted(lights, (e, radiance_at_hit(geom, lights, e, prim, ray)), (L, beta),
+                            (specular, pdf_last, p_last), (p, -vec.dot(d, ng), t, crossed))
             if nxt != SCATTER:
                 if nxt == CROSSED:
                     continue

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 
 from ..emitters import AREA, DIRECTIONAL, ENV, PROJECTOR, SPOT, TEX_OF, choose_light, env_sample, light_texture, \
-    profile, profiled, projector_sample_uv, sample_area_emitter, spot_falloff
+    emitter_point, profile, profiled, projector_sample_uv, spot_falloff
 from ..geometry import vec
 from ..features import has
 from ..jit import kernel
@@ -69,13 +69,12 @@ def emit_photon(geom, lights, key, n_paths):
     if has(lights, PROJECTOR) and lights.kind[li] == PROJECTOR:
         return emit_projector_photon(lights, li, sel_pdf, key, n_paths)
     if lights.kind[li] == AREA:
-        p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
+        p, n, Le = emitter_point(lights, geom, li, uniform(key, 1), uniform(key, 2))
         local = square_to_cosine_hemisphere(uniform(key, 3), uniform(key, 4))
         s, t = vec.orthonormal_basis(n)
         d = vec.normalize(vec.from_local(s, t, n, local))
         w = math.pi * lights.area[li] / (sel_pdf * n_paths)
-        power = (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w)
-        return vec.offset_origin(p, n, d), d, power, n
+        return vec.offset_origin(p, n, d), d, (Le[0] * w, Le[1] * w, Le[2] * w), n
     p = vec.row(lights.position, li)
     d = square_to_uniform_sphere(uniform(key, 1), uniform(key, 2))
     w = FOUR_PI / (sel_pdf * n_paths)
@@ -115,10 +114,11 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
         return emit_directional_caustic_photon(lights, li, spheres, sel_pdf, key, n_paths)
     is_area = lights.kind[li] == AREA
     if is_area:
-        p, n = sample_area_emitter(lights, geom, li, uniform(key, 1), uniform(key, 2))
+        p, n, Le = emitter_point(lights, geom, li, uniform(key, 1), uniform(key, 2))
     else:
         p = vec.row(lights.position, li)
         n = (0.0, 0.0, 0.0)
+        Le = vec.row(lights.radiance, li)
     m = spheres.shape[0]
     j = min(int(uniform(key, 3) * m), m - 1)
     c = (spheres[j, 0] - p[0], spheres[j, 1] - p[1], spheres[j, 2] - p[2])
@@ -141,8 +141,7 @@ def emit_caustic_photon(geom, lights, spheres, key, n_paths):
         if cos_e <= 0.0:
             return p, d, zero, False
         w = cos_e * lights.area[li] / (pdf_dir * sel_pdf * n_paths)
-        return (vec.offset_origin(p, n, d), d,
-                (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w), True)
+        return vec.offset_origin(p, n, d), d, (Le[0] * w, Le[1] * w, Le[2] * w), True
     w = 1.0 / (pdf_dir * sel_pdf * n_paths)
     if profiled(lights, li):
         power = vec.hadamard(vec.mul(vec.row(lights.radiance, li), w), profile(lights, li, d))

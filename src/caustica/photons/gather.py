@@ -30,7 +30,7 @@ import numpy as np
 from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
-from ..emitters import ENV, env_radiance
+from ..emitters import ENV, env_radiance, radiance_at_hit
 from ..features import has
 from ..geometry import vec
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
@@ -176,7 +176,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             p, ng, ns, front, m, uv, passed, dim = camera_surface(geom, mats, (prim, t, b1, b2), o, d, key, dim)
             e = geom.prim_emitter[prim]
             if e >= 0 and front:
-                L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+                L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, (o, d, t, b1, b2))),
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             if passed:
                 o = vec.offset_origin(p, ng, d)

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..emitters import ENV, env_pdf, env_radiance
+from ..emitters import ENV, env_pdf, env_radiance, radiance_at_hit
 from ..features import has
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -109,7 +109,7 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
             if pdf_dir >= 0.0:
                 pdf_light = lights.select_pdf[e] * dist * dist / (lights.area[e] * cos_l)
                 w = power_heuristic(pdf_dir, pdf_light)
-            L = vec.madd(L, vec.hadamard(T, vec.row(lights.radiance, e)), w)
+            L = vec.madd(L, vec.hadamard(T, radiance_at_hit(geom, lights, e, prim, (o, d, t, b1, b2))), w)
         if mats.kind[geom.prim_material[prim]] != NULL:
             passing = crossing(geom, mats, prim, (o, d, t, b1, b2))   # a mask: its chance of being off there
             if not (passing[0] > 0.0 or passing[1] > 0.0 or passing[2] > 0.0):

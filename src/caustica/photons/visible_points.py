@@ -78,7 +78,7 @@ from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import kernel, parallel_for
-from ..emitters import ENV, env_pdf
+from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
@@ -331,11 +331,12 @@ def visible_point(tables, o, d, numbers, params, out):
                              escape_weight(lights, d, (specular, pdf_last, p_last)))
             return False, zero, zero, zero, L, n_seg
         crossed = crossings
+        ray = (o, d, t, b1, b2)
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         e = geom.prim_emitter[prim]
         if e >= 0 and front and not counted:
-            L = vec.madd(L, vec.hadamard(beta, vec.row(lights.radiance, e)),
+            L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, ray)),
                          seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:
             continue

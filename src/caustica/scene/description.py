@@ -263,7 +263,9 @@ class Shape:
     facing +z, CYLINDER the open cylinder of radius 1 from z = 0 to z = 1 facing
     outwards.  ``flip_normals`` turns the front side around (for meshes it is
     already applied to the winding and normals).  ``emitter_radiance`` is the RGB
-    radiance of an ``area`` emitter on the shape's front side, or None.
+    radiance of an ``area`` emitter on the shape's front side, or None; ``emitter_texture`` the texture that
+    radiance is multiplied by at each point's surface coordinates (Mitsuba's textured area emitter; the
+    radiance is then (1, 1, 1)), or None.
     ``interior`` / ``exterior``: the media behind and in front of the surface (indices
     into :attr:`SceneDescription.media`, -1 for none).  As in Mitsuba, a ray that leaves
     a surface towards its front enters the exterior medium and towards its back the
@@ -275,6 +277,7 @@ class Shape:
     mesh: Mesh | None = None
     flip_normals: bool = False
     emitter_radiance: tuple[float, float, float] | None = None
+    emitter_texture: Texture | None = None
     id: str = ""
     source: str = ""  # "file:line" for messages
     interior: int = -1

@@ -1498,7 +1498,7 @@ class _Loader:
         to_world = np.eye(4) if to_world is None else to_world
         flip = bool(props.get("flip_normals", False))
 
-        material, radiance = None, None
+        material, radiance, emitter_texture = None, None, None
         media = {}
         for obj in props.objects:
             target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else None
@@ -1520,13 +1520,15 @@ class _Loader:
             else:  # emitter
                 if radiance is not None:
                     self.fail(obj, "a shape takes only one emitter")
-                eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]})
-                radiance = self.color(eprops, "radiance", (1.0, 1.0, 1.0), emitter=True)
+                eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]}, ("texture", "ref"))
+                emitter_texture = self.emitter_textures(eprops, "radiance", "area").get("radiance")
+                radiance = ((1.0, 1.0, 1.0) if emitter_texture is not None
+                            else self.color(eprops, "radiance", (1.0, 1.0, 1.0), emitter=True))
         if material is None:
             material = self.default_material_index(emitter=radiance is not None)
 
         src = self.at(node)
-        common = dict(material=material, flip_normals=flip, emitter_radiance=radiance,
+        common = dict(material=material, flip_normals=flip, emitter_radiance=radiance, emitter_texture=emitter_texture,
                       id=node.attrs.get("id", ""), source=src,
                       interior=media.get("interior", -1), exterior=media.get("exterior", -1))
         if kind in ("rectangle", "cube", "obj", "ply", "serialized"):
@@ -1964,7 +1966,8 @@ class _Loader:
                 self.fail(obj, f"'{name}' is given twice")
             tex = self.texture(obj)
             if tex.kind == MESH_ATTRIBUTE:
-                self.fail(obj, f"a {kind} emitter's texture cannot be a mesh_attribute (an emitter has no mesh)",
+                self.fail(obj, f"a {kind} emitter's texture cannot be a mesh_attribute"
+                               + (" (not supported)" if kind == "area" else " (an emitter has no mesh)"),
                           supported=["bitmap", "checkerboard"])
             low = min(min(tex.color0), min(tex.color1)) if tex.kind == CHECKERBOARD else float(tex.texels.min())
             if not low >= 0.0:
