@@ -310,3 +310,46 @@ def test_null_transmitting_flags_thin_rows_of_a_copy_only():
     assert not np.any(mats.flags & bsdfs.NULL_TRANSMISSION)
     assert bsdfs.null_transmitting(bsdfs.build_material_table(types.SimpleNamespace(
         materials=[Material(DIFFUSE, (0.5, 0.5, 0.5))]))) is None
+
+
+# ----------------------------------------------------------------------------- polarizer
+
+POLARIZERS = """<scene version="3.0.0">
+    <integrator type="{integrator}"/>
+    <sensor type="perspective">
+        <float name="fov" value="30"/>
+        <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="0.8, 0.5, 0.3"/></emitter>
+    <shape type="rectangle"><transform name="to_world"><scale value="4"/></transform>
+        <bsdf type="polarizer"/></shape>
+    <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="1"/></transform>
+        <bsdf type="polarizer"><spectrum name="theta" value="90"/><rgb name="transmittance" value="1, 0.5, 0.2"/>
+        <boolean name="polarizing" value="false"/></bsdf></shape>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("integrator", ["path", "volpath"])
+def test_polarizers_pass_half_the_light_as_mitsubas_rgb_variants(tmp_path, integrator):
+    """Mitsuba 3's ``polarizer`` in its RGB variants passes half the light times its transmittance, whatever its
+    theta: the sky seen through two of them (one with a transmittance) is L / 2 x T / 2 in every pixel (a slab of
+    eta 1 reflects nothing: Fresnel's F is 0 to rounding), under path and volpath alike."""
+    path = tmp_path / "p.xml"
+    path.write_text(POLARIZERS.format(integrator=integrator))
+    scene = caustica.load_scene(str(path))
+    mats = scene.materials
+    assert set(mats.kind[:2]) == {THINDIELECTRIC}
+    image = caustica.render(scene, "pt", spp=4, seed=1).image
+    expected = np.array([0.8, 0.5, 0.3]) * 0.5 * 0.5 * np.array([1.0, 0.5, 0.2])
+    assert np.allclose(image, expected, rtol=1e-6), (image[0, 0], expected)
+
+
+def test_polarizers_texture_is_refused_in_one_line(cli, tmp_path):
+    path = tmp_path / "p.xml"
+    path.write_text(POLARIZERS.format(integrator="path").replace(
+        '<rgb name="transmittance" value="1, 0.5, 0.2"/>', '<texture type="checkerboard" name="transmittance"/>'))
+    code, _, err = cli("render", path, "--res", "8", "--spp", "1", "-q", "-o", tmp_path / "o.exr")
+    assert code == 2 and "\n" not in err.strip(), err
+    assert "p.xml:12:" in err and "texture for 'transmittance' of a polarizer" in err, err

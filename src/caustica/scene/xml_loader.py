@@ -106,6 +106,8 @@ BSDF_PROPS = {
                    "diffuse_reflectance_sampling_rate": FLOAT},
     "twosided": {},
     "null": {},
+    # Mitsuba's linear polarizer as its RGB variants render it: half the light straight on (a thindielectric of eta 1)
+    "polarizer": {"theta": COLOR, "transmittance": COLOR, "polarizing": BOOL},
     # the mixtures (bsdfs/mixtures.py): a constant here, or a nested <texture name="opacity"/"weight">
     "mask": {"opacity": FLOAT},
     "blendbsdf": {"weight": FLOAT},
@@ -877,6 +879,8 @@ class _Loader:
             return mat
         if kind == "null":
             return Material(NULL, (1.0, 1.0, 1.0), name=name)
+        if kind == "polarizer":
+            return self.polarizer(node, props, name)
         if kind in ("dielectric", "roughdielectric", "thindielectric"):
             for p in ("specular_reflectance", "specular_transmittance"):
                 if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
@@ -1975,6 +1979,16 @@ class _Loader:
                                f"texture must not be negative")
             out[name] = tex
         return out
+
+    def polarizer(self, node: Node, props: Props, name: str) -> Material:
+        """Mitsuba 3's ``polarizer`` as its RGB (unpolarised) variants render it: light passes straight on with half
+        its power times ``transmittance`` and is never reflected (a Null lobe: volpath's shadow rays pass it); its
+        ``theta`` and ``polarizing`` change only polarised renders and are read for their syntax alone.  That is a
+        thindielectric slab of eta 1 (Fresnel reflectance 0) and colour transmittance / 2."""
+        transmittance = self.color(props, "transmittance", (1.0, 1.0, 1.0))
+        mat = Material(THINDIELECTRIC, tuple(0.5 * t for t in transmittance), int_ior=1.0, ext_ior=1.0, name=name)
+        mat.source = self.at(node)
+        return mat
 
     def projector(self, node: Node) -> Projector:
         """A ``projector`` emitter (Mitsuba 3's): a point light at ``to_world``'s origin projecting its ``irradiance``
