@@ -12,9 +12,9 @@
    beckmann and ggx at alpha 0.05 and 0.3, block by block within the noise of both renderers (tests/imagestats.py);
    tests/scenes/conductors.xml (smooth conductors with Fresnel); a glossy caustic (tests/scenes/glossy-caustic.xml)
    for its mean by ``pt``, block by block by ``sppm`` and PM+C (whose camera paths and photons pass glossy surfaces
-   by sampling them; glossy objects are caustic casters).
-5. Bad input: negative alpha, an unknown distribution, anisotropic alpha -> one line naming file and line; the
-   photon methods that do not render glossy BSDFs (spm, pspm) refuse a glossy scene.
+   by sampling them; glossy objects are caustic casters) and by ``spm`` and ``pspm`` (whose streams meet them as
+   mirrors); no photon or stream record is stored on a glossy surface.
+5. Bad input: negative alpha, an unknown distribution, anisotropic alpha -> one line naming file and line.
 
 Tolerances come from the estimators' standard errors (5 sigma) or, for the chi-square, a p-value of 1e-6.
 """
@@ -323,16 +323,6 @@ def test_loader_reads_the_rough_bsdfs(tmp_path):
     assert d.materials[d.shapes[0].material].conductor_eta is None
 
 
-@pytest.mark.parametrize("method", ["spm", "pspm"])
-def test_photon_methods_refuse_glossy_scenes(cli, tmp_path, method):
-    path = write_scene(tmp_path, '<bsdf type="roughdielectric"/>')
-    code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
-    assert code == 2, err
-    line = err.strip()
-    assert "\n" not in line and "g.xml:5" in line and "roughdielectric" in line and "--method pt, pm or sppm" in line, line
-    assert not (tmp_path / "o.exr").exists()
-
-
 def test_photons_store_nothing_on_glossy_surfaces(tmp_path, test_scenes_dir):
     """No visible point is made on a glossy surface (sppm's camera paths sample it and go on), so no photon record is
     stored there either: every record of the glossy-caustic scene (a rough glass ball, a rough metal ring) lies on a
@@ -349,6 +339,29 @@ def test_photons_store_nothing_on_glossy_surfaces(tmp_path, test_scenes_dir):
     y = buf.position[stored, 1]
     on_diffuse = (np.abs(y) < 1e-6) | (np.abs(y - 2.5) < 1e-6)   # the floor, or the light's own diffuse face
     assert np.all(on_diffuse), f"{np.count_nonzero(~on_diffuse)} records on the glossy ball or ring"
+
+
+@pytest.mark.parametrize("split", [False, True])
+def test_streams_store_nothing_on_glossy_surfaces(tmp_path, test_scenes_dir, split):
+    """Streams meet a glossy surface as a mirror: their associated photons merge into the leading photon there (or
+    split off as photons of their own), so no stream record, associated photon or split photon lies on the rough
+    ball or ring, only on the floor (y = 0) or the light (y = 2.5); and records reach the floor through them."""
+    from caustica.photons.records import EMPTY
+    from caustica.photons.streams import StreamBuffers, trace_stream_pass
+    from caustica.photons.trace import TERMINATION_CAP
+    from caustica.sampling.rng import STREAM_SPM
+    scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml")
+    n, n_fa, mr = 5_000, 4, 4
+    buf = StreamBuffers(n, n_fa, mr, split=split)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.05, mr, TERMINATION_CAP, split=split)
+    stored = buf.rec.kind != EMPTY
+    assert np.count_nonzero(stored) > n // 50
+    assoc = np.concatenate([buf.assoc.position[r * n_fa:r * n_fa + c]
+                            for r, c in zip(np.flatnonzero(stored), buf.rec.count[stored])])
+    points = [buf.rec.position[stored], assoc] + ([buf.split.position[buf.split.kind != EMPTY]] if split else [])
+    y = np.concatenate(points)[:, 1]
+    on_diffuse = (np.abs(y) < 1e-5) | (np.abs(y - 2.5) < 1e-5)
+    assert np.all(on_diffuse), f"{np.count_nonzero(~on_diffuse)} of {y.size} photons on the glossy ball or ring"
 
 
 # --------------------------------------------------------------------------- 4. scenes against Mitsuba 3
@@ -412,11 +425,14 @@ def glossy_caustic_mitsuba(mi, test_scenes_dir):
 
 @pytest.mark.parametrize("method, params", [
     ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.01}),
-    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05})])
+    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05}),
+    ("spm", {"streams": 40_000, "assoc": 10, "stream_radius": 0.02, "radius": 0.05}),
+    ("pspm", {"passes": 48, "streams": 5_000, "radius": 0.01})])
 def test_photon_methods_render_the_glossy_caustic_as_mitsuba(glossy_caustic_mitsuba, test_scenes_dir, method, params):
-    """sppm and PM+C on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1: the rough glass ball's caustic and the rough
-    ring's, on the floor): camera paths pass the glossy surfaces by sampling them, with one MIS-weighted light sample
-    at each; the ball and the ring are caustic casters, so the aimed photons carry light -> (S|G)+ -> floor.  Against
+    """sppm, PM+C, spm and pspm on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1: the rough glass ball's caustic and
+    the rough ring's, on the floor): camera paths pass the glossy surfaces by sampling them, with one MIS-weighted
+    light sample at each; the ball and the ring are caustic casters, so the aimed photons carry light -> (S|G)+ ->
+    floor; streams meet them as mirrors (their associated photons merge, the leading photon samples the BSDF).  Against
     Mitsuba's path tracer, as the plastics' photon tests: roulette and mr = 64 (no depth truncation), mean within 2 %
     and 4x4 blocks within 5 sigmas of the seeds' noise.
 
@@ -424,7 +440,8 @@ def test_photon_methods_render_the_glossy_caustic_as_mitsuba(glossy_caustic_mits
     gathers the bright caustic inside (the light leak of any photon density estimate, shrinking with the radius).
     With sppm's default start radius (0.088 here) the pixels along the ring's foot were still up to 2.4x too bright
     after 192 passes, and 0.05 left a 4x4 block 3.8 % over Mitsuba's after 48; PM+C with a largest search radius of
-    0.1 left 3 block values out, with 0.05 none.  Measured: sppm 0.54288, PM+C 0.54353 against Mitsuba's 0.54170."""
+    0.1 left 3 block values out, with 0.05 none.  Measured: sppm 0.54288, PM+C 0.54353, spm 0.54180, pspm 0.54348
+    against Mitsuba's 0.54170."""
     scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml", dist="ggx", alpha="0.1")
     ours = [caustica.render(scene, method, res=32, seed=s, termination="roulette", max_bounces=64, **params).image
             for s in range(4)]

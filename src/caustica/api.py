@@ -110,7 +110,7 @@ def check_bsdfs(cls, scene) -> None:
     Each method declares what it renders beyond diffuse surfaces, mirrors and glass:
     ``renders_glossy = True`` — every BSDF (``pt``); ``passes_glossy = True`` — glossy BSDFs without a
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
-    (``pm``, ``sppm``); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
+    (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
@@ -151,7 +151,7 @@ def check_bsdfs(cls, scene) -> None:
                                  f"--method pt")
             if not getattr(cls, "passes_glossy", False):
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render glossy BSDFs "
-                                 f"yet (its streams treat them as Lambertian); use --method pt, pm or sppm")
+                                 f"yet; use --method pt, pm, sppm, spm or pspm")
         if flags & DELTA and flags & SMOOTH and not getattr(cls, "renders_coated", False):
             raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render "
                              f"a delta coating over a diffuse lobe yet (its streams would lose the coating's "

@@ -69,6 +69,7 @@ def stream_radius(scene, settings, radius) -> float:
 class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     name = "pspm"
     summary = "progressive streamed photon mapping: SPPM's per-pixel statistics over streams"
+    passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
     params = (
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),

@@ -33,6 +33,7 @@ ESTIMATORS = ("stream", "photons")
 class StreamedPhotonMapping(OneShot):
     name = "spm"
     summary = "streamed photon mapping (the paper's method): streams of a leading + associated photons"
+    passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
     default_spp = 1
     params = (
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),

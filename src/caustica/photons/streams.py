@@ -8,7 +8,12 @@ A *stream* is a leading photon plus up to n_fa associated photons.
 2. The leading photon is traced.  At a mirror or glass surface every associated
    photon is *merged* into the leading photon (its power is added; it ceases to
    exist) and the leading photon reflects or refracts (Fresnel).  This is what
-   concentrates caustic energy.
+   concentrates caustic energy.  A glossy surface without a diffuse lobe (rough metal or
+   glass) is met as a mirror is, as the photon tracer meets it (:mod:`caustica.photons.trace`):
+   the associated photons merge (or split off), nothing is stored there, and the leading photon
+   goes on by its BSDF's sample (Russian roulette after it, as after any non-delta lobe); the
+   bounce counts towards the specular cap, not ``max_bounces``, and the records after it stay
+   caustic (light -> (S|G)+ -> diffuse).
 3. At a diffuse hit x_L reached from origin o:
    - each associated photon gets a point q uniform in the disc of radius r_s about
      x_L perpendicular to the leading direction and is traced from o towards q; it
@@ -41,7 +46,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import SMOOTH, albedo_mean, colour, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, albedo_mean, colour, oriented
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -176,11 +181,11 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         if prim < 0:
             continue  # escaped: merged into the leading photon
         m = geom.prim_material[prim]
-        if not mats.flags[m] & SMOOTH:
+        if not mats.flags[m] & DIFFUSE_REFLECTION:
             if split:
                 split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
-            continue  # met a mirror or glass: merged (or split off)
+            continue  # met a mirror, glass or glossy surface: merged (or split off)
         p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
         scatters, ng, ns = oriented(mats, m, vec.dot(d, ng) < 0.0, ng, ns)
         if not scatters:
@@ -254,7 +259,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
     if prim < 0:
         return False
     m = geom.prim_material[prim]
-    if not mats.flags[m] & SMOOTH or mats.twosided[m] != 0:
+    if not mats.flags[m] & DIFFUSE_REFLECTION or mats.twosided[m] != 0:
         return True
     _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
     return vec.dot(d, ng) < 0.0
@@ -357,20 +362,20 @@ def stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting):
 
 @kernel(inline=True)
 def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
-    """What the stream does at a surface, ``hit`` = (m, front, ng, ns): at a mirror or glass
+    """What the stream does at a surface, ``hit`` = (m, front, ng, ns): at a mirror, glass or glossy surface
     (:func:`stream_at_specular`, before the side is known) or at a diffuse surface that scatters on this side
-    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Returns (scatters, smooth, ng, ns turned to the ray, the
+    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Returns (scatters, diffuse, ng, ns turned to the ray, the
     stream, split photons added, dim)."""
     _, mats, _, _ = tables
     m, front, ng, ns = hit
-    smooth = mats.flags[m] & SMOOTH
+    diffuse = mats.flags[m] & DIFFUSE_REFLECTION
     k = 0
-    if not smooth:
+    if not diffuse:
         stream, k = stream_at_specular(tables, key, beam, stream, splitting)
     scatters, ng, ns = oriented(mats, m, front, ng, ns)
-    if scatters and smooth:
+    if scatters and diffuse:
         stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting)
-    return scatters, smooth, ng, ns, stream, k, dim
+    return scatters, diffuse, ng, ns, stream, k, dim
 
 
 @kernel(inline=True)
@@ -449,14 +454,14 @@ def trace_stream(tables, key, start, rules, i, buf):
         ng_front = ng
         # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
         # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-        scatters, smooth, ng, ns, stream, k, dim = stream_at_surface(
+        scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (m, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
             (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf))
         n_split += k
         if not scatters:
             break  # absorbed by the black back of a one-sided surface
-        if smooth:
+        if diffuse:
             stored += 1 if store else 0
             if bounces >= max_bounces:
                 break
@@ -464,14 +469,14 @@ def trace_stream(tables, key, start, rules, i, buf):
             tables, (p, ng, ns, uv, ng_front, m, shape, medium), d, key, dim, stream, (n_assoc, termination))
         if not alive:
             break
-        if delta:
+        if delta or not diffuse:   # a mirror, glass or glossy bounce: the stream is still on a caustic path
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
         else:
             bounces += 1
             diffuse_like = True
-        n_from = zero if delta else ng   # associated photons are placed from a mirror or glass only after a split
+        n_from = ng if diffuse and not delta else zero   # from a mirror, glass or glossy surface only after a split
         scattered = True
 
 
