@@ -66,6 +66,9 @@ LOADING = [
     "mitsuba-renderer+mitsuba-data/docs/scenes/shape_linearcurve_basic.xml",
     "mitsuba-renderer+mitsuba-data/docs/scenes/shape_linearcurve_parameterization.xml",
     "mitsuba-renderer+mitsuba-tutorials/scenes/shadow_art.xml",
+    # sdfgrid (tessellated)
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_sdfgrid.xml",
+    "mitsuba-renderer+mitsuba-data/docs/scenes/shape_sdfgrid_analytic.xml",
     # anisotropic roughness (alpha_u, alpha_v)
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughconductor_anisotropic_aluminium.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_normalmap_roughconductor_path.xml",

@@ -456,7 +456,7 @@ def test_a_single_problem_keeps_its_one_line_message(tmp_path):
     path = write(tmp_path / "one.xml", scene('<shape type="torus"/>\n<shape type="cube"/>'))
     assert one_line_error(path) == (f"{path}:5: <shape type=\"torus\">: unknown shape type 'torus'; supported: "
                                     f"rectangle, cube, sphere, disk, cylinder, obj, ply, serialized, linearcurve, "
-                                    f"bsplinecurve, shapegroup, instance")
+                                    f"bsplinecurve, sdfgrid, shapegroup, instance")
     # a shape that uses a broken BSDF is not a second problem: the BSDF is
     path.write_text(scene('<bsdf type="diffuse" id="d"><float name="gloss" value="1"/></bsdf>\n'
                           '<shape type="cube"><ref id="d"/></shape><shape type="sphere"><ref id="d"/></shape>'))

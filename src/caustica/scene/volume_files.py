@@ -25,11 +25,13 @@ HEADER = np.dtype([("magic", "S3"), ("version", "u1"), ("encoding", "<i4"), ("re
 BYTES_PER_VALUE = 8
 
 
-def read_grid(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+def read_grid(path: str | Path, channels: tuple[int, ...] = (1, 3),
+              purpose: str = "a medium's sigma_t or albedo takes 1 (grey) or 3 (RGB)") -> tuple[np.ndarray, np.ndarray]:
     """(data float32 (nz, ny, nx, channels), bbox float64 (2, 3)) of the .vol file at ``path``.
 
-    SceneError naming the file when it is not a version-3 float32 grid, is truncated, holds a value that is not
-    a finite number, or would need more memory than a render may take."""
+    SceneError naming the file when it is not a version-3 float32 grid, has a channel count outside ``channels``
+    (the message then says ``purpose``), is truncated, holds a value that is not a finite number, or would need
+    more memory than a render may take."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -49,12 +51,11 @@ def read_grid(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise SceneError(f"grid volume '{path}' has encoding {h['encoding']}; only {FLOAT32} (float32) is supported, "
                          f"as in Mitsuba 3")
     nx, ny, nz = (int(v) for v in h["res"])
-    channels = int(h["channels"])
+    allowed, channels = channels, int(h["channels"])
     if min(nx, ny, nz) < 1:
         raise SceneError(f"grid volume '{path}' has resolution {nx} x {ny} x {nz}; each must be at least 1")
-    if channels not in (1, 3):
-        raise SceneError(f"grid volume '{path}' has {channels} channels; a medium's sigma_t or albedo takes 1 (grey) "
-                         f"or 3 (RGB)")
+    if channels not in allowed:
+        raise SceneError(f"grid volume '{path}' has {channels} channels; {purpose}")
     n = nx * ny * nz * channels
     try:
         check_budget(n * BYTES_PER_VALUE, f"grid volume '{path}' ({nx} x {ny} x {nz} voxels x {channels} channels)",

@@ -39,6 +39,7 @@ from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR
                           Mesh, Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
 from .curves import curve_mesh, read_curves
+from .sdfgrid import NORMAL_MODES, check_grid, sdf_mesh
 from .serialized import load_serialized
 from .textures import read_texels
 from .volume_files import read_grid
@@ -70,6 +71,7 @@ SHAPE_PROPS = {
     "serialized": {"filename": STR, "shape_index": INT, "face_normals": BOOL},
     "linearcurve": {"filename": STR},
     "bsplinecurve": {"filename": STR},
+    "sdfgrid": {"filename": STR, "normals": STR},
     # shapes declared once and placed by instances (each instance becomes copies of them)
     "shapegroup": {},
     "instance": {},
@@ -1567,6 +1569,9 @@ class _Loader:
             return Shape(MESH, mesh=mesh, to_world=to_world, **common)
         if kind in ("linearcurve", "bsplinecurve"):
             return Shape(MESH, mesh=self.curve(node, props, kind, to_world), to_world=to_world, **common)
+        if kind == "sdfgrid":
+            return Shape(MESH, mesh=self.sdf_grid(node, props, to_world, material, radiance), to_world=to_world,
+                         **common)
         if kind == "sphere":
             radius = self.number(props, "radius", 1.0, positive=True)
             center = props.get("center", np.zeros(3))
@@ -1617,6 +1622,36 @@ class _Loader:
             return curve_mesh(read_curves(path, kind), kind, to_world)
         except SceneError as exc:
             self.fail(props.node_of("filename"), str(exc))
+
+    def sdf_grid(self, node: Node, props, to_world: np.ndarray, material: int, radiance) -> Mesh:
+        """An sdfgrid shape's tessellation in world space (:mod:`.sdfgrid`), refusing what Mitsuba's sdfgrid
+        does not do (an area emitter, flipped normals, a BSDF that needs dp/du: it has no surface coordinates)."""
+        if radiance is not None:
+            self.fail(node, "an sdfgrid cannot be an area emitter (Mitsuba's sdfgrid cannot be sampled)")
+        if props.has("flip_normals"):
+            self.fail(props.node_of("flip_normals"), "an sdfgrid takes no flip_normals (Mitsuba's sdfgrid has none)")
+        if self.materials[material].kind in WRAPPERS or self.needs_tangent(material):
+            what = (MATERIAL_NAMES[self.materials[material].kind] if self.materials[material].kind in WRAPPERS
+                    else f"BSDF with anisotropic roughness ({MATERIAL_NAMES[self.materials[material].kind]})")
+            self.fail(node, f"a {what} on an sdfgrid is not supported (Mitsuba's sdfgrid has no surface "
+                            f"coordinates: its dp/du is zero)")
+        mode = props.get("normals", "smooth")
+        if mode not in NORMAL_MODES:
+            self.fail(props.node_of("normals"), f"unknown normals mode {quoted(mode)}", supported=list(NORMAL_MODES))
+        if not props.has("filename"):
+            self.fail(node, "an sdfgrid needs <string name=\"filename\" .../> (a one-channel Mitsuba .vol file; "
+                            "Mitsuba's inline 'grid' tensor cannot be given in XML)")
+        where = props.node_of("filename")
+        try:
+            path = self.find_file(where, props.get("filename"), "sdf grid")
+            self.files.append(Path(path))
+            data, _ = read_grid(path, channels=(1,), purpose="an sdfgrid's distances take 1")
+            f = check_grid(data)
+            local = sdf_mesh(f, mode, what=f"sdf grid {quoted(str(props.get('filename')))}")
+            return to_world_mesh(local, to_world)
+        except SceneError as exc:
+            self.fail(where, f"sdf grid {quoted(str(props.get('filename')))}: {exc}"
+                      if not str(exc).startswith(("grid volume", "sdf grid")) else str(exc))
 
     def placement(self, node: Node, m: np.ndarray, what: str) -> np.ndarray:
         """The matrix placing an analytic shape, checked like every transform (SceneError at node)."""
