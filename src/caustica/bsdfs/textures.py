@@ -255,7 +255,9 @@ def texture_value(mats, t, uv):
 @kernel(inline=True)
 def needs_uv(mats, m):
     """Whether a texture gives material m's colour, roughness or another scalar parameter: its hits need their
-    surface coordinates."""
+    surface coordinates (never in a table without the TEXTURED feature: no code in its kernels)."""
+    if not has(mats, TEXTURED):
+        return False
     if mats.texture[m] >= 0:
         return True
     for k in range(mats.param_texture.shape[1]):
