@@ -72,6 +72,10 @@ LOADING = [
     # anisotropic roughness (alpha_u, alpha_v)
     "mitsuba-renderer+mitsuba-data/docs/scenes/bsdf_roughconductor_anisotropic_aluminium.xml",
     "mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_normalmap_roughconductor_path.xml",
+    # textures on principled's scalar parameters; principledthin
+    "mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_texturedprincipled1_path.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_texturedprincipled2_path.xml",
+    "mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_texturedprincipledthin_path.xml",
 ]
 
 pytestmark = pytest.mark.skipif(not (CORPUS / "SOURCES.md").is_file(),
@@ -152,6 +156,9 @@ QUICK_AGREEING = [
     # a teapot.ply without normals under point lights (at 32 px this does not see the faceting it had before
     # caustica computed vertex normals: test_scene_loader.test_a_mesh_file_without_normals_... checks those)
     ("mitsuba-renderer+mitsuba-tutorials/scenes/simple.xml", 256, 256),
+    # textures on a principled's anisotropic, spec_trans, clearcoat, sheen; a textured principledthin panel
+    ("mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_texturedprincipled2_path.xml", 128, 512),
+    ("mitsuba-renderer+mitsuba-data/tests/scenes/bsdf_spheres/test_texturedprincipledthin_path.xml", 256, 512),
 ]
 
 

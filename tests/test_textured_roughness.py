@@ -60,9 +60,9 @@ def test_textures_reach_the_material_table(tmp_path):
     """alpha_u and alpha_v by two textures (anisotropic), alpha by one texture giving both."""
     scene = caustica.load_scene(write(tmp_path))
     mats = scene.materials
-    rows = [i for i in range(len(mats.kind)) if mats.alpha_texture[i, 0] >= 0]
+    rows = [i for i in range(len(mats.kind)) if mats.param_texture[i, 0] >= 0]
     assert len(rows) == 2
-    pairs = sorted(tuple(mats.alpha_texture[i]) for i in rows)
+    pairs = sorted(tuple(mats.param_texture[i, :2]) for i in rows)
     assert pairs[0][0] != pairs[0][1] or pairs[1][0] != pairs[1][1]      # the conductor's two textures
     assert any(a == b for a, b in pairs)                                  # the dielectric's one
 

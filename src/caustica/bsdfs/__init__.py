@@ -39,10 +39,11 @@ from ..geometry import vec
 from ..features import bits, has, specialisable
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, PRINCIPLED, \
-    ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
-from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, principled, roughconductor, \
-    roughdielectric, roughplastic, thindielectric
+    PRINCIPLEDTHIN, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
+from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, principled, principledthin, \
+    roughconductor, roughdielectric, roughplastic, thindielectric
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
+from .textures import ALPHA_U, ALPHA_V, ANISO, PARAM
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
@@ -52,7 +53,7 @@ from .flags import ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIF
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
          ROUGHDIELECTRIC: roughdielectric, PLASTIC: plastic, ROUGHPLASTIC: roughplastic, THINDIELECTRIC: thindielectric,
-         PPLASTIC: pplastic, PRINCIPLED: principled}
+         PPLASTIC: pplastic, PRINCIPLED: principled, PRINCIPLEDTHIN: principledthin}
 
 
 @specialisable
@@ -82,8 +83,9 @@ class MaterialTable(NamedTuple):
     texels: np.ndarray     # float32[N, 3]: every bitmap's linear RGB texels, row by row
     # Mixtures (mask, blendbsdf; bsdfs/mixtures.py): resolved at the hit to one of their nested materials.
     mix_texture: np.ndarray   # int32[M]: the texture giving a mixture's opacity or weight (mixtures.weight), -1: none
-    alpha_texture: np.ndarray  # int32[M, 2]: the textures giving a rough BSDF's alpha_u, alpha_v (their eval_1 at the
-    #                            surface point, at least ALPHA_MIN; microfacet roughness), -1: alpha, alpha_v above
+    param_texture: np.ndarray  # int32[M, 2 + P]: the textures giving a rough BSDF's alpha_u, alpha_v (their eval_1 at
+    #                            the surface point, at least ALPHA_MIN; microfacet roughness), -1: alpha, alpha_v above;
+    #                            then those giving the scalar parameters in ``coating`` (a principled's; textures.param)
     mix: np.ndarray        # float64[M]: a mask's opacity, a blend's weight of nested[m, 1]
     nested: np.ndarray     # int32[M, 2]: a mixture's or wrapper's nested materials (-1: none)
     # Wrappers (normalmap, bumpmap; bsdfs/perturb.py): resolved at the hit to nested[m, 0] with a perturbed ns; their
@@ -103,6 +105,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     fresnel, cond_eta, cond_k = np.zeros(m, np.int8), np.ones((m, 3)), np.zeros((m, 3))
     coating = np.zeros((m, plastic.COATING_COLUMNS))
     coatings = {}    # (distribution, alpha, eta) -> a rough coating's tables, computed once
+    params = [{} for _ in range(m)]   # per material: coating column -> the texture giving it (a principled's)
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
         flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
@@ -117,9 +120,14 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
         alpha_v[i] = max(mat.alpha_v, microfacet.ALPHA_MIN) if mat.alpha_v is not None else alpha[i]
         if mat.conductor_eta is not None:
             fresnel[i], cond_eta[i], cond_k[i] = 1, mat.conductor_eta, mat.conductor_k
-        if mat.kind == PRINCIPLED:
-            coating[i, :len(principled.PARAMS)] = principled.row(mat.principled)
-            if coating[i, principled.SPEC_TRANS] != 0.0 and coating[i, principled.METALLIC] < 1.0:
+        if mat.kind in (PRINCIPLED, PRINCIPLEDTHIN):
+            module = principled if mat.kind == PRINCIPLED else principledthin
+            values = module.row(mat.principled)
+            coating[i, :len(values)] = values
+            params[i] = {module.COLUMN[p]: tex for p, tex in mat.param_textures.items()}
+            textured = {principled.COLUMN[p] for p in mat.param_textures} if mat.kind == PRINCIPLED else set()
+            if (coating[i, principled.SPEC_TRANS] != 0.0 or principled.SPEC_TRANS in textured) and \
+                    (coating[i, principled.METALLIC] < 1.0 or principled.METALLIC in textured):
                 flags[i] |= GLOSSY_TRANSMISSION   # an interface: both sides scatter
         if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
             row = coating[i]
@@ -136,15 +144,17 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, alpha_v, fresnel,
                          cond_eta,
-                         cond_k, coating, *texture_columns(desc.materials), *mixture_columns(desc.materials),
+                         cond_k, coating, *texture_columns(desc.materials, params), *mixture_columns(desc.materials),
                          np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
                          attribute_table(desc))
 
 
 def material_features(mats: MaterialTable) -> int:
     """The feature bits (:mod:`caustica.features`) of table ``mats``: its kinds, TEXTURED, GLOSSY_LOBES, ANISOTROPIC."""
-    textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any() or (mats.alpha_texture >= 0).any()
-    anisotropic = (mats.alpha_v != mats.alpha).any() or (mats.alpha_texture[:, 0] != mats.alpha_texture[:, 1]).any()
+    textured = (mats.texture >= 0).any() or (mats.mix_texture >= 0).any() or (mats.param_texture >= 0).any()
+    anisotropic = (mats.alpha_v != mats.alpha).any() or (mats.param_texture[:, ALPHA_U] !=
+                                                         mats.param_texture[:, ALPHA_V]).any() or \
+        (mats.param_texture[:, PARAM + ANISO] >= 0).any()
     return bits(*np.unique(mats.kind), *([TEXTURED] if textured else []),
                 *([GLOSSY_LOBES] if (mats.flags & GLOSSY).any() else []),
                 *([ANISOTROPIC] if anisotropic else []))
@@ -219,6 +229,8 @@ def sample_kind(mats, m, d, ng, ns, uv, key, dim):
         return pplastic.sample(mats, m, d, ng, ns, uv, key, dim)
     if has(mats, PRINCIPLED) and kind == PRINCIPLED:
         return principled.sample(mats, m, d, ng, ns, uv, key, dim)
+    if has(mats, PRINCIPLEDTHIN) and kind == PRINCIPLEDTHIN:
+        return principledthin.sample(mats, m, d, ng, ns, uv, key, dim)
     if has(mats, THINDIELECTRIC) and kind == THINDIELECTRIC:
         return thindielectric.sample(mats, m, d, ng, ns, uv, key, dim)
     return dielectric.sample(mats, m, d, ng, ns, uv, key, dim)
@@ -254,6 +266,8 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
         return pplastic.eval_pdf(mats, m, d, ng, ns, uv, wi)
     if has(mats, PRINCIPLED) and kind == PRINCIPLED:
         return principled.eval_pdf(mats, m, d, ng, ns, uv, wi)
+    if has(mats, PRINCIPLEDTHIN) and kind == PRINCIPLEDTHIN:
+        return principledthin.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
 
 

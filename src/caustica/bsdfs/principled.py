@@ -2,9 +2,12 @@
 Mitsuba 3 writes it in src/bsdfs/principled.cpp), in the shading frame (z the front shading normal; wo = -d, the
 direction the path came from, Mitsuba's ``wi``; wi the other direction; h the half vector, turned up).
 
-Its parameters (Mitsuba's names; all constants here but ``base_color``, which a texture may give): roughness r,
-anisotropic, metallic, spec_trans, eta (or ``specular`` s, eta = 2 / (1 - sqrt(0.08 s)) - 1), spec_tint, sheen,
-sheen_tint, clearcoat, clearcoat_gloss, flatness and three lobe-sampling rates.  With brdf = (1 - metallic)(1 -
+Its parameters (Mitsuba's names): roughness r, anisotropic, metallic, spec_trans, eta (or ``specular`` s, eta = 2 /
+(1 - sqrt(0.08 s)) - 1), spec_tint, sheen, sheen_tint, clearcoat, clearcoat_gloss, flatness and three lobe-sampling
+rates.  base_color and any of them but eta / specular and the rates may be given by a texture, as Mitsuba's: its value
+at the surface point (``eval_1``, :func:`.textures.param` through the table's ``param_texture`` columns, as a rough
+BSDF's textured alpha) is read by :func:`params`; a textured roughness or anisotropic makes α_u, α_v per point
+(:func:`alphas`), a textured spec_trans makes the material an interface.  With brdf = (1 - metallic)(1 -
 spec_trans) and bsdf = (1 - metallic) spec_trans, f is the sum of
 
 * **specular reflection**, a GGX microfacet lobe with α = r² (anisotropic: α_u = r² / a, α_v = r² a,
@@ -49,8 +52,11 @@ from ..scene.description import PRINCIPLED, PRINCIPLED_PARAMS
 from . import microfacet as mf
 from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric
+from . import textures
+from .flags import TEXTURED
 from .roughconductor import roughness
 from .textures import colour
+from ..features import has
 
 KIND = PRINCIPLED
 FLAGS = DIFFUSE_REFLECTION | GLOSSY_REFLECTION
@@ -62,16 +68,62 @@ LUM = (0.212671, 0.715160, 0.072169)
 # and alpha_v the specular lobe's roughness, GGX).
 ROUGH, METALLIC, SPEC_TRANS, SPEC_TINT, SHEEN, SHEEN_TINT, CLEARCOAT, CC_ALPHA, FLATNESS, SPEC_RATE, CC_RATE, \
     DIFF_RATE = range(12)
+#: anisotropic's column (read where a texture gives it or the roughness; the constant case is in alpha, alpha_v).
+ANISO = textures.ANISO
 #: Mitsuba's parameter names, in column order, and their defaults.
 PARAMS = PRINCIPLED_PARAMS
+#: Each parameter's column, by Mitsuba's name (textures.param_texture's columns PARAM + column).
+COLUMN = {**{k: i for i, k in enumerate(PARAMS)}, "anisotropic": ANISO}
 
 
 def row(params: dict) -> list[float]:
     """The ``coating`` columns of a principled material with Mitsuba's ``params`` (clearcoat_gloss as its GTR1 α)."""
-    out = [float(params.get(k, v)) for k, v in PARAMS.items()]
-    g = out[CC_ALPHA]
-    out[CC_ALPHA] = 0.1 * (1.0 - g) + 0.001 * g
+    out = [float(params.get(k, v)) for k, v in PARAMS.items()] + [float(params.get("anisotropic", 0.0))]
+    out[CC_ALPHA] = gloss_alpha(out[CC_ALPHA])
     return out
+
+
+@kernel(inline=True)
+def gloss_alpha(g):
+    """The clearcoat's GTR1 α for clearcoat_gloss g (Mitsuba's lerp(0.1, 0.001, g))."""
+    return 0.1 * (1.0 - g) + 0.001 * g
+
+
+@kernel
+def params(mats, m, uv):
+    """Material m's scalar parameters at surface coordinates uv, a tuple by the ``coating`` columns (this module's
+    and :mod:`.principledthin`'s): each its texture's eval_1 there (:func:`.textures.param`) or the constant."""
+    c = mats.coating[m]
+    if not has(mats, TEXTURED):
+        return (c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15],
+                c[16])
+    cc = c[CC_ALPHA]
+    if mats.param_texture[m, textures.PARAM + CC_ALPHA] >= 0:   # a texture gives clearcoat_gloss
+        cc = gloss_alpha(textures.param(mats, m, CC_ALPHA, uv))
+    q = textures.param
+    return (q(mats, m, 0, uv), q(mats, m, 1, uv), q(mats, m, 2, uv), q(mats, m, 3, uv), q(mats, m, 4, uv),
+            q(mats, m, 5, uv), q(mats, m, 6, uv), cc, q(mats, m, 8, uv), c[9], c[10], c[11], q(mats, m, 12, uv),
+            q(mats, m, 13, uv), q(mats, m, 14, uv), c[15], c[16])
+
+
+@kernel(inline=True)
+def dist_params(roughness, anisotropic):
+    """GGX's (α_u, α_v) for Disney's roughness and anisotropic (Mitsuba's ``calc_dist_params``; anisotropic 0 gives
+    roughness² twice, as its isotropic case), each at least 0.001."""
+    r2 = roughness * roughness
+    a = math.sqrt(1.0 - 0.9 * anisotropic)
+    return max(0.001, r2 / a), max(0.001, r2 * a)
+
+
+@kernel(inline=True)
+def alphas(mats, m, p, uv):
+    """(distribution, α_u, α_v) of material m's specular lobe: from its roughness and anisotropic ``p`` where a texture
+    gives either, else the table's constants."""
+    if has(mats, TEXTURED) and (mats.param_texture[m, textures.PARAM + ROUGH] >= 0 or
+                                mats.param_texture[m, textures.PARAM + ANISO] >= 0):
+        au, av = dist_params(p[ROUGH], p[ANISO])
+        return mats.distribution[m], au, av
+    return roughness(mats, m, uv)
 
 
 @kernel(inline=True)
@@ -203,8 +255,8 @@ def probabilities(p, F, front):
 def local_eval(mats, m, wo, wi, uv):
     """(f RGB, density) towards the local direction wi from wo (cos θ_o != 0), Mitsuba's ``eval`` over |cos θ_i| and
     its ``pdf`` (module docstring); the base colour read at uv."""
-    p = mats.coating[m]
-    dist, au, av = roughness(mats, m, uv)
+    p = params(mats, m, uv)
+    dist, au, av = alphas(mats, m, p, uv)
     eta = mats.eta[m]
     base = colour(mats, m, uv)
     metallic, spec_trans = p[METALLIC], p[SPEC_TRANS]
@@ -283,12 +335,12 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     refraction (1 otherwise); the weight leaves a refraction's 1 / eta² to the camera path."""
     s, t, wo = mf.shading_frame(ns, d, uv)   # about the front shading normal where the surface transmits
     zero = (0.0, 0.0, 0.0)
-    p = mats.coating[m]
+    p = params(mats, m, uv)
     front = wo[2] > 0.0
     bsdf = (1.0 - p[METALLIC]) * p[SPEC_TRANS]
     if wo[2] == 0.0 or not (front or bsdf > 0.0):
         return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, dim + 3
-    dist, au, av = roughness(mats, m, uv)
+    dist, au, av = alphas(mats, m, p, uv)
     u0, u1, u2 = uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2)
     sign = 1.0 if front else -1.0
     hm = mf.sample_visible_uv(dist, au, av, vec.mul(wo, sign), u1, u2)

@@ -17,7 +17,7 @@ from ..scene.description import ROUGHCONDUCTOR
 from . import microfacet as mf
 from .flags import ANISOTROPIC, GLOSSY_REFLECTION, TEXTURED
 from .optics import fresnel_conductor
-from .textures import colour, texture_value
+from .textures import ALPHA_U, ALPHA_V, colour, texture_value
 
 KIND = ROUGHCONDUCTOR
 FLAGS = GLOSSY_REFLECTION
@@ -40,7 +40,7 @@ def roughness(mats, m, uv):
     au = mats.alpha[m]
     av = mats.alpha_v[m] if has(mats, ANISOTROPIC) else au
     if has(mats, TEXTURED):
-        tu, tv = mats.alpha_texture[m, 0], mats.alpha_texture[m, 1]
+        tu, tv = mats.param_texture[m, ALPHA_U], mats.param_texture[m, ALPHA_V]
         if tu >= 0:
             au = max(texture_value(mats, tu, uv), mf.ALPHA_MIN)
         if tv == tu and tu >= 0:   # one texture gives both ("alpha")

@@ -34,24 +34,34 @@ NEAREST, BILINEAR = 0, 1
 REPEAT, MIRROR, CLAMP = 0, 1, 2
 
 
+#: Columns of ``MaterialTable.param_texture``: a rough BSDF's alpha_u and alpha_v, then PARAM_COLUMNS columns for the
+#: scalar parameters of ``MaterialTable.coating`` (column k's texture at PARAM + k; a principled's).
+ALPHA_U, ALPHA_V, PARAM = 0, 1, 2
+PARAM_COLUMNS = 17
+#: The parameter column of a principled's (and principledthin's) anisotropic (bsdfs/principled.py).
+ANISO = 12
+
 #: Columns of ``tex_int`` and ``tex_float``.
 KIND, FILTER, WRAP, WIDTH, HEIGHT, ROW0 = range(6)
 TO_UV, COLOR0, COLOR1 = 0, 6, 9
 
 
-def texture_columns(materials) -> tuple:
+def texture_columns(materials, params=None) -> tuple:
     """The material table's texture columns for a list of Materials: (texture, tex_int, tex_float, texels,
-    mix_texture, alpha_texture); a texture shared by several materials (or giving a colour and a mixture's weight, or
-    both roughnesses) is stored once."""
+    mix_texture, param_texture); a texture shared by several materials (or giving a colour and a mixture's weight, or
+    both roughnesses) is stored once.  ``params[i]``, if given, maps columns k of material i's scalar parameters
+    (``MaterialTable.coating``: a principled's) to the textures giving them (``param_texture[i, PARAM + k]``)."""
     index, textures = {}, []
     texture = np.full(max(1, len(materials)), -1, np.int32)
     mix_texture = np.full(max(1, len(materials)), -1, np.int32)
-    alpha_texture = np.full((max(1, len(materials)), 2), -1, np.int32)
+    param_texture = np.full((max(1, len(materials)), PARAM + PARAM_COLUMNS), -1, np.int32)
     for i, mat in enumerate(materials):
         alphas = getattr(mat, "alpha_textures", (None, None))
-        for column, tex in ((texture[i:i + 1], getattr(mat, "texture", None)),
+        scalars = [(param_texture[i, PARAM + k:PARAM + k + 1], tex) for k, tex in (params[i] if params else {}).items()]
+        for column, tex in [(texture[i:i + 1], getattr(mat, "texture", None)),
                             (mix_texture[i:i + 1], getattr(mat, "mix_texture", None)),
-                            (alpha_texture[i, 0:1], alphas[0]), (alpha_texture[i, 1:2], alphas[1])):
+                            (param_texture[i, ALPHA_U:ALPHA_U + 1], alphas[0]),
+                            (param_texture[i, ALPHA_V:ALPHA_V + 1], alphas[1])] + scalars:
             if tex is None:
                 continue
             if id(tex) not in index:
@@ -77,7 +87,7 @@ def texture_columns(materials) -> tuple:
             chunks.append(tex.texels.reshape(-1, 3))
             rows += w * h
     texels = np.ascontiguousarray(np.concatenate(chunks) if chunks else np.zeros((1, 3)), dtype=np.float32)
-    return texture, ints, floats, texels, mix_texture, alpha_texture
+    return texture, ints, floats, texels, mix_texture, param_texture
 
 
 def attribute_slots(textures) -> dict:
@@ -244,11 +254,32 @@ def texture_value(mats, t, uv):
 
 @kernel(inline=True)
 def needs_uv(mats, m):
-    """Whether a texture gives material m's colour or roughness: its hits need their surface coordinates."""
-    return mats.texture[m] >= 0 or mats.alpha_texture[m, 0] >= 0 or mats.alpha_texture[m, 1] >= 0
+    """Whether a texture gives material m's colour, roughness or another scalar parameter: its hits need their
+    surface coordinates (never in a table without the TEXTURED feature: no code in its kernels)."""
+    if not has(mats, TEXTURED):
+        return False
+    if mats.texture[m] >= 0:
+        return True
+    for k in range(mats.param_texture.shape[1]):
+        if mats.param_texture[m, k] >= 0:
+            return True
+    return False
 
 
 @kernel(inline=True)
 def needs_tangent(mats, m):
-    """Whether material m's roughness may differ along and across dp/du (its shading frame needs the tangent)."""
-    return mats.alpha_v[m] != mats.alpha[m] or mats.alpha_texture[m, 0] != mats.alpha_texture[m, 1]
+    """Whether material m's roughness may differ along and across dp/du (its shading frame needs the tangent): a
+    principled's anisotropic given by a texture (column ``aniso`` of its parameters) too."""
+    return mats.alpha_v[m] != mats.alpha[m] or mats.param_texture[m, ALPHA_U] != mats.param_texture[m, ALPHA_V] or \
+        mats.param_texture[m, PARAM + ANISO] >= 0
+
+
+@kernel
+def param(mats, m, k, uv):
+    """Material m's scalar parameter k (column k of ``MaterialTable.coating``) at surface coordinates uv: its
+    texture's value there (:func:`texture_value`) where one gives it, else the column."""
+    if has(mats, TEXTURED):
+        t = mats.param_texture[m, PARAM + k]
+        if t >= 0:
+            return texture_value(mats, t, uv)
+    return mats.coating[m, k]

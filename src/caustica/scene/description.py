@@ -30,16 +30,24 @@ NORMALMAP = 11       # Mitsuba's normalmap: its nested BSDF with a shading norma
 BUMPMAP = 12         # Mitsuba's bumpmap: its nested BSDF with a shading normal from a height field (bsdfs/perturb.py)
 PPLASTIC = 13        # Mitsuba's pplastic (RGB): a microfacet reflection plus a Fresnel-weighted diffuse lobe (bsdfs/pplastic.py)
 PRINCIPLED = 14      # Mitsuba's principled: Disney's BSDF as Mitsuba 3 writes it (bsdfs/principled.py)
+PRINCIPLEDTHIN = 15  # Mitsuba's principledthin: Disney's thin-surface BSDF (bsdfs/principledthin.py)
 MATERIAL_NAMES = {DIFFUSE: "diffuse", CONDUCTOR: "conductor", DIELECTRIC: "dielectric", NULL: "null",
                   ROUGHCONDUCTOR: "roughconductor", ROUGHDIELECTRIC: "roughdielectric", PLASTIC: "plastic",
                   ROUGHPLASTIC: "roughplastic", THINDIELECTRIC: "thindielectric", MASK: "mask", BLEND: "blendbsdf",
-                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap", PPLASTIC: "pplastic", PRINCIPLED: "principled"}
+                  NORMALMAP: "normalmap", BUMPMAP: "bumpmap", PPLASTIC: "pplastic", PRINCIPLED: "principled",
+                  PRINCIPLEDTHIN: "principledthin"}
 #: A principled BSDF's scalar parameters (Mitsuba's names, in the order of its table columns: bsdfs/principled.py)
 #: and their defaults; base_color, anisotropic and eta / specular are read apart.
 PRINCIPLED_PARAMS = {"roughness": 0.5, "metallic": 0.0, "spec_trans": 0.0, "spec_tint": 0.0, "sheen": 0.0,
                      "sheen_tint": 0.0, "clearcoat": 0.0, "clearcoat_gloss": 0.0, "flatness": 0.0,
                      "main_specular_sampling_rate": 1.0, "clearcoat_sampling_rate": 1.0,
                      "diffuse_reflectance_sampling_rate": 1.0}
+#: A principledthin BSDF's scalar parameters (Mitsuba's names) and their defaults; base_color, anisotropic and eta are
+#: read apart (bsdfs/principledthin.py gives their table columns).
+PRINCIPLEDTHIN_PARAMS = {"roughness": 0.5, "spec_trans": 0.0, "spec_tint": 0.0, "sheen": 0.0, "sheen_tint": 0.0,
+                         "flatness": 0.0, "diff_trans": 0.0, "specular_reflectance_sampling_rate": 1.0,
+                         "specular_transmittance_sampling_rate": 1.0, "diffuse_reflectance_sampling_rate": 1.0,
+                         "diffuse_transmittance_sampling_rate": 1.0}
 #: The mixtures: a hit on one of them is resolved to one of its nested BSDFs (or to no surface) with one random
 #: number (bsdfs/mixtures.py), so that no loop ever scatters at a mixture itself.
 MIXTURES = (MASK, BLEND)
@@ -74,6 +82,9 @@ class Material:
     ``distribution`` and ``alpha``.
     PRINCIPLED: ``rgb`` = base_color (or ``texture``), ``principled`` its other parameters, ``distribution`` GGX and
     ``alpha``, ``alpha_v`` from its roughness and anisotropic, ``int_ior`` its eta.
+    PRINCIPLEDTHIN: as PRINCIPLED with its own parameters (``principled``, eta among them; ``int_ior`` = ``ext_ior``:
+    no refraction).  Either's scalar parameters may be given by textures instead, ``param_textures`` (by Mitsuba's
+    names, read by their eval_1 at each surface point).
     PPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, ``distribution``, ``alpha`` and the
     relative IOR ``int_ior`` / ``ext_ior`` (Mitsuba's ``eta`` is read as int_ior = eta, ext_ior = 1).
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
@@ -112,12 +123,14 @@ class Material:
     alpha_v: float | None = None        # anisotropic roughness across dp/du (``alpha`` is then alpha_u); None: alpha
     alpha_textures: tuple = (None, None)   # Textures giving alpha_u and alpha_v instead (their eval_1), or None each
     principled: dict | None = None      # a principled BSDF's parameters by Mitsuba's names (bsdfs/principled.py)
+    param_textures: dict = field(default_factory=dict)   # Textures giving some of ``principled`` instead, by name
 
     @property
     def anisotropic(self) -> bool:
         """Whether the microfacet roughness differs along and across dp/du (the BSDF needs the shading frame)."""
         u, v = self.alpha_textures
-        return (self.alpha_v is not None and self.alpha_v != self.alpha) or u is not v
+        return (self.alpha_v is not None and self.alpha_v != self.alpha) or u is not v or \
+            "anisotropic" in self.param_textures
 
     @property
     def is_specular(self) -> bool:

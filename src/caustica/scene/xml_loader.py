@@ -34,7 +34,7 @@ from .description import (BITMAP, BLEND, CHECKERBOARD, MESH_ATTRIBUTE, CONDUCTOR
                           FILTER_TYPES, HENYEY_GREENSTEIN, HETEROGENEOUS, ISOTROPIC, NEAREST, TRILINEAR, Volume,
                           CLAMP, REPEAT, MASK, MATERIAL_NAMES, MESH, MIXTURES, NULL,
                           BUMPMAP, NORMALMAP, WRAPPERS,
-                          PLASTIC, PPLASTIC, PRINCIPLED, PRINCIPLED_PARAMS, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
+                          PLASTIC, PPLASTIC, PRINCIPLED, PRINCIPLED_PARAMS, PRINCIPLEDTHIN, PRINCIPLEDTHIN_PARAMS, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, SPHERE, THINDIELECTRIC, WRAP_MODES,
                           GGX, Camera, Environment, DirectionalLight, IntegratorSettings, Material, Medium, PointLight,
                           Mesh, Projector, ReconstructionFilter, SceneDescription, Shape, Texture, fov_tangents)
 from .meshes import cube_mesh, load_mesh_file, rectangle_mesh, to_world_mesh, vertex_normals_by_angle
@@ -100,12 +100,18 @@ BSDF_PROPS = {
     "pplastic": {"diffuse_reflectance": COLOR, "specular_reflectance": COLOR, "int_ior": FLOAT + STR,
                  "ext_ior": FLOAT + STR, "eta": FLOAT,
                  "distribution": STR, "alpha": FLOAT, "alpha_u": FLOAT, "alpha_v": FLOAT, "sample_visible": BOOL},
-    # Mitsuba's principled (bsdfs/principled.py): its scalar parameters are constants here, base_color may be a texture
+    # Mitsuba's principled and principledthin (bsdfs/principled.py, principledthin.py): base_color and the scalar
+    # parameters of TEXTURED_PARAMS may be textures
     "principled": {"base_color": COLOR, "roughness": FLOAT, "anisotropic": FLOAT, "metallic": FLOAT, "spec_trans": FLOAT,
                    "eta": FLOAT, "specular": FLOAT, "spec_tint": FLOAT, "sheen": FLOAT, "sheen_tint": FLOAT,
                    "clearcoat": FLOAT, "clearcoat_gloss": FLOAT, "flatness": FLOAT,
                    "main_specular_sampling_rate": FLOAT, "clearcoat_sampling_rate": FLOAT,
                    "diffuse_reflectance_sampling_rate": FLOAT},
+    "principledthin": {"base_color": COLOR, "roughness": FLOAT, "anisotropic": FLOAT, "spec_trans": FLOAT,
+                       "eta": FLOAT, "spec_tint": FLOAT, "sheen": FLOAT, "sheen_tint": FLOAT, "flatness": FLOAT,
+                       "diff_trans": FLOAT, "specular_reflectance_sampling_rate": FLOAT,
+                       "specular_transmittance_sampling_rate": FLOAT, "diffuse_reflectance_sampling_rate": FLOAT,
+                       "diffuse_transmittance_sampling_rate": FLOAT},
     "twosided": {},
     "null": {},
     # Mitsuba's linear polarizer as its RGB variants render it: half the light straight on (a thindielectric of eta 1)
@@ -139,7 +145,12 @@ TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflecta
                    "roughconductor": ("specular_reflectance", "alpha", "alpha_u", "alpha_v"),
                    "roughdielectric": ("alpha", "alpha_u", "alpha_v"), "plastic": ("diffuse_reflectance",),
                    "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",),
-                   "principled": ("base_color",)}
+                   # Mitsuba reads these with get_texture (eval_1 for the scalars); eta, specular and the sampling rates
+                   # of principled, the sampling rates of principledthin, are plain numbers there
+                   "principled": ("base_color", "roughness", "anisotropic", "metallic", "spec_trans", "spec_tint",
+                                  "sheen", "sheen_tint", "clearcoat", "clearcoat_gloss", "flatness"),
+                   "principledthin": ("base_color", "roughness", "anisotropic", "spec_trans", "eta", "spec_tint",
+                                      "sheen", "sheen_tint", "flatness", "diff_trans")}
 def principled_roughness(roughness: float, anisotropic: float) -> tuple[float, float]:
     """A principled BSDF's (alpha_u, alpha_v), as Mitsuba's ``calc_dist_params``: roughness², stretched by
     sqrt(1 - 0.9 anisotropic) along dp/du and shrunk by it across, each at least 0.001."""
@@ -903,7 +914,9 @@ class _Loader:
         if kind == "pplastic":
             return self.pplastic(node, props, textures.get("diffuse_reflectance"), name)
         if kind == "principled":
-            return self.principled(node, props, textures.get("base_color"), name)
+            return self.principled(node, props, textures, name)
+        if kind == "principledthin":
+            return self.principledthin(node, props, textures, name)
         if kind in ("plastic", "roughplastic"):
             int_ior, ext_ior = self.dielectric_iors(props, "polypropylene")
             tex = textures.get("diffuse_reflectance")
@@ -936,8 +949,9 @@ class _Loader:
             self.fail(props.objects[0], "twosided around a blendbsdf is not supported; put twosided around each of "
                                         "its nested BSDFs instead (the same BSDF)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
-        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK) or (
-                inner.kind == PRINCIPLED and inner.principled.get("spec_trans", 0.0) != 0.0):
+        if inner.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC, NULL, MASK, PRINCIPLEDTHIN) or (
+                inner.kind == PRINCIPLED and (inner.principled.get("spec_trans", 0.0) != 0.0
+                                              or "spec_trans" in inner.param_textures)):
             self.fail(props.objects[0], f"twosided cannot wrap a {inner_node.attrs.get('type', '?')} "
                                         f"BSDF (Mitsuba forbids transmissive BSDFs inside twosided)",
                       supported=["diffuse", "conductor", "roughconductor", "plastic", "roughplastic", "pplastic"])
@@ -1178,19 +1192,40 @@ class _Loader:
                       supported=["none"] + list(CONDUCTOR_IOR))
         return CONDUCTOR_IOR[mat.strip()]
 
-    def principled(self, node: Node, props: Props, tex, name: str) -> Material:
-        """Mitsuba's ``principled`` (bsdfs/principled.py): base_color (default 0.5, or a texture), its other parameters
-        constants with Mitsuba's defaults, each weight in [0, 1]; ``eta`` or ``specular`` (not both, as Mitsuba)."""
-        params = {}
-        for p, default in PRINCIPLED_PARAMS.items():
+    def principled_params(self, props: Props, textures: dict, kind: str, defaults: dict) -> tuple[dict, dict]:
+        """(numbers, textures) of a principled or principledthin BSDF's scalar parameters (Mitsuba's names, with
+        ``defaults`` and anisotropic): a constant must be finite and in [0, 1] (diff_trans [0, 2]; a sampling rate not
+        negative), a texture (a checkerboard, bitmap or rawconstant, read by its eval_1) within the same range."""
+        params, given = {}, {}
+        for p, default in {**defaults, "anisotropic": 0.0}.items():
+            top = None if p.endswith("_rate") else 2.0 if p == "diff_trans" else 1.0
+            if p in textures:
+                tex = textures[p]
+                node = next(o for o in props.objects if o.attrs.get("name") == p)
+                if tex.kind == MESH_ATTRIBUTE:
+                    self.fail(node, f"{kind}: a mesh_attribute for '{p}' is not supported",
+                              supported=["a checkerboard, bitmap or rawconstant texture", f"a constant '{p}'"])
+                low, high = scalar_range(tex)
+                if not (low >= 0.0 and high <= top):
+                    self.fail(node, f"{kind}: the texture for '{p}' has values from {low:g} to {high:g}; they must "
+                                    f"be in [0, {top:g}]", supported=[f"values from 0 to {top:g}"])
+                params[p], given[p] = float(default), tex
+                continue
             v = self.number(props, p, default, nonneg=True)
-            if not math.isfinite(v) or (not p.endswith("_rate") and v > 1.0):
-                self.fail(props.node_of(p), f"principled: '{p}' must be in [0, 1], got {v}",
-                          supported=["a number from 0 to 1"] if not p.endswith("_rate") else None)
+            if not math.isfinite(v) or (top is not None and v > top):
+                self.fail(props.node_of(p), f"{kind}: '{p}' must be in [0, {top:g}], got {v}" if top is not None else
+                          f"{kind}: '{p}' must be finite, got {v}",
+                          supported=[f"a number from 0 to {top:g}"] if top is not None else None)
             params[p] = float(v)
-        anisotropic = self.number(props, "anisotropic", 0.0, nonneg=True)
-        if not anisotropic <= 1.0:
-            self.fail(props.node_of("anisotropic"), f"principled: 'anisotropic' must be in [0, 1], got {anisotropic}")
+        return params, given
+
+    def principled(self, node: Node, props: Props, textures: dict, name: str) -> Material:
+        """Mitsuba's ``principled`` (bsdfs/principled.py): base_color (default 0.5, or a texture), its other parameters
+        with Mitsuba's defaults, each weight in [0, 1], a constant or a texture (:meth:`principled_params`); ``eta`` or
+        ``specular`` (not both, as Mitsuba; numbers)."""
+        tex = textures.get("base_color")
+        params, given = self.principled_params(props, textures, "principled", PRINCIPLED_PARAMS)
+        anisotropic = params["anisotropic"]
         if props.has("eta") and props.has("specular"):
             self.fail(props.node_of("specular"), "principled: give either eta or specular, not both (as Mitsuba)")
         eta = self.number(props, "eta", None, positive=True)
@@ -1199,14 +1234,42 @@ class _Loader:
         specular = self.number(props, "specular", None, nonneg=True)
         if specular is not None and not specular <= 1.0:
             self.fail(props.node_of("specular"), f"principled: 'specular' must be in [0, 1], got {specular}")
-        eta = principled_eta(specular, eta, params["spec_trans"])
+        eta = principled_eta(specular, eta, 1.0 if "spec_trans" in given else params["spec_trans"])
         if eta == 1.0:
             self.fail(props.node_of("eta") if props.has("eta") else node,
                       "principled: eta 1 (or specular 0) makes no interface to reflect from", supported=["eta != 1"])
         au, av = principled_roughness(params["roughness"], float(anisotropic))
         return Material(PRINCIPLED, self.color(props, "base_color", DEFAULT_REFLECTANCE) if tex is None
                         else texture_mean(tex), int_ior=eta, ext_ior=1.0, name=name, distribution=GGX, alpha=au,
-                        alpha_v=av if av != au else None, principled=params, source=self.at(node), texture=tex)
+                        alpha_v=av if av != au else None, principled=params, source=self.at(node), texture=tex,
+                        param_textures={p: t for p, t in given.items() if p != "base_color"})
+
+    def principledthin(self, node: Node, props: Props, textures: dict, name: str) -> Material:
+        """Mitsuba's ``principledthin`` (bsdfs/principledthin.py): base_color (default 0.5, or a texture), its scalar
+        parameters as :meth:`principled`'s (diff_trans in [0, 2]), ``eta`` (default 1.5, positive; a number or a
+        texture).  A thin sheet: no refraction, so the material's int_ior and ext_ior are both 1."""
+        tex = textures.get("base_color")
+        params, given = self.principled_params(props, textures, "principledthin", PRINCIPLEDTHIN_PARAMS)
+        if "eta" in textures:
+            node_eta = next(o for o in props.objects if o.attrs.get("name") == "eta")
+            if textures["eta"].kind == MESH_ATTRIBUTE:
+                self.fail(node_eta, "principledthin: a mesh_attribute for 'eta' is not supported",
+                          supported=["a checkerboard, bitmap or rawconstant texture", "a constant 'eta'"])
+            low, high = scalar_range(textures["eta"])
+            if not (low > 0.0 and math.isfinite(high)):
+                self.fail(node_eta, f"principledthin: the texture for 'eta' has values from {low:g} to {high:g}; "
+                                    f"they must be positive and finite", supported=["positive values"])
+            given["eta"], params["eta"] = textures["eta"], 1.5
+        else:
+            eta = self.number(props, "eta", 1.5, positive=True)
+            if not math.isfinite(eta):
+                self.fail(props.node_of("eta"), f"principledthin: 'eta' must be finite, got {eta}")
+            params["eta"] = float(eta)
+        au, av = principled_roughness(params["roughness"], params["anisotropic"])
+        return Material(PRINCIPLEDTHIN, self.color(props, "base_color", DEFAULT_REFLECTANCE) if tex is None
+                        else texture_mean(tex), int_ior=1.0, ext_ior=1.0, name=name, distribution=GGX, alpha=au,
+                        alpha_v=av if av != au else None, principled=params, source=self.at(node), texture=tex,
+                        param_textures={p: t for p, t in given.items() if p != "base_color"})
 
     def pplastic(self, node: Node, props: Props, tex, name: str) -> Material:
         """Mitsuba's ``pplastic`` (its RGB branch, bsdfs/pplastic.py): diffuse_reflectance (default 0.5, a texture
@@ -2140,6 +2203,16 @@ class _Loader:
             self.fail(node, "unknown element at the top level of the scene",
                       supported=[f"<{t}>" for t in TOP_LEVEL_TAGS])
         return camera, spp, settings, integrator_node
+
+
+def scalar_range(tex: Texture) -> tuple[float, float]:
+    """The lowest and highest value a checkerboard, bitmap or rawconstant texture gives where a BSDF reads a number
+    (its eval_1: a checkerboard colour's mean, a texel's luminance; bsdfs/textures.texture_value)."""
+    if tex.kind == CHECKERBOARD:
+        values = [sum(tex.color0) / 3.0, sum(tex.color1) / 3.0]
+    else:
+        values = tex.texels.reshape(-1, 3).astype(np.float64) @ np.array([0.212671, 0.715160, 0.072169])
+    return float(np.min(values)), float(np.max(values))
 
 
 def texture_mean(tex: Texture) -> tuple[float, float, float]:
