@@ -122,7 +122,7 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     out = np.zeros((n, 3))
     for p in range(MASK_PASSES):
         vp = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)))
+                           np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 8)))
         seg = allocate_segments(n, True)
         parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam, MASK_SEED,
                                          pass_stream(STREAM_CAUSTIC_MASK, 2 * p),

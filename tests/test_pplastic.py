@@ -14,8 +14,9 @@
 3. A scene against Mitsuba's path tracer (tests/scenes/pplastic.xml: pplastic spheres, one textured with eta given
    directly, a two-sided panel seen from its back): pt's image mean within 2 % and every 4x4 block within 5 sigmas
    of both renderers' noise (tests/imagestats.py), for beckmann and ggx.
-4. Input and methods: Mitsuba's defaults; bad values exit 2 in one line naming file and line; the photon methods
-   refuse pplastic (a glossy lobe beside a diffuse one) in one line, as all but sppm refuse roughplastic.
+4. Input and methods: Mitsuba's defaults; bad values exit 2 in one line naming file and line; pm, spm and pspm
+   refuse pplastic (a glossy lobe beside a diffuse one) in one line; sppm renders it (its visible points weight
+   each photon by the BSDF at the photon's direction) and matches Mitsuba on the scene of 3.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import types
 import numpy as np
 import pytest
 
+import caustica
 from caustica import bsdfs
 from caustica.bsdfs import microfacet as mf
 from caustica.bsdfs.plastic import SPEC_WEIGHT
@@ -288,7 +290,7 @@ def test_loader_reads_pplastic(tmp_path):
         (PPLASTIC, 1.33, GGX, 0.2, (0.5, 0.5, 0.5), True)
 
 
-@pytest.mark.parametrize("method", ["pm", "spm", "sppm", "pspm"])
+@pytest.mark.parametrize("method", ["pm", "spm", "pspm"])
 def test_photon_methods_refuse_pplastic(cli, tmp_path, method):
     path = write_scene(tmp_path, '<bsdf type="pplastic"/>')
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
@@ -296,3 +298,16 @@ def test_photon_methods_refuse_pplastic(cli, tmp_path, method):
     line = err.strip()
     assert "\n" not in line and "g.xml:5" in line and '"pplastic"' in line and "--method pt" in line, line
     assert not (tmp_path / "o.exr").exists()
+
+
+def test_sppm_matches_mitsuba(mi, test_scenes_dir):
+    """sppm on tests/scenes/pplastic.xml (beckmann): its visible points on pplastic weight each photon by the BSDF's
+    value at the photon's direction and take one light sample times the BSDF (bsdf_visible_point), as pbrt-v4's
+    SPPM does at every visible point; against Mitsuba's path tracer, image mean within 2 % and every 4x4 block within
+    5 sigmas of the seeds' noise (tests/imagestats.py).  Measured (2026-12-04, 64 passes): 0.13252 against 0.13285."""
+    path = test_scenes_dir / "pplastic.xml"
+    ms = mi.load_file(str(path), res=32, spp=512)
+    theirs = [np.array(mi.render(ms, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=64).image for s in range(4)]
+    assert_images_agree(ours, theirs, label="pplastic sppm")

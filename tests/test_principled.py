@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import caustica
 from caustica import bsdfs
 from caustica.bsdfs import build_material_table
 from caustica.jit import kernel
@@ -338,10 +339,30 @@ def test_scene_matches_mitsuba(mi, tmp_path, case):
     assert_images_agree(ours, theirs, label=case)
 
 
-@pytest.mark.parametrize("kind", ["principled", "principledthin"])
-@pytest.mark.parametrize("method", ["pm", "spm", "sppm", "pspm"])
-def test_photon_methods_refuse_principled(cli, tmp_path, method, kind):
-    path = write_scene(tmp_path, f'<bsdf type="{kind}"/>')
+def test_sppm_renders_an_opaque_principled_as_mitsuba(mi, tmp_path):
+    """sppm on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen): its visible
+    points weight each photon by the BSDF at the photon's direction (bsdf_visible_point); against Mitsuba's path
+    tracer (4 x 512 spp), mean within 2 % and 4x4 blocks within 5 sigmas.  Measured (2026-12-04, 64 passes): 0.13562
+    against 0.13598."""
+    path = tmp_path / "p.xml"
+    path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
+    ms = mi.load_file(str(path), res=32, spp=512)
+    theirs = [np.array(mi.render(ms, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=64).image for s in range(4)]
+    assert_images_agree(ours, theirs, label="principled sppm")
+
+
+@pytest.mark.parametrize("method, bsdf", [
+    (m, b) for m in ("pm", "spm", "pspm") for b in ('<bsdf type="principled"/>', '<bsdf type="principledthin"/>')]
+    + [("sppm", '<bsdf type="principledthin"/>'),
+       ("sppm", '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
+def test_photon_methods_refuse_principled(cli, tmp_path, method, bsdf):
+    """pm, spm and pspm refuse both (a glossy lobe beside a diffuse one); sppm, whose visible points evaluate the
+    BSDF, refuses a glossy transmission beside the diffuse lobe (spec_trans, principledthin: photons arriving from
+    the other side, which its gather does not read)."""
+    kind = bsdf.split('"')[1]
+    path = write_scene(tmp_path, bsdf)
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
     line = err.strip()

@@ -16,6 +16,7 @@ Tolerances come from the spread of independent renders (seeds), as in tests/test
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -46,17 +47,27 @@ def diacaustic():
 @pytest.mark.parametrize("n", [5000, 3, 0])
 def test_grid_range_sum_matches_brute_force(n):
     """Also where many cells share a bucket (cell 0.05: 10^6 cells, 2^14 buckets for 5000 events)
-    and where a column is longer than the buckets (a few events: a few buckets)."""
+    and where a column is longer than the buckets (a few events: a few buckets).  With a visible point's BSDF (a
+    diffuse one, f = rho / pi towards the side of its normal, 0 below) each event's power is weighted by f at the
+    event's direction, which the grid keeps then."""
+    from caustica.bsdfs import build_material_table
+    from caustica.geometry.scene_geometry import NO_UV
+    from caustica.scene.description import DIFFUSE, Material
+    rho = np.array([0.5, 0.4, 0.3])
+    mats = build_material_table(types.SimpleNamespace(materials=[Material(DIFFUSE, tuple(rho))]))
     rng = np.random.default_rng(1)
     pos = rng.uniform(-2, 3, (n, 3)).astype(np.float32)
     nrm = rng.normal(size=(n, 3))
     nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
+    direction = rng.normal(size=(n, 3))
+    direction = (direction / np.linalg.norm(direction, axis=1, keepdims=True)).astype(np.float32)
     power = rng.uniform(0, 1, (n, 3)).astype(np.float32)
     valid = (rng.uniform(size=n) < 0.8).astype(np.int8)
     box = np.array([-2.0, -2.0, -2.0, 3.0, 3.0, 3.0])
     for cell in (0.05, 0.3, 2.0):
         grid = build_grid(pos, power, nrm, valid, box, cell)
-        assert grid.count == valid.sum()
+        weighted = build_grid(pos, power, nrm, valid, box, cell, direction)
+        assert grid.count == valid.sum() and grid.direction.shape == (0, 3)
         for _ in range(40):
             q = rng.uniform(-2.5, 3.5, 3)
             qn = rng.normal(size=3)
@@ -64,9 +75,16 @@ def test_grid_range_sum_matches_brute_force(n):
             r = float(rng.uniform(0.01, 1.5))
             d2 = ((pos.astype(np.float64) - q) ** 2).sum(axis=1)
             take = (valid == 1) & (d2 <= r * r) & (nrm.astype(np.float64) @ qn > FACING_COS)
-            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), (qn[0], qn[1], qn[2]), r)
+            n_q = (qn[0], qn[1], qn[2])
+            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), n_q, r, (mats, -1, n_q, n_q, n_q, NO_UV))
             assert count == take.sum()
             np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
+            d = (-qn[0], -qn[1], -qn[2])   # the camera path arriving straight down the normal
+            count, s = grid_range_sum(weighted, (q[0], q[1], q[2]), n_q, r, (mats, 0, d, n_q, n_q, NO_UV))
+            lit = take & (direction.astype(np.float64) @ qn < 0.0)   # arriving from the normal's side
+            assert count == take.sum()
+            np.testing.assert_allclose(s, power[lit].astype(np.float64).sum(axis=0) * rho / math.pi, rtol=1e-6,
+                                       atol=1e-9)
 
 
 @pytest.mark.parametrize("key", [0, 1, 0x9E3779B97F4A7C15, 2**64 - 1])
@@ -211,7 +229,7 @@ def test_camera_pass_stratifies_each_pixel_over_the_passes():
     tan_y = tan_x * AH / AW
     offsets = []
     for p in range(16):
-        (pos, nrm, w, found, direct), _, _ = camera_pass(scene, camera_settings(AW, AH, 11), p)
+        pos, nrm, w, found, direct = camera_pass(scene, camera_settings(AW, AH, 11), p)[0][:5]
         assert found.all()
         # film coordinates of the visible point (the inverse of tests/test_pt.py's pixel_footprints)
         fx = (1 - pos[:, 0] / (CAM_H * tan_x)) / 2 * AW

@@ -114,8 +114,10 @@ def check_bsdfs(cls, scene) -> None:
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
-    (roughplastic: ``sppm``, its lobes apart as plastic's).  Another glossy lobe beside a diffuse one (pplastic)
-    needs the gather to evaluate the BSDF with each photon's direction, which no photon method does yet (issue 20).
+    (roughplastic: ``sppm``, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
+    lobe beside a diffuse one (pplastic, an opaque principled), whose visible point weights each photon by the BSDF at
+    the photon's direction (``sppm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
+    principledthin) is refused by every photon method.
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
@@ -144,6 +146,9 @@ def check_bsdfs(cls, scene) -> None:
             continue   # resolved at each hit to one of its parts, each a material of its own, checked as such
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
             if mat.kind == ROUGHPLASTIC and getattr(cls, "renders_rough_coated", False):
+                continue
+            if (flags & DIFFUSE_REFLECTION and not flags & GLOSSY_TRANSMISSION
+                    and getattr(cls, "evaluates_bsdfs", False)):
                 continue
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "

@@ -31,8 +31,6 @@ no 1 / eta² for a camera path.  Directions on the wrong side of the geometric s
 """
 from __future__ import annotations
 
-import math
-
 from ..geometry import vec
 from ..jit import kernel
 from ..sampling.rng import uniform

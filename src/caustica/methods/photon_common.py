@@ -127,7 +127,8 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     bar = progress(total=n * spp, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     for s in range(spp):
-        (vp_pos, vp_nrm, vp_weight, vp_found, radiance), segments, c = progressive_camera_pass(scene, settings, s, bar)
+        vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
+        vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]   # (no BSDF-evaluating point: api.check_bsdfs)
         estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
         c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate,
                                                         (vp_pos, vp_nrm, vp_found, vp_weight), (radiance, knn_queries)),

@@ -148,8 +148,11 @@ CELL_PER_RADIUS = 2.0
 @kernel(inline=True)
 def _gather_at(grid, points, radius, out, i):
     """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (position,
-    normal, found) into ``out`` = (flux, count) at i."""
-    vp_pos, vp_nrm, vp_found = points
+    normal, found, bsdfs) into ``out`` = (flux, count) at i.  ``bsdfs`` = (mats, material, incoming, geometric
+    normal, uv) of :class:`~caustica.photons.visible_points.VisiblePoints`: where its material is >= 0 each event's
+    power is weighted by that BSDF at the event's direction (Σ f Φ; the visible point's weight is then β)."""
+    vp_pos, vp_nrm, vp_found, bsdfs = points
+    mats, vp_m, vp_d, vp_ng, vp_uv = bsdfs
     flux, count = out
     if not vp_found[i]:
         count[i] = 0
@@ -158,7 +161,9 @@ def _gather_at(grid, points, radius, out, i):
         return
     p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-    m, s = grid_range_sum(grid, p, n, radius[i])
+    bsdf = (mats, vp_m[i], (vp_d[i, 0], vp_d[i, 1], vp_d[i, 2]), (vp_ng[i, 0], vp_ng[i, 1], vp_ng[i, 2]), n,
+            (vp_uv[i, 0], vp_uv[i, 1], vp_uv[i, 2], vp_uv[i, 3], vp_uv[i, 4], vp_uv[i, 5], vp_uv[i, 6], vp_uv[i, 7]))
+    m, s = grid_range_sum(grid, p, n, radius[i], bsdf)
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
@@ -360,7 +365,9 @@ class ProgressivePhotonMethod(IndependentPasses):
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
-        (vp_pos, vp_nrm, vp_weight, vp_found, direct), segments, c0 = camera_pass(scene, settings, pass_index, bar)
+        vps, segments, c0 = camera_pass(scene, settings, pass_index, bar)
+        vp_pos, vp_nrm, vp_weight, vp_found, direct = vps.position, vps.normal, vps.weight, vps.found, vps.direct
+        points = (vp_pos, vp_nrm, vp_found, (scene.materials, vps.material, vps.incoming, vps.geometric_normal, vps.uv))
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
         seen = radius[vp_found]
@@ -371,7 +378,8 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         first_build = not grid_compiled()
         volume = stats.pop("volume_photons", None)
-        grid, grid_c = _event_grids(scene, events, radius_caustic, vp_found, typical)
+        grid, grid_c = _event_grids(scene, events, radius_caustic, vp_found, typical,
+                                    bool(np.any(vps.material[vp_found] >= 0)))
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:
@@ -383,12 +391,11 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         flux_c = count_c = None
         if grid_c is None:
-            c2 = parallel_for(gather_flux, n, (grid, (vp_pos, vp_nrm, vp_found), radius, (flux, count)),
-                              threads=threads)
+            c2 = parallel_for(gather_flux, n, (grid, points, radius, (flux, count)), threads=threads)
         else:
             flux_c = np.empty((n, 3))
             count_c = np.empty(n, np.int64)
-            c2 = parallel_for(gather_flux_two, n, ((grid, grid_c), (vp_pos, vp_nrm, vp_found), (radius, radius_caustic),
+            c2 = parallel_for(gather_flux_two, n, ((grid, grid_c), points, (radius, radius_caustic),
                                                    ((flux, count), (flux_c, count_c))), threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0
@@ -497,18 +504,22 @@ class ProgressivePhotonMethod(IndependentPasses):
         return out
 
 
-def _event_grids(scene, events, radius_caustic, vp_found, typical):
+def _event_grids(scene, events, radius_caustic, vp_found, typical, directions):
     """The hash grids over a pass's photon events: one for all (kind != 0), or with ``radius_caustic``
-    the caustic events (kind 2) in a grid of their own, its cells sized by the caustic radii."""
-    position, power, normal, valid = events
+    the caustic events (kind 2) in a grid of their own, its cells sized by the caustic radii.  ``events`` =
+    (position, power, normal, valid[, direction]); the grids keep the directions when ``directions`` (a visible
+    point evaluates its BSDF)."""
+    position, power, normal, valid = events[:4]
+    direction = events[4] if directions else None
     box = scene.geometry.scene_box
     if radius_caustic is None:
-        return build_grid(position, power, normal, valid, box, CELL_PER_RADIUS * typical), None
-    grid = build_grid(position, power, normal, (valid == 1).view(np.int8), box, CELL_PER_RADIUS * typical)
+        return build_grid(position, power, normal, valid, box, CELL_PER_RADIUS * typical, direction), None
+    grid = build_grid(position, power, normal, (valid == 1).view(np.int8), box, CELL_PER_RADIUS * typical, direction)
     # the caustic radii shrink only where caustic events land: size the cells by those pixels
     seen_c = radius_caustic[vp_found & (radius_caustic < radius_caustic.max())]
     typical_c = float(np.median(seen_c)) if seen_c.size else typical
-    grid_c = build_grid(position, power, normal, (valid == 2).view(np.int8), box, CELL_PER_RADIUS * typical_c)
+    grid_c = build_grid(position, power, normal, (valid == 2).view(np.int8), box, CELL_PER_RADIUS * typical_c,
+                        direction)
     return grid, grid_c
 
 

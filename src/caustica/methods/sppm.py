@@ -50,6 +50,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass"
     renders_coated = True    # plastic: its lobes apart in visible_point and trace_one (api.check_bsdfs)
     renders_rough_coated = True   # roughplastic: the same, its glossy lobe sampled alone
+    evaluates_bsdfs = True   # pplastic, opaque principled: visible points weight photons by f (bsdf_visible_point)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     params = (
@@ -106,7 +107,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         bar.close()
         if not aimed and not scene.has_media:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
-            return (buf.position, buf.power, buf.normal, buf.kind), n, {
+            return (buf.position, buf.power, buf.normal, buf.kind, buf.direction), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                 "photons_emitted": n}
         valid = np.empty(buf.kind.shape[0], np.int8)
@@ -129,4 +130,4 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
             else:
                 keep = (buf.kind == VOLUME_INDIRECT) | (buf.kind == VOLUME_CAUSTIC)
             stats["volume_photons"] = (buf.position[keep], buf.direction[keep], buf.power[keep])
-        return (buf.position, buf.power, buf.normal, valid), n + n_c, stats
+        return (buf.position, buf.power, buf.normal, valid, buf.direction), n + n_c, stats

@@ -19,6 +19,10 @@ the sorted arrays (position, power, normal: structure of arrays, float32 like th
 photon records) with their cells' keys: a query takes an event only if its key is one
 of the cells it scans, so the cells that share a bucket never mix.  Points outside the
 box are clamped into its border cells (the distance test stays exact).
+
+A visible point on a BSDF that is not Lambertian (a glossy lobe beside the diffuse one) weights each event by
+its BSDF at the event's direction (:func:`grid_range_sum`'s ``bsdf``), so the grid then keeps the events'
+directions too (``direction``; empty otherwise).
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..bsdfs import eval_pdf
 from ..jit import kernel
 from .kdtree import FACING_COS
 
@@ -43,6 +48,7 @@ class PhotonGrid(NamedTuple):
     position: np.ndarray  # float32[n, 3], sorted by bucket
     power: np.ndarray     # float32[n, 3]
     normal: np.ndarray    # float32[n, 3]
+    direction: np.ndarray  # float32[n, 3] (direction of travel) or float32[0, 3] when no visible point reads it
 
     @property
     def count(self) -> int:
@@ -82,16 +88,17 @@ def _bucket(key, mask):
 
 @kernel
 def _counting_sort(events, shape, out):
-    """Sort the valid events, ``events`` = (position, power, normal, valid), by bucket of the grid ``shape`` =
-    (lo, cell, dims) into ``out`` = (start, key, position, power, normal), stably; start receives the buckets'
-    offsets.
+    """Sort the valid events, ``events`` = (position, power, normal, valid, direction), by bucket of the grid
+    ``shape`` = (lo, cell, dims) into ``out`` = (start, key, position, power, normal, direction), stably (the
+    directions only when ``out``'s has rows); start receives the buckets' offsets.
 
     Counts, a prefix sum, then the events placed from the last one back, each at the end of its
     bucket's free part (a bucket's key is recomputed rather than stored: no temporary arrays).
     """
-    position, power, normal, valid = events
+    position, power, normal, valid, direction = events
     lo, cell, dims = shape
-    start, out_key, out_pos, out_pow, out_nrm = out
+    start, out_key, out_pos, out_pow, out_nrm, out_dir = out
+    with_direction = out_dir.shape[0] > 0
     inv = 1.0 / cell
     n = position.shape[0]
     n_buckets = start.shape[0] - 1
@@ -116,6 +123,9 @@ def _counting_sort(events, shape, out):
             out_pos[j, c] = position[i, c]
             out_pow[j, c] = power[i, c]
             out_nrm[j, c] = normal[i, c]
+        if with_direction:
+            for c in range(3):
+                out_dir[j, c] = direction[i, c]
     # start[b + 1] holds bucket b's beginning: shift down by one, and close with the total
     for b in range(n_buckets):
         start[b] = start[b + 1]
@@ -127,24 +137,33 @@ def grid_compiled() -> bool:
     return _counting_sort.compiled_for_python()
 
 
-def build_grid(position, power, normal, valid, box, cell) -> PhotonGrid:
-    """The grid of the events with ``valid`` != 0, cells of about ``cell`` over ``box`` (lo, hi)."""
+def build_grid(position, power, normal, valid, box, cell, direction=None) -> PhotonGrid:
+    """The grid of the events with ``valid`` != 0, cells of about ``cell`` over ``box`` (lo, hi); their
+    ``direction`` too when given."""
     lo, cell, dims = grid_shape(box, cell)
     valid = np.ascontiguousarray(valid, np.int8)
     n = int(np.count_nonzero(valid))
     start = np.zeros(bucket_count(n, int(np.prod(dims))) + 1, np.int64)
     key = np.empty(n, np.int64)
     out = [np.empty((n, 3), np.float32) for _ in range(3)]
-    _counting_sort((position, power, normal, valid), (lo, cell, dims), (start, key, *out))
-    return PhotonGrid(lo, np.array([cell]), dims, start, key, *out)
+    out_dir = np.empty((n if direction is not None else 0, 3), np.float32)
+    if direction is None:
+        direction = out_dir
+    _counting_sort((position, power, normal, valid, direction), (lo, cell, dims), (start, key, *out, out_dir))
+    return PhotonGrid(lo, np.array([cell]), dims, start, key, *out, out_dir)
 
 
 @kernel
-def grid_range_sum(grid, qp, qn, r):
+def grid_range_sum(grid, qp, qn, r, bsdf):
     """Σ power over the events within r of qp whose normal faces qn (dot > FACING_COS), and their count.
 
     The same sidedness rule as the kd-tree's searches.  Returns (count, (Σ_0, Σ_1, Σ_2)), float64 sums.
+    With ``bsdf`` = (mats, m, d, ng, ns, uv) and m >= 0 each event's power is weighted by material m's BSDF
+    value f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_pdf`: the visible point's
+    own, the camera path arriving along d); m < 0: plain sums.
     """
+    mats, m, d, ng, ns, uv = bsdf
+    general = m >= 0
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
@@ -191,7 +210,15 @@ def grid_range_sum(grid, qp, qn, r):
                     if dx * dx + dy * dy + dz * dz <= r2:
                         if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
                             count += 1
-                            s0 += pw[j, 0]
-                            s1 += pw[j, 1]
-                            s2 += pw[j, 2]
+                            if general:
+                                wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]),
+                                      -float(grid.direction[j, 2]))
+                                f, f_scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+                                s0 += pw[j, 0] * f[0] * f_scale
+                                s1 += pw[j, 1] * f[1] * f_scale
+                                s2 += pw[j, 2] * f[2] * f_scale
+                            else:
+                                s0 += pw[j, 0]
+                                s1 += pw[j, 1]
+                                s2 += pw[j, 2]
     return count, (s0, s1, s2)

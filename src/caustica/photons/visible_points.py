@@ -72,8 +72,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, delta_branches, oriented, \
-    eval_coating, rough_coat, sample, sample_coating
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
+    delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -227,6 +227,28 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
     return w, vec.hadamard(w, E)
 
 
+@kernel
+def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
+    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled), made as pbrt-v4's
+    SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the photon's
+    direction) (:func:`caustica.photons.grid.grid_range_sum`), and its direct light is one light sample times f
+    (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
+    goes to pixel i of ``pixel`` = (i, :class:`VisiblePoints`).  Returns the direct light, β included."""
+    key, dim = numbers
+    i, points = pixel
+    points.material[i] = m
+    vec.set_row(points.incoming, i, d)
+    vec.set_row(points.geometric_normal, i, at.ng)
+    for k in range(8):
+        points.uv[i, k] = at.uv[k]
+    contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
+                                                            uniform(key, dim + 2)), False)
+    if not ok:
+        return (0.0, 0.0, 0.0)
+    f, f_scale, _ = eval_pdf(tables[1], m, d, at.ng, at.ns, at.uv, wi)
+    return vec.mul(vec.hadamard(beta, vec.hadamard(f, contrib)), f_scale)
+
+
 @kernel(inline=True)
 def coating_step(tables, at, m, d, path, branch, last):
     """At a delta coating over a diffuse lobe (plastic): the coating's reflection taken with its sampling
@@ -302,7 +324,8 @@ def visible_point(tables, o, d, numbers, params, out):
 
     ``numbers`` = (key, qkey, vkey, pass_index): the path's own key, the key that scrambles the pass-indexed
     sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular).
-    The path's medium segments are written to ``out`` = (slot0, segments): slots slot0, slot0 + 1, ...
+    The path's medium segments are written to ``out`` = (slot0, segments, pixel): slots slot0, slot0 + 1, ...;
+    a visible point that evaluates its BSDF writes it to ``pixel`` (:func:`bsdf_visible_point`).
     """
     geom, mats, lights, media = tables
     key = numbers[0]
@@ -322,7 +345,8 @@ def visible_point(tables, o, d, numbers, params, out):
         if medium >= 0:
             if n_seg >= MEDIUM_SEGMENTS:
                 return False, zero, zero, zero, L, n_seg
-            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf), medium, beta, n_seg, numbers, out)
+            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf), medium, beta, n_seg, numbers,
+                                      (out[0], out[1]))
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
@@ -369,6 +393,10 @@ def visible_point(tables, o, d, numbers, params, out):
                 # a glossy coating over a diffuse lobe: the coating's lobe, else the visible point here
                 take_coat, coating, L, pdf_coat, first_glass, dim = rough_coating_step(
                     tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)
+            elif has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
+                # a glossy lobe beside a diffuse one (pplastic, principled): the visible point evaluates the BSDF
+                return True, p, ns, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
+                    n_seg
             wc, P, w_coat, A = coating
             if flags & SMOOTH and not take_coat:
                 w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
@@ -405,8 +433,9 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
         vkey = path_key(seed, vstream, i)
         u1, u2 = sobol02(pass_index, qkey)
         o, d = generate_ray(cam, x, y, u1, u2, key)
+        points.material[i] = -1
         found, p, n, w, L, n_seg = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
-                                                 (i * MEDIUM_SEGMENTS, segments))
+                                                 (i * MEDIUM_SEGMENTS, segments, (i, points)))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
         vec.set_row(points.position, i, p)
@@ -421,9 +450,14 @@ class VisiblePoints(NamedTuple):
     """One pass's visible point of each pixel (every entry written by the camera pass)."""
     position: np.ndarray   # float64[n, 3]
     normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side
-    weight: np.ndarray     # float64[n, 3]: W = β ρ / π
+    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
+    # a visible point whose BSDF the gather evaluates (:func:`bsdf_visible_point`); material -1 elsewhere
+    material: np.ndarray   # int32[n]
+    incoming: np.ndarray   # float64[n, 3]: the camera path's direction arriving there
+    geometric_normal: np.ndarray  # float64[n, 3]: on the viewed side
+    uv: np.ndarray         # float64[n, 8]: the surface coordinates (caustica.transport.ShadingPoint.uv)
 
 
 def camera_pass(scene, settings, pass_index, bar=None):
@@ -436,7 +470,8 @@ def camera_pass(scene, settings, pass_index, bar=None):
     if scene.has_media:
         check_segment_memory(n)
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)))
+                           np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+                           np.empty((n, 8)))
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
     keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
