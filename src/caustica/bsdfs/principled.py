@@ -134,6 +134,23 @@ def schlick_weight(c):
     return x2 * x2 * x
 
 
+@kernel(inline=True)
+def retro_diffuse(p, co, ci, cd):
+    """Disney's diffuse shape with its retro-reflection, blended by ``flatness`` towards its fake subsurface term
+    (Mitsuba's): the factor of base / π in the diffuse reflection of both principled BSDFs.  co, ci: the cosines of
+    the two directions; cd = h · wi; ``p`` a row of the parameters (ROUGH, FLATNESS)."""
+    fo = schlick_weight(ci)
+    fi = schlick_weight(co)
+    rr = 2.0 * p[ROUGH] * cd * cd
+    lam = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo) + rr * (fo + fi + fo * fi * (rr - 1.0))
+    if p[FLATNESS] != 0.0:
+        f90 = 0.5 * rr
+        fss = (1.0 + (f90 - 1.0) * fo) * (1.0 + (f90 - 1.0) * fi)
+        ss = 1.25 * (fss * (1.0 / (co + ci) - 0.5) + 0.5)
+        lam = lam + p[FLATNESS] * (ss - lam)
+    return lam
+
+
 @kernel
 def schlick(r0, c, eta):
     """Schlick's Fresnel with normal reflectance r0 at cosine c to the microfacet (negative: from inside), relative IOR
@@ -289,16 +306,8 @@ def local_eval(mats, m, wo, wi, uv):
         v = p[CLEARCOAT] * 0.25 * fcc * gtr1(p[CC_ALPHA], h[2]) * g
         f = vec.add(f, (v, v, v))
     if brdf > 0.0 and reflect and front:
-        fo = schlick_weight(ci)
-        fi = schlick_weight(co)
         cd = vec.dot(h, wi)
-        rr = 2.0 * p[ROUGH] * cd * cd
-        lam = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo) + rr * (fo + fi + fo * fi * (rr - 1.0))
-        if p[FLATNESS] != 0.0:
-            f90 = 0.5 * rr
-            fss = (1.0 + (f90 - 1.0) * fo) * (1.0 + (f90 - 1.0) * fi)
-            ss = 1.25 * (fss * (1.0 / (co + ci) - 0.5) + 0.5)
-            lam = lam + p[FLATNESS] * (ss - lam)
+        lam = retro_diffuse(p, co, ci, cd)
         f = vec.add(f, vec.mul(base, brdf * INV_PI * lam))
         if p[SHEEN] > 0.0 and 1.0 - metallic > 0.0:
             k = p[SHEEN] * (1.0 - metallic) * schlick_weight(abs(cd))
@@ -383,17 +392,25 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     return True, wi, vec.mul(f, abs(wl[2]) / pdf), pdf, lobe, eta_out, dim + 3
 
 
+@kernel(inline=True)
+def local_pair(d, ng, ns, uv, wi):
+    """(valid, wo, wl): the camera-side direction -d and wi in the shading frame about ns (:func:`mf.shading_frame`),
+    valid unless either is grazing or wi lies on the wrong side of the geometric surface for the lobe (reflection or
+    transmission) its shading-frame side says; both principled BSDFs evaluate there."""
+    s, t, wo = mf.shading_frame(ns, d, uv)   # about the front shading normal where the surface transmits
+    wl = mf.to_local(s, t, ns, wi)
+    if wo[2] == 0.0 or wl[2] == 0.0:
+        return False, wo, wl
+    return (vec.dot(wi, ng) * vec.dot(d, ng) < 0.0) == (wo[2] * wl[2] > 0.0), wo, wl
+
+
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1) and :func:`sample`'s density of wi (Mitsuba's ``pdf``); zero on the wrong side of
     the geometric surface for the lobe wi would come from."""
-    s, t, wo = mf.shading_frame(ns, d, uv)   # about the front shading normal where the surface transmits
-    wl = mf.to_local(s, t, ns, wi)
-    zero = (0.0, 0.0, 0.0)
-    if wo[2] == 0.0 or wl[2] == 0.0:
-        return zero, 0.0, 0.0
-    if (vec.dot(wi, ng) * vec.dot(d, ng) < 0.0) != (wo[2] * wl[2] > 0.0):
-        return zero, 0.0, 0.0
+    ok, wo, wl = local_pair(d, ng, ns, uv, wi)
+    if not ok:
+        return (0.0, 0.0, 0.0), 0.0, 0.0
     f, pdf = local_eval(mats, m, wo, wl, uv)
     return f, 1.0, pdf
 

@@ -40,7 +40,7 @@ from . import microfacet as mf
 from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric
 from .principled import (ANISO, DIFF_RATE, FLATNESS, ROUGH, SHEEN, SHEEN_TINT, SPEC_RATE, SPEC_TINT, SPEC_TRANS,
-                         INV_PI, dist_params, params, schlick, schlick_weight, tint)
+                         INV_PI, dist_params, local_pair, params, retro_diffuse, schlick, schlick_weight, tint)
 from .textures import colour
 
 KIND = PRINCIPLEDTHIN
@@ -139,16 +139,8 @@ def local_eval(mats, m, wo, wi, uv):
             g = mf.smith_g1_uv(GGX, tu, tv, wo, h) * mf.smith_g1_uv(GGX, tu, tv, wi, h)
             f = vec.mul(base, s * (1.0 - F) * mf.D_uv(GGX, tu, tv, h) * g / (4.0 * co))
     if reflect and s < 1.0 and t < 1.0:
-        fo = schlick_weight(ci)
-        fi = schlick_weight(co)
         cd = vec.dot(h, wi)
-        rr = 2.0 * p[ROUGH] * cd * cd
-        lam = (1.0 - 0.5 * fi) * (1.0 - 0.5 * fo) + rr * (fo + fi + fo * fi * (rr - 1.0))
-        if p[FLATNESS] != 0.0:
-            f90 = 0.5 * rr
-            fss = (1.0 + (f90 - 1.0) * fo) * (1.0 + (f90 - 1.0) * fi)
-            ss = 1.25 * (fss * (1.0 / (co + ci) - 0.5) + 0.5)
-            lam = lam + p[FLATNESS] * (ss - lam)
+        lam = retro_diffuse(p, co, ci, cd)
         f = vec.add(f, vec.mul(base, (1.0 - s) * ci * INV_PI * (1.0 - t) * lam))
         if p[SHEEN] > 0.0:
             k = p[SHEEN] * (1.0 - s) * schlick_weight(abs(cd)) * (1.0 - t) * ci
@@ -224,14 +216,9 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
-    """f towards wi as (RGB f, 1) and :func:`sample`'s density of wi (Mitsuba's ``pdf``); zero on the wrong side of
-    the geometric surface for the lobe wi would come from."""
-    s, t, wo = mf.shading_frame(ns, d, uv)
-    wl = mf.to_local(s, t, ns, wi)
-    zero = (0.0, 0.0, 0.0)
-    if wo[2] == 0.0 or wl[2] == 0.0:
-        return zero, 0.0, 0.0
-    if (vec.dot(wi, ng) * vec.dot(d, ng) < 0.0) != (wo[2] * wl[2] > 0.0):
-        return zero, 0.0, 0.0
+    """:func:`caustica.bsdfs.principled.eval_pdf` for the thin sheet (its :func:`local_eval`, its :func:`sample`)."""
+    ok, wo, wl = local_pair(d, ng, ns, uv, wi)
+    if not ok:
+        return (0.0, 0.0, 0.0), 0.0, 0.0
     f, pdf = local_eval(mats, m, wo, wl, uv)
     return f, 1.0, pdf
