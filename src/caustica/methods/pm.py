@@ -41,6 +41,7 @@ class PhotonMapping(OneShot):
     name = "pm"
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
     renders_coated = True    # plastic: its lobes apart in gather_radiance, visible_point and trace_one (api.check_bsdfs)
+    renders_rough_coated = True   # roughplastic: its glossy lobe sampled alone, as sppm's (gather_radiance)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     default_spp = 1

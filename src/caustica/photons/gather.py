@@ -19,7 +19,10 @@ Emitters seen directly or through mirrors and glass add their radiance.  At a de
 lobe (plastic, :func:`caustica.bsdfs.coat`) the diffuse lobe's estimate is made there, f_r = A and the
 photons and shadow rays weighted by the lobe's other factor B, and the coating's reflection is split off
 as a glass's reflection is (at the first SPLIT_DEPTH bounces; deeper, one of the two with the BSDF's
-sampling probability).
+sampling probability).  A glossy coating (roughplastic, :func:`caustica.bsdfs.rough_coat`) is taken as SPPM's
+camera pass takes it (:func:`caustica.photons.visible_points.rough_coating_step`): its glossy lobe with its sampling
+probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A / (1 - P), B on photons and shadow
+rays.
 """
 from __future__ import annotations
 
@@ -37,10 +40,10 @@ from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import BLEND, NULL, PLASTIC
+from ..scene.description import BLEND, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import ShadingPoint, borrow_tables, with_tangent
 from .estimate import flux_density
-from .visible_points import escape_weight, glossy_step, seen_weight
+from .visible_points import escape_weight, glossy_step, rough_coating_step, seen_weight
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
@@ -198,6 +201,22 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 last = (lobe & DELTA != 0, pdf, p)
                 o, d = vec.offset_origin(p, ng, wi), wi
                 continue
+            if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
+                # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
+                take_coat, (wc, P, w_coat, A), L, pdf, _, dim = rough_coating_step(
+                    tables, at, m, d, (L, beta), (False, (key, key, key, 0), dim), depth >= max_specular)
+                if take_coat:
+                    depth += 1
+                    if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
+                        break   # the lobe's sample fell below the surface
+                    beta = vec.hadamard(beta, w_coat)
+                    last = (False, pdf, p)
+                    o, d = vec.offset_origin(p, ng, wc), wc
+                    continue
+                E, dim, q = diffuse_estimate(tables, lookup, params, at, m, key, dim)
+                queries += q
+                L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
+                break
             last = (True, 0.0, p)
             if flags & SMOOTH:
                 take_coat, fr, lobe_b, top, wc, w_coat, dim = diffuse_or_coating(
