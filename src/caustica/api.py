@@ -114,7 +114,7 @@ def check_bsdfs(cls, scene) -> None:
     the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
-    (roughplastic: ``sppm``, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
+    (roughplastic: ``sppm``, ``pm``, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
     lobe beside a diffuse one (pplastic, an opaque principled), whose visible point weights each photon by the BSDF at
     the photon's direction (``sppm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
     principledthin) is refused by every photon method.
