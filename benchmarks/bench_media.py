@@ -113,7 +113,7 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     from caustica.photons.records import VOLUME_CAUSTIC, allocate_buffers
     from caustica.photons.trace import trace_caustic_photon_pass
     from caustica.photons.segments import MEDIUM_SEGMENTS, allocate_segments
-    from caustica.photons.visible_points import VisiblePoints, visible_points
+    from caustica.photons.visible_points import BSDF_COLUMNS, VisiblePoints, visible_points
     from caustica.sampling.rng import STREAM_CAUSTIC_MASK, pass_stream
     scene = caustica.load_scene(SCENE, res=res)
     n = res * res
@@ -122,7 +122,7 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     out = np.zeros((n, 3))
     for p in range(MASK_PASSES):
         vp = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 8)))
+                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS)))
         seg = allocate_segments(n, True)
         parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam, MASK_SEED,
                                          pass_stream(STREAM_CAUSTIC_MASK, 2 * p),

@@ -76,7 +76,7 @@ def test_grid_range_sum_matches_brute_force(n):
             d2 = ((pos.astype(np.float64) - q) ** 2).sum(axis=1)
             take = (valid == 1) & (d2 <= r * r) & (nrm.astype(np.float64) @ qn > FACING_COS)
             n_q = (qn[0], qn[1], qn[2])
-            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), n_q, r, (mats, -1, n_q, n_q, n_q, NO_UV))
+            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), n_q, r, None)
             assert count == take.sum()
             np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
             d = (-qn[0], -qn[1], -qn[2])   # the camera path arriving straight down the normal

@@ -38,7 +38,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import camera_pass
+from ..photons.visible_points import BSDF_INCOMING, BSDF_MATERIAL, BSDF_NG, BSDF_UV, camera_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -147,12 +147,12 @@ CELL_PER_RADIUS = 2.0
 
 @kernel(inline=True)
 def _gather_at(grid, points, radius, out, i):
-    """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (position,
-    normal, found, bsdfs) into ``out`` = (flux, count) at i.  ``bsdfs`` = (mats, material, incoming, geometric
-    normal, uv) of :class:`~caustica.photons.visible_points.VisiblePoints`: where its material is >= 0 each event's
-    power is weighted by that BSDF at the event's direction (Σ f Φ; the visible point's weight is then β)."""
-    vp_pos, vp_nrm, vp_found, bsdfs = points
-    mats, vp_m, vp_d, vp_ng, vp_uv = bsdfs
+    """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (the pass's
+    :class:`~caustica.photons.visible_points.VisiblePoints`, the material table), both borrowed, into ``out`` =
+    (flux, count) at i.  Where the point's material is >= 0 each event's power is weighted by that BSDF at the
+    event's direction (Σ f Φ; the visible point's weight is then β)."""
+    vps, mats = points
+    vp_pos, vp_nrm, vp_found, rows = vps.position, vps.normal, vps.found, vps.bsdf
     flux, count = out
     if not vp_found[i]:
         count[i] = 0
@@ -161,12 +161,24 @@ def _gather_at(grid, points, radius, out, i):
         return
     p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-    bsdf = (mats, vp_m[i], (vp_d[i, 0], vp_d[i, 1], vp_d[i, 2]), (vp_ng[i, 0], vp_ng[i, 1], vp_ng[i, 2]), n,
-            (vp_uv[i, 0], vp_uv[i, 1], vp_uv[i, 2], vp_uv[i, 3], vp_uv[i, 4], vp_uv[i, 5], vp_uv[i, 6], vp_uv[i, 7]))
-    m, s = grid_range_sum(grid, p, n, radius[i], bsdf)
+    if rows[i, BSDF_MATERIAL] < 0.0:
+        m, s = grid_range_sum(grid, p, n, radius[i], None)
+    else:
+        m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i, n))
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
+
+
+@kernel
+def bsdf_point(mats, rows, i, ns):
+    """(mats, m, d, ng, ns, uv): visible point i's BSDF as :func:`caustica.photons.grid.grid_range_sum` weighs with it,
+    from its row of :attr:`~caustica.photons.visible_points.VisiblePoints.bsdf`."""
+    r = rows[i]
+    return (mats, int(r[BSDF_MATERIAL]), (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
+            (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), ns,
+            (r[BSDF_UV], r[BSDF_UV + 1], r[BSDF_UV + 2], r[BSDF_UV + 3], r[BSDF_UV + 4], r[BSDF_UV + 5], r[BSDF_UV + 6],
+             r[BSDF_UV + 7]))
 
 
 @kernel
@@ -174,6 +186,7 @@ def gather_flux(grid, points, radius, out, i0, i1):
     """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without
     one): :func:`_gather_at`."""
     grid = borrowed(grid)
+    points = (borrowed(points[0]), borrowed(points[1]))
     for i in range(i0, i1):
         _gather_at(grid, points, radius, out, i)
 
@@ -185,6 +198,7 @@ def gather_flux_two(grids, points, radii, outs, i0, i1):
     grid, grid_c = grids
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
+    points = (borrowed(points[0]), borrowed(points[1]))
     for i in range(i0, i1):
         _gather_at(grid, points, radii[0], outs[0], i)
         _gather_at(grid_c, points, radii[1], outs[1], i)
@@ -366,8 +380,8 @@ class ProgressivePhotonMethod(IndependentPasses):
         t0 = time.perf_counter()
         # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
         vps, segments, c0 = camera_pass(scene, settings, pass_index, bar)
-        vp_pos, vp_nrm, vp_weight, vp_found, direct = vps.position, vps.normal, vps.weight, vps.found, vps.direct
-        points = (vp_pos, vp_nrm, vp_found, (scene.materials, vps.material, vps.incoming, vps.geometric_normal, vps.uv))
+        vp_weight, vp_found, direct = vps.weight, vps.found, vps.direct
+        points = (vps, scene.materials)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
         seen = radius[vp_found]
@@ -379,7 +393,7 @@ class ProgressivePhotonMethod(IndependentPasses):
         first_build = not grid_compiled()
         volume = stats.pop("volume_photons", None)
         grid, grid_c = _event_grids(scene, events, radius_caustic, vp_found, typical,
-                                    bool(np.any(vps.material[vp_found] >= 0)))
+                                    bool(np.any(vps.bsdf[vp_found, BSDF_MATERIAL] >= 0.0)))
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:

@@ -158,12 +158,11 @@ def grid_range_sum(grid, qp, qn, r, bsdf):
     """Σ power over the events within r of qp whose normal faces qn (dot > FACING_COS), and their count.
 
     The same sidedness rule as the kd-tree's searches.  Returns (count, (Σ_0, Σ_1, Σ_2)), float64 sums.
-    With ``bsdf`` = (mats, m, d, ng, ns, uv) and m >= 0 each event's power is weighted by material m's BSDF
-    value f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_pdf`: the visible point's
-    own, the camera path arriving along d); m < 0: plain sums.
+    With ``bsdf`` = (mats, m, d, ng, ns, uv) each event's power is weighted by material m's BSDF value
+    f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_pdf`: the visible point's own,
+    the camera path arriving along d); with ``bsdf`` None, plain sums (a separate compilation: Numba prunes the
+    ``bsdf is not None`` branch, so the plain sum's code is what it was before BSDFs were weighed here).
     """
-    mats, m, d, ng, ns, uv = bsdf
-    general = m >= 0
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
@@ -210,10 +209,10 @@ def grid_range_sum(grid, qp, qn, r, bsdf):
                     if dx * dx + dy * dy + dz * dz <= r2:
                         if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
                             count += 1
-                            if general:
+                            if bsdf is not None:
                                 wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]),
                                       -float(grid.direction[j, 2]))
-                                f, f_scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+                                f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
                                 s0 += pw[j, 0] * f[0] * f_scale
                                 s1 += pw[j, 1] * f[1] * f_scale
                                 s2 += pw[j, 2] * f[2] * f_scale

@@ -77,7 +77,7 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRA
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
@@ -90,6 +90,8 @@ from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, 
     first_segment_numbers, segment_inscatter, store_segment
 
 INV_PI = 1.0 / math.pi
+#: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates.
+BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_COLUMNS = 0, 1, 4, 7, 15
 
 
 @kernel(inline=True)
@@ -233,14 +235,15 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the photon's
     direction) (:func:`caustica.photons.grid.grid_range_sum`), and its direct light is one light sample times f
     (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
-    goes to pixel i of ``pixel`` = (i, :class:`VisiblePoints`).  Returns the direct light, β included."""
+    goes to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
     key, dim = numbers
-    i, points = pixel
-    points.material[i] = m
-    vec.set_row(points.incoming, i, d)
-    vec.set_row(points.geometric_normal, i, at.ng)
+    i, rows = pixel
+    rows[i, BSDF_MATERIAL] = m
+    for k in range(3):
+        rows[i, BSDF_INCOMING + k] = d[k]
+        rows[i, BSDF_NG + k] = at.ng[k]
     for k in range(8):
-        points.uv[i, k] = at.uv[k]
+        rows[i, BSDF_UV + k] = at.uv[k]
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
                                                             uniform(key, dim + 2)), False)
     if not ok:
@@ -426,6 +429,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
     tables = borrow_tables(tables)
     seed, stream, vstream, pass_index = keys
     points, segments = out
+    points = borrowed(points)
     for i in range(i0, i1):
         x, y = pixel_of(cam, i)
         key = path_key(seed, stream, i)
@@ -433,9 +437,9 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
         vkey = path_key(seed, vstream, i)
         u1, u2 = sobol02(pass_index, qkey)
         o, d = generate_ray(cam, x, y, u1, u2, key)
-        points.material[i] = -1
+        points.bsdf[i, BSDF_MATERIAL] = -1.0
         found, p, n, w, L, n_seg = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
-                                                 (i * MEDIUM_SEGMENTS, segments, (i, points)))
+                                                 (i * MEDIUM_SEGMENTS, segments, (i, points.bsdf)))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
         vec.set_row(points.position, i, p)
@@ -453,11 +457,9 @@ class VisiblePoints(NamedTuple):
     weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
-    # a visible point whose BSDF the gather evaluates (:func:`bsdf_visible_point`); material -1 elsewhere
-    material: np.ndarray   # int32[n]
-    incoming: np.ndarray   # float64[n, 3]: the camera path's direction arriving there
-    geometric_normal: np.ndarray  # float64[n, 3]: on the viewed side
-    uv: np.ndarray         # float64[n, 8]: the surface coordinates (caustica.transport.ShadingPoint.uv)
+    bsdf: np.ndarray       # float64[n, BSDF_COLUMNS]: a visible point whose BSDF the gather evaluates
+    #                        (:func:`bsdf_visible_point`): its material (-1: none, the others), the camera path's
+    #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates
 
 
 def camera_pass(scene, settings, pass_index, bar=None):
@@ -470,8 +472,7 @@ def camera_pass(scene, settings, pass_index, bar=None):
     if scene.has_media:
         check_segment_memory(n)
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-                           np.empty((n, 8)))
+                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS)))
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
     keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
