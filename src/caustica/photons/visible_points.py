@@ -457,7 +457,8 @@ class VisiblePoints(NamedTuple):
     weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
-    bsdf: np.ndarray       # float64[n, BSDF_COLUMNS]: a visible point whose BSDF the gather evaluates
+    bsdf: np.ndarray       # float64[n, BSDF_COLUMNS] (or [n, 1] in a scene without such a BSDF: its first column
+    #                        only, -1 everywhere): a visible point whose BSDF the gather evaluates
     #                        (:func:`bsdf_visible_point`): its material (-1: none, the others), the camera path's
     #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates
 
@@ -471,8 +472,10 @@ def camera_pass(scene, settings, pass_index, bar=None):
     n = settings["width"] * settings["height"]
     if scene.has_media:
         check_segment_memory(n)
+    flags, kinds = scene.materials.flags, scene.materials.kind
+    evaluating = np.any((flags & GLOSSY != 0) & (flags & DIFFUSE_REFLECTION != 0) & (kinds != ROUGHPLASTIC))
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS)))
+                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)))   # 120 B a pixel
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
     keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
