@@ -238,8 +238,8 @@ def build_light_table(desc: SceneDescription, geom: Geometry) -> LightTable:
                        **env, **textures)
     power, radiance = c["power"], c["radiance"]
     for e, shape in enumerate(emissive):
-        if shape.emitter_texture is not None:   # π A x the texture's mean over the emitter
-            power[e] = math.pi * c["area"][e] * radiance[e] * np.asarray(texture_area_mean(table, geom, e, 256))
+        if shape.emitter_texture is not None:   # π A x the mean radiance over the emitter
+            power[e] = math.pi * c["area"][e] * np.asarray(texture_area_mean(table, geom, e, 256))
     for j, light in enumerate(desc.point_lights):
         if light.texture is not None:   # a textured spot: I ∫ f T dω by quadrature
             i = n_area + j
@@ -586,14 +586,21 @@ def parallelogram_point(lights, e, u1, u2):
 @kernel
 def sample_emitter_primitives(lights, geom, e, u1, u2):
     """A point uniformly by area on emitter e via its primitives' area CDF: (position, front normal)."""
+    prim, u1r = emitter_primitive(lights, e, u1)
+    return sample_on_primitive(geom, prim, u1r, u2)
+
+
+@kernel(inline=True)
+def emitter_primitive(lights, e, u1):
+    """The primitive of area emitter e that number u1 picks in proportion to area, and u1 rescaled to [0, 1) within
+    its share of the CDF (the number that places the point on it): (primitive, u1r)."""
     first = lights.prim_first[e]
     count = lights.prim_count[e]
     j = find_cdf(lights.prim_cdf, first, count, u1)
     lo = lights.prim_cdf[j - 1] if j > first else 0.0
     width = lights.prim_cdf[j] - lo
     u1r = (u1 - lo) / width if width > 0.0 else 0.0
-    u1r = min(max(u1r, 0.0), 0.99999999)
-    return sample_on_primitive(geom, lights.prims[j], u1r, u2)
+    return lights.prims[j], min(max(u1r, 0.0), 0.99999999)
 
 
 @kernel(inline=True)
@@ -634,12 +641,7 @@ def radiance_at_hit(geom, lights, e, prim, ray):
 def textured_emitter_point(lights, geom, e, u1, u2):
     """:func:`sample_emitter_primitives`' point on textured area emitter e with the radiance leaving it there:
     (position, front normal, radiance)."""
-    first = lights.prim_first[e]
-    j = find_cdf(lights.prim_cdf, first, lights.prim_count[e], u1)
-    lo = lights.prim_cdf[j - 1] if j > first else 0.0
-    width = lights.prim_cdf[j] - lo
-    u1r = min(max((u1 - lo) / width if width > 0.0 else 0.0, 0.0), 0.99999999)
-    prim = lights.prims[j]
+    prim, u1r = emitter_primitive(lights, e, u1)
     p, n = sample_on_primitive(geom, prim, u1r, u2)
     s = math.sqrt(u1r)   # the barycentrics primitives.sample_triangle gives the point
     uv = hit_uv((geom.prim_kind, geom.prim_index, geom.tri_uv, geom.ana_to_local), prim, (p, (0.0, 0.0, 0.0), 0.0),
@@ -659,18 +661,14 @@ def emitter_point(lights, geom, e, u1, u2):
 
 @kernel
 def texture_area_mean(lights, geom, e, n):
-    """The mean over area emitter e of its texture (per channel): the points of an n x n grid of cell centres
-    mapped by :func:`textured_emitter_point` (uniform by area), averaged; the power of a textured emitter is π
-    area x radiance x this."""
+    """The mean radiance over textured area emitter e (per channel): the points of an n x n grid of cell centres
+    mapped by :func:`textured_emitter_point` (uniform by area), averaged; its power is π area x this."""
     acc = (0.0, 0.0, 0.0)
     for i in range(n):
         for j in range(n):
             _, _, L = textured_emitter_point(lights, geom, e, (i + 0.5) / n, (j + 0.5) / n)
             acc = vec.add(acc, L)
-    r = vec.row(lights.radiance, e)
-    inv = 1.0 / (n * n)
-    return (acc[0] * inv / r[0] if r[0] > 0.0 else 0.0, acc[1] * inv / r[1] if r[1] > 0.0 else 0.0,
-            acc[2] * inv / r[2] if r[2] > 0.0 else 0.0)
+    return vec.mul(acc, 1.0 / (n * n))
 
 
 @kernel

@@ -38,7 +38,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_INCOMING, BSDF_MATERIAL, BSDF_NG, BSDF_UV, camera_pass
+from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -168,17 +168,6 @@ def _gather_at(grid, points, radius, out, i):
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
-
-
-@kernel
-def bsdf_point(mats, rows, i, ns):
-    """(mats, m, d, ng, ns, uv): visible point i's BSDF as :func:`caustica.photons.grid.grid_range_sum` weighs with it,
-    from its row of :attr:`~caustica.photons.visible_points.VisiblePoints.bsdf`."""
-    r = rows[i]
-    return (mats, int(r[BSDF_MATERIAL]), (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
-            (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), ns,
-            (r[BSDF_UV], r[BSDF_UV + 1], r[BSDF_UV + 2], r[BSDF_UV + 3], r[BSDF_UV + 4], r[BSDF_UV + 5], r[BSDF_UV + 6],
-             r[BSDF_UV + 7]))
 
 
 @kernel

@@ -252,6 +252,17 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     return vec.mul(vec.hadamard(beta, vec.hadamard(f, contrib)), f_scale)
 
 
+@kernel
+def bsdf_point(mats, rows, i, ns):
+    """(mats, m, d, ng, ns, uv): visible point i's BSDF as :func:`caustica.photons.grid.grid_range_sum` weighs with it,
+    from its row of :attr:`VisiblePoints.bsdf` (:func:`bsdf_visible_point` writes it)."""
+    r = rows[i]
+    return (mats, int(r[BSDF_MATERIAL]), (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
+            (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), ns,
+            (r[BSDF_UV], r[BSDF_UV + 1], r[BSDF_UV + 2], r[BSDF_UV + 3], r[BSDF_UV + 4], r[BSDF_UV + 5], r[BSDF_UV + 6],
+             r[BSDF_UV + 7]))
+
+
 @kernel(inline=True)
 def coating_step(tables, at, m, d, path, branch, last):
     """At a delta coating over a diffuse lobe (plastic): the coating's reflection taken with its sampling
