@@ -133,6 +133,30 @@ def test_roulette_same_expected_power_as_cap(closed_box):
     assert np.all(np.abs(tot.sum(axis=0) - expected) <= 5 * se)
 
 
+BLACK_COATED_BOX = f"""<?xml version="1.0"?><scene version="3.0.0">{SENSOR}
+<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+  <boolean name="flip_normals" value="true"/>
+  <bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0, 0, 0"/><float name="alpha" value="0.3"/></bsdf>
+</shape>
+<emitter type="point"><point name="position" x="1" y="0.5" z="-0.3"/>
+  <rgb name="intensity" value="{', '.join(map(str, POINT_I))}"/></emitter></scene>"""
+
+
+def test_roulette_keeps_a_black_based_coatings_reflection():
+    """Rough plastic over a black base reflects only by its coating, a non-delta lobe.  Roulette there survives
+    with the sample's mean weight, so the stored power after each bounce has the expectation cap gives it; a
+    survival probability taken from the material's colour (0 here) ended every photon at the first bounce."""
+    scene = xml_scene(BLACK_COATED_BOX, "black-coated-box.xml")
+    n = 40_000
+    cap = per_photon_slot_power(trace(scene, n, MR_BOX, TERMINATION_CAP), n, MR_BOX)
+    rr = per_photon_slot_power(trace(scene, n, MR_BOX, TERMINATION_ROULETTE), n, MR_BOX)
+    for s in range(MR_BOX - 1):
+        a, b = cap[:, s].sum(axis=0), rr[:, s].sum(axis=0)
+        se = math.sqrt(n) * np.hypot(cap[:, s].std(axis=0, ddof=1), rr[:, s].std(axis=0, ddof=1))
+        assert np.all(a > 0) and np.all(se > 0), (s, a, se)
+        assert np.all(np.abs(a - b) <= 5 * se), (s, a, b, se)
+
+
 # ----------------------------------------------------------------------------- the caustic map
 
 @pytest.fixture(scope="module")

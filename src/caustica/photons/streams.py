@@ -90,24 +90,23 @@ def split_off(tables, key, o, d, power, split_path, k, split):
 
 
 @kernel(inline=True)
-def associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination):
+def associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, roulette_inv_q):
     """The associated photons after a diffuse bounce on material m, at the leading photon's surface coordinates uv:
     (how many survive, their power, dim).
 
     Each survives with p = mean albedo, its power scaled by albedo / p (numbers key, dim + j).
-    With roulette the leading photon has already survived with probability p, and the stream
-    lives or dies with it: a second, per-photon roulette would leave the associated photons
-    alive with probability p^2 while compensating only 1 / p, so they all survive, scaled.
+    With roulette (``roulette_inv_q`` > 0: the 1 / p of the leading photon's game, :func:`bounce`) the stream
+    lives or dies with the leading photon: a second, per-photon roulette would leave the associated photons
+    alive with probability p^2 while compensating only 1 / p, so they all survive, scaled by albedo / p.
     """
     rgb = colour(mats, m, uv)
+    if roulette_inv_q > 0.0:
+        return n_alive, vec.mul(vec.hadamard(p_assoc, rgb), roulette_inv_q)
     q = albedo_mean(mats, m, rgb)
-    if termination == TERMINATION_ROULETTE:
-        survivors = n_alive
-    else:
-        survivors = 0
-        for j in range(n_alive):
-            if uniform(key, dim + j) < q:
-                survivors += 1
+    survivors = 0
+    for j in range(n_alive):
+        if uniform(key, dim + j) < q:
+            survivors += 1
     if q > 0.0:
         p_assoc = vec.mul(vec.hadamard(p_assoc, rgb), 1.0 / q)
     return survivors, p_assoc
@@ -392,7 +391,8 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
     if alive:
         lead = vec.mul(vec.hadamard(lead, weight), inv_q)
         if not delta:
-            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, termination)
+            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc,
+                                                inv_q if termination == TERMINATION_ROULETTE else 0.0)
             dim += n_assoc
     o = vec.offset_origin(p, ng, d_new)
     return alive, o, d_new, medium_after(media, shape, ng_front, d_new, medium), (lead, p_assoc, n_alive), delta, dim

@@ -31,7 +31,7 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 from __future__ import annotations
 
 from ..features import has
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, albedo_mean, colour, entry, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, oriented, sample
 from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
 from ..geometry import vec
@@ -45,7 +45,7 @@ from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
 SPECULAR_CAP = 64
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
-TERMINATION_ROULETTE = 1  # survive with probability mean albedo, power scaled by albedo / p
+TERMINATION_ROULETTE = 1  # survive with probability p = the mean of the BSDF sample's weight (a diffuse albedo), power scaled by 1 / p
 
 
 @kernel(inline=True)
@@ -61,9 +61,11 @@ def store_record(s, p, d, power, n, kind, buf):
 @kernel(inline=True)
 def bounce(mats, m, d, at, key, dim, termination):
     """Continue a photon from material m at ``at`` = (ng, ns, uv) (normals from :func:`caustica.bsdfs.oriented`,
-    surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette with the mean albedo
-    there, capped at 1 (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p) on the number
-    after the sample's.
+    surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette on the number after the
+    sample's (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p).  p is the mean of the
+    sample's weight f cos / pdf, capped at 1: a diffuse surface's albedo, and for a lobe whose weight is not the
+    material's colour (a rough coating over a black base, a metal) what that lobe keeps, so a photon's power stays
+    about what it was and no lobe that reflects light loses all its photons.
 
     Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
     was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
@@ -75,7 +77,9 @@ def bounce(mats, m, d, at, key, dim, termination):
     u = uniform(key, dim)
     dim += 1
     if termination == TERMINATION_ROULETTE:
-        q = min(albedo_mean(mats, m, colour(mats, m, uv)), 1.0)   # a probability, for an albedo above 1 too
+        q = min((weight[0] + weight[1] + weight[2]) / 3.0, 1.0)   # a probability, for a weight above 1 too
+        if not q > 0.0:
+            return False, wi, weight, 0.0, False, dim
         return ok and u < q, wi, weight, 1.0 / q, False, dim
     return ok, wi, weight, 1.0, False, dim
 
