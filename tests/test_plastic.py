@@ -269,14 +269,18 @@ def test_photons_reflected_by_a_coating_are_not_caustic_photons(tmp_path, test_s
     assert np.count_nonzero(buf.kind == CAUSTIC) == 0
 
 
-@pytest.mark.parametrize("method, params", [
-    ("sppm", {"passes": 48, "photons": 20_000}),
-    ("pm", {"photons": 200_000, "caustic_photons": 100_000, "spp": 16})])
+PHOTON_METHODS = [("sppm", {"passes": 48, "photons": 20_000}),
+                  ("pm", {"photons": 200_000, "caustic_photons": 100_000, "spp": 16})]
+PSPM = ("pspm", {"passes": 48, "streams": 2000})
+
+
+@pytest.mark.parametrize("method, params", PHOTON_METHODS + [PSPM])
 def test_photon_methods_render_plastic_as_mitsuba(mi, plastic_and_glass, method, params):
-    """The smooth plastics (a ball, a nonlinear panel) next to a glass ball: sppm after 48 passes and PM+C (roulette,
-    mr = 64: no depth truncation) against Mitsuba's path tracer, mean within 2 % and 4x4 blocks within 5 sigmas of
-    the seeds' noise (what is left of the photon estimates' blur is below that).  Measured: sppm 0.13170 against
-    0.13181, PM+C 0.13237."""
+    """The smooth plastics (a ball, a nonlinear panel) next to a glass ball: sppm and pspm after 48 passes and PM+C
+    (roulette, mr = 64: no depth truncation) against Mitsuba's path tracer, mean within 2 % and 4x4 blocks within 5
+    sigmas of the seeds' noise (what is left of the photon estimates' blur is below that).  Measured: sppm 0.13170
+    against 0.13181, PM+C 0.13237, pspm 0.13143 (2026-12-04).  (spm is not here: its stream estimator is 6 % bright
+    on this scene with the plastics or without them, at these settings; its tracer is tested in test_spm.py.)"""
     scene = caustica.load_scene(plastic_and_glass)
     ours = [caustica.render(scene, method, res=32, seed=s, termination="roulette", max_bounces=64, **params).image
             for s in range(4)]
@@ -285,10 +289,9 @@ def test_photon_methods_render_plastic_as_mitsuba(mi, plastic_and_glass, method,
     assert_images_agree(ours, theirs, label=f"{method} plastic")
 
 
-@pytest.mark.parametrize("method, params", [
-    ("sppm", {"passes": 48, "photons": 20_000}),
-    ("pm", {"photons": 200_000, "caustic_photons": 100_000, "spp": 16})])
-@pytest.mark.parametrize("dist, alpha", [("beckmann", "0.2"), ("ggx", "0.05")])
+@pytest.mark.parametrize("method, params, dist, alpha",
+                         [(m, p, d, a) for m, p in PHOTON_METHODS for d, a in (("beckmann", "0.2"), ("ggx", "0.05"))]
+                         + [(*PSPM, "ggx", "0.05")])
 def test_photon_methods_render_roughplastic_as_mitsuba(mi, test_scenes_dir, dist, alpha, method, params):
     """The rough coating's lobes apart (visible points, or PM's gather, weighted by A, photons and shadow rays by the
     tabulated transmittance B, the glossy lobe sampled alone with probability P): tests/scenes/plastic.xml with its
@@ -344,17 +347,6 @@ def test_loader_reads_the_plastics(tmp_path):
     assert (m.kind, m.twosided) == (PLASTIC, True)
 
 
-@pytest.mark.parametrize("method, bsdf", [(m, b) for m in ("spm", "pspm") for b in ("roughplastic", "plastic")])
-def test_photon_methods_refuse_plastics(cli, tmp_path, method, bsdf):
-    """The stream methods refuse both plastics (their loop does not separate a coating's lobes)."""
-    path = write_scene(tmp_path, f'<bsdf type="{bsdf}"/>')
-    code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
-    assert code == 2, err
-    line = err.strip()
-    assert "\n" not in line and "g.xml:5" in line and f'"{bsdf}"' in line and "--method pt" in line, line
-    assert not (tmp_path / "o.exr").exists()
-
-
 @pytest.mark.parametrize("coated", ["plastic", "roughplastic"])
 def test_sppm_refuses_a_blend_of_a_coated_and_another_diffuse_lobe(cli, tmp_path, coated):
     """A photon's record carries the factor B of the part it met, which the other part's visible points would read:
@@ -368,20 +360,20 @@ def test_sppm_refuses_a_blend_of_a_coated_and_another_diffuse_lobe(cli, tmp_path
 def test_a_refusal_is_alone_on_stderr_under_a_scene_integrator(cli, tmp_path):
     """A scene whose <integrator> the method does not follow gets a note on stderr, but not before a refusal: the
     refusal is the one line (the note came first until 2026-12-04)."""
-    path = write_scene(tmp_path, '<bsdf type="roughplastic"/>')
+    refused = '<bsdf type="blendbsdf"><bsdf type="roughplastic"/><bsdf type="diffuse"/></bsdf>'   # by sppm
+    path = write_scene(tmp_path, refused)
     path.write_text(path.read_text().replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
                                              '<integrator type="volpath"/>'))
-    code, _, err = cli("render", path, "-m", "spm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
+    code, _, err = cli("render", path, "-m", "sppm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2 and err.count("\n") == 1 and err.startswith("caustica: error: "), err
-    path.write_text(path.read_text().replace('<bsdf type="roughplastic"/>', '<bsdf type="diffuse"/>'))
+    path.write_text(path.read_text().replace(refused, '<bsdf type="diffuse"/>'))
     code, _, err = cli("render", path, "-m", "pm", "--res", "8", "--photons", "1000", "-q", "-o", tmp_path / "p.exr")
     assert code == 0 and "note: integrator 'volpath'" in err, err
 
 
 def test_methods_that_render_plastic_accept_it(tmp_path):
-    """pt, pm and sppm render both: a finite, non-black image."""
-    for bsdf, method in (("plastic", "pt"), ("roughplastic", "pt"), ("plastic", "pm"), ("roughplastic", "pm"),
-                         ("plastic", "sppm"), ("roughplastic", "sppm")):
+    """Every method renders both: a finite, non-black image."""
+    for bsdf, method in [(b, m) for b in ("plastic", "roughplastic") for m in ("pt", "pm", "sppm", "spm", "pspm")]:
         img = caustica.render(write_scene(tmp_path, f'<bsdf type="{bsdf}"/>'), method, res=8).image
         assert np.all(np.isfinite(img)) and img.mean() > 0, (bsdf, method)
 

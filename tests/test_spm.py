@@ -285,6 +285,67 @@ def test_rs0_assoc0_is_pm_bit_for_bit(diacaustic, termination):
     assert not count.any()
 
 
+@pytest.fixture(scope="module", params=["smooth-and-glass", "rough"])
+def plastic_scene(request, test_scenes_dir, tmp_path_factory):
+    """tests/scenes/plastic.xml (smooth plastics and a rough one over a diffuse floor) as it is, or with a glass ball
+    for the rough one (a caustic caster beside the plastics)."""
+    text = (test_scenes_dir / "plastic.xml").read_text()
+    if request.param == "smooth-and-glass":
+        a = text.index('<bsdf type="roughplastic">')
+        b = text.index("</bsdf>", a) + len("</bsdf>")
+        text = text[:a] + '<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>' + text[b:]
+    path = tmp_path_factory.mktemp("plastic") / "plastic.xml"
+    path.write_text(text)
+    return caustica.load_scene(path)
+
+
+def test_rs0_assoc0_is_pm_bit_for_bit_on_plastics(plastic_scene):
+    """The PM limit on plastic and roughplastic: the leading photon's records carry the coated lobe's factor B
+    and a coating's reflection makes the records after it INDIRECT (plastic is no caustic caster), as the photon
+    tracer's do, number for number."""
+    n, mr = 20_000, 4
+    sb = trace_spm(plastic_scene, n, 0, 0.0, mr, TERMINATION_CAP, seed=7)
+    pb = allocate_buffers(n, mr + 1)
+    trace_photon_pass(plastic_scene, pb, 7, STREAM_SPM, n, mr, TERMINATION_CAP)
+    pos, dirs, nrm, lead, assoc, energy, count, valid = sb.rec
+    np.testing.assert_array_equal(valid != 0, pb.kind != EMPTY)
+    np.testing.assert_array_equal(valid == 2, pb.kind == CAUSTIC)
+    keep = valid != 0
+    assert keep.sum() > 0.1 * n   # an open scene: most photons leave it
+    for a, b in ((pos, pb.position), (dirs, pb.direction), (nrm, pb.normal), (energy, pb.power), (lead, pb.power)):
+        np.testing.assert_array_equal(a[keep], b[keep])
+
+
+PLASTIC_BOX = f"""<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+  <boolean name="flip_normals" value="true"/>BSDF</shape>
+<emitter type="point"><point name="position" x="1" y="0.5" z="-0.3"/><rgb name="intensity" value="{rgb(POINT_I)}"/></emitter>"""
+
+
+@pytest.mark.parametrize("bsdf", ['<bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.6, 0.5, 0.4"/></bsdf>',
+                                  '<bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0.6, 0.5, 0.4"/>'
+                                  '<float name="alpha" value="0.3"/></bsdf>'], ids=["plastic", "roughplastic"])
+@pytest.mark.parametrize("termination", [TERMINATION_CAP, TERMINATION_ROULETTE])
+def test_streams_store_pms_power_per_bounce_in_a_plastic_box(bsdf, termination):
+    """A closed box of plastic: the streams' records (each the leading and the landed associated photons, every one
+    with the factor B of the coated lobe it landed on, decaying by the leading photon's weight) store per bounce
+    what PM's photons store, within 5 standard errors of the two runs; no record is CAUSTIC (a coating's reflection
+    is no caustic path).  Before the associated photons took the leading photon's weight and their own B, spm and
+    pspm refused plastics."""
+    scene = xml_scene(PLASTIC_BOX.replace("BSDF", bsdf), "plastic-box.xml")
+    buf = trace_spm(scene, N_S, N_FA, 1.0, MR, termination)
+    e, v, count, lead, assoc = records(buf, N_S, MR)
+    assert count[v].mean() > 1 and not (buf.rec.kind == CAUSTIC).any()
+    n_pm = N_S * (N_FA + 1)
+    pm = allocate_buffers(n_pm, MR + 1)
+    trace_photon_pass(scene, pm, 5, STREAM_PHOTON, n_pm, MR, termination)
+    x_pm = (pm.power.astype(np.float64) * (pm.kind != EMPTY)[:, None]).reshape(n_pm, MR + 1, 3)
+    for s in range(MR):
+        se = np.sqrt(e[:, s].var(axis=0, ddof=1) * N_S + x_pm[:, s].var(axis=0, ddof=1) * n_pm)
+        assert np.all(x_pm[:, s].sum(axis=0) > 0) and np.all(se > 0)
+        assert np.all(np.abs(e[:, s].sum(axis=0) - x_pm[:, s].sum(axis=0)) <= 5 * se), \
+            (s, e[:, s].sum(0), x_pm[:, s].sum(0), se)
+
+
 def test_rs0_assoc0_image_matches_pm(diacaustic):
     d = []
     for seed in range(1, 5):

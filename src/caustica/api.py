@@ -110,11 +110,11 @@ def check_bsdfs(cls, scene) -> None:
     Each method declares what it renders beyond diffuse surfaces, mirrors and glass:
     ``renders_glossy = True`` — every BSDF (``pt``); ``passes_glossy = True`` — glossy BSDFs without a
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
-    (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic: ``pm``, ``sppm``;
-    the stream methods' loop does not separate its lobes); ``renders_mixtures = True`` — mask and blendbsdf, resolved
+    (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic:
+    every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (``pt``, ``pm``, ``sppm``); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
-    (roughplastic: ``sppm``, ``pm``, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
+    (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
     lobe beside a diffuse one (pplastic, an opaque principled), whose visible point weights each photon by the BSDF at
     the photon's direction (``sppm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
     principledthin) is refused by every photon method.

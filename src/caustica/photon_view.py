@@ -97,9 +97,8 @@ def photon_picture(scene, method, settings, progress) -> tuple[np.ndarray, dict]
     cam = scene.camera(settings["width"], settings["height"])
     if method.name == "spm":
         smap, stats = method.build_stream_map(scene, settings, progress)
-        assoc_power = np.repeat(smap.assoc_power, smap.count, axis=0)
         left = _panel(scene, cam, smap.records.position, smap.lead_power)
-        right = _panel(scene, cam, smap.assoc_pos, assoc_power)
+        right = _panel(scene, cam, smap.assoc_pos, smap.associated_power())
         stats["panels"] = ["leading photons (stream records)", "associated photons"]
     else:
         gmap, cmap, _, stats = method.build_maps(scene, settings, progress)

@@ -34,6 +34,8 @@ class StreamedPhotonMapping(OneShot):
     name = "spm"
     summary = "streamed photon mapping (the paper's method): streams of a leading + associated photons"
     passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
+    renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
+    renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
     default_spp = 1
     params = (
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),

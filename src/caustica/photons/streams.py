@@ -32,6 +32,10 @@ A *stream* is a leading photon plus up to n_fa associated photons.
      roulette once, with the leading photon (survival p = mean albedo, every power
      scaled by albedo / p), which keeps the expected power right.
    - after mr diffuse bounces the stream ends.
+   - at a coated diffuse surface (plastic, roughplastic) every photon's record carries the coating's factor B
+     at its own direction (as :func:`~caustica.photons.trace.record_power`), and the stream reflects whole by
+     the lobe its leading photon samples, its associated photons decaying by that lobe's weight; a coating's
+     reflection is no diffuse bounce, but the records after it are not caustic (plastic is no caustic caster).
 4. Only leading photons go into the kd-tree (:class:`StreamMap`); the ``photons``
    view counts every photon at its own position.
 
@@ -46,7 +50,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, albedo_mean, colour, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, entry, oriented
 from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
@@ -58,7 +62,7 @@ from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
                       build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, coated, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -90,32 +94,34 @@ def split_off(tables, key, o, d, power, split_path, k, split):
 
 
 @kernel(inline=True)
-def associated_decay(mats, m, uv, key, dim, n_alive, p_assoc, roulette_inv_q):
-    """The associated photons after a diffuse bounce on material m, at the leading photon's surface coordinates uv:
-    (how many survive, their power, dim).
+def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q):
+    """The associated photons after the leading photon's bounce, whose BSDF weight (f cos / pdf of the lobe it
+    sampled) was ``weight``: (how many survive, their power).  The stream moves as one, so they take its lobe.
 
-    Each survives with p = mean albedo, its power scaled by albedo / p (numbers key, dim + j).
-    With roulette (``roulette_inv_q`` > 0: the 1 / p of the leading photon's game, :func:`bounce`) the stream
-    lives or dies with the leading photon: a second, per-photon roulette would leave the associated photons
-    alive with probability p^2 while compensating only 1 / p, so they all survive, scaled by albedo / p.
+    Each survives with p = the weight's mean (at a diffuse surface its albedo), its power scaled by weight / p
+    (numbers key, dim + j).  With roulette (``roulette_inv_q`` > 0: the 1 / p of the leading photon's game,
+    :func:`~caustica.photons.trace.bounce`) the stream lives or dies with the leading photon: a second,
+    per-photon roulette would leave the associated photons alive with probability p^2 while compensating only
+    1 / p, so they all survive, scaled by weight / p.
     """
-    rgb = colour(mats, m, uv)
     if roulette_inv_q > 0.0:
-        return n_alive, vec.mul(vec.hadamard(p_assoc, rgb), roulette_inv_q)
-    q = albedo_mean(mats, m, rgb)
+        return n_alive, vec.mul(vec.hadamard(p_assoc, weight), roulette_inv_q)
+    q = (weight[0] + weight[1] + weight[2]) / 3.0
     survivors = 0
     for j in range(n_alive):
         if uniform(key, dim + j) < q:
             survivors += 1
     if q > 0.0:
-        p_assoc = vec.mul(vec.hadamard(p_assoc, rgb), 1.0 / q)
+        p_assoc = vec.mul(vec.hadamard(p_assoc, weight), 1.0 / q)
     return survivors, p_assoc
 
 
 @kernel(inline=True)
-def store_stream_record(r, p, d, n, stream, kind, rec):
-    """Write stream record r: the leading photon (position, direction, normal), and of ``stream`` = (its power,
-    the associated photons' power, how many landed) the powers and the count."""
+def store_stream_record(r, p, d, n, stream, entered, kind, rec):
+    """Write stream record r: the leading photon (position, direction, normal), and of ``stream`` = (the power the
+    leading photon stores, the associated photons' power, how many landed) the powers and the count.  ``entered``
+    is the sum of the landed photons' coating factors (:data:`AssociatedPhotons.factor`; their number where no
+    coated surface is met), so the energy E_i is what the stream's photons store."""
     lead, p_assoc, landed = stream
     vec.set_row(rec.position, r, p)
     vec.set_row(rec.direction, r, d)
@@ -123,17 +129,19 @@ def store_stream_record(r, p, d, n, stream, kind, rec):
     vec.set_row(rec.lead_power, r, lead)
     vec.set_row(rec.assoc_power, r, p_assoc)
     for c in range(3):
-        rec.energy[r, c] = lead[c] + landed * p_assoc[c]
+        rec.energy[r, c] = lead[c] + entered * p_assoc[c]
     rec.count[r] = landed
     rec.kind[r] = kind
 
 
 @kernel(inline=True)
-def store_associated(a, p, d, n, assoc):
-    """Write associated photon slot a (position, direction of travel, normal: zero in a medium)."""
+def store_associated(a, p, d, n, factor, assoc):
+    """Write associated photon slot a (position, direction of travel, normal: zero in a medium; the coating
+    factor its power carries there)."""
     vec.set_row(assoc.position, a, p)
     vec.set_row(assoc.direction, a, d)
     vec.set_row(assoc.normal, a, n)
+    assoc.factor[a] = factor
 
 
 @kernel(inline=True)
@@ -155,8 +163,9 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     """Trace the stream's associated photons, ``photons`` = (how many, their power), from the beam's origin
     towards its disc (:func:`disc_point`, numbers key, dim + 2j and dim + 2j + 1).
 
-    Returns (landed, split off): ``landed`` photons met a diffuse surface and are written, when ``out`` =
-    (store, first slot, assoc) says store, to assoc slots from the first on; the rest merge into the
+    Returns (landed, split off, entered): ``landed`` photons met a diffuse surface and are written, when ``out`` =
+    (store, first slot, assoc) says store, to assoc slots from the first on, each with the factor B of a coated
+    diffuse lobe it landed on (1 elsewhere; ``entered`` sums them: :func:`store_stream_record`); the rest merge into the
     leading photon — except, with ``splitting`` = (split, split_path, split_buf) split, those whose ray
     meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A photon
     whose direction q - o points into the surface o lies on (``n_from``, facing the side the stream
@@ -171,6 +180,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
     n_split = 0
+    entered = 0.0
     for j in range(n_alive):
         _, to_q = disc_point(beam, uniform(key, dim + 2 * j), uniform(key, dim + 2 * j + 1))
         d = vec.normalize(to_q)
@@ -189,10 +199,12 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         scatters, ng, ns = oriented(mats, m, vec.dot(d, ng) < 0.0, ng, ns)
         if not scatters:
             continue  # the black back of a one-sided surface: merged
+        factor = entry(mats, m, -vec.dot(d, ns)) if coated(mats, m) else 1.0
         if store:
-            store_associated(a0 + landed, p, d, ns, assoc)
+            store_associated(a0 + landed, p, d, ns, factor, assoc)
         landed += 1
-    return landed, n_split
+        entered += factor
+    return landed, n_split, entered
 
 
 @kernel
@@ -218,7 +230,7 @@ def spread_in_medium(geom, beam, key, dim, n_alive, out):
         if prim >= 0:
             continue  # a surface between: merged into the leading photon
         if store:
-            store_associated(a0 + placed, q, d, (0.0, 0.0, 0.0), assoc)
+            store_associated(a0 + placed, q, d, (0.0, 0.0, 0.0), 1.0, assoc)
         placed += 1
     return placed
 
@@ -305,7 +317,8 @@ def stream_at_medium_event(geom, beam, key, dim, stream, rules, out):
     dim += 2 * n_assoc
     lead = vec.madd(lead, p_assoc, float(n_alive - landed))   # the ones not placed merge
     if store:
-        store_stream_record(r, beam[2], beam[3], (0.0, 0.0, 0.0), (lead, p_assoc, landed), kind, rec)
+        store_stream_record(r, beam[2], beam[3], (0.0, 0.0, 0.0), (lead, p_assoc, landed), float(landed), kind,
+                            rec)
     return (lead, p_assoc, landed), dim
 
 
@@ -343,19 +356,24 @@ def stream_at_specular(tables, key, beam, stream, splitting):
 
 
 @kernel(inline=True)
-def stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting):
-    """At the leading photon's diffuse hit x with shading normal ns: its associated photons land where their rays
-    meet a diffuse surface (:func:`place_associated`, written from assoc slot r * n_assoc on), split off or merge
-    into it; with ``out`` = (store, r, kind, n_assoc, rec, assoc), stream record r of ``kind`` is written when
-    ``store`` says.  Returns (the stream, split photons added, dim past its 2 n_assoc numbers)."""
+def stream_at_diffuse(tables, key, dim, beam, stream, at, out, splitting):
+    """At the leading photon's diffuse hit x of material m, ``at`` = (m, shading normal ns turned to the ray): its
+    associated photons land where their rays meet a diffuse surface (:func:`place_associated`, written from assoc
+    slot r * n_assoc on), split off or merge into it; with ``out`` = (store, r, kind, n_assoc, rec, assoc), stream
+    record r of ``kind`` is written when ``store`` says, the leading photon's power times a coated lobe's factor
+    B there (:func:`~caustica.photons.trace.record_power`).  Returns (the stream, split photons added, dim past its
+    2 n_assoc numbers)."""
+    _, mats, _, _ = tables
+    m, ns = at
     lead, p_assoc, n_alive = stream
     store, r, kind, n_assoc, rec, assoc = out
-    landed, split_now = place_associated(tables, beam, key, dim, (n_alive, p_assoc), (store, r * n_assoc, assoc),
-                                         splitting)
+    landed, split_now, entered = place_associated(tables, beam, key, dim, (n_alive, p_assoc),
+                                                  (store, r * n_assoc, assoc), splitting)
     dim += 2 * n_assoc
     lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
     if store:
-        store_stream_record(r, beam[2], beam[3], ns, (lead, p_assoc, landed), kind, rec)
+        stored = vec.mul(lead, entry(mats, m, -vec.dot(beam[3], ns))) if coated(mats, m) else lead
+        store_stream_record(r, beam[2], beam[3], ns, (stored, p_assoc, landed), entered, kind, rec)
     return (lead, p_assoc, landed), split_now, dim
 
 
@@ -373,15 +391,15 @@ def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
         stream, k = stream_at_specular(tables, key, beam, stream, splitting)
     scatters, ng, ns = oriented(mats, m, front, ng, ns)
     if scatters and diffuse:
-        stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, ns, out, splitting)
+        stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (m, ns), out, splitting)
     return scatters, diffuse, ng, ns, stream, k, dim
 
 
 @kernel(inline=True)
 def stream_bounce(tables, surface, d, key, dim, stream, decay):
     """The leading photon's bounce at ``surface`` = (p, ng, ns, uv, ng_front, m, shape, medium) (normals from
-    :func:`stream_at_surface`; :func:`~caustica.photons.trace.bounce`) and, after a non-delta lobe, stream decay
-    (:func:`associated_decay`, n_assoc numbers); ``decay`` = (n_assoc, termination).
+    :func:`stream_at_surface`; :func:`~caustica.photons.trace.bounce`) and, after a non-delta lobe or at a coated
+    diffuse surface, stream decay (:func:`associated_decay`, n_assoc numbers); ``decay`` = (n_assoc, termination).
     Returns (alive, the new origin, direction and medium, the stream, delta, dim)."""
     _, mats, _, media = tables
     p, ng, ns, uv, ng_front, m, shape, medium = surface
@@ -390,8 +408,8 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
     alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
     if alive:
         lead = vec.mul(vec.hadamard(lead, weight), inv_q)
-        if not delta:
-            n_alive, p_assoc = associated_decay(mats, m, uv, key, dim, n_alive, p_assoc,
+        if not delta or mats.flags[m] & DIFFUSE_REFLECTION:   # (a plastic's coating: the stream reflects whole)
+            n_alive, p_assoc = associated_decay(key, dim, n_alive, p_assoc, weight,
                                                 inv_q if termination == TERMINATION_ROULETTE else 0.0)
             dim += n_assoc
     o = vec.offset_origin(p, ng, d_new)
@@ -473,10 +491,14 @@ def trace_stream(tables, key, start, rules, i, buf):
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
+            if diffuse:
+                # a plastic's coating reflected it, though it is no diffuse bounce: no caustic caster (tables.py),
+                # so the records after it are INDIRECT, as the photon tracer's (trace_one)
+                diffuse_like = True
         else:
             bounces += 1
             diffuse_like = True
-        n_from = ng if diffuse and not delta else zero   # from a mirror, glass or glossy surface only after a split
+        n_from = ng if diffuse else zero   # from a mirror, glass or glossy surface only after a split
         scattered = True
 
 
@@ -507,6 +529,8 @@ class AssociatedPhotons(NamedTuple):
     position: np.ndarray
     direction: np.ndarray
     normal: np.ndarray
+    factor: np.ndarray        # what of the record's associated power this photon stores: a coated diffuse
+    #                           lobe's factor B where it landed (trace.record_power), else 1
 
 
 class StreamBuffers:
@@ -518,7 +542,7 @@ class StreamBuffers:
         f = np.float32
         self.rec = StreamRecords(*(np.zeros((s, 3), f) for _ in range(6)), np.zeros(s, np.int32),
                                  np.zeros(s, np.int8))
-        self.assoc = AssociatedPhotons(*(np.zeros((a, 3), f) for _ in range(3)))
+        self.assoc = AssociatedPhotons(*(np.zeros((a, 3), f) for _ in range(3)), np.zeros(a, f))
         # split photons: at most n_assoc per stream, mr + 1 slots each
         self.split = allocate_buffers(n_streams * n_assoc if split else 0, max_bounces + 1)
         self.n_assoc = n_assoc
@@ -531,7 +555,7 @@ class StreamBuffers:
     @staticmethod
     def bytes_needed(n_streams, n_assoc, max_bounces, split=False):
         s = n_streams * (max_bounces + 1)
-        return s * (6 * 12 + 5) + s * n_assoc * (36 + (SLOT_BYTES if split else 0))
+        return s * (6 * 12 + 5) + s * n_assoc * (40 + (SLOT_BYTES if split else 0))
 
     def _records(self, estimator: str, keep: np.ndarray) -> list:
         """(position, direction, power, normal) parts of the records ``keep`` under ``estimator``.
@@ -546,7 +570,8 @@ class StreamBuffers:
         if self.n_assoc > 0:
             used = ((np.arange(self.n_assoc)[None, :] < count[:, None]) & keep[:, None]).reshape(-1)
             parts.append((self.assoc[0][used], self.assoc[1][used],
-                          np.repeat(assoc_pow[keep], count[keep], axis=0), self.assoc[2][used]))
+                          associated_power(assoc_pow[keep], count[keep], self.assoc.factor[used]),
+                          self.assoc[2][used]))
         return parts
 
     def events(self, estimator: str, leave_caustics: bool = False):
@@ -581,6 +606,12 @@ class StreamBuffers:
         return tuple(np.concatenate([part[c] for part in parts]) for c in range(3))
 
 
+def associated_power(assoc_power, count, factor) -> np.ndarray:
+    """Each associated photon's stored power: its record's associated power (``assoc_power``, one row per record,
+    ``count`` photons each, in slot order) times the photon's own coating factor."""
+    return np.repeat(assoc_power, count, axis=0) * factor[:, None]
+
+
 class StreamMap:
     """The stored stream records, compacted, with the kd-tree over leading photons."""
 
@@ -596,8 +627,10 @@ class StreamMap:
             self.assoc_pos = buf.assoc[0][flat]
             self.assoc_dir = buf.assoc[1][flat]
             self.assoc_nrm = buf.assoc[2][flat]
+            self.assoc_factor = buf.assoc.factor[flat]
         else:
             self.assoc_pos = self.assoc_dir = self.assoc_nrm = np.zeros((0, 3), np.float32)
+            self.assoc_factor = np.zeros(0, np.float32)
         self.assoc_power = assoc_pow[keep]
         # The paper's map: leading positions in the kd-tree, each carrying its stream's energy E_i.
         # Its records are in kd-tree order; ``count`` and ``assoc_power`` stay in tracing
@@ -615,14 +648,18 @@ class StreamMap:
 
     def memory_bytes(self) -> int:
         """Stream records (leading photon + energy), associated photons and the kd-tree."""
-        extra = sum(a.nbytes for a in (self.count, self.assoc_pos, self.assoc_dir, self.assoc_nrm,
+        extra = sum(a.nbytes for a in (self.count, self.assoc_pos, self.assoc_dir, self.assoc_nrm, self.assoc_factor,
                                        self.lead_power, self.assoc_power))  # ``order`` is bookkeeping only
         return self.records.memory_bytes() + extra
+
+    def associated_power(self) -> np.ndarray:
+        """(n_associated, 3) float32: the power each associated photon stores, in the order of ``assoc_pos``."""
+        return associated_power(self.assoc_power, self.count, self.assoc_factor)
 
     def photon_map(self):
         """Every photon at its own position: leading photons and associated photons (the ``photons`` estimator)."""
         r = self.records
-        assoc_power = np.repeat(self.assoc_power, self.count, axis=0)
+        assoc_power = self.associated_power()
         return build_photon_map(np.concatenate([r.position, self.assoc_pos]),
                                 np.concatenate([r.direction, self.assoc_dir]),
                                 np.concatenate([self.lead_power, assoc_power]),

@@ -118,14 +118,22 @@ def scatter_photon(media, medium, d, key, dim, power, roulette):
 
 
 @kernel(inline=True)
+def coated(mats, m):
+    """Whether material m is a coated diffuse lobe (plastic, roughplastic), whose photons carry its factor B
+    (:func:`caustica.bsdfs.entry`: what of the light arriving enters the coating) in their records."""
+    if has(mats, PLASTIC) and mats.flags[m] & DELTA:
+        return True
+    return has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC
+
+
+@kernel(inline=True)
 def record_power(geom, mats, hit, d, power):
     """The power a photon arriving along d stores at a diffuse hit, ``hit`` = (prim, m, uv, front, ng, ns) (m the
     material it resolved to, normals turned to the ray): at a coated diffuse lobe times its factor B
     (:func:`caustica.bsdfs.coat`); at a mixture's part divided by the chance of resolving to a part that stores
     there (:func:`storing_probability`)."""
     prim, m, uv, front, ng, ns = hit
-    if (has(mats, PLASTIC) and mats.flags[m] & DELTA) or (has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC):
-        # a coated diffuse lobe: the photon carries its factor B (bsdfs.coat, bsdfs.rough_coat)
+    if coated(mats, m):
         power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
     own = geom.prim_material[prim]
     if own != m:
