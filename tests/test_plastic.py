@@ -279,8 +279,9 @@ def test_photon_methods_render_plastic_as_mitsuba(mi, plastic_and_glass, method,
     """The smooth plastics (a ball, a nonlinear panel) next to a glass ball: sppm and pspm after 48 passes and PM+C
     (roulette, mr = 64: no depth truncation) against Mitsuba's path tracer, mean within 2 % and 4x4 blocks within 5
     sigmas of the seeds' noise (what is left of the photon estimates' blur is below that).  Measured: sppm 0.13170
-    against 0.13181, PM+C 0.13237, pspm 0.13143 (2026-12-04).  (spm is not here: its stream estimator is 6 % bright
-    on this scene with the plastics or without them, at these settings; its tracer is tested in test_spm.py.)"""
+    against 0.13181, PM+C 0.13237, pspm 0.13143 (2026-12-04).  (spm is not here: with 20,000 streams its k-nearest
+    estimate is 6 % bright on this scene with the plastics or without them, as pm's with 20,000 photons is, and
+    1-2 % with 80,000 or k = 20; its tracer is tested in test_spm.py.)"""
     scene = caustica.load_scene(plastic_and_glass)
     ours = [caustica.render(scene, method, res=32, seed=s, termination="roulette", max_bounces=64, **params).image
             for s in range(4)]
