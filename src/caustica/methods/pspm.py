@@ -72,6 +72,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
     renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
     renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too (streams.associated_surface)
     params = (
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),

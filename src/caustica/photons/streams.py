@@ -50,24 +50,31 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, entry, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, oriented
+from ..bsdfs.mixtures import resolve
+from ..features import has
 from ..emitters import choose_light
 from ..geometry import vec
-from ..geometry.scene_geometry import intersect, surface_at
+from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
+from ..scene.description import BLEND, MASK, NULL
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
                       build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, coated, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
 SPLIT_TAG = 1
 SPLIT_DISC_TAG = 2
+#: ... and the number with which associated photon j resolves a mixture it meets (its crossing c: dimension c).
+ASSOCIATED_PART_TAG = 3
+#: Mask surfaces an associated photon may pass through on its way to a surface (more: it merges).
+ASSOCIATED_CROSSINGS = 16
 
 #: What a stream does at a scattering event in a medium (``--medium-scattering``).
 MEDIUM_SCATTERING = ("merge", "spread")
@@ -158,6 +165,29 @@ def disc_point(beam, u1, u2):
     return q, vec.sub(q, o)
 
 
+@kernel(inline=True)
+def associated_surface(tables, o, d, key):
+    """The surface an associated photon's ray from o along d lands on or merges at: (prim (-1: none), t, b1, b2,
+    the ray's origin o' for them, the part m of the surface's material ``own`` it took, own, uv).  A mixture
+    (mask, blendbsdf) is resolved with the photon's own number (key, c) at its c-th crossing
+    (:func:`caustica.bsdfs.resolve`), as the photon tracer resolves it; where a mask is off the ray goes on past it."""
+    geom, mats, _, _ = tables
+    for c in range(ASSOCIATED_CROSSINGS):
+        prim, t, b1, b2 = intersect(geom, o, d, 1e30)
+        if prim < 0:
+            break
+        own = geom.prim_material[prim]
+        if not (has(mats, MASK) and mats.kind[own] == MASK or has(mats, BLEND) and mats.kind[own] == BLEND):
+            return prim, t, b1, b2, o, own, own, NO_UV
+        uv = surface_uv(geom, prim, o, d, t, b1, b2)
+        m, _ = resolve(mats, own, uv, key, c)
+        if m >= 0 and mats.kind[m] != NULL:
+            return prim, t, b1, b2, o, m, own, uv
+        p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
+        o = vec.offset_origin(p, ng, d)   # a mask where it is off: on past it
+    return -1, 0.0, 0.0, 0.0, o, 0, 0, NO_UV
+
+
 @kernel
 def place_associated(tables, beam, key, dim, photons, out, splitting):
     """Trace the stream's associated photons, ``photons`` = (how many, their power), from the beam's origin
@@ -167,7 +197,9 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     (store, first slot, assoc) says store, to assoc slots from the first on, each with the factor B of a coated
     diffuse lobe it landed on (1 elsewhere; ``entered`` sums them: :func:`store_stream_record`); the rest merge into the
     leading photon — except, with ``splitting`` = (split, split_path, split_buf) split, those whose ray
-    meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A photon
+    meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A mixture
+    is resolved per photon (:func:`associated_surface`); one that takes a part that stores nothing there merges,
+    so it is stored with the leading photon's factor.  A photon
     whose direction q - o points into the surface o lies on (``n_from``, facing the side the stream
     leaves by) cannot leave it and is merged (before this check such rays met the surface again at
     t ~ 1e-4 and landed where the stream left from).
@@ -186,20 +218,20 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         d = vec.normalize(to_q)
         if check_side and vec.dot(d, n_from) <= 0.0:
             continue  # into the surface it leaves: merged
-        prim, th, b1, b2 = intersect(geom, o, d, 1e30)
+        prim, th, b1, b2, o_hit, m, own, uv = associated_surface(tables, o, d, path_key(key, ASSOCIATED_PART_TAG, j))
         if prim < 0:
             continue  # escaped: merged into the leading photon
-        m = geom.prim_material[prim]
         if not mats.flags[m] & DIFFUSE_REFLECTION:
             if split:
                 split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror, glass or glossy surface: merged (or split off)
-        p, ng, ns = surface_at(geom, prim, o, d, th, b1, b2)
-        scatters, ng, ns = oriented(mats, m, vec.dot(d, ng) < 0.0, ng, ns)
+        p, ng, ns = surface_at(geom, prim, o_hit, d, th, b1, b2)
+        front = vec.dot(d, ng) < 0.0
+        scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
             continue  # the black back of a one-sided surface: merged
-        factor = entry(mats, m, -vec.dot(d, ns)) if coated(mats, m) else 1.0
+        factor = record_factor(mats, own, (m, uv, front, ng, ns), d)
         if store:
             store_associated(a0 + landed, p, d, ns, factor, assoc)
         landed += 1
@@ -356,15 +388,16 @@ def stream_at_specular(tables, key, beam, stream, splitting):
 
 
 @kernel(inline=True)
-def stream_at_diffuse(tables, key, dim, beam, stream, at, out, splitting):
-    """At the leading photon's diffuse hit x of material m, ``at`` = (m, shading normal ns turned to the ray): its
+def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
+    """At the leading photon's diffuse hit x, ``hit`` = (prim, m, uv, front, ng, ns) (m the part of a mixture taken,
+    normals turned to the ray): its
     associated photons land where their rays meet a diffuse surface (:func:`place_associated`, written from assoc
     slot r * n_assoc on), split off or merge into it; with ``out`` = (store, r, kind, n_assoc, rec, assoc), stream
-    record r of ``kind`` is written when ``store`` says, the leading photon's power times a coated lobe's factor
-    B there (:func:`~caustica.photons.trace.record_power`).  Returns (the stream, split photons added, dim past its
+    record r of ``kind`` is written when ``store`` says, the leading photon's power as the photon tracer stores
+    it (:func:`~caustica.photons.trace.record_power`: a coated lobe's factor B, a mixture's storing probability).  Returns (the stream, split photons added, dim past its
     2 n_assoc numbers)."""
-    _, mats, _, _ = tables
-    m, ns = at
+    geom, mats, _, _ = tables
+    ns = hit[5]
     lead, p_assoc, n_alive = stream
     store, r, kind, n_assoc, rec, assoc = out
     landed, split_now, entered = place_associated(tables, beam, key, dim, (n_alive, p_assoc),
@@ -372,26 +405,27 @@ def stream_at_diffuse(tables, key, dim, beam, stream, at, out, splitting):
     dim += 2 * n_assoc
     lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
     if store:
-        stored = vec.mul(lead, entry(mats, m, -vec.dot(beam[3], ns))) if coated(mats, m) else lead
+        stored = record_power(geom, mats, hit, beam[3], lead)
         store_stream_record(r, beam[2], beam[3], ns, (stored, p_assoc, landed), entered, kind, rec)
     return (lead, p_assoc, landed), split_now, dim
 
 
 @kernel(inline=True)
 def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
-    """What the stream does at a surface, ``hit`` = (m, front, ng, ns): at a mirror, glass or glossy surface
+    """What the stream does at a surface, ``hit`` = (prim, m, uv, front, ng, ns): at a mirror, glass or glossy surface
     (:func:`stream_at_specular`, before the side is known) or at a diffuse surface that scatters on this side
     (:func:`stream_at_diffuse`, ``out`` as it takes it).  Returns (scatters, diffuse, ng, ns turned to the ray, the
     stream, split photons added, dim)."""
     _, mats, _, _ = tables
-    m, front, ng, ns = hit
+    prim, m, uv, front, ng, ns = hit
     diffuse = mats.flags[m] & DIFFUSE_REFLECTION
     k = 0
     if not diffuse:
         stream, k = stream_at_specular(tables, key, beam, stream, splitting)
     scatters, ng, ns = oriented(mats, m, front, ng, ns)
     if scatters and diffuse:
-        stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (m, ns), out, splitting)
+        stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (prim, m, uv, front, ng, ns), out,
+                                           splitting)
     return scatters, diffuse, ng, ns, stream, k, dim
 
 
@@ -473,7 +507,7 @@ def trace_stream(tables, key, start, rules, i, buf):
         # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
         # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
         scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
-            tables, key, dim, (o, n_from, p, d, r_s), stream, (m, front, ng, ns),
+            tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
             (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf))
         n_split += k
@@ -491,9 +525,9 @@ def trace_stream(tables, key, start, rules, i, buf):
             specular_events += 1
             if specular_events > SPECULAR_CAP:
                 break
-            if diffuse:
-                # a plastic's coating reflected it, though it is no diffuse bounce: no caustic caster (tables.py),
-                # so the records after it are INDIRECT, as the photon tracer's (trace_one)
+            if mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
+                # a plastic's coating, or a blend's mirror or glossy part beside a diffuse one, reflected it: no
+                # caustic caster (tables.py), so the records after it are INDIRECT, as the photon tracer's (trace_one)
                 diffuse_like = True
         else:
             bounces += 1

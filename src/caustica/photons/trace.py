@@ -127,6 +127,18 @@ def coated(mats, m):
 
 
 @kernel(inline=True)
+def record_factor(mats, own, hit, d):
+    """:func:`record_power`'s factor as one number, for a photon arriving along d at ``hit`` = (m, uv, front, ng, ns)
+    on a surface of material ``own`` (m the part it resolved to): a coated lobe's B times 1 / the storing
+    probability of a mixture's part (a stream's associated photons: :mod:`caustica.photons.streams`)."""
+    m, uv, front, ng, ns = hit
+    factor = entry(mats, m, -vec.dot(d, ns)) if coated(mats, m) else 1.0
+    if own != m:
+        factor /= storing_probability(mats, own, uv, (front, ng, ns))
+    return factor
+
+
+@kernel(inline=True)
 def record_power(geom, mats, hit, d, power):
     """The power a photon arriving along d stores at a diffuse hit, ``hit`` = (prim, m, uv, front, ng, ns) (m the
     material it resolved to, normals turned to the ray): at a coated diffuse lobe times its factor B
