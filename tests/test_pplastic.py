@@ -326,7 +326,7 @@ def test_photon_methods_match_mitsuba(mi, test_scenes_dir, method, params, dist,
     photon's direction and take one light sample times the BSDF (bsdf_visible_point), as pbrt-v4's SPPM does at every
     visible point.  pm: its k-nearest estimate there weights each photon by the BSDF the same way, and each of its
     n x n shadow rays per light (photons.gather.diffuse_estimate's ``bsdf``).  Against Mitsuba's path tracer.
-    Measured: sppm (2026-12-04, 64 passes) 0.13252 against 0.13285; pm (2026-12-05) 0.13311 against 0.13285
+    Measured: sppm (2026-12-04, 64 passes) 0.13252 against 0.13285; pm (2026-12-04) 0.13311 against 0.13285
     (beckmann 0.2), 0.13323 against 0.13308 (ggx 0.05), the worst block at 0.44 and 0.40 of its tolerance."""
     photon_method_matches_mitsuba(mi, test_scenes_dir / "pplastic.xml", method, params,
                                   f"pplastic {method} {dist} {alpha}", dist=dist, alpha=alpha)
@@ -355,7 +355,7 @@ def pplastic_variant(folder, scenes_dir, glass=False, haze=False):
 
 def test_pm_with_a_caustic_map_matches_mitsuba(mi, tmp_path, test_scenes_dir):
     """PM+C (--caustic-photons): a glass ball's caustic on a pplastic floor comes from the caustic map, whose records
-    are weighted by the floor's BSDF as the global map's are.  Measured (2026-12-05): 0.13333 against 0.13288, the
+    are weighted by the floor's BSDF as the global map's are.  Measured (2026-12-04): 0.13333 against 0.13288, the
     worst block at 0.52 of its tolerance."""
     stats = photon_method_matches_mitsuba(mi, pplastic_variant(tmp_path, test_scenes_dir, glass=True), "pm",
                                           dict(PM, caustic_photons=100_000), "pplastic and glass, PM+C")
@@ -365,7 +365,7 @@ def test_pm_with_a_caustic_map_matches_mitsuba(mi, tmp_path, test_scenes_dir):
 def test_pm_in_a_haze_matches_mitsuba_volpath(mi, tmp_path, test_scenes_dir):
     """pm in media: the camera pass in media makes its visible point on pplastic as sppm's (weight β, one light
     sample times the BSDF), and gather_at_visible_points weights each photon there by the BSDF.  Against Mitsuba's
-    volpath.  Measured (2026-12-05, 4 camera samples): 0.12867 against 0.12872, the worst block at 0.39 of its
+    volpath.  Measured (2026-12-04, 4 camera samples): 0.12867 against 0.12872, the worst block at 0.39 of its
     tolerance."""
     stats = photon_method_matches_mitsuba(mi, pplastic_variant(tmp_path, test_scenes_dir, haze=True), "pm",
                                           dict(PM, spp=4), "pplastic in a haze, pm")

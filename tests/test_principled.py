@@ -347,7 +347,7 @@ def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, met
     """sppm and pm on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen): sppm's
     visible points weight each photon by the BSDF at the photon's direction (bsdf_visible_point), pm's k-nearest
     estimates and shadow rays the same; against Mitsuba's path tracer (4 x 512 spp), mean within 2 % and 4x4 blocks
-    within 5 sigmas.  Measured: sppm (2026-12-04, 64 passes) 0.13562 against 0.13598; pm (2026-12-05) 0.13597, the
+    within 5 sigmas.  Measured: sppm (2026-12-04, 64 passes) 0.13562 against 0.13598; pm (2026-12-04) 0.13597, the
     worst block at 0.66 of its tolerance."""
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
