@@ -54,7 +54,7 @@ def estimate(pmap, p, n, k, r_max, filt="none"):
     idx = np.empty(k, np.int64)
     d2 = np.empty(k)
     (e0, e1, e2), count = flux_density(pmap, tuple(map(float, p)), tuple(map(float, n)), k, float(r_max),
-                                       FILTERS[filt], idx, d2)
+                                       FILTERS[filt], idx, d2, None)
     return np.array([e0, e1, e2]), count
 
 
@@ -203,6 +203,45 @@ def test_empty_map_and_nothing_in_range():
     z = np.zeros((0, 3))
     est, count = estimate(build_photon_map(z, z, z, z), (0, 0, 0), (0, 0, 1), 10, 1.0)
     assert count == 0 and not est.any()
+
+
+# ----------------------------------------------------------------------------- a BSDF that is evaluated
+
+@pytest.mark.parametrize("filt", FILTER_NAMES)
+def test_bsdf_weighted_estimate_matches_brute_force(filt):
+    """At a point that evaluates its BSDF (pplastic: pm's gather there) each of the k nearest records is weighted by
+    f(d, -its direction): the estimate against the same records summed by hand with the BSDF's own eval_pdf; the
+    records, their count and r are those of the plain estimate (the weights change nothing else)."""
+    import types
+    from caustica.bsdfs import build_material_table, eval_pdf
+    from caustica.geometry.scene_geometry import NO_UV
+    from caustica.scene.description import GGX, PPLASTIC, Material
+    mats = build_material_table(types.SimpleNamespace(materials=[Material(
+        PPLASTIC, (0.6, 0.3, 0.1), int_ior=1.6, ext_ior=1.0, specular=(0.9, 0.8, 1.0), distribution=GGX, alpha=0.2)]))
+    rng = np.random.default_rng(5)
+    n = 3000
+    pos = np.zeros((n, 3))
+    pos[:, :2] = rng.uniform(-1, 1, (n, 2))
+    dirs = rng.normal(size=(n, 3))
+    dirs[:, 2] = -np.abs(dirs[:, 2])   # arriving from above
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    power = rng.uniform(0.1, 1.0, (n, 3))
+    pmap = build_photon_map(pos, dirs, power, np.tile([0.0, 0.0, 1.0], (n, 1)))
+    up = (0.0, 0.0, 1.0)
+    d = tuple(np.array([0.4, -0.2, -1.0]) / np.linalg.norm([0.4, -0.2, -1.0]))   # the camera path arriving
+    for k, R in [(50, 1.0), (4000, 0.3)]:
+        for q in [(0.0, 0.0, 0.0), (0.5, -0.3, 0.0)]:
+            idx, d2 = np.empty(k, np.int64), np.empty(k)
+            _, count = flux_density(pmap, q, up, k, R, FILTERS[filt], idx, d2, None)
+            weighted, count_w = flux_density(pmap, q, up, k, R, FILTERS[filt], idx, d2, (mats, 0, d, up, up, NO_UV))
+            assert count_w == count > 0 and (count == k) == (k == 50)
+            r2 = d2[:count].max() if count == k else R * R
+            want = np.zeros(3)
+            for j in range(count):
+                i = idx[j]
+                c, scale, _ = eval_pdf(mats, 0, d, up, up, NO_UV, tuple(-pmap.direction[i].astype(np.float64)))
+                want += filter_weight(FILTERS[filt], d2[j], r2) * scale * np.array(c) * pmap.power[i]
+            np.testing.assert_allclose(weighted, want, rtol=1e-9)
 
 
 # ----------------------------------------------------------------------------- real kernels: a diffuse sphere

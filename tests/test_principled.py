@@ -10,7 +10,9 @@ bsdfs/microfacet.py's ``*_uv`` kernels in Mitsuba's shading frame from dp/du).
 3. Scenes against Mitsuba (pt): a principled sphere and an anisotropic principled panel, an anisotropic rough metal
    sphere and panel (the frame on a sphere and on a mesh's uv); image mean within 2 %, every 4x4 block within 5 sigmas
    of both renderers' noise (tests/imagestats.py).  The isotropic microfacet keeps its bits (tests/test_bit_pins.py).
-4. The photon methods refuse principled in one line (a glossy lobe beside a diffuse one); bad values fail in one line.
+4. sppm and pm render the opaque principled (their estimates weight each photon by the BSDF) as Mitsuba does; spm and
+   pspm refuse it in one line, every photon method the transmitting one and principledthin; bad values fail in one
+   line.
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from caustica.scene.xml_loader import principled_eta, principled_roughness
 from imagestats import assert_images_agree
 from test_glossy import CMP_MI_SPP, CMP_SEEDS, CMP_SPP, assert_refused_in_one_line, assert_sampled_density_is_the_pdf, \
     incident, render_both, write_scene
+from test_pplastic import PM, photon_method_matches_mitsuba
 
 NG = (0.0, 0.0, 1.0)
 UVT = (0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0)   # surface coordinates off any texture, dp/du along +x
@@ -339,34 +342,36 @@ def test_scene_matches_mitsuba(mi, tmp_path, case):
     assert_images_agree(ours, theirs, label=case)
 
 
-def test_sppm_renders_an_opaque_principled_as_mitsuba(mi, tmp_path):
-    """sppm on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen): its visible
-    points weight each photon by the BSDF at the photon's direction (bsdf_visible_point); against Mitsuba's path
-    tracer (4 x 512 spp), mean within 2 % and 4x4 blocks within 5 sigmas.  Measured (2026-12-04, 64 passes): 0.13562
-    against 0.13598."""
+@pytest.mark.parametrize("method, params", [("sppm", {"passes": 64}), ("pm", PM)])
+def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, method, params):
+    """sppm and pm on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen): sppm's
+    visible points weight each photon by the BSDF at the photon's direction (bsdf_visible_point), pm's k-nearest
+    estimates and shadow rays the same; against Mitsuba's path tracer (4 x 512 spp), mean within 2 % and 4x4 blocks
+    within 5 sigmas.  Measured: sppm (2026-12-04, 64 passes) 0.13562 against 0.13598; pm (2026-12-04) 0.13597, the
+    worst block at 0.66 of its tolerance."""
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
-    ms = mi.load_file(str(path), res=32, spp=512)
-    theirs = [np.array(mi.render(ms, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
-    scene = caustica.load_scene(path)
-    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=64).image for s in range(4)]
-    assert_images_agree(ours, theirs, label="principled sppm")
+    photon_method_matches_mitsuba(mi, path, method, params, f"principled {method}")
 
 
 @pytest.mark.parametrize("method, bsdf", [
-    (m, b) for m in ("pm", "spm", "pspm") for b in ('<bsdf type="principled"/>', '<bsdf type="principledthin"/>')]
-    + [("sppm", '<bsdf type="principledthin"/>'),
-       ("sppm", '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
+    (m, b) for m in ("spm", "pspm") for b in ('<bsdf type="principled"/>', '<bsdf type="principledthin"/>')]
+    + [(m, b) for m in ("sppm", "pm") for b in ('<bsdf type="principledthin"/>',
+                                               '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
 def test_photon_methods_refuse_principled(cli, tmp_path, method, bsdf):
-    """pm, spm and pspm refuse both (a glossy lobe beside a diffuse one); sppm, whose visible points evaluate the
-    BSDF, refuses a glossy transmission beside the diffuse lobe (spec_trans, principledthin: photons arriving from
-    the other side, which its gather does not read)."""
+    """spm and pspm refuse both (a glossy lobe beside a diffuse one: pt, pm or sppm render the opaque one); sppm and
+    pm, whose estimates evaluate the BSDF, refuse a glossy transmission beside the diffuse lobe (spec_trans,
+    principledthin: photons arriving from the other side, which their gathers do not read)."""
     kind = bsdf.split('"')[1]
     path = write_scene(tmp_path, bsdf)
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
     line = err.strip()
     assert "\n" not in line and "g.xml:5" in line and f'"{kind}"' in line and "--method pt" in line, line
+    if method in ("sppm", "pm"):
+        assert "glossy transmission beside a diffuse lobe" in line and "pm or sppm" not in line, line
+    elif "spec_trans" not in bsdf and kind == "principled":
+        assert "--method pt, pm or sppm" in line, line
 
 
 BAD = {

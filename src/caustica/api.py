@@ -114,9 +114,10 @@ def check_bsdfs(cls, scene) -> None:
     every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (every method; a stream's associated photons each resolve their own); ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
-    (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy reflection
-    lobe beside a diffuse one (pplastic, an opaque principled), whose visible point weights each photon by the BSDF at
-    the photon's direction (``sppm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
+    (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
+    reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
+    estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
+    direction (``sppm``, ``pm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
     principledthin) is refused by every photon method.
     """
     for mat in scene.description.materials:
@@ -150,10 +151,14 @@ def check_bsdfs(cls, scene) -> None:
             if (flags & DIFFUSE_REFLECTION and not flags & GLOSSY_TRANSMISSION
                     and getattr(cls, "evaluates_bsdfs", False)):
                 continue
+            if flags & DIFFUSE_REFLECTION and flags & GLOSSY_TRANSMISSION:
+                raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy "
+                                 f"transmission beside a diffuse lobe yet (its gather reads the photons of one side "
+                                 f"only); use --method pt")
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "
                                  f"beside a diffuse one yet (its gather would treat both as Lambertian); use "
-                                 f"--method pt")
+                                 f"--method pt, pm or sppm")
             if not getattr(cls, "passes_glossy", False):
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render glossy BSDFs "
                                  f"yet; use --method pt, pm, sppm, spm or pspm")

@@ -3,7 +3,8 @@
 * :func:`direct_stratified` — at a photon method's diffuse point (SPEC §2): every emitter, ``n x n``
   stratified points on each area light (or the fixed centres of the n x n grid), point, spot, projector and
   directional lights exactly, through media and null boundaries.  It returns an irradiance-like E that the caller scales by
-  f_r = ρ / π.
+  f_r = ρ / π; at a point that evaluates its BSDF (pplastic, principled: pm's gather) each shadow ray is weighted by
+  the BSDF's f instead, and it returns the radiance.
 * :func:`next_event` — one light sample (:func:`caustica.media.light_sample`) at any scattering point,
   weighted by multiple importance sampling against the BSDF's (or phase function's) own sampling; the
   matching weights of an emitter or the environment reached by that sampling are :func:`emission_mis`
@@ -46,15 +47,26 @@ def stratum_point(s, key, dim, n_strata, fixed_grid, pass_index):
     return u1, u2
 
 
+@kernel(inline=True)
+def times_bsdf(bsdf, wi, T):
+    """A shadow ray's T times the BSDF's value f(d, wi) at a point that evaluates its BSDF, ``bsdf`` = (mats, m, d, ng,
+    ns, uv) as :func:`caustica.photons.grid.grid_range_sum` takes it; T itself when ``bsdf`` is None (a separate
+    compilation: Numba prunes the branch, so every other point's arithmetic is what it was)."""
+    if bsdf is not None:
+        f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+        return vec.mul(vec.hadamard(T, f), f_scale)
+    return T
+
+
 @kernel
-def env_direct(tables, at, key, dim, strata, coated):
+def env_direct(tables, at, key, dim, strata, coated, bsdf):
     """The environment's share of :func:`direct_stratified`: E = ∫ L T cos θ dω over the hemisphere of ``at``.
 
     ``strata`` = (n_strata, fixed_grid, pass_index) give n² stratified points (u1, u2) as for an area light.
     A constant environment: each is a cosine-weighted direction about the shading normal (L T π each: exact
     where nothing occludes).  A map: each gives a direction by the map's importance and one by the cosine,
     combined by MIS (power heuristic), so a small bright sun and a dim wide sky are both found.  Shadow rays
-    as :func:`caustica.media.env_light_sample` traces them.  ``coated`` as for :func:`direct_stratified`.
+    as :func:`caustica.media.env_light_sample` traces them.  ``coated`` and ``bsdf`` as for :func:`direct_stratified`.
     """
     _, mats, lights, _ = tables
     n_strata, fixed_grid, pass_index = strata
@@ -73,7 +85,7 @@ def env_direct(tables, at, key, dim, strata, coated):
                 w = power_heuristic(cos_c * INV_PI, env_pdf(lights, wc))
             if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 w *= entry(mats, coated, cos_c)
-            T = env_transmittance(tables, at, wc)
+            T = times_bsdf(bsdf, wc, env_transmittance(tables, at, wc))
             acc = vec.madd(acc, vec.hadamard(env_radiance(lights, wc), T), math.pi * w)
         if constant:
             continue
@@ -83,7 +95,7 @@ def env_direct(tables, at, key, dim, strata, coated):
             w = power_heuristic(pdf_e, cos_e * INV_PI)
             if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 w *= entry(mats, coated, cos_e)
-            T = env_transmittance(tables, at, we)
+            T = times_bsdf(bsdf, we, env_transmittance(tables, at, we))
             acc = vec.madd(acc, vec.hadamard(Le, T), cos_e * w / pdf_e)
     return vec.mul(acc, 1.0 / n_total)
 
@@ -100,7 +112,7 @@ def env_transmittance(tables, at, wi):
 
 
 @kernel
-def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, coated):
+def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, coated, bsdf):
     """Irradiance E = Σ_lights ∫ L T cos θ dω at ``at`` (a :class:`caustica.transport.ShadingPoint` on a
     surface), every light sampled (SPEC §2).
 
@@ -115,6 +127,8 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta or glossy coating over a diffuse
     lobe (:func:`caustica.bsdfs.coat`, :func:`caustica.bsdfs.rough_coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
+    ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (a glossy lobe beside a diffuse one:
+    pplastic, principled), each shadow ray then weighted by f(d, wi) (:func:`times_bsdf`): the radiance towards -d.
     """
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium, _ = at
@@ -123,7 +137,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     for li in range(lights.kind.shape[0]):
         rad = vec.row(lights.radiance, li)
         if has(lights, ENV) and lights.kind[li] == ENV:
-            E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated))
+            E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated, bsdf))
         elif lights.kind[li] == AREA:
             acc = (0.0, 0.0, 0.0)
             textured = has(lights, TEXTURED_AREA) and lights.tex_int[li, TEX_OF] != 0
@@ -147,7 +161,7 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                     g *= entry(mats, coated, cos_s)
                 if textured:
                     T = vec.hadamard(T, Lq)   # the radiance there, the row's included
-                acc = vec.madd(acc, T, g)
+                acc = vec.madd(acc, times_bsdf(bsdf, wi, T), g)
             if textured:
                 rad = (1.0, 1.0, 1.0)
             area = lights.area[li]
@@ -160,9 +174,9 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                 continue
             if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
                 cos_s *= entry(mats, coated, cos_s)
-            E = vec.madd(E, vec.hadamard(rad, env_transmittance(tables, at, wi)), cos_s)
+            E = vec.madd(E, vec.hadamard(rad, times_bsdf(bsdf, wi, env_transmittance(tables, at, wi))), cos_s)
         elif profiled(lights, li):
-            E = vec.add(E, profiled_direct(tables, at, li, coated))
+            E = vec.add(E, profiled_direct(tables, at, li, coated, bsdf))
         else:
             q = vec.row(lights.position, li)
             to_l = vec.sub(q, p)
@@ -183,14 +197,15 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
                 g *= entry(mats, coated, cos_s)
             if has(lights, SPOT) and lights.kind[li] == SPOT:
                 g *= falloff
-            E = vec.madd(E, vec.hadamard(rad, T), g)
+            E = vec.madd(E, vec.hadamard(rad, times_bsdf(bsdf, wi, T)), g)
     return E
 
 
 @kernel
-def profiled_direct(tables, at, li, coated):
+def profiled_direct(tables, at, li, coated, bsdf):
     """:func:`direct_stratified`'s irradiance from projector or textured spot li at ``at``: its intensity towards
-    p (radiance x :func:`caustica.emitters.profile`) T cos θ / r², by one shadow ray (times B with ``coated``)."""
+    p (radiance x :func:`caustica.emitters.profile`) T cos θ / r², by one shadow ray (times B with ``coated``, times f
+    with ``bsdf``)."""
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium, _ = at
     zero = (0.0, 0.0, 0.0)
@@ -211,7 +226,7 @@ def profiled_direct(tables, at, li, coated):
     g = cos_s / dist2
     if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
         g *= entry(mats, coated, cos_s)
-    return vec.mul(vec.hadamard(intensity, T), g)
+    return vec.mul(vec.hadamard(intensity, times_bsdf(bsdf, wi, T)), g)
 
 
 @kernel(inline=True)

@@ -129,11 +129,11 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     t0 = time.perf_counter()
     for s in range(spp):
         vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
-        vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]   # (no BSDF-evaluating point: api.check_bsdfs)
+        vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
         estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-        c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate,
-                                                        (vp_pos, vp_nrm, vp_found, vp_weight), (radiance, knn_queries)),
-                          threads=settings["threads"])
+        points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials)   # rows: BSDF-evaluating points
+        c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate, points,
+                                                        (radiance, knn_queries)), threads=settings["threads"])
         vol = np.empty((n, 3))
         found = np.empty(n, np.int64)
         c += parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, found)),

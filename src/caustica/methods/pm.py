@@ -7,7 +7,9 @@
    a caustic map; the global map then leaves those paths out.
 3. Maps: a kd-tree over each map's positions.
 4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
-   indirect light and caustics from the maps' k-nearest radiance estimates.
+   indirect light and caustics from the maps' k-nearest radiance estimates.  At a BSDF with a glossy
+   lobe beside its diffuse one (pplastic, an opaque principled) each photon and shadow ray is weighted
+   by the BSDF's value at its direction (:mod:`caustica.photons.gather`), as sppm's visible points do.
 
 In a scene with media the photons scatter in them (:mod:`caustica.photons.trace`), their
 volume photons (those of the aimed photons too) are gathered along the camera rays by the beam
@@ -42,6 +44,7 @@ class PhotonMapping(OneShot):
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
     renders_coated = True    # plastic: its lobes apart in gather_radiance, visible_point and trace_one (api.check_bsdfs)
     renders_rough_coated = True   # roughplastic: its glossy lobe sampled alone, as sppm's (gather_radiance)
+    evaluates_bsdfs = True   # pplastic, opaque principled: photons and shadow rays weighted by f (gather.diffuse_estimate)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     default_spp = 1

@@ -13,11 +13,19 @@ with α computed so that W integrates to exactly 1 (Jensen's quoted α = 0.918 d
 not: it integrates to 0.53 with this normalisation);
 Epanechnikov W = 2 (1 - d²/r²) / (π r²).
 This function returns Σ W Φ (irradiance-like, W/m²); the caller applies f_r.
+
+At a BSDF with a glossy lobe beside the diffuse one (pplastic, an opaque principled) nothing is Lambertian to
+take out of the sum: there each record is weighted by the BSDF's value at its own direction,
+
+    L(x, ω_o) = Σ_p W(d_p, r) f(ω_o, ω_p) Φ_p,
+
+and the sum is the radiance itself (``bsdf``; pbrt-v4's SPPM weights its photons so).
 """
 from __future__ import annotations
 
 import math
 
+from ..bsdfs import eval_pdf
 from ..jit import kernel
 from .kdtree import KdTree, knn
 
@@ -49,8 +57,13 @@ def filter_weight(filt, d2, r2):
 
 
 @kernel
-def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2):
-    """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²)."""
+def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2, bsdf):
+    """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²), and the number of them.
+
+    With ``bsdf`` = (mats, m, d, ng, ns, uv) (a point that evaluates its BSDF, as
+    :func:`caustica.photons.grid.grid_range_sum` takes it) each term is weighted by material m's f(d, -record
+    direction): Σ_p W f Φ_p, the radiance towards -d.  With ``bsdf`` None, the plain sum: a separate compilation in
+    which Numba prunes the other branch, so the Lambertian points' loop is what it was."""
     if pmap.position.shape[0] == 0 or k <= 0:
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
@@ -60,6 +73,16 @@ def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2):
     s2 = 0.0
     if count == 0 or r2 <= 0.0:
         return (0.0, 0.0, 0.0), count
+    if bsdf is not None:
+        for j in range(count):
+            i = scratch_idx[j]
+            wi = (-float(pmap.direction[i, 0]), -float(pmap.direction[i, 1]), -float(pmap.direction[i, 2]))
+            f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+            w = filter_weight(filt, scratch_d2[j], r2) * f_scale
+            s0 += w * f[0] * pmap.power[i, 0]
+            s1 += w * f[1] * pmap.power[i, 1]
+            s2 += w * f[2] * pmap.power[i, 2]
+        return (s0, s1, s2), count
     for j in range(count):
         i = scratch_idx[j]
         w = filter_weight(filt, scratch_d2[j], r2)

@@ -22,7 +22,10 @@ as a glass's reflection is (at the first SPLIT_DEPTH bounces; deeper, one of the
 sampling probability).  A glossy coating (roughplastic, :func:`caustica.bsdfs.rough_coat`) is taken as SPPM's
 camera pass takes it (:func:`caustica.photons.visible_points.rough_coating_step`): its glossy lobe with its sampling
 probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A / (1 - P), B on photons and shadow
-rays.
+rays.  A glossy lobe beside a diffuse one (pplastic, an opaque principled) has no lobe to split off: the path ends there
+and its estimate weights every photon of both maps and every shadow ray by the BSDF's f(d, wi), both lobes
+(:func:`diffuse_estimate`'s ``bsdf``), as sppm's visible points weight their photons: L = β (Σ_shadow f L cos / p +
+Σ_p W f Φ_p).
 """
 from __future__ import annotations
 
@@ -30,7 +33,8 @@ import math
 
 import numpy as np
 
-from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, oriented, resolve
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, \
+    oriented, resolve
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance, radiance_at_hit
@@ -43,7 +47,7 @@ from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import BLEND, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import ShadingPoint, borrow_tables, with_tangent
 from .estimate import flux_density
-from .visible_points import escape_weight, glossy_step, rough_coating_step, seen_weight
+from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
@@ -65,16 +69,18 @@ def push_branch(scratch, top, o, d, beta, depth):
 
 
 @kernel(inline=True)
-def diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim):
+def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     """What arrives at the diffuse point ``at`` as an irradiance-like E (the caller scales it by f_r): shadow rays
     to every emitter (numbers from ``dim`` on; weighted by B of plastic ``lobe_b``'s coating, -1 for none) and
-    both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances)).  Returns
-    (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
+    both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances)).  With ``bsdf`` =
+    (mats, m, d, ng, ns, uv) (a glossy lobe beside the diffuse one) every shadow ray and every photon is weighted by
+    the BSDF's f(d, wi) instead, and E is the radiance towards -d; None elsewhere (the Lambertian arithmetic, a
+    separate compilation).  Returns (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
     (gmap, cmap), (k_g, r_g, k_c, r_c, filt), (idx, d2) = lookup
     n_strata, fixed_grid, _ = params
-    E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b)
-    Eg, _ = flux_density(gmap, at.p, at.ns, k_g, r_g, filt, idx, d2)
-    Ec, _ = flux_density(cmap, at.p, at.ns, k_c, r_c, filt, idx, d2)
+    E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b, bsdf)
+    Eg, _ = flux_density(gmap, at.p, at.ns, k_g, r_g, filt, idx, d2, bsdf)
+    Ec, _ = flux_density(cmap, at.p, at.ns, k_c, r_c, filt, idx, d2, bsdf)
     queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
 
@@ -213,9 +219,17 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                     last = (False, pdf, p)
                     o, d = vec.offset_origin(p, ng, wc), wc
                     continue
-                E, dim, q = diffuse_estimate(tables, lookup, params, at, m, key, dim)
+                E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
                 queries += q
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
+                break
+            if has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
+                # a glossy lobe beside a diffuse one (pplastic, principled): no lobe to split off; the estimate here
+                # weighs each shadow ray and photon by the BSDF's f(d, wi), both lobes (as sppm's visible points)
+                E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key,
+                                             dim)
+                queries += q
+                L = vec.add(L, vec.hadamard(beta, E))
                 break
             last = (True, 0.0, p)
             if flags & SMOOTH:
@@ -226,7 +240,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                     beta = vec.hadamard(beta, w_coat)
                     o, d = vec.offset_origin(p, ng, wc), wc
                     continue
-                E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, key, dim)
+                E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, None, key, dim)
                 queries += q
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
                 break
@@ -283,12 +297,14 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
-    W_i = β ρ / π).
+    W_i = β ρ / π, the BSDF rows, the material table).  A point whose row names a material (a glossy lobe beside a
+    diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s ``bsdf``).
     """
     gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)
     k_g, r_g, k_c, r_c, filt = estimate
-    vp_pos, vp_nrm, vp_found, vp_weight = points
+    vp_pos, vp_nrm, vp_found, vp_weight, rows, mats = points
+    mats = borrowed(mats)
     out, knn_queries = out
     kmax = max(k_g, k_c, 1)
     idx = np.empty(kmax, np.int64)
@@ -298,8 +314,13 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
             continue
         p = vec.row(vp_pos, i)
         n = vec.row(vp_nrm, i)
-        Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2)
-        Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2)
+        if rows[i, BSDF_MATERIAL] < 0.0:
+            Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, None)
+            Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, None)
+        else:
+            bsdf = bsdf_point(mats, rows, i, n)
+            Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, bsdf)
+            Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, bsdf)
         knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
         for c in range(3):
             out[i, c] += vp_weight[i, c] * (Eg[c] + Ec[c])

@@ -223,9 +223,9 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
         w = vec.mul(vec.hadamard(beta, colour(tables[1], m, at.uv)), INV_PI)
     lobe_b = m if P >= 0.0 else -1
     if fixed_grid:
-        E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b)
+        E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b, None)
     else:
-        E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b)
+        E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b, None)
     return w, vec.hadamard(w, E)
 
 
