@@ -344,34 +344,33 @@ def test_scene_matches_mitsuba(mi, tmp_path, case):
 
 @pytest.mark.parametrize("method, params", [("sppm", {"passes": 64}), ("pm", PM)])
 def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, method, params):
-    """sppm and pm on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen): sppm's
-    visible points weight each photon by the BSDF at the photon's direction (bsdf_visible_point), pm's k-nearest
-    estimates and shadow rays the same; against Mitsuba's path tracer (4 x 512 spp), mean within 2 % and 4x4 blocks
+    """The photon methods on the scene above with the opaque principled BSDF (metallic, anisotropic, clearcoat, sheen):
+    sppm's visible points weight each photon by the BSDF at the photon's direction (bsdf_visible_point), pm's
+    k-nearest estimates and shadow rays the same; against Mitsuba's path tracer (4 x 512 spp), mean within 2 % and 4x4 blocks
     within 5 sigmas.  Measured: sppm (2026-12-04, 64 passes) 0.13562 against 0.13598; pm (2026-12-04) 0.13597, the
-    worst block at 0.66 of its tolerance."""
+    worst block at 0.66 of its tolerance.  spm and pspm (which render it as they render pplastic, tested in
+    test_pplastic.py) are not here: on this scene they are low under the sphere, 3-4 of 192 block values outside
+    (pspm 0.0094 against 0.0128 in block (5, 1), blue), and so is pspm with the spheres diffuse (0.0335 against
+    0.0401 there, inside that block's wider noise), on the tree before they rendered principled too, bit for bit;
+    with no associated photon (assoc 0) pspm agrees.  Not yet explained (2026-12-04)."""
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
     photon_method_matches_mitsuba(mi, path, method, params, f"principled {method}")
 
 
-@pytest.mark.parametrize("method, bsdf", [
-    (m, b) for m in ("spm", "pspm") for b in ('<bsdf type="principled"/>', '<bsdf type="principledthin"/>')]
-    + [(m, b) for m in ("sppm", "pm") for b in ('<bsdf type="principledthin"/>',
-                                               '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
+@pytest.mark.parametrize("method, bsdf", [(m, b) for m in ("sppm", "pm", "spm", "pspm")
+                                          for b in ('<bsdf type="principledthin"/>',
+                                                    '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
 def test_photon_methods_refuse_principled(cli, tmp_path, method, bsdf):
-    """spm and pspm refuse both (a glossy lobe beside a diffuse one: pt, pm or sppm render the opaque one); sppm and
-    pm, whose estimates evaluate the BSDF, refuse a glossy transmission beside the diffuse lobe (spec_trans,
-    principledthin: photons arriving from the other side, which their gathers do not read)."""
+    """The photon methods, whose estimates evaluate the BSDF, refuse a glossy transmission beside the diffuse lobe
+    (spec_trans, principledthin: photons arriving from the other side, which their gathers do not read)."""
     kind = bsdf.split('"')[1]
     path = write_scene(tmp_path, bsdf)
     code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2, err
     line = err.strip()
     assert "\n" not in line and "g.xml:5" in line and f'"{kind}"' in line and "--method pt" in line, line
-    if method in ("sppm", "pm"):
-        assert "glossy transmission beside a diffuse lobe" in line and "pm or sppm" not in line, line
-    elif "spec_trans" not in bsdf and kind == "principled":
-        assert "--method pt, pm or sppm" in line, line
+    assert "glossy transmission beside a diffuse lobe" in line and "pm or sppm" not in line, line
 
 
 BAD = {

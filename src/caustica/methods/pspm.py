@@ -73,6 +73,8 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
     renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too (streams.associated_surface)
+    evaluates_bsdfs = True   # pplastic, opaque principled: visible points weight each event by f at its direction (a
+    #                          stream record: its leading photon's), as sppm's photons (api.check_bsdfs)
     params = (
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),
@@ -150,13 +152,13 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
             cbuf = allocate_buffers(n_c, 1)
             compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, cbuf)
         t1 = time.perf_counter()
-        pos, _, power, normal = buf.events(settings["estimator"], leave_caustics=n_c > 0)
+        pos, direction, power, normal = buf.events(settings["estimator"], leave_caustics=n_c > 0)
         valid = np.ones(pos.shape[0], np.int8)
         if n_c > 0:   # kind 2: the caustic photons' events
             kinds = np.empty(n_c, np.int8)
             caustic_event_kind(cbuf.kind, kinds)
-            pos, power, normal = (np.concatenate([a, b]) for a, b in ((pos, cbuf.position), (power, cbuf.power),
-                                                                      (normal, cbuf.normal)))
+            pos, power, normal, direction = (np.concatenate([a, b]) for a, b in (
+                (pos, cbuf.position), (power, cbuf.power), (normal, cbuf.normal), (direction, cbuf.direction)))
             valid = np.concatenate([valid, kinds])
         stats = {"streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
         if scene.has_media:
@@ -170,7 +172,7 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
             stats["volume_photons"] = volume
         stats["timings"] = {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
                             "map_build_s": time.perf_counter() - t1}
-        return (pos, power, normal, valid), n + n_c, stats
+        return (pos, power, normal, valid, direction), n + n_c, stats
 
     @classmethod
     def final_stats(cls, scene, settings, state):
