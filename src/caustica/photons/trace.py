@@ -38,7 +38,7 @@ from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..scene.description import BLEND, PLASTIC, ROUGHPLASTIC
+from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
@@ -147,9 +147,10 @@ def record_power(geom, mats, hit, d, power):
     prim, m, uv, front, ng, ns = hit
     if coated(mats, m):
         power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
-    own = geom.prim_material[prim]
-    if own != m:
-        power = vec.mul(power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
+    if has(mats, MASK) or has(mats, BLEND):   # (no code for a mixture in a scene without one)
+        own = geom.prim_material[prim]
+        if own != m:
+            power = vec.mul(power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
     return power
 
 
