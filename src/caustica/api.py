@@ -112,7 +112,8 @@ def check_bsdfs(cls, scene) -> None:
     diffuse lobe (roughconductor, roughdielectric), which its camera paths and photons pass by sampling
     (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic:
     every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
-    at each hit to one of their parts (every method; a stream's associated photons each resolve their own); ``renders_normal_maps = True`` —
+    at each hit to one of their parts (every method; a stream's associated photons each resolve their own);
+    ``renders_normal_maps = True`` —
     normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
     (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
     reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest

@@ -72,7 +72,8 @@ class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
     passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
     renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
     renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
-    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too (streams.associated_surface)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too
+    #                          (streams.associated_surface)
     evaluates_bsdfs = True   # pplastic, opaque principled: visible points weight each event by f at its direction (a
     #                          stream record: its leading photon's), as sppm's photons (api.check_bsdfs)
     params = (

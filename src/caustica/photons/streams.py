@@ -219,7 +219,8 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         if check_side and vec.dot(d, n_from) <= 0.0:
             continue  # into the surface it leaves: merged
         if has(mats, MASK) or has(mats, BLEND):
-            prim, th, b1, b2, o_hit, m, own, uv = associated_surface(tables, o, d, path_key(key, ASSOCIATED_PART_TAG, j))
+            prim, th, b1, b2, o_hit, m, own, uv = associated_surface(tables, o, d,
+                                                                     path_key(key, ASSOCIATED_PART_TAG, j))
         else:   # (no mixture in the scene: no code for one)
             prim, th, b1, b2 = intersect(geom, o, d, 1e30)
             o_hit, uv = o, NO_UV
@@ -397,12 +398,12 @@ def stream_at_specular(tables, key, beam, stream, splitting):
 @kernel(inline=True)
 def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
     """At the leading photon's diffuse hit x, ``hit`` = (prim, m, uv, front, ng, ns) (m the part of a mixture taken,
-    normals turned to the ray): its
-    associated photons land where their rays meet a diffuse surface (:func:`place_associated`, written from assoc
-    slot r * n_assoc on), split off or merge into it; with ``out`` = (store, r, kind, n_assoc, rec, assoc), stream
-    record r of ``kind`` is written when ``store`` says, the leading photon's power as the photon tracer stores
-    it (:func:`~caustica.photons.trace.record_power`: a coated lobe's factor B, a mixture's storing probability).  Returns (the stream, split photons added, dim past its
-    2 n_assoc numbers)."""
+    normals turned to the ray): its associated photons land where their rays meet a diffuse surface
+    (:func:`place_associated`, written from assoc slot r * n_assoc on), split off or merge into it; with ``out`` =
+    (store, r, kind, n_assoc, rec, assoc), stream record r of ``kind`` is written when ``store`` says, the leading
+    photon's power as the photon tracer stores it (:func:`~caustica.photons.trace.record_power`: a coated lobe's
+    factor B, a mixture's storing probability).  Returns (the stream, split photons added, dim past its 2 n_assoc
+    numbers)."""
     geom, mats, _, _ = tables
     ns = hit[5]
     lead, p_assoc, n_alive = stream
@@ -525,7 +526,8 @@ def trace_stream(tables, key, start, rules, i, buf):
             stored += 1 if store else 0
             if bounces >= max_bounces:
                 break
-        if diffuse or (has(mats, MASK) or has(mats, BLEND)) and mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
+        if diffuse or ((has(mats, MASK) or has(mats, BLEND))
+                       and mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION):
             # whichever lobe the stream takes here, a diffuse one or the reflection of a plastic's coating or of a
             # blend's mirror or glossy part beside a diffuse one (no caustic caster: tables.py), the records after
             # it are INDIRECT, as the photon tracer's (trace_one).  (Set here, not after the bounce: the same

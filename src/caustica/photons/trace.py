@@ -45,7 +45,7 @@ from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
 SPECULAR_CAP = 64
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
-TERMINATION_ROULETTE = 1  # survive with probability p = the mean of the BSDF sample's weight (a diffuse albedo), power scaled by 1 / p
+TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's mean weight (a diffuse albedo), power scaled by 1 / p
 
 
 @kernel(inline=True)
