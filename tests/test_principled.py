@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import caustica
 from caustica import bsdfs
 from caustica.bsdfs import build_material_table
 from caustica.jit import kernel

@@ -153,6 +153,18 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     return image, timings, int(knn_queries.sum()), stats
 
 
+class StreamedBSDFs:
+    """What the stream methods (spm, pspm) render beyond diffuse surfaces, mirrors and glass (api.check_bsdfs): their
+    camera sides are pm's and sppm's, and the stream tracer (photons/streams.py) meets each of these as the photon
+    tracer does."""
+    passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors
+    renders_coated = True    # plastic: a record carries the coating's factor B of each photon's direction
+    renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse)
+    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too (associated_surface)
+    evaluates_bsdfs = True   # pplastic, opaque principled: the estimate weights each record by f at its direction
+    #                          (a stream record's: its leading photon's), as pm's and sppm's photons
+
+
 class OneShotState:
     """The state of a one-shot method: nothing before its one pass, the image after it."""
 

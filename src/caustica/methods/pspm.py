@@ -34,7 +34,7 @@ from ..photons.streams import StreamBuffers, trace_stream_pass
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
-from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS
+from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS, StreamedBSDFs
 from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod,
                           caustic_event_kind, initial_radius, trace_caustic_pass)
@@ -66,16 +66,9 @@ def stream_radius(scene, settings, radius) -> float:
 
 
 @register
-class ProgressiveStreamedPhotonMapping(ProgressivePhotonMethod):
+class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
     name = "pspm"
     summary = "progressive streamed photon mapping: SPPM's per-pixel statistics over streams"
-    passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
-    renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
-    renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
-    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too
-    #                          (streams.associated_surface)
-    evaluates_bsdfs = True   # pplastic, opaque principled: visible points weight each event by f at its direction (a
-    #                          stream record: its leading photon's), as sppm's photons (api.check_bsdfs)
     params = (
         Param("streams", int, None, "streams traced per pass, n_fs (default: pixels / (assoc + 1))",
               positive, ">= 1"),

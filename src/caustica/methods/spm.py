@@ -24,22 +24,15 @@ from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
 from .photon_common import ESTIMATE_PARAMS, MEDIUM_SCATTERING_PARAM, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, \
-    OneShot, camera_pass, camera_pass_in_media, check_media_settings
+    OneShot, StreamedBSDFs, camera_pass, camera_pass_in_media, check_media_settings
 
 ESTIMATORS = ("stream", "photons")
 
 
 @register
-class StreamedPhotonMapping(OneShot):
+class StreamedPhotonMapping(StreamedBSDFs, OneShot):
     name = "spm"
     summary = "streamed photon mapping (the paper's method): streams of a leading + associated photons"
-    passes_glossy = True     # rough metal and glass: cameras sample them, streams meet them as mirrors (check_bsdfs)
-    renders_coated = True    # plastic: streams keep its coating's factor in their records, pm's/sppm's camera side
-    renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse; api.check_bsdfs)
-    renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too
-    #                          (streams.associated_surface)
-    evaluates_bsdfs = True   # pplastic, opaque principled: pm's k-nearest estimate weights each record by f at its
-    #                          direction (a stream record: its leading photon's), as pm's photons (api.check_bsdfs)
     default_spp = 1
     params = (
         Param("streams", int, 10_000, "streams emitted (n_fs)", positive, ">= 1"),
