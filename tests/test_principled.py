@@ -351,7 +351,8 @@ def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, met
     test_pplastic.py) are not here: on this scene they are low under the sphere, 3-4 of 192 block values outside
     (pspm 0.0094 against 0.0128 in block (5, 1), blue), and so is pspm with the spheres diffuse (0.0335 against
     0.0401 there, inside that block's wider noise), on the tree before they rendered principled too, bit for bit;
-    with no associated photon (assoc 0) pspm agrees.  Not yet explained (2026-12-04)."""
+    the light the streams store there equals plain photons', and the deficit shrinks with more streams a pass
+    (0.83 -> 0.94 of pt's with 10x): most likely the radii's blur at 64 passes (docs/results.md, 2026-12-04)."""
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
     photon_method_matches_mitsuba(mi, path, method, params, f"principled {method}")
