@@ -352,7 +352,8 @@ def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, met
     (pspm 0.0094 against 0.0128 in block (5, 1), blue), and so is pspm with the spheres diffuse (0.0335 against
     0.0401 there, inside that block's wider noise), on the tree before they rendered principled too, bit for bit;
     the light the streams store there equals plain photons', and the deficit shrinks with more streams a pass
-    (0.83 -> 0.94 of pt's with 10x): most likely the radii's blur at 64 passes (docs/results.md, 2026-12-04)."""
+    (0.83 -> 0.94 of pt's with 10x) and with more passes (0.96 at 512): the radii's blur at 64 passes
+    (docs/results.md, 2026-12-04)."""
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
     photon_method_matches_mitsuba(mi, path, method, params, f"principled {method}")
