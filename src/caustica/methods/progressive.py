@@ -268,8 +268,9 @@ class PassMeasurements(NamedTuple):
 class ProgressivePhotonMethod(IndependentPasses):
     """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, radius, progress)``.
 
-    ``photon_events`` returns ((position, power, normal, valid) of this pass's events,
-    paths emitted, stats); events with valid == 0 are empty slots, and when
+    ``photon_events`` returns ((position, power, normal, valid, direction) of this pass's events (the direction
+    of travel, which a visible point that evaluates its BSDF weighs with), paths emitted, stats); events with
+    valid == 0 are empty slots, and when
     ``separate_caustics`` is true those with valid == 2 are the caustic events, gathered into
     the statistics n_caustic, radius_caustic, tau_caustic of their own; ``radius`` holds the
     pass's gather radii (float64[n]).  With ``--schedule pixel``
