@@ -286,7 +286,7 @@ def test_rs0_assoc0_is_pm_bit_for_bit(diacaustic, termination):
 
 
 @pytest.fixture(scope="module", params=["smooth-and-glass", "rough", "mask", "blend"])
-def plastic_scene(request, test_scenes_dir, tmp_path_factory):
+def coated_or_mixed_scene(request, test_scenes_dir, tmp_path_factory):
     """tests/scenes/plastic.xml (smooth plastics and a rough one over a diffuse floor) as it is, or with a glass ball
     for the rough one (a caustic caster beside the plastics); tests/scenes/mask.xml and blend.xml (mixtures)."""
     if request.param in ("mask", "blend"):
@@ -301,14 +301,14 @@ def plastic_scene(request, test_scenes_dir, tmp_path_factory):
     return caustica.load_scene(path)
 
 
-def test_rs0_assoc0_is_pm_bit_for_bit_on_plastics_and_mixtures(plastic_scene):
+def test_rs0_assoc0_is_pm_bit_for_bit_on_plastics_and_mixtures(coated_or_mixed_scene):
     """The PM limit on plastic, roughplastic, mask and blendbsdf: the leading photon's records carry the coated
     lobe's factor B or a mixture part's storing probability, and a coating's (or a blend's mirror part's) reflection
     makes the records after it INDIRECT (no caustic caster), as the photon tracer's do, number for number."""
     n, mr = 20_000, 4
-    sb = trace_spm(plastic_scene, n, 0, 0.0, mr, TERMINATION_CAP, seed=7)
+    sb = trace_spm(coated_or_mixed_scene, n, 0, 0.0, mr, TERMINATION_CAP, seed=7)
     pb = allocate_buffers(n, mr + 1)
-    trace_photon_pass(plastic_scene, pb, 7, STREAM_SPM, n, mr, TERMINATION_CAP)
+    trace_photon_pass(coated_or_mixed_scene, pb, 7, STREAM_SPM, n, mr, TERMINATION_CAP)
     pos, dirs, nrm, lead, assoc, energy, count, valid = sb.rec
     np.testing.assert_array_equal(valid != 0, pb.kind != EMPTY)
     np.testing.assert_array_equal(valid == 2, pb.kind == CAUSTIC)
@@ -318,7 +318,7 @@ def test_rs0_assoc0_is_pm_bit_for_bit_on_plastics_and_mixtures(plastic_scene):
         np.testing.assert_array_equal(a[keep], b[keep])
 
 
-PLASTIC_BOX = f"""<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+BOX_OF = f"""<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
   <boolean name="flip_normals" value="true"/>BSDF</shape>INSIDE
 <emitter type="point"><point name="position" x="1" y="0.5" z="-0.3"/><rgb name="intensity" value="{rgb(POINT_I)}"/></emitter>"""
 
@@ -337,7 +337,7 @@ MASKED_PANEL = """<shape type="rectangle"><transform name="to_world"><scale valu
      'value="0.6, 0.5, 0.4"/></bsdf><bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf></bsdf>',
      MASKED_PANEL)], ids=["plastic", "roughplastic", "blend-and-mask"])
 @pytest.mark.parametrize("termination", [TERMINATION_CAP, TERMINATION_ROULETTE])
-def test_streams_store_pms_power_per_bounce_in_a_plastic_box(bsdf, inside, termination):
+def test_streams_store_pms_power_per_bounce_in_a_box_of_plastic_or_mixtures(bsdf, inside, termination):
     """A closed box of plastic: the streams' records (each the leading and the landed associated photons, every one
     with the factor B of the coated lobe it landed on, decaying by the leading photon's weight) store per bounce
     what PM's photons store, within 5 standard errors of the two runs; no record is CAUSTIC (a coating's reflection
@@ -345,7 +345,7 @@ def test_streams_store_pms_power_per_bounce_in_a_plastic_box(bsdf, inside, termi
     pspm refused plastics.  The same for walls blending a diffuse and a rough metal BSDF around a masked panel: each
     associated photon resolves the mixtures it meets (passing the mask where it is off), one that takes the metal
     merges into the leading photon, and the records carry the storing probability as the photon tracer's."""
-    scene = xml_scene(PLASTIC_BOX.replace("BSDF", bsdf).replace("INSIDE", inside), "plastic-box.xml")
+    scene = xml_scene(BOX_OF.replace("BSDF", bsdf).replace("INSIDE", inside), "plastic-box.xml")
     buf = trace_spm(scene, N_S, N_FA, 1.0, MR, termination)
     e, v, count, lead, assoc = records(buf, N_S, MR)
     assert count[v].mean() > 0.2 and not (buf.rec.kind == CAUSTIC).any()   # (a stream's metal bounce merges all)
