@@ -35,6 +35,7 @@ from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR
 from caustica.scene.description import BECKMANN, GGX, ROUGHCONDUCTOR, ROUGHDIELECTRIC
+from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
 
 NG = (0.0, 0.0, 1.0)
@@ -491,20 +492,10 @@ def test_bsdf_values_match_mitsuba(mi, kind, dist):
     ctx = mi.BSDFContext()
     si = mi.SurfaceInteraction3f()
     si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-    rng = np.random.default_rng(5)
     rtol = 1e-2 if dist == "beckmann" else 2e-4
     compared = 0
-    for _ in range(300):
-        v = rng.normal(size=(2, 3))
-        v /= np.linalg.norm(v, axis=1, keepdims=True)
-        if kind == "roughconductor":
-            v[:, 2] = np.abs(v[:, 2])
-        wo, wi = v            # wo: towards the camera (Mitsuba's si.wi), wi: towards the light (Mitsuba's wo)
-        if abs(wo[2]) < 0.05 or abs(wi[2]) < 0.05:
-            continue
-        si.wi = mi.Vector3f(*wo)
-        f_mi = np.array(theirs.eval(ctx, si, mi.Vector3f(*wi)), np.float64)
-        pdf_mi = float(theirs.pdf(ctx, si, mi.Vector3f(*wi)))
+    for wo, wi in direction_pairs(upper=kind == "roughconductor"):
+        f_mi, pdf_mi = mitsuba_f_pdf(mi, theirs, ctx, si, wo, wi)
         d = tuple(-wo)
         out = np.zeros((1, 4))
         eval_many(mats, d, wi[None, :], out)

@@ -35,6 +35,7 @@ from caustica.bsdfs.optics import fresnel_dielectric
 from caustica.bsdfs.plastic import INTERNAL, SPEC_WEIGHT, TABLE, fresnel_diffuse_reflectance
 from caustica.jit import kernel
 from caustica.scene.description import BECKMANN, GGX, PLASTIC, ROUGHPLASTIC, Material
+from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
 from test_glossy import assert_refused_in_one_line, assert_sampled_density_is_the_pdf, draw, eval_many, incident, \
     render_both, write_scene
@@ -81,19 +82,10 @@ def test_bsdf_values_match_mitsuba(mi, case):
     ctx = mi.BSDFContext()
     si = mi.SurfaceInteraction3f()
     si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-    rng = np.random.default_rng(5)
     rtol = 1e-5 if kind == PLASTIC else 2e-3 if dist == "ggx" else 1e-2
     compared = 0
-    for _ in range(300):
-        v = rng.normal(size=(2, 3))
-        v /= np.linalg.norm(v, axis=1, keepdims=True)
-        v[:, 2] = np.abs(v[:, 2])
-        wo, wi = v        # wo: towards the camera (Mitsuba's si.wi), wi: towards the light (Mitsuba's wo)
-        if wo[2] < 0.05 or wi[2] < 0.05:
-            continue
-        si.wi = mi.Vector3f(*wo)
-        f_mi = np.array(theirs.eval(ctx, si, mi.Vector3f(*wi)), np.float64)
-        pdf_mi = float(theirs.pdf(ctx, si, mi.Vector3f(*wi)))
+    for wo, wi in direction_pairs(upper=True):
+        f_mi, pdf_mi = mitsuba_f_pdf(mi, theirs, ctx, si, wo, wi)
         out = np.zeros((1, 4))
         eval_many(mats, tuple(-wo), wi[None, :], out)
         np.testing.assert_allclose(out[0, :3], f_mi, rtol=rtol, atol=1e-7)

@@ -27,6 +27,7 @@ from caustica.scene.conductors import CONDUCTOR_IOR
 from caustica.scene.description import BECKMANN, CHECKERBOARD, GGX, PRINCIPLED, PRINCIPLEDTHIN, ROUGHCONDUCTOR, \
     Material, Texture
 from caustica.scene.xml_loader import principled_eta, principled_roughness
+from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
 from test_glossy import CMP_MI_SPP, CMP_SEEDS, CMP_SPP, assert_refused_in_one_line, assert_sampled_density_is_the_pdf, \
     incident, render_both, write_scene
@@ -125,19 +126,9 @@ def compare_with_mitsuba(mi, mats, theirs, rtol, both_sides=True, uv=(0.0, 0.0))
     si.sh_frame = mi.Frame3f(mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0), mi.Vector3f(0, 0, 1))
     si.uv = mi.Point2f(*uv)
     uvt = (uv[0], uv[1]) + UVT[2:]
-    rng = np.random.default_rng(5)
     compared = 0
-    for _ in range(300):
-        v = rng.normal(size=(2, 3))
-        v /= np.linalg.norm(v, axis=1, keepdims=True)
-        if not both_sides:
-            v[:, 2] = np.abs(v[:, 2])
-        wo, wi = v        # wo: towards the camera (Mitsuba's si.wi), wi: towards the light (Mitsuba's wo)
-        if abs(wo[2]) < 0.05 or abs(wi[2]) < 0.05:
-            continue
-        si.wi = mi.Vector3f(*wo)
-        f_mi = np.array(theirs.eval(ctx, si, mi.Vector3f(*wi)), np.float64)
-        pdf_mi = float(theirs.pdf(ctx, si, mi.Vector3f(*wi)))
+    for wo, wi in direction_pairs(upper=not both_sides):
+        f_mi, pdf_mi = mitsuba_f_pdf(mi, theirs, ctx, si, wo, wi)
         out = np.zeros((1, 4))
         eval_tangent(mats, tuple(-wo), wi[None, :], uvt, out)
         np.testing.assert_allclose(out[0, :3], f_mi, rtol=rtol, atol=1e-6)
