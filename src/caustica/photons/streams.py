@@ -168,7 +168,7 @@ def disc_point(beam, u1, u2):
 @kernel(inline=True)
 def associated_surface(tables, o, d, key):
     """The surface an associated photon's ray from o along d lands on or merges at: (prim (-1: none), t, b1, b2,
-    the ray's origin o' for them, the part m of the surface's material ``own`` it took, own, uv).  A mixture
+    the ray's origin o' for them, the part m of the surface's material it took, uv).  A mixture
     (mask, blendbsdf) is resolved with the photon's own number (key, c) at its c-th crossing
     (:func:`caustica.bsdfs.resolve`), as the photon tracer resolves it; where a mask is off the ray goes on past it."""
     geom, mats, _, _ = tables
@@ -178,14 +178,14 @@ def associated_surface(tables, o, d, key):
             break
         own = geom.prim_material[prim]
         if not (has(mats, MASK) and mats.kind[own] == MASK or has(mats, BLEND) and mats.kind[own] == BLEND):
-            return prim, t, b1, b2, o, own, own, NO_UV
+            return prim, t, b1, b2, o, own, NO_UV
         uv = surface_uv(geom, prim, o, d, t, b1, b2)
         m, _ = resolve(mats, own, uv, key, c)
         if m >= 0 and mats.kind[m] != NULL:
-            return prim, t, b1, b2, o, m, own, uv
+            return prim, t, b1, b2, o, m, uv
         p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
         o = vec.offset_origin(p, ng, d)   # a mask where it is off: on past it
-    return -1, 0.0, 0.0, 0.0, o, 0, 0, NO_UV
+    return -1, 0.0, 0.0, 0.0, o, 0, NO_UV
 
 
 @kernel
@@ -219,12 +219,11 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         if check_side and vec.dot(d, n_from) <= 0.0:
             continue  # into the surface it leaves: merged
         if has(mats, MASK) or has(mats, BLEND):
-            prim, th, b1, b2, o_hit, m, own, uv = associated_surface(tables, o, d,
-                                                                     path_key(key, ASSOCIATED_PART_TAG, j))
+            prim, th, b1, b2, o_hit, m, uv = associated_surface(tables, o, d, path_key(key, ASSOCIATED_PART_TAG, j))
         else:   # (no mixture in the scene: no code for one)
             prim, th, b1, b2 = intersect(geom, o, d, 1e30)
             o_hit, uv = o, NO_UV
-            m = own = geom.prim_material[max(prim, 0)]
+            m = geom.prim_material[max(prim, 0)]
         if prim < 0:
             continue  # escaped: merged into the leading photon
         if not mats.flags[m] & DIFFUSE_REFLECTION:
@@ -239,7 +238,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
             continue  # the black back of a one-sided surface: merged
         factor = 1.0
         if has(mats, PLASTIC) or has(mats, ROUGHPLASTIC) or has(mats, MASK) or has(mats, BLEND):
-            factor = record_factor(mats, own, (m, uv, front, ng, ns), d)
+            factor = record_factor(geom, mats, (prim, m, uv, front, ng, ns), d)
         if store:
             store_associated(a0 + landed, p, d, ns, factor, assoc)
         landed += 1

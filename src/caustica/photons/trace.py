@@ -127,31 +127,24 @@ def coated(mats, m):
 
 
 @kernel(inline=True)
-def record_factor(mats, own, hit, d):
-    """:func:`record_power`'s factor as one number, for a photon arriving along d at ``hit`` = (m, uv, front, ng, ns)
-    on a surface of material ``own`` (m the part it resolved to): a coated lobe's B times 1 / the storing
-    probability of a mixture's part (a stream's associated photons: :mod:`caustica.photons.streams`)."""
-    m, uv, front, ng, ns = hit
+def record_factor(geom, mats, hit, d):
+    """What of its power a photon arriving along d stores at a diffuse hit, ``hit`` = (prim, m, uv, front, ng, ns) (m
+    the material it resolved to, normals turned to the ray): at a coated diffuse lobe its factor B
+    (:func:`caustica.bsdfs.coat`); at a mixture's part 1 / the chance of resolving to a part that stores there
+    (:func:`storing_probability`); 1 elsewhere.  (A stream's associated photons carry it as a number of their own.)"""
+    prim, m, uv, front, ng, ns = hit
     factor = entry(mats, m, -vec.dot(d, ns)) if coated(mats, m) else 1.0
-    if own != m:
-        factor /= storing_probability(mats, own, uv, (front, ng, ns))
+    if has(mats, MASK) or has(mats, BLEND):   # (no code for a mixture in a scene without one)
+        own = geom.prim_material[prim]
+        if own != m:
+            factor /= storing_probability(mats, own, uv, (front, ng, ns))
     return factor
 
 
 @kernel(inline=True)
 def record_power(geom, mats, hit, d, power):
-    """The power a photon arriving along d stores at a diffuse hit, ``hit`` = (prim, m, uv, front, ng, ns) (m the
-    material it resolved to, normals turned to the ray): at a coated diffuse lobe times its factor B
-    (:func:`caustica.bsdfs.coat`); at a mixture's part divided by the chance of resolving to a part that stores
-    there (:func:`storing_probability`)."""
-    prim, m, uv, front, ng, ns = hit
-    if coated(mats, m):
-        power = vec.mul(power, entry(mats, m, -vec.dot(d, ns)))
-    if has(mats, MASK) or has(mats, BLEND):   # (no code for a mixture in a scene without one)
-        own = geom.prim_material[prim]
-        if own != m:
-            power = vec.mul(power, 1.0 / storing_probability(mats, own, uv, (front, ng, ns)))
-    return power
+    """The power a photon arriving along d stores at ``hit`` (:func:`record_factor`)."""
+    return vec.mul(power, record_factor(geom, mats, hit, d))
 
 
 @kernel
