@@ -53,7 +53,7 @@ def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None, alpha_v=Non
                          np.array([fresnel], np.int8), np.array([ce], np.float64),
                          np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)),
                          *texture_columns([]), *mixture_columns([]), np.zeros(1, np.int8),
-                         np.zeros((1, 1, 9), np.float32))
+                         np.zeros(1, np.int8), np.zeros((1, 1, 9), np.float32))
 
 
 @kernel

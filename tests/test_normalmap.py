@@ -6,9 +6,14 @@ a perturbed shading normal.
    rough conductor), for several directions towards the light, caustica's f · |cos| with the perturbed normal (and the
    bump terminator's shadowing) equals Mitsuba's ``eval``: this checks the (u, v), dp/du and dp/dv, the tangent frame,
    the normal map's decoding and flip, the bump map's gradient and scale, and the shadowing term.
-2. The scene under pt against Mitsuba's path integrator (tests/imagestats.py).
-3. Input: a normal map that is not an image, a missing file, a bumpmap without a texture, nested wrappers, twosided
-   around one, a wrapper on a disk -> one line naming file and line, exit 2; the photon methods refuse in one line.
+2. The scene under pt, pm and sppm against Mitsuba's path integrator (tests/imagestats.py), and a pool
+   (tests/scenes/pool.xml: a normal-mapped water surface over a floor), whose caustic the photons carry through the
+   map: their adjoint weights (bsdfs.photon_shading) and the visible points that weight each photon by the BSDF in
+   the perturbed frame.
+3. The photon tracer: records on a diffuse floor under an identity normal map carry the power of a plain floor's.
+4. Input: a normal map that is not an image, a missing file, a bumpmap without a texture, nested wrappers, twosided
+   around one, a wrapper on a disk -> one line naming file and line, exit 2; spm and pspm refuse the wrappers in one
+   line, pm and sppm a plastic under one.
 """
 from __future__ import annotations
 
@@ -124,6 +129,89 @@ def test_pt_matches_mitsuba(mitsuba_scene):
     assert_images_agree(ours, mitsuba_scene, label="pt normalmap")
 
 
+@pytest.mark.parametrize("method, params", [("sppm", {"passes": 256}), ("pm", {"spp": 16})])
+def test_photon_methods_match_mitsuba(mitsuba_scene, method, params):
+    """The floor's normal map (diffuse), the ball's bump map (rough plastic) and the panel's normal map (rough metal)
+    under the photon methods: visible points there evaluate f in the perturbed frame."""
+    scene = caustica.load_scene(SCENE)
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in SEEDS]
+    assert_images_agree(ours, mitsuba_scene, label=f"{method} normalmap")
+
+
+POOL = HERE / "pool.xml"
+
+
+@pytest.fixture(scope="module")
+def mitsuba_pool(mi):
+    """Mitsuba's path tracer on the pool, 4 x 4096 spp: its caustic through the waves is found only by paths that
+    hit the light after refracting, so it needs more samples than the normalmap scene."""
+    theirs = mi.load_file(str(POOL), res=32, spp=4096)
+    return [np.array(mi.render(theirs, spp=4096, seed=s), dtype=np.float32)[..., :3] for s in SEEDS]
+
+
+@pytest.mark.parametrize("method, params", [("pt", {"spp": 1024}), ("sppm", {"passes": 512}),
+                                            ("pm", {"spp": 16, "photons": 400_000, "caustic_photons": 2_000_000,
+                                                    "caustic_k": 200})])
+def test_pool_caustic_matches_mitsuba(mitsuba_pool, method, params):
+    """The caustic the normal-mapped water focuses on the floor.  sppm's mean converges on pt's (+1.2 % at 256
+    passes, +0.3 % at 1,024, +0.15 % at 4,096: the radius's blur, which the waves' lens weights unevenly); pm's k
+    nearest photons are +2.9 % bright at its defaults on this sharp caustic, +1.2 % with the photons given here."""
+    scene = caustica.load_scene(POOL)
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in SEEDS]
+    assert_images_agree(ours, mitsuba_pool, label=f"{method} pool")
+
+
+FLAT_NORMALS = """<bsdf type="normalmap">
+            <texture type="bitmap" name="normalmap"><string name="filename" value="flat.png"/>
+                <boolean name="raw" value="true"/></texture>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.65"/></bsdf>
+        </bsdf>"""
+
+
+def test_records_under_an_identity_map_carry_a_plain_floors_power(tmp_path):
+    """A floor under a normal map of flat normals stores what the same floor stores without it: the same photons
+    (the map draws no number), each within the map's 0.2 degree tilt.  (Its records once took the map's row for a
+    mixture's and were divided by a 'storing probability' read from the map's colour: 1.86 x the power.)"""
+    import imageio.v3 as iio
+    from caustica.photons.records import allocate_buffers
+    from caustica.photons.trace import trace_photon_pass
+    flat = np.zeros((4, 4, 3), np.uint8)
+    flat[...] = (128, 128, 255)
+    iio.imwrite(tmp_path / "flat.png", flat)
+    text = SCENE.read_text()
+    a = text.index('<bsdf type="normalmap">')
+    b = text.index("</bsdf>", text.index('<bsdf type="diffuse">', a))
+    plain = text[:a] + '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.65"/></bsdf>' + \
+        text[text.index("</bsdf>", b + 7) + 7:]
+    mapped = text[:a] + FLAT_NORMALS + text[text.index("</bsdf>", b + 7) + 7:]
+    stored = []
+    for name, xml in (("plain.xml", plain), ("mapped.xml", mapped)):
+        for f in ("normalmap-tiles.png", "bumpmap-heights.png"):
+            (tmp_path / f).write_bytes((HERE / f).read_bytes())
+        (tmp_path / name).write_text(xml)
+        scene = caustica.load_scene(tmp_path / name)
+        buf = allocate_buffers(50_000, 5)
+        trace_photon_pass(scene, buf, 1, 0, 50_000, 4, 0)
+        on_floor = np.abs(buf.position[:, 1]) < 1e-3
+        stored.append((int(on_floor.sum()), buf.power[on_floor].astype(np.float64).sum(axis=0)))
+    (n_plain, p_plain), (n_mapped, p_mapped) = stored
+    assert n_plain > 1000 and abs(n_mapped - n_plain) <= 0.01 * n_plain
+    np.testing.assert_allclose(p_mapped, p_plain, rtol=0.01)
+
+
+@pytest.mark.parametrize("method", ["sppm", "pm"])
+def test_plastic_under_a_map_refused_in_one_line(method, tmp_path):
+    text = SCENE.read_text().replace('<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.65"/></bsdf>',
+                                     '<bsdf type="plastic"/>')
+    for f in ("normalmap-tiles.png", "bumpmap-heights.png"):
+        (tmp_path / f).write_bytes((HERE / f).read_bytes())
+    (tmp_path / "s.xml").write_text(text)
+    with pytest.raises(caustica.SceneError) as err:
+        caustica.render(caustica.load_scene(tmp_path / "s.xml"), method, res=8, photons=100)
+    msg = str(err.value)
+    assert "\n" not in msg and "s.xml:" in msg and "plastic" in msg and "--method pt" in msg
+
+
 DIFF = '<bsdf type="diffuse"/>'
 NMAP = '<texture type="bitmap" name="normalmap"><string name="filename" value="{f}"/></texture>'
 BAD = {
@@ -156,12 +244,12 @@ def test_bad_wrapper_exits_2_one_line(cli, images, case):
     assert_refused_in_one_line(cli, images, *BAD[case])
 
 
-@pytest.mark.parametrize("method", ["sppm", "pm", "spm", "pspm"])
-def test_photon_methods_refuse_wrappers_in_one_line(method):
+@pytest.mark.parametrize("method", ["spm", "pspm"])
+def test_stream_methods_refuse_wrappers_in_one_line(method):
     with pytest.raises(caustica.SceneError) as err:
         caustica.render(caustica.load_scene(SCENE), method, res=8, photons=100)
     msg = str(err.value)
-    assert "\n" not in msg and "normalmap" in msg and "normalmap.xml:" in msg and "pt" in msg
+    assert "\n" not in msg and "normalmap" in msg and "normalmap.xml:" in msg and "pt, pm or sppm" in msg
 
 
 CORPUS = Path("/tmp/corpus/mitsuba-renderer+mitsuba-data")

@@ -114,7 +114,8 @@ def check_bsdfs(cls, scene) -> None:
     every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (every method; a stream's associated photons each resolve their own);
     ``renders_normal_maps = True`` —
-    normalmap and bumpmap (``pt``); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
+    normalmap and bumpmap (``pt``; ``pm`` and ``sppm``, whose visible points under a map weight each photon by the
+    BSDF in the perturbed frame, except under a delta coating); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
     (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
     reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
     estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
@@ -124,8 +125,15 @@ def check_bsdfs(cls, scene) -> None:
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
             raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
-                             f"render normalmap or bumpmap yet (Mitsuba's bump-terminator shadowing falls on the "
-                             f"light's side, which photons would have to take as well); use --method pt")
+                             f"render normalmap or bumpmap yet (a stream's associated photons would meet the map "
+                             f"at points of their own); use --method pt, pm or sppm")
+        if mat.kind in WRAPPERS and not getattr(cls, "renders_glossy", False):
+            inner = mat.nested[0]
+            if scene.materials.flags[inner] & DELTA and scene.materials.flags[inner] & DIFFUSE_REFLECTION:
+                raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} "
+                                 f"does not render a delta coating over a diffuse lobe (plastic) under a normal or "
+                                 f"bump map yet (its visible points there weight each photon by the BSDF, which "
+                                 f"holds no delta lobe); use --method pt")
         if mat.kind in MIXTURES and not getattr(cls, "renders_mixtures", False):
             raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
                              f"render mask or blendbsdf yet (its streams would place their associated photons "

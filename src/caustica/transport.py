@@ -92,10 +92,7 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
         medium, o, crossings, within = cross_null(media, shape, p, ng, d, medium, crossings)
         return p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, CROSSED if within else TRAPPED, dim
     if has(mats, NORMALMAP) and kind == NORMALMAP or has(mats, BUMPMAP) and kind == BUMPMAP:
-        uv = surface_uv(geom, prim, o, d, t, b1, b2)
-        dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
-        ns = perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv)
-        m = mats.nested[m, 0]
+        m, ns, uv = unwrap(geom, mats, prim, (o, d, t, b1, b2), m, (ng, ns))
         kind = mats.kind[m]
         mixture = True   # uv is known
     if has(mats, TEXTURED) and needs_uv(mats, m) and not mixture:
@@ -103,6 +100,17 @@ def surface_interaction(tables, hit, o, d, medium, crossings, key, dim):
     if has(mats, ANISOTROPIC) and needs_tangent(mats, m):
         uv = with_tangent(geom, prim, (o, d, t, b1, b2), uv if mixture else surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, uv, front, m, kind, shape, medium, o, 0, SCATTER, dim
+
+
+@kernel(inline=True)
+def unwrap(geom, mats, prim, ray, m, normals):
+    """Normal or bump map m where ``ray`` = (o, d, t, b1, b2) meets primitive prim, of front normals ``normals`` =
+    (ng, ns): (its nested material, the perturbed shading normal, the surface coordinates)."""
+    o, d, t, b1, b2 = ray
+    ng, ns = normals
+    uv = surface_uv(geom, prim, o, d, t, b1, b2)
+    dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
+    return mats.nested[m, 0], perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv), uv
 
 
 @kernel

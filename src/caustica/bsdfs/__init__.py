@@ -45,7 +45,7 @@ from . import conductor, dielectric, diffuse, microfacet, plastic, pplastic, pri
 from .textures import albedo_mean, attribute_table, colour, mitsuba_mean, texture_columns  # noqa: F401  (part of the interface)
 from .textures import ALPHA_U, ALPHA_V, ANISO, PARAM
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
-from .perturb import perturbed_normal, terminator  # noqa: F401  (part of the interface)
+from .perturb import gather_shading, perturbed_normal, photon_shading, terminator, wrapped  # noqa: F401  (part of the interface)
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
 from .flags import ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
     GLOSSY_LOBES, GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
@@ -91,6 +91,7 @@ class MaterialTable(NamedTuple):
     # Wrappers (normalmap, bumpmap; bsdfs/perturb.py): resolved at the hit to nested[m, 0] with a perturbed ns; their
     # map is mix_texture[m], a bump map's scale mix[m].
     terminator: np.ndarray  # int8[M]: 1 on a wrapper's nested row: f carries Mitsuba's bump-terminator shadowing
+    wrapped: np.ndarray    # int8[M]: 1 on a wrapper's nested row (its ns perturbed), with the shadowing or without
     attr: np.ndarray       # float32[K, T, 9]: mesh attributes at each triangle's corners (textures.attribute_table)
 
 
@@ -146,7 +147,16 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                          cond_eta,
                          cond_k, coating, *texture_columns(desc.materials, params), *mixture_columns(desc.materials),
                          np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
-                         attribute_table(desc))
+                         wrapped_rows(desc, m), attribute_table(desc))
+
+
+def wrapped_rows(desc: SceneDescription, m: int) -> np.ndarray:
+    """int8[m]: 1 on each wrapper's nested row (the wrapper's own copy of its nested BSDF), 0 elsewhere."""
+    out = np.zeros(m, np.int8)
+    for mat in desc.materials:
+        if mat.kind in WRAPPERS:
+            out[mat.nested[0]] = 1
+    return out
 
 
 def material_features(mats: MaterialTable) -> int:
@@ -246,6 +256,17 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     if (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.terminator[m]:
         scale *= terminator(ng, ns, wi)
     return c, scale, pdf
+
+
+@kernel(inline=True)
+def eval_photon(mats, m, d, ng, ns, uv, wi):
+    """(colour, scale): material m's f = colour · scale from d towards wi as a visible point that evaluates its BSDF
+    weighs a photon arriving from wi (:func:`eval_pdf`); on a wrapper's nested row the scale also carries
+    |cos_s(wi)| / |cos_g(wi)| (:func:`caustica.bsdfs.perturb.gather_shading`), the shading cosine of Mitsuba's f."""
+    c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+    if wrapped(mats, m):
+        scale *= gather_shading(ng, ns, wi)
+    return c, scale
 
 
 @kernel(inline=True)

@@ -17,7 +17,7 @@ normal and the perturbed normal's other, the perturbed normal's (s, t) component
 Mitsuba's ``use_shadowing_function`` (default on) multiplies f by the shadowing term of Estevez et al. 2019, for the
 bump terminator: G(wo) = 2 / (1 + sqrt(1 + a² tan² θ_o)), a² = min(tan² θ_p / 8, 1), θ_p the perturbed normal's
 angle to the unperturbed one and θ_o that of the direction towards the light (a camera path's sampled or
-next-event direction; photon methods refuse the wrappers).  The loops no longer know the unperturbed normal, so
+next-event direction).  The loops no longer know the unperturbed normal, so
 :func:`terminator` measures both angles from the geometric normal: exact on flat triangles, rectangles and spheres,
 an approximation on meshes with vertex normals.
 """
@@ -27,7 +27,8 @@ import math
 
 from ..geometry import vec
 from ..jit import kernel
-from ..scene.description import BUMPMAP
+from ..features import has
+from ..scene.description import BUMPMAP, NORMALMAP
 from .textures import FILTER, HEIGHT, LUMINANCE, NEAREST, ROW0, TO_UV, WIDTH, WRAP, texel, texture_rgb
 
 
@@ -104,3 +105,38 @@ def terminator(ng, ns, wo):
     if co2 <= 0.0:
         return 0.0
     return 2.0 / (1.0 + math.sqrt(1.0 + a2 * max(1.0 - co2, 0.0) / co2))
+
+
+@kernel(inline=True)
+def wrapped(mats, m):
+    """Whether material row m is a wrapper's nested row: its shading normal is perturbed where a ray meets it."""
+    return (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.wrapped[m] != 0
+
+
+@kernel(inline=True)
+def photon_shading(mats, m, ng, ns, wo, wi):
+    """What a photon's weight f cos / pdf from wrapper's nested row m (sampled as a camera path samples it, without
+    the terminator's shadowing: :func:`caustica.bsdfs.sample_kind`; shading normal ns) is multiplied by when the
+    photon arrives from wo (towards the light) and leaves along wi.
+
+    Mitsuba's BSDF f_M(wi, wo) = f cos_s(wo) G(wo) holds the shading cosine and the terminator's shadowing G on the
+    light's side, wo (:func:`terminator`, where the row has it); a photon carries flux, whose density on a surface
+    is per geometric area.  Leaving along wi sampled with density p, its weight must be f_M |cos_g(wi)| /
+    (p |cos_g(wo)|) (Veach 1997, §5.3: the adjoint of a BSDF with shading normals), that is the sample's weight
+    f |cos_s(wi)| / p times G(wo) |cos_s(wo)| |cos_g(wi)| / (|cos_s(wi)| |cos_g(wo)|).  The same factor holds for
+    a delta lobe (refraction's Jacobian takes its cosines about ns)."""
+    cs_i = abs(vec.dot(ns, wi))
+    cg_o = abs(vec.dot(ng, wo))
+    if cs_i <= 0.0 or cg_o <= 0.0:
+        return 0.0
+    g = terminator(ng, ns, wo) if mats.terminator[m] else 1.0
+    return g * abs(vec.dot(ns, wo)) * abs(vec.dot(ng, wi)) / (cs_i * cg_o)
+
+
+@kernel(inline=True)
+def gather_shading(ng, ns, wo):
+    """What a photon arriving from wo (towards the light) is weighted by, beside f, at a visible point on a
+    wrapper's nested row: |cos_s(wo)| / |cos_g(wo)|, the shading cosine Mitsuba's f_M holds over the geometric one
+    the photons' density already holds (:func:`photon_shading`)."""
+    cg = abs(vec.dot(ng, wo))
+    return abs(vec.dot(ns, wo)) / cg if cg > 0.0 else 0.0

@@ -47,6 +47,7 @@ class PhotonMapping(OneShot):
     evaluates_bsdfs = True   # pplastic, opaque principled: photons and shadow rays weighted by f (gather.diffuse_estimate)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
+    renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)
     default_spp = 1
     params = (
         Param("photons", int, 100_000, "photons emitted for the global map", positive, ">= 1"),

@@ -164,7 +164,7 @@ def _gather_at(grid, points, radius, out, i):
     if rows[i, BSDF_MATERIAL] < 0.0:
         m, s = grid_range_sum(grid, p, n, radius[i], None)
     else:
-        m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i, n))
+        m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i))
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]

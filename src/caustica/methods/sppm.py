@@ -53,6 +53,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     evaluates_bsdfs = True   # pplastic, opaque principled: visible points weight photons by f (bsdf_visible_point)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
+    renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
                                     "aimed at the mirrors, glass and glossy objects, if any, when --caustic-photons is not "

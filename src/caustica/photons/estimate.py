@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from ..bsdfs import eval_pdf
+from ..bsdfs import eval_photon
 from ..jit import kernel
 from .kdtree import KdTree, knn
 
@@ -77,7 +77,7 @@ def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2, bsdf):
         for j in range(count):
             i = scratch_idx[j]
             wi = (-float(pmap.direction[i, 0]), -float(pmap.direction[i, 1]), -float(pmap.direction[i, 2]))
-            f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+            f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
             w = filter_weight(filt, scratch_d2[j], r2) * f_scale
             s0 += w * f[0] * pmap.power[i, 0]
             s1 += w * f[1] * pmap.power[i, 1]

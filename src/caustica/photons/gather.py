@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, \
-    oriented, resolve
+    oriented, resolve, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance, radiance_at_hit
@@ -44,8 +44,8 @@ from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import BLEND, NULL, PLASTIC, ROUGHPLASTIC
-from ..transport import ShadingPoint, borrow_tables, with_tangent
+from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
+from ..transport import ShadingPoint, borrow_tables, unwrap, with_tangent
 from .estimate import flux_density
 from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
 
@@ -79,8 +79,11 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     (gmap, cmap), (k_g, r_g, k_c, r_c, filt), (idx, d2) = lookup
     n_strata, fixed_grid, _ = params
     E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b, bsdf)
-    Eg, _ = flux_density(gmap, at.p, at.ns, k_g, r_g, filt, idx, d2, bsdf)
-    Ec, _ = flux_density(cmap, at.p, at.ns, k_c, r_c, filt, idx, d2, bsdf)
+    facing = at.ns   # the same-side test's normal: the geometric one under a map (the records carry theirs)
+    if bsdf is not None and wrapped(bsdf[0], bsdf[1]):
+        facing = at.ng
+    Eg, _ = flux_density(gmap, at.p, facing, k_g, r_g, filt, idx, d2, bsdf)
+    Ec, _ = flux_density(cmap, at.p, facing, k_c, r_c, filt, idx, d2, bsdf)
     queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
 
@@ -89,7 +92,8 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
 def camera_surface(geom, mats, hit, o, d, key, dim):
     """The surface a camera ray from o along d meets at ``hit`` = (prim, t, b1, b2): (p, ng, ns, front, m, uv, passed,
     dim), a blend resolved to one of its parts with one number; ``passed``: that part is null, the ray goes on (a
-    scene with a mask or null has media)."""
+    scene with a mask or null has media); a normal or bump map resolved to its nested material, ns perturbed
+    (:func:`caustica.transport.unwrap`)."""
     prim, t, b1, b2 = hit
     p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
     front = vec.dot(d, ng) < 0.0
@@ -99,6 +103,8 @@ def camera_surface(geom, mats, hit, o, d, key, dim):
     if mats.kind[m] == BLEND:
         m, dim = resolve(mats, m, uv, key, dim)
         passed = mats.kind[m] == NULL
+    if has(mats, NORMALMAP) and mats.kind[m] == NORMALMAP or has(mats, BUMPMAP) and mats.kind[m] == BUMPMAP:
+        m, ns, uv = unwrap(geom, mats, prim, (o, d, t, b1, b2), m, (ng, ns))
     if has(mats, ANISOTROPIC) and needs_tangent(mats, m):
         uv = with_tangent(geom, prim, (o, d, t, b1, b2), surface_uv(geom, prim, o, d, t, b1, b2))
     return p, ng, ns, front, m, uv, passed, dim
@@ -195,9 +201,11 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             if not scatters:
                 break
             flags = mats.flags[m]
+            wrap = wrapped(mats, m)   # under a normal or bump map
             at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
-            if has(mats, GLOSSY_LOBES) and flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
-                # a glossy surface: no estimate here, the path goes on by the BSDF's sample (as SPPM's camera paths)
+            if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrap) and not flags & DIFFUSE_REFLECTION:
+                # a glossy surface (or a mirror or glass under a map): no estimate here, the path goes on by the
+                # BSDF's sample (as SPPM's camera paths)
                 depth += 1
                 if depth > max_specular:
                     break
@@ -207,7 +215,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 last = (lobe & DELTA != 0, pdf, p)
                 o, d = vec.offset_origin(p, ng, wi), wi
                 continue
-            if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
+            if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC and not wrap:
                 # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
                 take_coat, (wc, P, w_coat, A), L, pdf, _, dim = rough_coating_step(
                     tables, at, m, d, (L, beta), (False, (key, key, key, 0), dim), depth >= max_specular)
@@ -223,9 +231,10 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 queries += q
                 L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
                 break
-            if has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
-                # a glossy lobe beside a diffuse one (pplastic, principled): no lobe to split off; the estimate here
-                # weighs each shadow ray and photon by the BSDF's f(d, wi), both lobes (as sppm's visible points)
+            if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
+                # a glossy lobe beside a diffuse one (pplastic, principled), or any diffuse lobe under a map: no lobe
+                # to split off; the estimate here weighs each shadow ray and photon by the BSDF's f(d, wi), both
+                # lobes, in the perturbed frame (as sppm's visible points)
                 E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key,
                                              dim)
                 queries += q
@@ -318,7 +327,7 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
             Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, None)
             Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, None)
         else:
-            bsdf = bsdf_point(mats, rows, i, n)
+            bsdf = bsdf_point(mats, rows, i)
             Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, bsdf)
             Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, bsdf)
         knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)

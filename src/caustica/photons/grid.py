@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import eval_pdf
+from ..bsdfs import eval_photon
 from ..jit import kernel
 from .kdtree import FACING_COS
 
@@ -159,7 +159,7 @@ def grid_range_sum(grid, qp, qn, r, bsdf):
 
     The same sidedness rule as the kd-tree's searches.  Returns (count, (Σ_0, Σ_1, Σ_2)), float64 sums.
     With ``bsdf`` = (mats, m, d, ng, ns, uv) each event's power is weighted by material m's BSDF value
-    f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_pdf`: the visible point's own,
+    f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_photon`: the visible point's own,
     the camera path arriving along d); with ``bsdf`` None, plain sums (a separate compilation: Numba prunes the
     ``bsdf is not None`` branch, so the plain sum's code is what it was before BSDFs were weighed here).
     """
@@ -212,7 +212,7 @@ def grid_range_sum(grid, qp, qn, r, bsdf):
                             if bsdf is not None:
                                 wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]),
                                       -float(grid.direction[j, 2]))
-                                f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+                                f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
                                 s0 += pw[j, 0] * f[0] * f_scale
                                 s1 += pw[j, 1] * f[1] * f_scale
                                 s2 += pw[j, 2] * f[2] * f_scale

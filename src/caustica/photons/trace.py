@@ -22,6 +22,10 @@ own fixed slots, so the maps are identical for any thread count.
   At a BSDF with a delta coating over a diffuse lobe (plastic) the photon is stored with its power times
   the lobe's factor B on the light's side (:func:`caustica.bsdfs.coat`), then continues by sampling a lobe:
   the coating's reflection is a specular event, but the records after it are INDIRECT.
+* Under a normal or bump map (:mod:`caustica.bsdfs.perturb`) the photon scatters in the perturbed frame with the
+  adjoint weight (:func:`caustica.bsdfs.photon_shading`: the terminator's shadowing falls on its arriving side);
+  its records there carry the geometric normal, for the same-side test, and no coating's factor: the visible
+  points there weight each photon by the whole BSDF in their own perturbed frame.
 
 What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
@@ -31,7 +35,7 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 from __future__ import annotations
 
 from ..features import has
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, oriented, sample
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, oriented, photon_shading, sample, sample_kind, wrapped
 from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
 from ..geometry import vec
@@ -67,11 +71,17 @@ def bounce(mats, m, d, at, key, dim, termination):
     material's colour (a rough coating over a black base, a metal) what that lobe keeps, so a photon's power stays
     about what it was and no lobe that reflects light loses all its photons.
 
+    On a normal or bump map's nested row the weight is the adjoint one (:func:`caustica.bsdfs.photon_shading`).
+
     Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
     was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
     """
     ng, ns, uv = at
-    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, uv, key, dim)
+    if wrapped(mats, m):   # a normal or bump map's nested row: the photon's own weight (its shadowing on -d's side)
+        ok, wi, weight, _, lobe, _, dim = sample_kind(mats, m, d, ng, ns, uv, key, dim)
+        weight = vec.mul(weight, photon_shading(mats, m, ng, ns, vec.neg(d), wi))
+    else:
+        ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, uv, key, dim)
     if lobe & DELTA:
         return ok, wi, weight, 1.0, True, dim
     u = uniform(key, dim)
@@ -120,7 +130,11 @@ def scatter_photon(media, medium, d, key, dim, power, roulette):
 @kernel(inline=True)
 def coated(mats, m):
     """Whether material m is a coated diffuse lobe (plastic, roughplastic), whose photons carry its factor B
-    (:func:`caustica.bsdfs.entry`: what of the light arriving enters the coating) in their records."""
+    (:func:`caustica.bsdfs.entry`: what of the light arriving enters the coating) in their records.  Not under a
+    normal or bump map: visible points there weight each photon by the whole BSDF (api.check_bsdfs refuses a delta
+    coating there)."""
+    if wrapped(mats, m):
+        return False
     if has(mats, PLASTIC) and mats.flags[m] & DELTA:
         return True
     return has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC
@@ -136,7 +150,7 @@ def record_factor(geom, mats, hit, d):
     factor = entry(mats, m, -vec.dot(d, ns)) if coated(mats, m) else 1.0
     if has(mats, MASK) or has(mats, BLEND):   # (no code for a mixture in a scene without one)
         own = geom.prim_material[prim]
-        if own != m:
+        if own != m and (mats.kind[own] == MASK or mats.kind[own] == BLEND):   # (not a normal or bump map's row)
             factor /= storing_probability(mats, own, uv, (front, ng, ns))
     return factor
 
@@ -205,7 +219,7 @@ def trace_one(tables, key, photon, rules, out):
         if mats.flags[m] & DIFFUSE_REFLECTION:
             if scattered and stored < slots:
                 store_record(slot0 + stored, p, d, record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
-                             ns, INDIRECT if diffuse_like else CAUSTIC, buf)
+                             ng if wrapped(mats, m) else ns, INDIRECT if diffuse_like else CAUSTIC, buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break

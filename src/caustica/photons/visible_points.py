@@ -73,7 +73,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
-    delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating
+    delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -91,7 +91,7 @@ from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, 
 
 INV_PI = 1.0 / math.pi
 #: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates.
-BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_COLUMNS = 0, 1, 4, 7, 15
+BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_NS, BSDF_COLUMNS = 0, 1, 4, 7, 15, 18
 
 
 @kernel(inline=True)
@@ -242,6 +242,7 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     for k in range(3):
         rows[i, BSDF_INCOMING + k] = d[k]
         rows[i, BSDF_NG + k] = at.ng[k]
+        rows[i, BSDF_NS + k] = at.ns[k]
     for k in range(8):
         rows[i, BSDF_UV + k] = at.uv[k]
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
@@ -253,12 +254,12 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
 
 
 @kernel
-def bsdf_point(mats, rows, i, ns):
+def bsdf_point(mats, rows, i):
     """(mats, m, d, ng, ns, uv): visible point i's BSDF as :func:`caustica.photons.grid.grid_range_sum` weighs with it,
     from its row of :attr:`VisiblePoints.bsdf` (:func:`bsdf_visible_point` writes it)."""
     r = rows[i]
     return (mats, int(r[BSDF_MATERIAL]), (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
-            (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), ns,
+            (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), (r[BSDF_NS], r[BSDF_NS + 1], r[BSDF_NS + 2]),
             (r[BSDF_UV], r[BSDF_UV + 1], r[BSDF_UV + 2], r[BSDF_UV + 3], r[BSDF_UV + 4], r[BSDF_UV + 5], r[BSDF_UV + 6],
              r[BSDF_UV + 7]))
 
@@ -387,7 +388,9 @@ def visible_point(tables, o, d, numbers, params, out):
             return False, zero, zero, zero, L, n_seg
         at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
         flags = mats.flags[m]
-        if has(mats, GLOSSY_LOBES) and flags & SMOOTH and not flags & DIFFUSE_REFLECTION:
+        wrap = wrapped(mats, m)   # under a normal or bump map: at.ns is the perturbed normal
+        if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrap) and not flags & DIFFUSE_REFLECTION:
+            # a glossy surface, or a mirror or glass under a map (sampled with the terminator's shadowing)
             depth += 1
             if depth > max_specular:
                 return False, zero, zero, zero, L, n_seg
@@ -399,6 +402,11 @@ def visible_point(tables, o, d, numbers, params, out):
         else:
             take_coat, coating = False, (zero, -1.0, zero, zero)   # (wc, P, w_coat, A): P < 0 without a coating
             pdf_coat = 0.0   # a glossy coating's sampled direction's density
+            if wrap:
+                # a diffuse lobe under a map: the visible point evaluates the BSDF in its perturbed frame; its
+                # normal for the same-side test is the geometric one (the photons' records carry theirs)
+                return True, p, ng, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
+                    n_seg
             if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
                 # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
                 take_coat, coating, L, first_glass, dim = coating_step(
@@ -484,9 +492,10 @@ def camera_pass(scene, settings, pass_index, bar=None):
     if scene.has_media:
         check_segment_memory(n)
     flags, kinds = scene.materials.flags, scene.materials.kind
-    evaluating = np.any((flags & GLOSSY != 0) & (flags & DIFFUSE_REFLECTION != 0) & (kinds != ROUGHPLASTIC))
+    evaluating = np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & (kinds != ROUGHPLASTIC)
+                                                            | (scene.materials.wrapped != 0)))
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)))   # 120 B a pixel
+                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)))   # 144 B a pixel
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
     keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
