@@ -22,7 +22,7 @@ from .features import has
 from .jit import borrowed, kernel
 from .bsdfs.flags import ANISOTROPIC, TEXTURED
 from .bsdfs.mixtures import resolve
-from .bsdfs.perturb import perturbed_normal
+from .bsdfs.perturb import both_normals, perturbed_normal
 from .bsdfs.textures import needs_tangent, needs_uv
 from .media import cross_null
 from .scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL
@@ -111,6 +111,19 @@ def unwrap(geom, mats, prim, ray, m, normals):
     uv = surface_uv(geom, prim, o, d, t, b1, b2)
     dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
     return mats.nested[m, 0], perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv), uv
+
+
+@kernel
+def map_frames(geom, mats, prim, ray):
+    """Where ``ray`` = (o, d, t, b1, b2) meets primitive prim under a normal or bump map: (the map's normal, its
+    mirror about the unperturbed shading normal, that normal), all on the front (:func:`caustica.bsdfs.perturb
+    .both_normals`): what a photon needs to take Mitsuba's flip by the side it leaves towards."""
+    o, d, t, b1, b2 = ray
+    _, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
+    uv = surface_uv(geom, prim, o, d, t, b1, b2)
+    dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
+    n_map, n_mirror = both_normals(mats, geom.prim_material[prim], ng, ns, uv, dp_du, dp_dv)
+    return n_map, n_mirror, ns
 
 
 @kernel

@@ -64,10 +64,10 @@ def height_gradient(table, t, uv):
     return ((a[t, TO_UV] * dx + a[t, TO_UV + 3] * dy) * w, (a[t, TO_UV + 1] * dx + a[t, TO_UV + 4] * dy) * h)
 
 
-@kernel
-def perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv):
-    """Wrapper m's shading normal (world space) for a ray along d meeting a surface with front normals ng, ns,
-    surface coordinates uv and position partials dp_du, dp_dv (see the module's docstring)."""
+@kernel(inline=True)
+def map_normal(mats, m, ng, ns, uv, dp_du, dp_dv):
+    """Wrapper m's normal before Mitsuba's flip, in the shading frame (s, t, ns) of a surface with front normals
+    ng, ns, surface coordinates uv and position partials dp_du, dp_dv: (s, t, its (s, t, n) components)."""
     s = vec.sub(dp_du, vec.mul(ns, vec.dot(ns, dp_du)))
     if vec.dot(s, s) > 0.0:
         s = vec.normalize(s)
@@ -88,10 +88,35 @@ def perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv):
     else:
         c = texture_rgb(table, x, (uv[0], uv[1]))
         local = (2.0 * c[0] - 1.0, 2.0 * c[1] - 1.0, 2.0 * c[2] - 1.0)
+    return s, t, local
+
+
+@kernel
+def perturbed_normal(mats, m, d, ng, ns, uv, dp_du, dp_dv):
+    """Wrapper m's shading normal (world space) for a ray along d meeting a surface with front normals ng, ns,
+    surface coordinates uv and position partials dp_du, dp_dv (see the module's docstring)."""
+    s, t, local = map_normal(mats, m, ng, ns, uv, dp_du, dp_dv)
     wi = vec.neg(d)
     if vec.dot(wi, ns) * vec.dot(wi, vec.from_local(s, t, ns, local)) <= 0.0:
         local = (-local[0], -local[1], local[2])
     return vec.normalize(vec.from_local(s, t, ns, vec.normalize(local)))
+
+
+@kernel
+def both_normals(mats, m, ng, ns, uv, dp_du, dp_dv):
+    """Wrapper m's two possible shading normals (world space): the map's, and the map's mirrored about ns (its
+    (s, t) components negated), one of which Mitsuba's flip picks by the camera's side (:func:`flip_side`)."""
+    s, t, local = map_normal(mats, m, ng, ns, uv, dp_du, dp_dv)
+    mirrored = (-local[0], -local[1], local[2])
+    return (vec.normalize(vec.from_local(s, t, ns, vec.normalize(local))),
+            vec.normalize(vec.from_local(s, t, ns, vec.normalize(mirrored))))
+
+
+@kernel(inline=True)
+def flip_side(n_map, ns, w):
+    """Which of :func:`both_normals` Mitsuba's flip gives a camera path arriving from w (towards the camera): 0 the
+    map's normal n_map, 1 its mirror, where w lies on different sides of ns and n_map."""
+    return 1 if vec.dot(w, ns) * vec.dot(w, n_map) <= 0.0 else 0
 
 
 @kernel(inline=True)
@@ -116,8 +141,9 @@ def wrapped(mats, m):
 @kernel(inline=True)
 def photon_shading(mats, m, ng, ns, wo, wi):
     """What a photon's weight f cos / pdf from wrapper's nested row m (sampled as a camera path samples it, without
-    the terminator's shadowing: :func:`caustica.bsdfs.sample_kind`; shading normal ns) is multiplied by when the
-    photon arrives from wo (towards the light) and leaves along wi.
+    the terminator's shadowing: :func:`caustica.bsdfs.sample_kind`; shading normal ns, the one Mitsuba's flip gives
+    wi: :func:`caustica.photons.trace.wrapped_bounce` sees to that) is multiplied by when the photon arrives from wo
+    (towards the light) and leaves along wi.
 
     Mitsuba's BSDF f_M(wi, wo) = f cos_s(wo) G(wo) holds the shading cosine and the terminator's shadowing G on the
     light's side, wo (:func:`terminator`, where the row has it); a photon carries flux, whose density on a surface

@@ -22,8 +22,9 @@ own fixed slots, so the maps are identical for any thread count.
   At a BSDF with a delta coating over a diffuse lobe (plastic) the photon is stored with its power times
   the lobe's factor B on the light's side (:func:`caustica.bsdfs.coat`), then continues by sampling a lobe:
   the coating's reflection is a specular event, but the records after it are INDIRECT.
-* Under a normal or bump map (:mod:`caustica.bsdfs.perturb`) the photon scatters in the perturbed frame with the
-  adjoint weight (:func:`caustica.bsdfs.photon_shading`: the terminator's shadowing falls on its arriving side);
+* Under a normal or bump map (:mod:`caustica.bsdfs.perturb`) the photon scatters with the adjoint of Mitsuba's BSDF
+  (:func:`wrapped_bounce`: the perturbed normal Mitsuba's flip picks by the side it leaves to, the terminator's
+  shadowing on its arriving side, the shading and geometric cosines exchanged);
   its records there carry the geometric normal, for the same-side test, and no coating's factor: the visible
   points there weight each photon by the whole BSDF in their own perturbed frame.
 
@@ -35,7 +36,9 @@ INDIRECT / VOLUME_INDIRECT otherwise.
 from __future__ import annotations
 
 from ..features import has
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, oriented, photon_shading, sample, sample_kind, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, oriented, photon_shading, sample, sample_kind, \
+    wrapped
+from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
 from ..geometry import vec
@@ -43,7 +46,7 @@ from ..jit import kernel, parallel_for
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
-from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
+from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
@@ -65,24 +68,26 @@ def store_record(s, p, d, power, n, kind, buf):
 @kernel(inline=True)
 def bounce(mats, m, d, at, key, dim, termination):
     """Continue a photon from material m at ``at`` = (ng, ns, uv) (normals from :func:`caustica.bsdfs.oriented`,
-    surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette on the number after the
-    sample's (``TERMINATION_ROULETTE``: survive with probability p, power scaled by 1 / p).  p is the mean of the
-    sample's weight f cos / pdf, capped at 1: a diffuse surface's albedo, and for a lobe whose weight is not the
-    material's colour (a rough coating over a black base, a metal) what that lobe keeps, so a photon's power stays
-    about what it was and no lobe that reflects light loses all its photons.
-
-    On a normal or bump map's nested row the weight is the adjoint one (:func:`caustica.bsdfs.photon_shading`).
+    surface coordinates): its BSDF sampled, then, after a non-delta lobe, Russian roulette (:func:`survive`).
 
     Returns (alive, new direction, the BSDF's weight, the roulette's 1 / p (1 without one), delta: the lobe
     was a mirror's or glass's, dim); the power becomes power · weight · (1 / p), in that order.
     """
     ng, ns, uv = at
-    if wrapped(mats, m):   # a normal or bump map's nested row: the photon's own weight (its shadowing on -d's side)
-        ok, wi, weight, _, lobe, _, dim = sample_kind(mats, m, d, ng, ns, uv, key, dim)
-        weight = vec.mul(weight, photon_shading(mats, m, ng, ns, vec.neg(d), wi))
-    else:
-        ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, uv, key, dim)
-    if lobe & DELTA:
+    ok, wi, weight, _, lobe, _, dim = sample(mats, m, d, ng, ns, uv, key, dim)
+    return survive(ok, wi, weight, lobe & DELTA != 0, (key, dim, termination))
+
+
+@kernel(inline=True)
+def survive(ok, wi, weight, delta, numbers):
+    """:func:`bounce`'s end, after a sample (ok, wi, weight, delta lobe): after a non-delta lobe Russian roulette on
+    the number ``numbers`` = (key, dim, termination) give (``TERMINATION_ROULETTE``: survive with probability p,
+    power scaled by 1 / p).  p is the mean of the sample's weight f cos / pdf, capped at 1: a diffuse surface's
+    albedo, and for a lobe whose weight is not the material's colour (a rough coating over a black base, a metal)
+    what that lobe keeps, so a photon's power stays about what it was and no lobe that reflects light loses all its
+    photons."""
+    key, dim, termination = numbers
+    if delta:
         return ok, wi, weight, 1.0, True, dim
     u = uniform(key, dim)
     dim += 1
@@ -92,6 +97,68 @@ def bounce(mats, m, d, at, key, dim, termination):
             return False, wi, weight, 0.0, False, dim
         return ok and u < q, wi, weight, 1.0 / q, False, dim
     return ok, wi, weight, 1.0, False, dim
+
+
+@kernel(inline=True)
+def wrapped_bounce(mats, m, d, at, frames, numbers):
+    """:func:`bounce` on a normal or bump map's nested row m: the adjoint of Mitsuba's wrapped BSDF.
+
+    Mitsuba's f_M(c, l) = f cos(n_c, l) G(l) takes the perturbed normal n_c flipped by the camera's side c
+    (:func:`caustica.bsdfs.perturb.flip_side`), which the photon, arriving from l, only knows once it has chosen c.
+    ``frames`` = (the map's normal, its mirror, the unperturbed normal) (:func:`caustica.transport.map_frames`).
+
+    * Smooth lobes: the photon samples its BSDF about one of the two normals, picked with probability 1/2 (one
+      frame where they coincide), and weights c by f_M(c, l) |cos_g c| / (|cos_g l| pdf(c)) (Veach 1997, §5.3),
+      pdf the two frames' mean density and n_c Mitsuba's flip by c.
+    * Delta lobes: the BSDF sampled about both normals with the same numbers; a direction counts where its frame is
+      the one Mitsuba's flip gives it, with :func:`caustica.bsdfs.photon_shading`'s weight (one of two such picked
+      with probability 1/2, weighted twice; none: the photon ends).
+
+    ``numbers`` = (key, dim, termination)."""
+    key, dim, termination = numbers
+    ng, _, uv = at
+    n_map, n_mirror, ns0 = frames
+    light = vec.neg(d)
+    zero = (0.0, 0.0, 0.0)
+    single = vec.dot(n_map, n_mirror) >= 1.0 - 1e-12   # no tangential part: the flip changes nothing
+    weight = zero
+    if mats.flags[m] & DELTA:
+        ok, c, w, _, lobe, _, dim2 = sample_kind(mats, m, d, ng, n_map, uv, key, dim)
+        good = ok and (single or flip_side(n_map, ns0, c) == 0)
+        if not single:
+            ok_b, c_b, w_b, _, lobe_b, _, _ = sample_kind(mats, m, d, ng, n_mirror, uv, key, dim)
+            good_b = ok_b and flip_side(n_map, ns0, c_b) == 1
+            scale = 1.0
+            if good and good_b:
+                scale = 2.0
+                if uniform(key, dim2) >= 0.5:
+                    good = False
+            if good_b and not good:
+                ok, c, w, lobe = ok_b, c_b, w_b, lobe_b
+            good = good or good_b
+            w = vec.mul(w, scale)
+        dim = dim2 + 1
+        nk = n_map if flip_side(n_map, ns0, c) == 0 else n_mirror
+        if good and vec.dot(nk, light) * vec.dot(ns0, light) > 0.0:
+            weight = vec.mul(w, photon_shading(mats, m, ng, nk, light, c))
+        alive = weight[0] > 0.0 or weight[1] > 0.0 or weight[2] > 0.0   # (a photon of no power stores nothing)
+        return survive(alive, c, weight, True, (key, dim, termination))
+    k = 0
+    if not single:
+        k = 0 if uniform(key, dim) < 0.5 else 1
+        dim += 1
+    ok, c, w, _, lobe, _, dim = sample_kind(mats, m, d, ng, n_map if k == 0 else n_mirror, uv, key, dim)
+    nc = n_map if flip_side(n_map, ns0, c) == 0 else n_mirror   # Mitsuba's frame for a camera arriving from c
+    if ok and vec.dot(nc, light) * vec.dot(ns0, light) > 0.0 and vec.dot(nc, c) * vec.dot(ns0, c) > 0.0:
+        col, scale, _ = eval_pdf(mats, m, vec.neg(c), ng, nc, uv, light)
+        pdf = eval_pdf(mats, m, d, ng, n_map, uv, c)[2]
+        if not single:
+            pdf = 0.5 * (pdf + eval_pdf(mats, m, d, ng, n_mirror, uv, c)[2])
+        cg = abs(vec.dot(ng, light))
+        if pdf > 0.0 and cg > 0.0:
+            weight = vec.mul(col, scale * abs(vec.dot(nc, light)) * abs(vec.dot(ng, c)) / (cg * pdf))
+    alive = ok and (weight[0] > 0.0 or weight[1] > 0.0 or weight[2] > 0.0)
+    return survive(alive, c, weight, False, (key, dim, termination))
 
 
 @kernel(inline=True)
@@ -223,7 +290,12 @@ def trace_one(tables, key, photon, rules, out):
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+        if wrapped(mats, m):   # under a normal or bump map: Mitsuba's flip by the side the photon leaves to
+            frames = map_frames(geom, mats, prim, (o, d, t, b1, b2))
+            alive, d_new, weight, inv_q, delta, dim = wrapped_bounce(mats, m, d, (ng, ns, uv), frames,
+                                                                     (key, dim, termination))
+        else:
+            alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)

@@ -8,7 +8,8 @@ passes average them — until it reaches a diffuse surface, escapes, or exceeds
 too, where it escapes);
 at the diffuse point the direct light from every emitter is added (n × n stratified
 shadow rays per area light), and that point becomes the pixel's *visible point*:
-position, shading normal on the viewed side, and weight W = β · ρ / π (the
+position, shading normal on the viewed side (the geometric one under a normal or bump map, whose
+perturbed normal goes to the BSDF's row), and weight W = β · ρ / π (the
 throughput β of the specular chain times the diffuse BRDF), so that the photons'
 flux Φ gathered there contributes W · Φ.
 
@@ -90,7 +91,8 @@ from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, 
     first_segment_numbers, segment_inscatter, store_segment
 
 INV_PI = 1.0 / math.pi
-#: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates.
+#: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates,
+#: the shading normal (perturbed under a normal or bump map).
 BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_NS, BSDF_COLUMNS = 0, 1, 4, 7, 15, 18
 
 
@@ -231,7 +233,8 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
 
 @kernel
 def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
-    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled), made as pbrt-v4's
+    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled) or on any diffuse
+    lobe under a normal or bump map (its frame perturbed), made as pbrt-v4's
     SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the photon's
     direction) (:func:`caustica.photons.grid.grid_range_sum`), and its direct light is one light sample times f
     (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
@@ -472,14 +475,15 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
 class VisiblePoints(NamedTuple):
     """One pass's visible point of each pixel (every entry written by the camera pass)."""
     position: np.ndarray   # float64[n, 3]
-    normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side
+    normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side (ng under a normal or bump map)
     weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
     bsdf: np.ndarray       # float64[n, BSDF_COLUMNS] (or [n, 1] in a scene without such a BSDF: its first column
     #                        only, -1 everywhere): a visible point whose BSDF the gather evaluates
     #                        (:func:`bsdf_visible_point`): its material (-1: none, the others), the camera path's
-    #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates
+    #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates,
+    #                        the shading normal
 
 
 def camera_pass(scene, settings, pass_index, bar=None):
