@@ -232,7 +232,9 @@ def test_photons_take_mitsubas_flip_by_the_camera_side(mi, tilted):
     never left into the wedge between the two horizons where Mitsuba's flip still reflects).  B: light grazing from
     -x, a ceiling: Mitsuba's floor sends it nothing (every direction towards it flips the normal away from the
     light), photons flipped by their arriving side lit it at 45 % of case A's wall.  sppm's remaining bias on A is
-    its radius's blur at the wall's edges (-1.3 % at these settings, -0.35 % at a quarter of the radius)."""
+    its radius's blur at the wall's edges (-1.3 % at these settings, -0.35 % at a quarter of the radius).  The 3 %
+    allowed on A: over 8 seeds (23:40) pm's wall is 1.002 of Mitsuba's with a spread of 1.6 % a seed (0.8 % for the
+    mean of the 4 here: 3.5 standard errors), sppm's 0.987 with 0.14 % a seed."""
     cases = {"A": tilted_floor_scene('origin="1.5, 0.6, 0" target="-2, 0.5, 0" up="0, 1, 0"',
                                      '<rotate y="1" angle="90"/><translate x="-2" y="2"/>', 'x="0" y="-1" z="0"'),
              "B": tilted_floor_scene('origin="0, 0.3, 0" target="0, 2, 0" up="0, 0, 1"',
@@ -245,7 +247,8 @@ def test_photons_take_mitsubas_flip_by_the_camera_side(mi, tilted):
         scene = caustica.load_scene(tilted / f"{name}.xml")
         sppm = np.mean([caustica.render(scene, "sppm", passes=64, photons=50_000, radius=0.3, res=8, seed=s).image.mean()
                         for s in (1, 2)])
-        pm = np.mean([caustica.render(scene, "pm", photons=200_000, spp=4, res=8, seed=s).image.mean() for s in (1, 2)])
+        pm = np.mean([caustica.render(scene, "pm", photons=200_000, spp=4, res=8, seed=s).image.mean()
+                      for s in (1, 2, 3, 4)])
         means[name] = theirs, sppm, pm
     theirs, sppm, pm = means["A"]
     assert theirs > 0.05 and abs(sppm / theirs - 1) < 0.03 and abs(pm / theirs - 1) < 0.03, means
