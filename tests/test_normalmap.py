@@ -200,8 +200,8 @@ def test_records_under_an_identity_map_carry_a_plain_floors_power(tmp_path):
 
 
 TILTED_FLOOR = """<shape type="rectangle"><transform name="to_world"><scale value="2"/><rotate x="1" angle="-90"/>
-    </transform><bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="tilt.png"/>
-    <boolean name="raw" value="true"/></texture><bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.8, 0.8"/>
+    </transform><bsdf type="normalmap"><texture type="bitmap" name="normalmap">
+    <string name="filename" value="tilt.png"/><boolean name="raw" value="true"/></texture><bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.8, 0.8"/>
     </bsdf></bsdf></shape>"""
 
 
@@ -245,8 +245,8 @@ def test_photons_take_mitsubas_flip_by_the_camera_side(mi, tilted):
         theirs = np.mean([np.array(mi.render(mi.load_file(str(tilted / f"{name}.xml")), spp=2048, seed=s)).mean()
                           for s in (1, 2)])
         scene = caustica.load_scene(tilted / f"{name}.xml")
-        sppm = np.mean([caustica.render(scene, "sppm", passes=64, photons=50_000, radius=0.3, res=8, seed=s).image.mean()
-                        for s in (1, 2)])
+        sppm = np.mean([caustica.render(scene, "sppm", passes=64, photons=50_000, radius=0.3, res=8,
+                                        seed=s).image.mean() for s in (1, 2)])
         pm = np.mean([caustica.render(scene, "pm", photons=200_000, spp=4, res=8, seed=s).image.mean()
                       for s in (1, 2, 3, 4)])
         means[name] = theirs, sppm, pm

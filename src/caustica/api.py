@@ -113,10 +113,10 @@ def check_bsdfs(cls, scene) -> None:
     (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic:
     every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (every method; a stream's associated photons each resolve their own);
-    ``renders_normal_maps = True`` —
-    normalmap and bumpmap (``pt``; ``pm`` and ``sppm``, whose visible points under a map weight each photon by the
-    BSDF in the perturbed frame, except under a delta coating); ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe
-    (roughplastic: every photon method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
+    ``renders_normal_maps = True`` — normalmap and bumpmap (``pt``; ``pm`` and ``sppm``, whose visible points under
+    a map weight each photon by the BSDF in the perturbed frame, except under a delta coating);
+    ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe (roughplastic: every photon
+    method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
     reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
     estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
     direction (``sppm``, ``pm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
