@@ -114,13 +114,13 @@ def unwrap(geom, mats, prim, ray, m, normals):
 
 
 @kernel
-def map_frames(geom, mats, prim, ray):
-    """Where ``ray`` = (o, d, t, b1, b2) meets primitive prim under a normal or bump map: (the map's normal, its
-    mirror about the unperturbed shading normal, that normal), all on the front (:func:`caustica.bsdfs.perturb
-    .both_normals`): what a photon needs to take Mitsuba's flip by the side it leaves towards."""
+def map_frames(geom, mats, prim, ray, uv):
+    """Where ``ray`` = (o, d, t, b1, b2) meets primitive prim under a normal or bump map, at the surface coordinates
+    uv :func:`surface_interaction` gave: (the map's normal, its mirror about the unperturbed shading normal, that
+    normal), all on the front (:func:`caustica.bsdfs.perturb.both_normals`): what a photon needs to take Mitsuba's
+    flip by the side it leaves towards."""
     o, d, t, b1, b2 = ray
     _, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
-    uv = surface_uv(geom, prim, o, d, t, b1, b2)
     dp_du, dp_dv = surface_tangents(geom, prim, o, d, t)
     n_map, n_mirror = both_normals(mats, geom.prim_material[prim], ng, ns, uv, dp_du, dp_dv)
     return n_map, n_mirror, ns

@@ -123,10 +123,10 @@ def wrapped_bounce(mats, m, d, at, frames, numbers):
     single = vec.dot(n_map, n_mirror) >= 1.0 - 1e-12   # no tangential part: the flip changes nothing
     weight = zero
     if mats.flags[m] & DELTA:
-        ok, c, w, _, lobe, _, dim2 = sample_kind(mats, m, d, ng, n_map, uv, key, dim)
+        ok, c, w, _, _, _, dim2 = sample_kind(mats, m, d, ng, n_map, uv, key, dim)
         good = ok and (single or flip_side(n_map, ns0, c) == 0)
         if not single:
-            ok_b, c_b, w_b, _, lobe_b, _, _ = sample_kind(mats, m, d, ng, n_mirror, uv, key, dim)
+            ok_b, c_b, w_b, _, _, _, _ = sample_kind(mats, m, d, ng, n_mirror, uv, key, dim)
             good_b = ok_b and flip_side(n_map, ns0, c_b) == 1
             scale = 1.0
             if good and good_b:
@@ -134,7 +134,7 @@ def wrapped_bounce(mats, m, d, at, frames, numbers):
                 if uniform(key, dim2) >= 0.5:
                     good = False
             if good_b and not good:
-                ok, c, w, lobe = ok_b, c_b, w_b, lobe_b
+                c, w = c_b, w_b
             good = good or good_b
             w = vec.mul(w, scale)
         dim = dim2 + 1
@@ -147,7 +147,7 @@ def wrapped_bounce(mats, m, d, at, frames, numbers):
     if not single:
         k = 0 if uniform(key, dim) < 0.5 else 1
         dim += 1
-    ok, c, w, _, lobe, _, dim = sample_kind(mats, m, d, ng, n_map if k == 0 else n_mirror, uv, key, dim)
+    ok, c, _, _, _, _, dim = sample_kind(mats, m, d, ng, n_map if k == 0 else n_mirror, uv, key, dim)
     nc = n_map if flip_side(n_map, ns0, c) == 0 else n_mirror   # Mitsuba's frame for a camera arriving from c
     if ok and vec.dot(nc, light) * vec.dot(ns0, light) > 0.0 and vec.dot(nc, c) * vec.dot(ns0, c) > 0.0:
         col, scale, _ = eval_pdf(mats, m, vec.neg(c), ng, nc, uv, light)
@@ -291,7 +291,7 @@ def trace_one(tables, key, photon, rules, out):
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
         if wrapped(mats, m):   # under a normal or bump map: Mitsuba's flip by the side the photon leaves to
-            frames = map_frames(geom, mats, prim, (o, d, t, b1, b2))
+            frames = map_frames(geom, mats, prim, (o, d, t, b1, b2), uv)
             alive, d_new, weight, inv_q, delta, dim = wrapped_bounce(mats, m, d, (ng, ns, uv), frames,
                                                                      (key, dim, termination))
         else:
