@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
-"""Render every corpus scene caustica loads with caustica's pt and with Mitsuba 3 (scalar_rgb); compare.
+"""Render every corpus scene caustica loads with caustica (pt, or another method) and with Mitsuba 3
+(scalar_rgb); compare.
 
     python scripts/mitsuba_corpus_compare.py out/mitsuba-corpus [--size 64] [--cap 20] [--subset distinct]
                                              [--only SUBSTRING ...] [--markdown out/compare.md]
+                                             [--method sppm] [--mitsuba-cache out/mitsuba-cache]
 
 Both renderers render the scene as its file gives it (its sensor, its rfilter; caustica's pt takes the
 scene's <integrator> max_depth, rr_depth and hide_emitters, methods.scene_params), at the same small film:
@@ -23,7 +25,13 @@ with).  Per scene the script prints
 
 spp: each renderer first renders one seed at a few spp (after a warm-up that compiles caustica's kernels),
 then takes the largest power of two of spp that keeps its 4 seeds under ``--cap`` seconds (between 4 and
-``--max-spp``).  One render at a time, 2 threads each.
+``--max-spp``).  One render at a time, 2 threads each.  With ``--method sppm`` or ``pspm`` the unit is
+passes (each method's defaults otherwise); ``pm`` and ``spm`` scale their camera samples (spp) over one
+photon map of their default size.  The photon methods are consistent, not unbiased: at a given budget their
+radius blurs the image, which the block test sees where light changes fast.
+
+``--mitsuba-cache DIR`` keeps Mitsuba's renders (per scene, film size, cap and spp limit) so comparing
+several methods renders Mitsuba once.
 """
 from __future__ import annotations
 
@@ -90,14 +98,23 @@ def one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[0] if len(text) == 1 else text[0] + ' ' + text[1].strip()}"[:200]
 
 
-def render_caustica(scene, res, cap, max_spp):
+#: What each method's budget counts: pt's samples per pixel, the progressive photon methods' passes, or the
+#: camera samples of a one-map photon method.
+BUDGET = {"pt": "spp", "sppm": "passes", "pspm": "passes", "pm": "spp", "spm": "spp"}
+
+
+def render_caustica(scene, method, res, cap, max_spp):
     import caustica
+    unit = BUDGET[method]
+    # the first render compiles the kernels this scene's kinds of BSDF, light and medium need (seconds for a
+    # photon method); the pilot that sets the budget is the second
+    caustica.render(scene, method, res=(8, 8), seed=98, threads=2, **{unit: 1})
     t0 = time.perf_counter()
-    caustica.render(scene, "pt", spp=PILOT_SPP, res=res, seed=99, threads=2)
+    caustica.render(scene, method, res=res, seed=99, threads=2, **{unit: PILOT_SPP})
     per_spp = (time.perf_counter() - t0) / PILOT_SPP
     spp = pow2_spp(per_spp, cap, max_spp)
     t0 = time.perf_counter()
-    runs = [caustica.render(scene, "pt", spp=spp, res=res, seed=s, threads=2) for s in SEEDS]
+    runs = [caustica.render(scene, method, res=res, seed=s, threads=2, **{unit: spp}) for s in SEEDS]
     return [r.image.astype(np.float64) for r in runs], spp, time.perf_counter() - t0, runs[0].stats
 
 
@@ -156,6 +173,22 @@ def render_mitsuba(mi, path, res, cap, max_spp, notes):
     return images, spp, time.perf_counter() - t0
 
 
+def cached_mitsuba(cache, rel, res, cap, max_spp, render):
+    """Mitsuba's (images, spp, seconds) for this scene and budget, from ``cache`` (a folder) or ``render()``."""
+    if cache is None:
+        return render()
+    key = cache / f"{rel.replace('/', '__')[:-4]}__{res[0]}x{res[1]}__cap{cap:g}__max{max_spp}.npz"
+    if key.is_file():
+        with np.load(key) as z:
+            return list(z["images"]), int(z["spp"]), float(z["seconds"])
+    images, spp, seconds = render()
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = key.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, images=np.stack(images), spp=spp, seconds=seconds)
+    tmp.replace(key)
+    return images, spp, seconds
+
+
 def blocks_beyond(a_images, b_images, b: int) -> tuple[int, int, str]:
     """Block values (blocks x channels) of b x b pixels beyond imagestats' bound; their count; the worst."""
     h, w = a_images[0].shape[:2]
@@ -210,6 +243,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", default=None, help="only scenes whose path contains one of these")
     ap.add_argument("--markdown", type=Path)
     ap.add_argument("--save", type=Path, help="save each scene's mean images here (.npz) for inspection")
+    ap.add_argument("--method", choices=sorted(BUDGET), default="pt", help="caustica's method (default pt)")
+    ap.add_argument("--mitsuba-cache", type=Path, help="keep Mitsuba's renders in this folder and reuse them")
     args = ap.parse_args(argv)
 
     import drjit as dr
@@ -241,14 +276,15 @@ def main(argv=None) -> int:
             continue
         res = small_res(scene.width, scene.height, args.size)
         row = dict(scene=rel, res=f"{res[0]}x{res[1]}")
-        if not warmed:   # compile pt's kernels once, outside every scene's timing
+        if not warmed:   # compile the method's kernels once, outside every scene's timing
             try:
-                caustica.render(scene, "pt", spp=1, res=(8, 8), seed=0, threads=2)
+                caustica.render(scene, args.method, res=(8, 8), seed=0, threads=2, **{BUDGET[args.method]: 1})
             except Exception:
                 pass
             warmed = True
         try:
-            ours, row["spp_c"], row["t_c"], info = render_caustica(scene, res, args.cap, args.max_spp)
+            ours, row["spp_c"], row["t_c"], info = render_caustica(scene, args.method, res, args.cap,
+                                                                        args.max_spp)
             row["note"] = info.get("integrator_note") or ""
             if res[0] * scene.height != res[1] * scene.width:
                 row["note"] = (row["note"] + f"; aspect ratio changed from {scene.width}x{scene.height}").strip("; ")
@@ -261,7 +297,9 @@ def main(argv=None) -> int:
         counts["rendered"] += 1
         try:
             notes = [row["note"]] if row["note"] else []
-            theirs, row["spp_m"], row["t_m"] = render_mitsuba(mi, path, res, args.cap, args.max_spp, notes)
+            theirs, row["spp_m"], row["t_m"] = cached_mitsuba(
+                args.mitsuba_cache, rel, res, args.cap, args.max_spp,
+                lambda: render_mitsuba(mi, path, res, args.cap, args.max_spp, notes))
             row["note"] = "; ".join(notes)
         except Exception as exc:
             row.update(verdict="mitsuba-failed", error=one_line(exc))
@@ -281,13 +319,15 @@ def main(argv=None) -> int:
             np.savez_compressed(args.save / (short.replace("/", "__")[:-4] + ".npz"),
                                 caustica=np.mean(ours, axis=0), mitsuba=np.mean(theirs, axis=0),
                                 caustica_seeds=np.stack(ours), mitsuba_seeds=np.stack(theirs))
-        print(f"{row['verdict']:8} {rel} {row['res']}: caustica {row['spp_c']} spp x4 {row['t_c']:.1f} s, "
+        print(f"{row['verdict']:8} {rel} {row['res']}: caustica {row['spp_c']} {BUDGET[args.method]} x4 "
+              f"{row['t_c']:.1f} s, "
               f"Mitsuba {row['spp_m']} spp x4 {row['t_m']:.1f} s; mean {row['mean_c']:.4g} vs {row['mean_m']:.4g} "
               f"({100 * row['rel']:+.1f} % +- {100 * row['se_rel']:.1f}); 4x4 blocks out {row['out4']}/{row['n4']}, "
               f"16x16 out {row['out16']}/{row['n16']}; worst {row['worst']}"
               + (f"; note: {row['note']}" if row["note"] else ""), flush=True)
 
-    head = (f"date {datetime.date.today().isoformat()}; caustica {caustica_commit()}; Mitsuba {mi.__version__} "
+    head = (f"date {datetime.date.today().isoformat()}; caustica {caustica_commit()} --method {args.method} "
+            f"({BUDGET[args.method]} below); Mitsuba {mi.__version__} "
             f"scalar_rgb; size {args.size}; cap {args.cap:g} s; subset {args.subset}")
     summary = (f"{counts['scenes']} scenes: {counts['load']} load, {counts['skipped']} skipped as near-duplicates, "
                f"{counts['rendered']} rendered by caustica ({counts['failed']} failed), "
@@ -298,7 +338,7 @@ def main(argv=None) -> int:
     print(summary)
     if args.markdown:
         md = [head, "", summary, "",
-              "| scene | res | caustica spp x4, s | Mitsuba spp x4, s | mean caustica | mean Mitsuba | rel. diff (SE) "
+              f"| scene | res | caustica {BUDGET[args.method]} x4, s | Mitsuba spp x4, s | mean caustica | mean Mitsuba | rel. diff (SE) "
               "| 4x4 blocks out | 16x16 blocks out | verdict |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for r in rows:
