@@ -35,8 +35,8 @@ ESTIMATE_PARAMS = (
           positive, ">= 1", max=64),
     Param("fixed_light_grid", bool, False,
           "use the n x n grid's cell centres (the paper's 25 point lights) instead of jittered samples"),
-    Param("max_specular_depth", int, 16, "mirror, glass and glossy bounces of a camera ray", non_negative, ">= 0",
-          max=1024),
+    Param("max_specular_depth", int, 64, "mirror, glass and glossy bounces of a camera ray (a photon's cap is "
+          "the same 64)", non_negative, ">= 0", max=1024),
 )
 
 #: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
