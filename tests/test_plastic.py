@@ -356,7 +356,8 @@ def test_a_refusal_is_alone_on_stderr_under_a_scene_integrator(cli, tmp_path):
     refused = '<bsdf type="blendbsdf"><bsdf type="roughplastic"/><bsdf type="diffuse"/></bsdf>'   # by sppm
     path = write_scene(tmp_path, refused)
     path.write_text(path.read_text().replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
-                                             '<integrator type="volpath"/>'))
+                                             '<integrator type="volpath"><integer name="max_depth" value="3"/>'
+                                             '</integrator>'))
     code, _, err = cli("render", path, "-m", "sppm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2 and err.count("\n") == 1 and err.startswith("caustica: error: "), err
     path.write_text(path.read_text().replace(refused, '<bsdf type="diffuse"/>'))

@@ -65,8 +65,8 @@ def test_grid_range_sum_matches_brute_force(n):
     valid = (rng.uniform(size=n) < 0.8).astype(np.int8)
     box = np.array([-2.0, -2.0, -2.0, 3.0, 3.0, 3.0])
     for cell in (0.05, 0.3, 2.0):
-        grid = build_grid(pos, power, nrm, valid, box, cell)
-        weighted = build_grid(pos, power, nrm, valid, box, cell, direction)
+        grid, _ = build_grid(pos, power, nrm, valid, box, cell)
+        weighted, _ = build_grid(pos, power, nrm, valid, box, cell, direction)
         assert grid.count == valid.sum() and grid.direction.shape == (0, 3)
         for _ in range(40):
             q = rng.uniform(-2.5, 3.5, 3)
@@ -76,11 +76,11 @@ def test_grid_range_sum_matches_brute_force(n):
             d2 = ((pos.astype(np.float64) - q) ** 2).sum(axis=1)
             take = (valid == 1) & (d2 <= r * r) & (nrm.astype(np.float64) @ qn > FACING_COS)
             n_q = (qn[0], qn[1], qn[2])
-            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), n_q, r, None)
+            count, s = grid_range_sum(grid, (q[0], q[1], q[2]), n_q, r, None, None)
             assert count == take.sum()
             np.testing.assert_allclose(s, power[take].astype(np.float64).sum(axis=0), rtol=1e-9, atol=1e-9)
             d = (-qn[0], -qn[1], -qn[2])   # the camera path arriving straight down the normal
-            count, s = grid_range_sum(weighted, (q[0], q[1], q[2]), n_q, r, (mats, 0, d, n_q, n_q, NO_UV))
+            count, s = grid_range_sum(weighted, (q[0], q[1], q[2]), n_q, r, (mats, 0, d, n_q, n_q, NO_UV), None)
             lit = take & (direction.astype(np.float64) @ qn < 0.0)   # arriving from the normal's side
             assert count == take.sum()
             np.testing.assert_allclose(s, power[lit].astype(np.float64).sum(axis=0) * rho / math.pi, rtol=1e-6,

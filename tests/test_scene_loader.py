@@ -824,6 +824,11 @@ def test_integrator_note_says_what_caustica_does_with_the_scenes_integrator(tmp_
     note = d.integrator_note("pt", {"max_depth": -1, "rr_depth": 5})
     assert "asks for max_depth=5; pt runs with max_depth=-1 (a setting given to pt wins" in note, note
     assert load_strict(tmp_path, '<integrator type="path"/>').integrator_note("spm", {}) is None
+    # sppm takes max_depth: a note only when it runs with another
+    assert d.integrator_note("sppm", {"max_depth": 5, "hide_emitters": False}) is None
+    note = d.integrator_note("sppm", {"max_depth": -1, "hide_emitters": False})
+    assert note.endswith("asks for max_depth=5, which --method sppm does not read here (its paths are as long as "
+                         "its own settings allow)"), note
     # no <integrator>: nothing to say
     assert load_strict(tmp_path, "").integrator_note("pt", {}) is None
     assert load_scene_description("cornell-diacaustic").integrator_note("pt", {"max_depth": -1}) is None

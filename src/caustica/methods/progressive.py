@@ -38,7 +38,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass
+from ..photons.visible_points import BSDF_MATERIAL, UNLIMITED_DEPTH, bsdf_point, camera_pass, depth_limit
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -146,11 +146,13 @@ CELL_PER_RADIUS = 2.0
 
 
 @kernel(inline=True)
-def _gather_at(grid, points, radius, out, i):
+def _gather_at(grid, points, radius, out, i, depth):
     """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (the pass's
     :class:`~caustica.photons.visible_points.VisiblePoints`, the material table), both borrowed, into ``out`` =
     (flux, count) at i.  Where the point's material is >= 0 each event's power is weighted by that BSDF at the
-    event's direction (Σ f Φ; the visible point's weight is then β)."""
+    event's direction (Σ f Φ; the visible point's weight is then β).  Under a finite max_depth, ``depth`` =
+    (max_depth, the grid's events' depths), the point takes those of depth max_depth - its segments at most; None:
+    every one."""
     vps, mats = points
     vp_pos, vp_nrm, vp_found, rows = vps.position, vps.normal, vps.found, vps.bsdf
     flux, count = out
@@ -161,36 +163,49 @@ def _gather_at(grid, points, radius, out, i):
         return
     p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-    if rows[i, BSDF_MATERIAL] < 0.0:
-        m, s = grid_range_sum(grid, p, n, radius[i], None)
+    if depth is None:   # Numba compiles the two cases apart (the None one as before depths were kept)
+        if rows[i, BSDF_MATERIAL] < 0.0:
+            m, s = grid_range_sum(grid, p, n, radius[i], None, None)
+        else:
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None)
     else:
-        m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i))
+        limit = (depth[0] - vps.segments[i], depth[1])
+        if rows[i, BSDF_MATERIAL] < 0.0:
+            m, s = grid_range_sum(grid, p, n, radius[i], None, limit)
+        else:
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit)
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
 
 
 @kernel
-def gather_flux(grid, points, radius, out, i0, i1):
+def gather_flux(grid, points, radius, out, depth, i0, i1):
     """Σ Φ and the number of this pass's events within radius[i] of visible point i, for i in [i0, i1) (0 without
-    one): :func:`_gather_at`."""
+    one): :func:`_gather_at` (``depth`` as it takes it)."""
     grid = borrowed(grid)
     points = (borrowed(points[0]), borrowed(points[1]))
     for i in range(i0, i1):
-        _gather_at(grid, points, radius, out, i)
+        _gather_at(grid, points, radius, out, i, depth)
 
 
 @kernel
-def gather_flux_two(grids, points, radii, outs, i0, i1):
+def gather_flux_two(grids, points, radii, outs, depths, i0, i1):
     """:func:`gather_flux` over two grids at once: ``grids`` = (grid, grid_c) within ``radii`` = (radius[i],
-    radius_c[i]) into ``outs`` = ((flux, count), (flux_c, count_c))."""
+    radius_c[i]) into ``outs`` = ((flux, count), (flux_c, count_c)); ``depths``: None, or each grid's ``depth``
+    as :func:`_gather_at` takes it."""
     grid, grid_c = grids
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
     points = (borrowed(points[0]), borrowed(points[1]))
-    for i in range(i0, i1):
-        _gather_at(grid, points, radii[0], outs[0], i)
-        _gather_at(grid_c, points, radii[1], outs[1], i)
+    if depths is None:
+        for i in range(i0, i1):
+            _gather_at(grid, points, radii[0], outs[0], i, None)
+            _gather_at(grid_c, points, radii[1], outs[1], i, None)
+    else:
+        for i in range(i0, i1):
+            _gather_at(grid, points, radii[0], outs[0], i, depths[0])
+            _gather_at(grid_c, points, radii[1], outs[1], i, depths[1])
 
 
 @kernel
@@ -268,8 +283,9 @@ class PassMeasurements(NamedTuple):
 class ProgressivePhotonMethod(IndependentPasses):
     """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, radius, progress)``.
 
-    ``photon_events`` returns ((position, power, normal, valid, direction) of this pass's events (the direction
-    of travel, which a visible point that evaluates its BSDF weighs with), paths emitted, stats); events with
+    ``photon_events`` returns ((position, power, normal, valid, direction[, depth]) of this pass's events (the
+    direction of travel, which a visible point that evaluates its BSDF weighs with; the depth, which a finite
+    ``max_depth`` limits, from a method that has one), paths emitted, stats); events with
     valid == 0 are empty slots, and when
     ``separate_caustics`` is true those with valid == 2 are the caustic events, gathered into
     the statistics n_caustic, radius_caustic, tau_caustic of their own; ``radius`` holds the
@@ -371,6 +387,8 @@ class ProgressivePhotonMethod(IndependentPasses):
         # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
         vps, segments, c0 = camera_pass(scene, settings, pass_index, bar)
         vp_weight, vp_found, direct = vps.weight, vps.found, vps.direct
+        max_depth = depth_limit(settings)
+        limited = max_depth != UNLIMITED_DEPTH
         points = (vps, scene.materials)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
@@ -382,8 +400,9 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         first_build = not grid_compiled()
         volume = stats.pop("volume_photons", None)
-        grid, grid_c = _event_grids(scene, events, radius_caustic, vp_found, typical,
-                                    bool(np.any(vps.bsdf[vp_found, BSDF_MATERIAL] >= 0.0)))
+        (grid, depth), (grid_c, depth_c) = _event_grids(
+            scene, events, radius_caustic, vp_found, typical,
+            (bool(np.any(vps.bsdf[vp_found, BSDF_MATERIAL] >= 0.0)), limited))
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:
@@ -395,12 +414,15 @@ class ProgressivePhotonMethod(IndependentPasses):
         t1 = time.perf_counter()
         flux_c = count_c = None
         if grid_c is None:
-            c2 = parallel_for(gather_flux, n, (grid, points, radius, (flux, count)), threads=threads)
+            c2 = parallel_for(gather_flux, n, (grid, points, radius, (flux, count),
+                                               (max_depth, depth) if limited else None), threads=threads)
         else:
             flux_c = np.empty((n, 3))
             count_c = np.empty(n, np.int64)
             c2 = parallel_for(gather_flux_two, n, ((grid, grid_c), points, (radius, radius_caustic),
-                                                   ((flux, count), (flux_c, count_c))), threads=threads)
+                                                   ((flux, count), (flux_c, count_c)),
+                                                   ((max_depth, depth), (max_depth, depth_c)) if limited else None),
+                              threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0
         if scene.has_media:   # 4. the volume: the beam radiance estimate along the camera segments
@@ -508,23 +530,27 @@ class ProgressivePhotonMethod(IndependentPasses):
         return out
 
 
-def _event_grids(scene, events, radius_caustic, vp_found, typical, directions):
+def _event_grids(scene, events, radius_caustic, vp_found, typical, keep):
     """The hash grids over a pass's photon events: one for all (kind != 0), or with ``radius_caustic``
-    the caustic events (kind 2) in a grid of their own, its cells sized by the caustic radii.  ``events`` =
-    (position, power, normal, valid[, direction]); the grids keep the directions when ``directions`` (a visible
-    point evaluates its BSDF)."""
+    the caustic events (kind 2) in a grid of their own, its cells sized by the caustic radii: ((grid, its events'
+    depths), (grid_c, its depths) or (None, None)).  ``events`` = (position, power, normal, valid, direction,
+    depth); ``keep`` = (directions, depths): the grids keep the directions when a visible point evaluates its BSDF,
+    and their events' depths come back under a finite max_depth (None otherwise)."""
     position, power, normal, valid = events[:4]
-    direction = events[4] if directions else None
+    direction = events[4] if keep[0] else None
+    depth = events[5] if keep[1] else None
     box = scene.geometry.scene_box
     if radius_caustic is None:
-        return build_grid(position, power, normal, valid, box, CELL_PER_RADIUS * typical, direction), None
-    grid = build_grid(position, power, normal, (valid == 1).view(np.int8), box, CELL_PER_RADIUS * typical, direction)
+        return build_grid(position, power, normal, valid, box, CELL_PER_RADIUS * typical, direction, depth), \
+            (None, None)
+    others = build_grid(position, power, normal, (valid == 1).view(np.int8), box, CELL_PER_RADIUS * typical,
+                        direction, depth)
     # the caustic radii shrink only where caustic events land: size the cells by those pixels
     seen_c = radius_caustic[vp_found & (radius_caustic < radius_caustic.max())]
     typical_c = float(np.median(seen_c)) if seen_c.size else typical
-    grid_c = build_grid(position, power, normal, (valid == 2).view(np.int8), box, CELL_PER_RADIUS * typical_c,
-                        direction)
-    return grid, grid_c
+    caustic = build_grid(position, power, normal, (valid == 2).view(np.int8), box, CELL_PER_RADIUS * typical_c,
+                         direction, depth)
+    return others, caustic
 
 
 def _volume_estimate(scene, settings, pass_index, volume, segments, timings, stats):

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
@@ -44,6 +45,11 @@ def photon_counts(scene, settings) -> tuple[int, int]:
     return settings["photons"] or pixels, (n_c if specular else 0)
 
 
+#: The Mitsuba integrators whose max_depth and hide_emitters sppm takes (``direct``: max_depth 2; ``ptracer``
+#: estimates the same image from the lights).
+DEPTH_INTEGRATORS = ("path", "volpath", "volpathmis", "direct", "ptracer")
+
+
 @register
 class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     name = "sppm"
@@ -65,9 +71,39 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                             "default photons in a scene with mirrors or glass, else 0)",
               non_negative, ">= 0"),
         VOLUME_RADIUS_PARAM,
+        Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
+                                    "light only); -1 = unlimited (then --max-bounces ends photons); a scene's "
+                                    "path, volpath or direct integrator sets the default in a scene without media",
+              lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
+        Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
+                                            "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
+                                            "default)"),
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 
     pass_memory_hint = "lower --photons, --caustic-photons or --max-bounces"
+
+    @staticmethod
+    def scene_defaults(description) -> dict:
+        """The scene's ``<integrator>`` settings sppm takes: Mitsuba's max_depth (``direct``: 2) and hide_emitters.
+        Not max_depth in a scene with media: the volume estimate does not count a path's segments."""
+        s = description.integrator_settings
+        if not description.integrator_source or s.type not in DEPTH_INTEGRATORS:
+            return {}
+        out = {"hide_emitters": s.hide_emitters}
+        if not description.has_volumes:
+            depth = 2 if s.type == "direct" else s.max_depth
+            if depth == 0:
+                raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even "
+                                     f"the emitters); give -1 (unlimited) or a depth of at least 1")
+            out["max_depth"] = depth
+        return out
+
+    @classmethod
+    def check(cls, scene, settings):
+        if scene.description.has_volumes and settings["max_depth"] != -1:
+            raise ParameterError(f"--max-depth {settings['max_depth']}: sppm does not limit paths in a scene with "
+                                 f"media (its volume estimate does not count their segments); --method pt does")
+        super().check(scene, settings)
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:
@@ -108,7 +144,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         bar.close()
         if not aimed and not scene.has_media:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
-            return (buf.position, buf.power, buf.normal, buf.kind, buf.direction), n, {
+            return (buf.position, buf.power, buf.normal, buf.kind, buf.direction, buf.depth), n, {
                 "timings": {"compile_s": compile_s, "photon_trace_s": time.perf_counter() - t0 - compile_s},
                 "photons_emitted": n}
         valid = np.empty(buf.kind.shape[0], np.int8)
@@ -131,4 +167,4 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
             else:
                 keep = (buf.kind == VOLUME_INDIRECT) | (buf.kind == VOLUME_CAUSTIC)
             stats["volume_photons"] = (buf.position[keep], buf.direction[keep], buf.power[keep])
-        return (buf.position, buf.power, buf.normal, valid, buf.direction), n + n_c, stats
+        return (buf.position, buf.power, buf.normal, valid, buf.direction, buf.depth), n + n_c, stats

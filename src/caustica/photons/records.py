@@ -93,16 +93,20 @@ class TraceBuffers(NamedTuple):
     power: np.ndarray
     normal: np.ndarray
     kind: np.ndarray       # int8: EMPTY, INDIRECT or CAUSTIC
+    depth: np.ndarray      # uint16: the segments of the photon's path from its light to the record (Mitsuba's
+    #                        depth: 2 after one bounce; a stream's split photon counts from its split), saturating
 
 
-SLOT_BYTES = 4 * 3 * 4 + 1
+SLOT_BYTES = 4 * 3 * 4 + 1 + 2
+#: The deepest record :attr:`TraceBuffers.depth` tells apart (deeper ones read as this).
+MAX_RECORD_DEPTH = 65535
 
 
 def allocate_buffers(n_paths: int, slots_per_path: int) -> TraceBuffers:
     n = n_paths * slots_per_path
     return TraceBuffers(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
                         np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
-                        np.zeros(n, np.int8))
+                        np.zeros(n, np.int8), np.zeros(n, np.uint16))
 
 
 def map_from_buffers(buf: TraceBuffers, kinds: tuple[int, ...]) -> PhotonMap:

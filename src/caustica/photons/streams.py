@@ -631,7 +631,8 @@ class StreamBuffers:
         valid = self.rec[7]
         keep = (valid == INDIRECT) if leave_caustics else ((valid == INDIRECT) | (valid == CAUSTIC))
         parts = self._records(estimator, keep)
-        sp, sd, spow, sn, kind = self.split
+        sp, sd, spow, sn, kind = (self.split.position, self.split.direction, self.split.power, self.split.normal,
+                                  self.split.kind)
         if kind.shape[0]:
             ok = kind != EMPTY
             parts.append((sp[ok], sd[ok], spow[ok], sn[ok]))

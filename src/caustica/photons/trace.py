@@ -31,7 +31,9 @@ own fixed slots, so the maps are identical for any thread count.
 What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
 event was a mirror, glass or glossy surface (light -> (S|G)+ -> event: what aimed caustic photons carry),
-INDIRECT / VOLUME_INDIRECT otherwise.
+INDIRECT / VOLUME_INDIRECT otherwise.  Every record keeps its depth, the segments of the photon's path from its
+light (Mitsuba's count: every scattering event, null crossings not), which sppm's gather holds against a
+finite max_depth.
 """
 from __future__ import annotations
 
@@ -48,7 +50,7 @@ from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
-from .records import CAUSTIC, INDIRECT, VOLUME_CAUSTIC, VOLUME_INDIRECT
+from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, VOLUME_CAUSTIC, VOLUME_INDIRECT
 
 SPECULAR_CAP = 64
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
@@ -56,13 +58,16 @@ TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's mean weight (a di
 
 
 @kernel(inline=True)
-def store_record(s, p, d, power, n, kind, buf):
-    """Write one photon record (position, direction of travel, power, normal, kind) into slot s of ``buf``."""
+def store_record(s, p, d, power, n, tag, buf):
+    """Write one photon record (position, direction of travel, power, normal, ``tag`` = (kind, the photon's events
+    before it)) into slot s of ``buf``; its depth is the segments from the light, events + 1 (Mitsuba's count)."""
+    kind, events = tag
     vec.set_row(buf.position, s, p)
     vec.set_row(buf.direction, s, d)
     vec.set_row(buf.power, s, power)
     vec.set_row(buf.normal, s, n)
     buf.kind[s] = kind
+    buf.depth[s] = min(events + 1, MAX_RECORD_DEPTH)
 
 
 @kernel(inline=True)
@@ -245,6 +250,7 @@ def trace_one(tables, key, photon, rules, out):
     slot0, slots, buf = out
     dim = 8
     specular_events = 0
+    events = 0   # scattering events of this photon's own path (every kind): its records' depth is events + 1
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
     crossings = stored = 0
     while True:
@@ -260,7 +266,7 @@ def trace_one(tables, key, photon, rules, out):
             p = vec.madd(o, d, t)
             if scattered and stored < slots:
                 store_record(slot0 + stored, p, d, power, (0.0, 0.0, 0.0),   # a volume photon has no normal
-                             VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, buf)
+                             (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events), buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
@@ -270,6 +276,7 @@ def trace_one(tables, key, photon, rules, out):
                 break
             o, d, crossings = p, wo, 0
             diffuse_bounces += 1
+            events += 1
             scattered = diffuse_like = True
             continue
         # ---- a surface
@@ -286,7 +293,7 @@ def trace_one(tables, key, photon, rules, out):
         if mats.flags[m] & DIFFUSE_REFLECTION:
             if scattered and stored < slots:
                 store_record(slot0 + stored, p, d, record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
-                             ng if wrapped(mats, m) else ns, INDIRECT if diffuse_like else CAUSTIC, buf)
+                             ng if wrapped(mats, m) else ns, (INDIRECT if diffuse_like else CAUSTIC, events), buf)
                 stored += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
@@ -312,6 +319,7 @@ def trace_one(tables, key, photon, rules, out):
             diffuse_bounces += 1
             diffuse_like = True
         o, d, medium = vec.offset_origin(p, ng, d_new), d_new, medium_after(media, shape, ng_front, d_new, medium)
+        events += 1
         scattered = True
     return stored
 

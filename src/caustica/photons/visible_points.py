@@ -91,6 +91,16 @@ from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, 
     first_segment_numbers, segment_inscatter, store_segment
 
 INV_PI = 1.0 / math.pi
+#: A camera path's max_depth where a render sets none (-1): more segments than any path takes.
+UNLIMITED_DEPTH = 1 << 30
+
+
+def depth_limit(settings) -> int:
+    """The render's max_depth (Mitsuba's: segments of a whole path), :data:`UNLIMITED_DEPTH` for -1 or none."""
+    m = settings.get("max_depth", -1)
+    return UNLIMITED_DEPTH if m is None or m < 0 else int(m)
+
+
 #: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates,
 #: the shading normal (perturbed under a normal or bump map).
 BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_NS, BSDF_COLUMNS = 0, 1, 4, 7, 15, 18
@@ -217,7 +227,7 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
     ``coating`` = (P, A) (:func:`caustica.bsdfs.coat`; P < 0 without one), β A / (1 - P) with each shadow ray
     weighted by the lobe's factor B (:func:`caustica.lighting.direct_stratified`)."""
     key, qkey, _, pass_index = numbers
-    n_strata, fixed_grid, _ = params
+    n_strata, fixed_grid = params[0], params[1]
     P, A = coating
     if P >= 0.0:
         w = vec.mul(vec.hadamard(beta, A), 1.0 / (1.0 - P))
@@ -341,17 +351,23 @@ def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
 
     ``numbers`` = (key, qkey, vkey, pass_index): the path's own key, the key that scrambles the pass-indexed
-    sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular).
+    sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular,
+    max_depth, hide_emitters): Mitsuba's max_depth (segments of a whole path; :data:`UNLIMITED_DEPTH` for none) ends
+    the path at a surface reached in max_depth segments once its emission is added, as Mitsuba's path integrator
+    does, and hide_emitters leaves out the emitters the camera sees first.
     The path's medium segments are written to ``out`` = (slot0, segments, pixel): slots slot0, slot0 + 1, ...;
     a visible point that evaluates its BSDF writes it to ``pixel`` (:func:`bsdf_visible_point`).
+    ``segments``, the last of what it returns, is the path's segments from the camera to the visible point (the
+    photons gathered there may take max_depth - segments more).
     """
     geom, mats, lights, media = tables
     key = numbers[0]
-    max_specular = params[2]
+    max_specular, max_depth, hide_emitters = params[2], params[3], params[4]
     L = zero = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     dim = 2
     depth = n_seg = crossings = 0
+    k = 0   # segments from the camera to the current surface (null crossings are not vertices)
     first_glass = True
     counted = False   # the next surface's emission was already added, in expectation, at the glass before it
     specular = True   # no glossy scattering yet, or a delta one since: emitters the path meets count in full
@@ -362,33 +378,35 @@ def visible_point(tables, o, d, numbers, params, out):
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         if medium >= 0:
             if n_seg >= MEDIUM_SEGMENTS:
-                return False, zero, zero, zero, L, n_seg
+                return False, zero, zero, zero, L, n_seg, k
             Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf), medium, beta, n_seg, numbers,
                                       (out[0], out[1]))
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
-            if has(lights, ENV) and lights.env[0] >= 0 and not counted:
+            if has(lights, ENV) and lights.env[0] >= 0 and not counted and (k > 0 or not hide_emitters):
                 L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
                              escape_weight(lights, d, (specular, pdf_last, p_last)))
-            return False, zero, zero, zero, L, n_seg
+            return False, zero, zero, zero, L, n_seg, k
         crossed = crossings
         ray = (o, d, t, b1, b2)
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
         e = geom.prim_emitter[prim]
-        if e >= 0 and front and not counted:
+        if nxt != CROSSED:
+            k += 1
+        if e >= 0 and front and not counted and (k > 1 or not hide_emitters):
             L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, ray)),
                          seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:
             continue
-        if nxt == TRAPPED:
-            return False, zero, zero, zero, L, n_seg
+        if nxt == TRAPPED or k >= max_depth:   # at max_depth: no light the path scatters here can count
+            return False, zero, zero, zero, L, n_seg, k
         counted = False
         ng_front = ng
         scatters, ng, ns = oriented(mats, m, front, ng, ns)
         if not scatters:
-            return False, zero, zero, zero, L, n_seg
+            return False, zero, zero, zero, L, n_seg, k
         at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
         flags = mats.flags[m]
         wrap = wrapped(mats, m)   # under a normal or bump map: at.ns is the perturbed normal
@@ -396,10 +414,10 @@ def visible_point(tables, o, d, numbers, params, out):
             # a glossy surface, or a mirror or glass under a map (sampled with the terminator's shadowing)
             depth += 1
             if depth > max_specular:
-                return False, zero, zero, zero, L, n_seg
+                return False, zero, zero, zero, L, n_seg, k
             L, alive, wi, beta, lobe, pdf_last, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
             if not alive:
-                return False, zero, zero, zero, L, n_seg
+                return False, zero, zero, zero, L, n_seg, k
             specular = lobe & DELTA != 0
             p_last = p
         else:
@@ -409,7 +427,7 @@ def visible_point(tables, o, d, numbers, params, out):
                 # a diffuse lobe under a map: the visible point evaluates the BSDF in its perturbed frame; its
                 # normal for the same-side test is the geometric one (the photons' records carry theirs)
                 return True, p, ng, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
-                    n_seg
+                    n_seg, k
             if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
                 # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
                 take_coat, coating, L, first_glass, dim = coating_step(
@@ -421,21 +439,21 @@ def visible_point(tables, o, d, numbers, params, out):
             elif has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
                 # a glossy lobe beside a diffuse one (pplastic, principled): the visible point evaluates the BSDF
                 return True, p, ns, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
-                    n_seg
+                    n_seg, k
             wc, P, w_coat, A = coating
             if flags & SMOOTH and not take_coat:
                 w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
-                return True, p, ns, w, vec.add(L, Ld), n_seg
+                return True, p, ns, w, vec.add(L, Ld), n_seg, k
             depth += 1
             if depth > max_specular:
-                return False, zero, zero, zero, L, n_seg
+                return False, zero, zero, zero, L, n_seg, k
             specular = True
             if take_coat:
                 # plastic's delta coating added its first hit's emission above; a glossy one did not
                 wi, beta, counted = wc, vec.hadamard(beta, w_coat), flags & DELTA != 0
                 if has(mats, ROUGHPLASTIC) and not counted:   # a glossy coating: its light sample was MIS-weighted
                     if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
-                        return False, zero, zero, zero, L, n_seg   # the lobe's sample fell below the surface
+                        return False, zero, zero, zero, L, n_seg, k   # the lobe's sample fell below the surface
                     specular, pdf_last, p_last = False, pdf_coat, p
             else:
                 L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta),
@@ -460,8 +478,8 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
         u1, u2 = sobol02(pass_index, qkey)
         o, d = generate_ray(cam, x, y, u1, u2, key)
         points.bsdf[i, BSDF_MATERIAL] = -1.0
-        found, p, n, w, L, n_seg = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
-                                                 (i * MEDIUM_SEGMENTS, segments, (i, points.bsdf)))
+        found, p, n, w, L, n_seg, k = visible_point(tables, o, d, (key, qkey, vkey, pass_index), params,
+                                                    (i * MEDIUM_SEGMENTS, segments, (i, points.bsdf)))
         if not math.isfinite(L[0] + L[1] + L[2]):
             L = (0.0, 0.0, 0.0)
         vec.set_row(points.position, i, p)
@@ -469,6 +487,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
         vec.set_row(points.weight, i, w)
         vec.set_row(points.direct, i, L)
         points.found[i] = found
+        points.segments[i] = k
         segments.count[i] = n_seg
 
 
@@ -484,6 +503,7 @@ class VisiblePoints(NamedTuple):
     #                        (:func:`bsdf_visible_point`): its material (-1: none, the others), the camera path's
     #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates,
     #                        the shading normal
+    segments: np.ndarray   # int32[n]: the camera path's segments to the visible point (Mitsuba's depth there)
 
 
 def camera_pass(scene, settings, pass_index, bar=None):
@@ -499,12 +519,14 @@ def camera_pass(scene, settings, pass_index, bar=None):
     evaluating = np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & (kinds != ROUGHPLASTIC)
                                                             | (scene.materials.wrapped != 0)))
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)))   # 144 B a pixel
+                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)),
+                           np.empty(n, np.int32))   # 148 B a pixel
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings["width"], settings["height"])
     keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
             pass_index)
-    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"])
+    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"],
+              depth_limit(settings), bool(settings.get("hide_emitters", False)))
     compile_s = parallel_for(visible_points, n, (scene.tables, cam, keys, params, (points, segments)),
                              threads=settings["threads"], progress=bar)
     return points, (segments if scene.has_media else None), compile_s

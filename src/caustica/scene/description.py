@@ -482,6 +482,12 @@ class SceneDescription:
         return (self.camera.medium >= 0
                 or any(s.interior >= 0 or s.exterior >= 0 or self.may_pass(s.material) for s in self.shapes))
 
+    @property
+    def has_volumes(self) -> bool:
+        """Whether the camera or a shape refers to a participating medium (null boundaries and masks alone do not
+        count, unlike :attr:`has_media`)."""
+        return self.camera.medium >= 0 or any(s.interior >= 0 or s.exterior >= 0 for s in self.shapes)
+
     def may_pass(self, m: int) -> bool:
         """Whether a ray may cross material m's surface unchanged: the null BSDF, a mask, or a blend with a null
         BSDF nested (such surfaces are crossed as a medium's boundary is, so the loops that handle media run)."""
@@ -495,25 +501,34 @@ class SceneDescription:
         ``pt`` renders what Mitsuba's ``path`` and ``volpath`` (and ``volpathmis``) render, and takes their
         ``max_depth``, ``rr_depth`` and ``hide_emitters`` (a value given to pt wins: then a note);
         ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
-        on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not), and so do
-        a ``path``'s max_depth and hide_emitters under a photon method; any other integrator (``bdpt``,
-        ...), and ``volpath`` or ``direct`` with another method, gets a note, so a scene never renders
-        differently from what it asks without the user being told.
+        on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not).  A photon method
+        gets a note for a max_depth or hide_emitters of ``path``, ``volpath``, ``direct`` or ``ptracer`` that its
+        ``parameters`` do not carry (sppm takes both, but not max_depth in a scene with media); any other
+        integrator (``bdpt``, ...) gets a note, so a scene never renders differently from what it
+        asks without the user being told.
         """
         if not self.integrator_source:
             return None
         kind, where = self.integrator, self.integrator_source
         if method != "pt":
-            if kind != "path":
+            if kind not in ("path", "volpath", "volpathmis", "direct", "ptracer"):
                 return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                         f"('caustica methods' lists them)")
             st = self.integrator_settings
-            asked = ([(f"max_depth={st.max_depth}", "its paths are as long as its own settings allow")]
-                     if st.max_depth != -1 else []) + (
-                [("hide_emitters", "the emitters the camera sees show")] if st.hide_emitters else [])
-            return None if not asked else (
-                f"integrator 'path' in {where} asks for {' and '.join(a for a, _ in asked)}, which --method "
-                f"{method} does not read ({'; '.join(why for _, why in asked)})")
+            depth = 2 if kind == "direct" else st.max_depth
+            asked = ([(f"max_depth={depth}", "its paths are as long as its own settings allow")]
+                     if depth != -1 and parameters.get("max_depth") != depth else []) + (
+                [("hide_emitters", "the emitters the camera sees show")]
+                if st.hide_emitters and not parameters.get("hide_emitters") else [])
+            if asked:
+                return (f"integrator '{kind}' in {where} asks for {' and '.join(a for a, _ in asked)}, which "
+                        f"--method {method} does not read{' here' if 'max_depth' in parameters else ''} "
+                        f"({'; '.join(why for _, why in asked)})")
+            if kind == "ptracer":
+                return f"integrator 'ptracer' in {where}: {method} renders the same image its own way"
+            return None if kind != "direct" else (
+                f"integrator 'direct' in {where}: {method} renders the same image as paths of at most two segments "
+                f"(max_depth 2)")
         if kind not in ("path", "volpath", "volpathmis", "direct", "ptracer"):
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")

@@ -1,0 +1,91 @@
+"""sppm takes Mitsuba's ``max_depth`` and ``hide_emitters`` (a scene's integrator sets them, as for pt).
+
+A path of sppm is the camera's segments to its visible point plus the segments of the photon's path gathered there
+(each record keeps its depth, :attr:`caustica.photons.records.TraceBuffers.depth`); at max_depth M a visible point
+reached in k segments gathers the records of depth M - k at most, and the camera path ends, as Mitsuba's, at a
+surface reached in M segments once its emission is added.  Checked against pt (itself checked against Mitsuba 3
+with the same depths: tests/test_pt.py, the corpus comparison of docs/scenes.md) on the diacaustic scene, whose
+camera paths through the glass sphere reach the floor in three segments, so the camera's and the photons'
+segments must be added, not counted apart.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import caustica
+from caustica.errors import ParameterError
+from caustica.scene.xml_loader import parse_scene_string
+from caustica.tables import compile_scene
+from imagestats import assert_images_agree
+
+SEEDS = (1, 2, 3, 4)
+RES = 24
+
+
+@pytest.fixture(scope="module")
+def diacaustic():
+    return caustica.load_scene("cornell-diacaustic")
+
+
+@pytest.mark.parametrize("max_depth", [2, 3, 5])
+def test_sppm_max_depth_agrees_with_pt(diacaustic, max_depth):
+    """2: direct light only (no photon counts); 3: one photon bounce at a visible point seen directly, none behind
+    the sphere (three segments to the floor through it); 5: two bounces there.  sppm's mean falls with the depth
+    as pt's does, and every 4 x 4 block agrees within imagestats' bound (5 standard errors of both sides)."""
+    pt = [caustica.render(diacaustic, "pt", spp=256, res=RES, seed=s, max_depth=max_depth).image for s in SEEDS]
+    sppm = [caustica.render(diacaustic, "sppm", passes=256, res=RES, seed=s, max_depth=max_depth).image
+            for s in SEEDS]
+    assert_images_agree(sppm, pt, label=f"sppm vs pt, max_depth {max_depth}")
+
+
+def test_sppm_unlimited_depth_is_brighter(diacaustic):
+    """The same scene without a limit gathers more light than at max_depth 5 (the limit does something)."""
+    limited = caustica.render(diacaustic, "sppm", passes=16, res=RES, seed=1, max_depth=5).image.mean()
+    unlimited = caustica.render(diacaustic, "sppm", passes=16, res=RES, seed=1).image.mean()
+    assert unlimited > 1.05 * limited
+
+
+def test_sppm_hides_the_emitters_the_camera_sees(diacaustic):
+    """hide_emitters takes away exactly what sppm at max_depth 1 sees (the emitters the camera meets first; the
+    same seed gives the same sub-pixel positions), and nothing where that is black."""
+    shown = caustica.render(diacaustic, "sppm", passes=4, res=RES, seed=1).image
+    hidden = caustica.render(diacaustic, "sppm", passes=4, res=RES, seed=1, hide_emitters=True).image
+    first = caustica.render(diacaustic, "sppm", passes=4, res=RES, seed=1, max_depth=1).image
+    assert first.max() > 0 and (first == 0).any()
+    np.testing.assert_allclose(hidden + first, shown, rtol=1e-5)
+    assert np.array_equal(hidden[first == 0], shown[first == 0])
+
+
+BOX = """<?xml version="1.0"?><scene version="3.0.0">{integrator}
+<sensor type="perspective"><float name="fov" value="60"/>
+  <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, -1" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+  <boolean name="flip_normals" value="true"/>{medium}<bsdf type="diffuse"/></shape>
+<emitter type="point"><point name="position" x="1" y="0.5" z="-0.3"/><rgb name="intensity" value="1"/></emitter>
+{media}</scene>"""
+PATH2 = '<integrator type="path"><integer name="max_depth" value="2"/><boolean name="hide_emitters" value="true"/>' \
+        '</integrator>'
+FOG = '<medium type="homogeneous" id="fog"><rgb name="sigma_t" value="0.01"/><rgb name="albedo" value="0.5"/></medium>'
+
+
+def box(integrator="", fog=False):
+    text = BOX.format(integrator=integrator, medium='<ref name="interior" id="fog"/>' if fog else "",
+                      media=FOG if fog else "")
+    return compile_scene(parse_scene_string(text, ".", None, "box.xml"))
+
+
+def test_sppm_reads_the_scenes_integrator():
+    """A path integrator's max_depth and hide_emitters become sppm's defaults, with no note; a value given wins;
+    in a scene with media max_depth is not taken (a note says so) and refused when given."""
+    r = caustica.render(box(PATH2), "sppm", passes=1, seed=1)
+    assert r.stats["parameters"]["max_depth"] == 2 and r.stats["parameters"]["hide_emitters"] is True
+    assert r.stats["integrator_note"] is None
+    r = caustica.render(box(PATH2), "sppm", passes=1, seed=1, max_depth=4)
+    assert r.stats["parameters"]["max_depth"] == 4
+    assert "max_depth=2" in r.stats["integrator_note"]
+    r = caustica.render(box(PATH2, fog=True), "sppm", passes=1, seed=1)
+    assert r.stats["parameters"]["max_depth"] == -1 and "max_depth=2" in r.stats["integrator_note"]
+    with pytest.raises(ParameterError, match="--max-depth 3: sppm does not limit paths in a scene with media"):
+        caustica.render(box(fog=True), "sppm", passes=1, seed=1, max_depth=3)
