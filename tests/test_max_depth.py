@@ -89,3 +89,6 @@ def test_sppm_reads_the_scenes_integrator():
     assert r.stats["parameters"]["max_depth"] == -1 and "max_depth=2" in r.stats["integrator_note"]
     with pytest.raises(ParameterError, match="--max-depth 3: sppm does not limit paths in a scene with media"):
         caustica.render(box(fog=True), "sppm", passes=1, seed=1, max_depth=3)
+    # a depth the photons' own cap may cut short is said
+    r = caustica.render(box(PATH2.replace('value="2"', 'value="10"')), "sppm", passes=1, seed=1)
+    assert r.stats["parameters"]["max_depth"] == 10 and "--max-bounces 4" in r.stats["integrator_note"]

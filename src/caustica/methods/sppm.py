@@ -19,6 +19,7 @@ from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
 from ..photons.trace import trace_photon_pass
+from ..scene.description import THINDIELECTRIC
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
@@ -72,8 +73,9 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
               non_negative, ">= 0"),
         VOLUME_RADIUS_PARAM,
         Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
-                                    "light only); -1 = unlimited (then --max-bounces ends photons); a scene's "
-                                    "path, volpath or direct integrator sets the default in a scene without media",
+                                    "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
+                                    "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
+                                    "the default, except with media or (volpath) a thindielectric",
               lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
         Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
                                             "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
@@ -85,12 +87,16 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     @staticmethod
     def scene_defaults(description) -> dict:
         """The scene's ``<integrator>`` settings sppm takes: Mitsuba's max_depth (``direct``: 2) and hide_emitters.
-        Not max_depth in a scene with media: the volume estimate does not count a path's segments."""
+        Not max_depth in a scene with media (the volume estimate does not count a path's segments), nor under
+        volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, sppm does); a note
+        says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
         s = description.integrator_settings
         if not description.integrator_source or s.type not in DEPTH_INTEGRATORS:
             return {}
         out = {"hide_emitters": s.hide_emitters}
-        if not description.has_volumes:
+        null_thin = s.type in ("volpath", "volpathmis") and any(m.kind == THINDIELECTRIC
+                                                                 for m in description.materials)
+        if not description.has_volumes and not null_thin:
             depth = 2 if s.type == "direct" else s.max_depth
             if depth == 0:
                 raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even "

@@ -395,7 +395,7 @@ def visible_point(tables, o, d, numbers, params, out):
         e = geom.prim_emitter[prim]
         if nxt != CROSSED:
             k += 1
-        if e >= 0 and front and not counted and (k > 1 or not hide_emitters):
+        if e >= 0 and front and not counted and (k > (0 if nxt == CROSSED else 1) or not hide_emitters):
             L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, ray)),
                          seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:

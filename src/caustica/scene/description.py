@@ -524,6 +524,13 @@ class SceneDescription:
                 return (f"integrator '{kind}' in {where} asks for {' and '.join(a for a, _ in asked)}, which "
                         f"--method {method} does not read{' here' if 'max_depth' in parameters else ''} "
                         f"({'; '.join(why for _, why in asked)})")
+            if depth != -1 and depth > parameters.get("max_bounces", depth) + 2:
+                return (f"integrator '{kind}' in {where} asks for max_depth={depth}; --method {method}'s photons end "
+                        f"after --max-bounces {parameters['max_bounces']} diffuse bounces, so its paths may be shorter "
+                        f"(raise --max-bounces)")
+            if kind == "path" and self.has_volumes:
+                return (f"integrator 'path' in {where} would ignore the scene's media in Mitsuba; {method} renders "
+                        f"them (as Mitsuba's volpath does)")
             if kind == "ptracer":
                 return f"integrator 'ptracer' in {where}: {method} renders the same image its own way"
             return None if kind != "direct" else (
