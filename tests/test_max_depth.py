@@ -57,6 +57,26 @@ def test_sppm_hides_the_emitters_the_camera_sees(diacaustic):
     assert np.array_equal(hidden[first == 0], shown[first == 0])
 
 
+# A mirror under an emitting plate with a null BSDF (the camera between them): every pixel sees the plate in the mirror.
+MIRRORED_NULL_LIGHT = """<?xml version="1.0"?><scene version="3.0.0">
+<sensor type="perspective"><float name="fov" value="40"/>
+  <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+<shape type="rectangle"><bsdf type="conductor"/></shape>
+<shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="180"/><translate z="6"/>
+  </transform><bsdf type="null"/><emitter type="area"><rgb name="radiance" value="1, 2, 3"/></emitter></shape>
+</scene>"""
+
+
+def test_sppm_shows_a_null_surfaces_emitter_seen_in_a_mirror_under_hide_emitters():
+    """A null surface is crossed, not a segment: its emitter seen after one bounce is not the camera's first hit
+    (it was hidden until 2026-12-05; pt shows it too)."""
+    scene = compile_scene(parse_scene_string(MIRRORED_NULL_LIGHT, ".", None, "mirror.xml"))
+    shown = caustica.render(scene, "sppm", passes=2, seed=1).image
+    hidden = caustica.render(scene, "sppm", passes=2, seed=1, hide_emitters=True).image
+    assert shown.mean() > 0 and np.array_equal(hidden, shown)
+
+
 BOX = """<?xml version="1.0"?><scene version="3.0.0">{integrator}
 <sensor type="perspective"><float name="fov" value="60"/>
   <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, -1" up="0, 1, 0"/></transform>
