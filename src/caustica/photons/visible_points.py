@@ -348,7 +348,8 @@ def delta_vertex(tables, at, m, d, path, branch):
 
 @kernel
 def visible_point(tables, o, d, numbers, params, out):
-    """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, segments).
+    """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, the medium
+    segments written, k).
 
     ``numbers`` = (key, qkey, vkey, pass_index): the path's own key, the key that scrambles the pass-indexed
     sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular,
@@ -357,8 +358,8 @@ def visible_point(tables, o, d, numbers, params, out):
     does, and hide_emitters leaves out the emitters the camera sees first.
     The path's medium segments are written to ``out`` = (slot0, segments, pixel): slots slot0, slot0 + 1, ...;
     a visible point that evaluates its BSDF writes it to ``pixel`` (:func:`bsdf_visible_point`).
-    ``segments``, the last of what it returns, is the path's segments from the camera to the visible point (the
-    photons gathered there may take max_depth - segments more).
+    k, the last of what it returns, is the path's segments from the camera to the visible point (the photons
+    gathered there may take max_depth - k more).
     """
     geom, mats, lights, media = tables
     key = numbers[0]
