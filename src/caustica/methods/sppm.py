@@ -24,6 +24,7 @@ from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
+from .pt import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
 from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
 
@@ -44,11 +45,6 @@ def photon_counts(scene, settings) -> tuple[int, int]:
             return pixels - pixels // 2, pixels // 2
         n_c = 0
     return settings["photons"] or pixels, (n_c if specular else 0)
-
-
-#: The Mitsuba integrators whose max_depth and hide_emitters sppm takes (``direct``: max_depth 2; ``ptracer``
-#: estimates the same image from the lights).
-DEPTH_INTEGRATORS = ("path", "volpath", "volpathmis", "direct", "ptracer")
 
 
 @register
@@ -91,11 +87,10 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, sppm does); a note
         says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
         s = description.integrator_settings
-        if not description.integrator_source or s.type not in DEPTH_INTEGRATORS:
+        if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
             return {}
         out = {"hide_emitters": s.hide_emitters}
-        null_thin = s.type in ("volpath", "volpathmis") and any(m.kind == THINDIELECTRIC
-                                                                 for m in description.materials)
+        null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
         if not description.has_volumes and not null_thin:
             depth = 2 if s.type == "direct" else s.max_depth
             if depth == 0:
