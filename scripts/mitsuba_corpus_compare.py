@@ -103,22 +103,35 @@ def one_line(exc: BaseException) -> str:
 BUDGET = {"pt": "spp", "sppm": "passes", "pspm": "passes", "pm": "spp", "spm": "spp"}
 
 
-def render_caustica(scene, method, res, cap, max_spp):
+def render_caustica(scene, method, res, cap, max_spp, settings):
     import caustica
     unit = BUDGET[method]
     # the first render compiles the kernels this scene's kinds of BSDF, light and medium need (seconds for a
     # photon method); the pilot that sets the budget is the second
-    caustica.render(scene, method, res=(8, 8), seed=98, threads=2, **{unit: 1})
+    caustica.render(scene, method, res=(8, 8), seed=98, threads=2, **settings, **{unit: 1})
     t0 = time.perf_counter()
-    caustica.render(scene, method, res=res, seed=99, threads=2, **{unit: PILOT_SPP})
+    caustica.render(scene, method, res=res, seed=99, threads=2, **settings, **{unit: PILOT_SPP})
     per_spp = (time.perf_counter() - t0) / PILOT_SPP
     spp = pow2_spp(per_spp, cap, max_spp)
     t0 = time.perf_counter()
-    runs = [caustica.render(scene, method, res=res, seed=s, threads=2, **{unit: spp}) for s in SEEDS]
+    runs = [caustica.render(scene, method, res=res, seed=s, threads=2, **settings, **{unit: spp}) for s in SEEDS]
     return [r.image.astype(np.float64) for r in runs], spp, time.perf_counter() - t0, runs[0].stats
 
 
 DEFAULT = re.compile(r"""<default\s+name\s*=\s*["']([^"']+)["']\s+value\s*=\s*["']([^"']*)["']""")
+
+
+def method_setting(text: str) -> tuple[str, object]:
+    """--set KEY=VALUE: a method setting, its value an int, a float or else a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"--set {text!r}: expected KEY=VALUE, e.g. termination=roulette")
+    for convert in (int, float):
+        try:
+            return key.replace("-", "_"), convert(value)
+        except ValueError:
+            pass
+    return key.replace("-", "_"), value
 
 
 def file_defaults(path: Path, seen=None) -> dict:
@@ -245,7 +258,11 @@ def main(argv=None) -> int:
     ap.add_argument("--save", type=Path, help="save each scene's mean images here (.npz) for inspection")
     ap.add_argument("--method", choices=sorted(BUDGET), default="pt", help="caustica's method (default pt)")
     ap.add_argument("--mitsuba-cache", type=Path, help="keep Mitsuba's renders in this folder and reuse them")
+    ap.add_argument("--set", type=method_setting, action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting of caustica's method, repeatable (e.g. --set termination=roulette "
+                         "--set max_bounces=1024)")
     args = ap.parse_args(argv)
+    settings = dict(args.set)
 
     import drjit as dr
     import mitsuba as mi
@@ -278,13 +295,14 @@ def main(argv=None) -> int:
         row = dict(scene=rel, res=f"{res[0]}x{res[1]}")
         if not warmed:   # compile the method's kernels once, outside every scene's timing
             try:
-                caustica.render(scene, args.method, res=(8, 8), seed=0, threads=2, **{BUDGET[args.method]: 1})
+                caustica.render(scene, args.method, res=(8, 8), seed=0, threads=2, **settings,
+                                **{BUDGET[args.method]: 1})
             except Exception:
                 pass
             warmed = True
         try:
             ours, row["spp_c"], row["t_c"], info = render_caustica(scene, args.method, res, args.cap,
-                                                                        args.max_spp)
+                                                                        args.max_spp, settings)
             row["note"] = info.get("integrator_note") or ""
             if res[0] * scene.height != res[1] * scene.width:
                 row["note"] = (row["note"] + f"; aspect ratio changed from {scene.width}x{scene.height}").strip("; ")
@@ -327,7 +345,8 @@ def main(argv=None) -> int:
               + (f"; note: {row['note']}" if row["note"] else ""), flush=True)
 
     head = (f"date {datetime.date.today().isoformat()}; caustica {caustica_commit()} --method {args.method} "
-            f"({BUDGET[args.method]} below); Mitsuba {mi.__version__} "
+            + "".join(f"--set {k}={v} " for k, v in settings.items())
+            + f"({BUDGET[args.method]} below); Mitsuba {mi.__version__} "
             f"scalar_rgb; size {args.size}; cap {args.cap:g} s; subset {args.subset}")
     summary = (f"{counts['scenes']} scenes: {counts['load']} load, {counts['skipped']} skipped as near-duplicates, "
                f"{counts['rendered']} rendered by caustica ({counts['failed']} failed), "
