@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from caustica.photons.estimate import FILTERS, filter_weight, flux_density
-from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, allocate_buffers, build_photon_map, \
+from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, build_photon_map, \
     map_from_buffers
 from caustica.photons.trace import TERMINATION_CAP, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON
@@ -276,8 +276,7 @@ def sphere_photons():
     """
     scene = compile_scene(parse_scene_string(SPHERE_XML, ".", None, "sphere.xml"))
     n, mr = 200_000, 3
-    buf = allocate_buffers(n, mr + 1)
-    trace_photon_pass(scene, buf, 11, STREAM_PHOTON, n, mr, TERMINATION_CAP)
+    buf, _, _ = trace_photon_pass(scene, (11, STREAM_PHOTON, n), (mr, TERMINATION_CAP))
     return buf, n, mr
 
 

@@ -328,13 +328,12 @@ def test_photons_store_nothing_on_glossy_surfaces(tmp_path, test_scenes_dir):
     """No visible point is made on a glossy surface (sppm's camera paths sample it and go on), so no photon record is
     stored there either: every record of the glossy-caustic scene (a rough glass ball, a rough metal ring) lies on a
     diffuse surface, the floor (y = 0) or the light (y = 2.5).  Before this rule 2,725 of the 3,519 records (77 %) lay on the ball and the ring."""
-    from caustica.photons.records import EMPTY, allocate_buffers
+    from caustica.photons.records import EMPTY
     from caustica.photons.trace import TERMINATION_CAP, trace_photon_pass
     from caustica.sampling.rng import STREAM_PHOTON
     scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml")
     n, mr = 20_000, 4
-    buf = allocate_buffers(n, mr + 1)
-    trace_photon_pass(scene, buf, 3, STREAM_PHOTON, n, mr, TERMINATION_CAP)
+    buf, _, _ = trace_photon_pass(scene, (3, STREAM_PHOTON, n), (mr, TERMINATION_CAP))
     stored = buf.kind != EMPTY
     assert np.count_nonzero(stored) > n // 50   # 821: the photons the ball or the ring sent to the floor
     y = buf.position[stored, 1]

@@ -16,6 +16,7 @@ import pytest
 
 import caustica
 from caustica import memory
+from caustica.photons import records as records_module
 from caustica.errors import OutputError, ParameterError, RenderError
 from caustica.scene import builtin_scene_path
 
@@ -126,18 +127,30 @@ def test_the_smallest_alpha_keeps_passes_short(diacaustic):
                                         ("sppm", dict(photons=2**31 - 1, caustic_photons=0)),
                                         ("pspm", dict(streams=2**31 - 1))])
 def test_a_pass_s_memory_is_checked_before_anything_is_allocated(diacaustic, monkeypatch, method, kw):
-    from caustica.methods import sppm as sppm_module
-    from caustica.photons import records
+    from caustica.photons import records, trace
 
     def refuse(*a, **k):
         raise AssertionError("allocated before the memory check")
 
     monkeypatch.setattr(memory, "physical_memory_bytes", lambda: 16 * 2**30)
-    monkeypatch.setattr(sppm_module, "allocate_buffers", refuse)
+    monkeypatch.setattr(trace, "allocate_buffers", refuse)
     monkeypatch.setattr(records, "allocate_buffers", refuse)
     monkeypatch.setattr(caustica.methods.get(method), "run_pass", refuse)
     with pytest.raises(ParameterError, match=f"one {method} pass of .* GB, more than"):
         caustica.render(diacaustic, method, res=8, passes=2, **kw)
+
+
+def test_the_records_past_each_photons_fixed_slots_are_checked_before_they_are_allocated(diacaustic, monkeypatch):
+    """Under roulette a pass is planned with each photon's fixed slots only; the records its longer paths make past
+    them are counted while tracing and checked before the buffer that holds them all is allocated."""
+    from caustica.photons import trace
+    n = 20_000
+    planned = n * trace.fixed_slots(1024) * records_module.SLOT_BYTES
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: int(1.05 * planned / memory.BUDGET_FRACTION))
+    with pytest.raises(ParameterError, match=r"20,000 photons' [\d,]+ records \(the paths past their first 8\) "
+                                             r"would need about .* GB, more than"):
+        caustica.render(diacaustic, "pm", res=8, spp=1, photons=n, caustic_photons=0, termination="roulette",
+                        max_bounces=1024)
 
 
 # --------------------------------------------------------------------------- C5, C7: names that are not names

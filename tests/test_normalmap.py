@@ -173,7 +173,6 @@ def test_records_under_an_identity_map_carry_a_plain_floors_power(tmp_path):
     (Its records once took the map's row for a mixture's and were divided by a 'storing probability' read from the
     map's colour: 1.86 x the power.)"""
     from caustica.imageio import write_exr
-    from caustica.photons.records import allocate_buffers
     from caustica.photons.trace import trace_photon_pass
     flat = np.zeros((4, 4, 3), np.float32)
     flat[...] = (0.5, 0.5, 1.0)
@@ -190,8 +189,7 @@ def test_records_under_an_identity_map_carry_a_plain_floors_power(tmp_path):
             (tmp_path / f).write_bytes((HERE / f).read_bytes())
         (tmp_path / name).write_text(xml)
         scene = caustica.load_scene(tmp_path / name)
-        buf = allocate_buffers(50_000, 5)
-        trace_photon_pass(scene, buf, 1, 0, 50_000, 4, 0)
+        buf, _, _ = trace_photon_pass(scene, (1, 0, 50_000), (4, 0))
         on_floor = np.abs(buf.position[:, 1]) < 1e-3
         stored.append((int(on_floor.sum()), buf.power[on_floor].astype(np.float64).sum(axis=0)))
     (n_plain, p_plain), (n_mapped, p_mapped) = stored

@@ -17,6 +17,7 @@ import pytest
 import caustica
 from caustica.errors import ParameterError
 from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, allocate_buffers
+from caustica.photons import trace as trace_module
 from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_caustic_photon_pass, trace_photon_pass
 from caustica.sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from caustica.tables import compile_scene
@@ -49,8 +50,7 @@ def xml_scene(text, name="test.xml"):
 
 
 def trace(scene, n, mr, termination=TERMINATION_CAP, seed=5, threads=None):
-    buf = allocate_buffers(n, mr + 1)
-    trace_photon_pass(scene, buf, seed, STREAM_PHOTON, n, mr, termination, threads=threads)
+    buf, _, _ = trace_photon_pass(scene, (seed, STREAM_PHOTON, n), (mr, termination), threads=threads)
     return buf
 
 
@@ -131,6 +131,35 @@ def test_roulette_same_expected_power_as_cap(closed_box):
     se = tot.std(axis=0, ddof=1) * math.sqrt(N_BOX)
     expected = phi * sum(RHO ** b for b in range(1, MR_BOX + 1))
     assert np.all(np.abs(tot.sum(axis=0) - expected) <= 5 * se)
+
+
+def test_roulette_without_a_cap_keeps_every_record(closed_box, monkeypatch):
+    """Roulette with a --max-bounces no path reaches: each photon keeps its first records in slots of its own and
+    is traced again for the rest, which follow in photon order.  The records are bit for bit those of a block of
+    slots per photon deep enough for every path (0.5 ** 160 of a path longer), in that order, for 1 or 2 threads;
+    and they carry the box's power over every bounce, Φ Σ_b ρ^b = Φ ρ / (1 - ρ)."""
+    kind, scene, phi, _, _ = closed_box
+    n, mr, deep = 20_000, 1024, 160
+    rules = (mr, TERMINATION_ROULETTE)
+    buf, records, _ = trace_photon_pass(scene, (5, STREAM_PHOTON, n), rules, threads=2)
+    one, _, _ = trace_photon_pass(scene, (5, STREAM_PHOTON, n), rules, threads=1)
+    k = trace_module.fixed_slots(mr)
+    assert records == buf.kind.shape[0] > n * k   # some paths were longer than their fixed slots
+    monkeypatch.setattr(trace_module, "FIXED_SLOTS", deep)
+    ref, _, _ = trace_photon_pass(scene, (5, STREAM_PHOTON, n), rules)
+    assert ref.kind.shape[0] == n * deep   # no path made more than `deep` records
+    slot = np.tile(np.arange(deep), n)
+    head = (slot < k) & (ref.kind != EMPTY)
+    tail = (slot >= k) & (ref.kind != EMPTY)
+    for a, b, c in zip(buf, ref, one):
+        np.testing.assert_array_equal(a[:n * k][buf.kind[:n * k] != EMPTY], b[head])
+        np.testing.assert_array_equal(a[n * k:], b[tail])
+        np.testing.assert_array_equal(a, c)
+    assert np.all(buf.kind[n * k:] != EMPTY)
+    per_photon = ref.power.astype(np.float64).reshape(n, deep, 3).sum(axis=1)
+    se = per_photon.std(axis=0, ddof=1) * math.sqrt(n)
+    expected = phi * RHO / (1 - RHO)
+    assert np.all(np.abs(per_photon.sum(axis=0) - expected) <= 5 * se), (kind, per_photon.sum(0), expected, se)
 
 
 BLACK_COATED_BOX = f"""<?xml version="1.0"?><scene version="3.0.0">{SENSOR}

@@ -250,13 +250,12 @@ def test_photons_reflected_by_a_coating_are_not_caustic_photons(tmp_path, test_s
     """Plastic is no caustic caster (the caustic photons are aimed at mirrors and glass only), so a photon its coating
     reflects must leave INDIRECT records, which the global map keeps beside a caustic map; in a scene of plastic and
     diffuse surfaces every record is INDIRECT, and some photons do take the coating (their records exist)."""
-    from caustica.photons.records import CAUSTIC, INDIRECT, allocate_buffers
+    from caustica.photons.records import CAUSTIC, INDIRECT
     from caustica.photons.trace import TERMINATION_CAP, trace_photon_pass
     from caustica.sampling.rng import STREAM_PHOTON
     scene = caustica.load_scene(plastic_scene_with(tmp_path, test_scenes_dir, '<bsdf type="diffuse"/>'))
     n, mr = 20_000, 4
-    buf = allocate_buffers(n, mr + 1)
-    trace_photon_pass(scene, buf, 3, STREAM_PHOTON, n, mr, TERMINATION_CAP)
+    buf, _, _ = trace_photon_pass(scene, (3, STREAM_PHOTON, n), (mr, TERMINATION_CAP))
     assert np.count_nonzero(buf.kind == INDIRECT) > n // 10
     assert np.count_nonzero(buf.kind == CAUSTIC) == 0
 

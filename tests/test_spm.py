@@ -18,7 +18,7 @@ import pytest
 import caustica
 from caustica.errors import ParameterError
 from caustica.photons.streams import StreamBuffers, StreamMap, trace_stream_pass
-from caustica.photons.records import CAUSTIC, EMPTY, allocate_buffers
+from caustica.photons.records import CAUSTIC, EMPTY, TraceBuffers
 from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON, STREAM_SPM
 from caustica.tables import compile_scene
@@ -96,8 +96,7 @@ def test_stream_energy_per_bounce_matches_pm_expectation(box, termination):
     assert np.all(np.abs(total.sum(axis=0) - expected) <= 5 * se), (total.sum(0), expected, se)
     # against an actual PM run with the same number of photons as well
     n_pm = N_S * (N_FA + 1)
-    pm = allocate_buffers(n_pm, MR + 1)
-    trace_photon_pass(box, pm, 5, STREAM_PHOTON, n_pm, MR, termination)
+    pm, _, _ = trace_photon_pass(box, (5, STREAM_PHOTON, n_pm), (MR, termination))
     x_pm = (pm.power.astype(np.float64) * (pm.kind != EMPTY)[:, None]).reshape(n_pm, MR + 1, 3).sum(axis=1)
     se2 = math.sqrt(1) * np.sqrt(total.var(axis=0, ddof=1) * N_S + x_pm.var(axis=0, ddof=1) * n_pm)
     assert np.all(np.abs(total.sum(axis=0) - x_pm.sum(axis=0)) <= 5 * se2 + 1e-6 * expected)
@@ -244,8 +243,7 @@ def test_split_photons_deposit_what_independent_photons_do():
         pos, _, power, _ = buf.events("photons")
         split.append(_flux_by_region(pos, power))
         n_pm = n * (n_fa + 1)
-        pb = allocate_buffers(n_pm, mr + 1)
-        trace_photon_pass(scene, pb, seed, STREAM_PHOTON, n_pm, mr, TERMINATION_CAP)
+        pb, _, _ = trace_photon_pass(scene, (seed, STREAM_PHOTON, n_pm), (mr, TERMINATION_CAP))
         ok = pb.kind != EMPTY
         pm.append(_flux_by_region(pb.position[ok], pb.power[ok]))
     split, pm = np.array(split), np.array(pm)
@@ -266,10 +264,12 @@ def diacaustic():
 
 def assert_stream_tracer_is_photon_tracer(scene, termination, n=20_000, mr=4):
     """With n_fa = 0 the stream tracer draws the same random numbers as the photon tracer, so PM's kernel run on
-    SPM's random stream must produce exactly the same records (SPEC §4.5).  Returns (the records' kinds, n)."""
+    SPM's random stream must produce exactly the same records (SPEC §4.5): a stream's mr + 1 record slots hold the
+    photon's first mr + 1 (its fixed slots; a path a plastic's coating makes longer has more, which the photon
+    tracer keeps after every photon's fixed slots and the stream tracer does not).  Returns (the records' kinds, n)."""
     sb = trace_spm(scene, n, 0, 0.0, mr, termination, seed=7)
-    pb = allocate_buffers(n, mr + 1)
-    trace_photon_pass(scene, pb, 7, STREAM_SPM, n, mr, termination)
+    pb, _, _ = trace_photon_pass(scene, (7, STREAM_SPM, n), (mr, termination))
+    pb = TraceBuffers(*(a[:n * (mr + 1)] for a in pb))
     pos, dirs, nrm, lead, assoc, energy, count, valid = sb.rec
     np.testing.assert_array_equal(valid != 0, pb.kind != EMPTY)
     # a record marked 2 is a light -> specular+ -> diffuse one: PM's CAUSTIC kind
@@ -344,9 +344,9 @@ def test_streams_store_pms_power_per_bounce_in_a_box_of_plastic_or_mixtures(bsdf
     e, v, count, lead, assoc = records(buf, N_S, MR)
     assert count[v].mean() > 0.2 and not (buf.rec.kind == CAUSTIC).any()   # (a stream's metal bounce merges all)
     n_pm = N_S * (N_FA + 1)
-    pm = allocate_buffers(n_pm, MR + 1)
-    trace_photon_pass(scene, pm, 5, STREAM_PHOTON, n_pm, MR, termination)
-    x_pm = (pm.power.astype(np.float64) * (pm.kind != EMPTY)[:, None]).reshape(n_pm, MR + 1, 3)
+    pm, _, _ = trace_photon_pass(scene, (5, STREAM_PHOTON, n_pm), (MR, termination))
+    head = slice(0, n_pm * (MR + 1))   # each photon's first MR + 1 records, in slots of its own
+    x_pm = (pm.power[head].astype(np.float64) * (pm.kind[head] != EMPTY)[:, None]).reshape(n_pm, MR + 1, 3)
     for s in range(MR):
         se = np.sqrt(e[:, s].var(axis=0, ddof=1) * N_S + x_pm[:, s].var(axis=0, ddof=1) * n_pm)
         assert np.all(x_pm[:, s].sum(axis=0) > 0) and np.all(se > 0)
@@ -417,9 +417,7 @@ def test_caustic_spot_power_matches_pm(dia_streams, diacaustic):
     spot = (np.abs(pos[:, 1]) < 1e-3) & (np.hypot(pos[:, 0] - 5, pos[:, 2] - 2.5) < 2.5)
     x_s = (buf.rec[5][:, 1].astype(np.float64) * (lsd & spot)).reshape(n, mr + 1).sum(axis=1)
     n_pm = 200_000
-    pb = allocate_buffers(n_pm, 2)
-    s = diacaustic
-    trace_photon_pass(s, pb, 3, STREAM_PHOTON, n_pm, 1, TERMINATION_CAP)
+    pb, _, _ = trace_photon_pass(diacaustic, (3, STREAM_PHOTON, n_pm), (1, TERMINATION_CAP))
     pp = pb.position.astype(np.float64)
     pspot = (pb.kind == CAUSTIC) & (np.abs(pp[:, 1]) < 1e-3) & (np.hypot(pp[:, 0] - 5, pp[:, 2] - 2.5) < 2.5)
     x_p = (pb.power[:, 1].astype(np.float64) * pspot).reshape(n_pm, 2).sum(axis=1)

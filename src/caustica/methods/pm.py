@@ -25,7 +25,7 @@ import numpy as np
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers, \
     empty_photon_map, map_from_buffers
-from ..photons.trace import trace_caustic_photon_pass, trace_photon_pass
+from ..photons.trace import planned_records, trace_caustic_photon_pass, trace_photon_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
 from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
@@ -65,7 +65,9 @@ class PhotonMapping(OneShot):
         n = settings["photons"]
         n_c = settings["caustic_photons"]
         mr = settings["max_bounces"]
-        check_budget(n * (mr + 1) * SLOT_BYTES + n_c * SLOT_BYTES, f"{n:,} photons x {mr + 1} records",
+        terminate = TERMINATIONS[settings["termination"]]
+        planned = planned_records(n, mr, terminate)
+        check_budget((planned + n_c) * SLOT_BYTES, f"{n:,} photons x {planned // max(n, 1)} record slots",
                      "lower --photons or --max-bounces")
         spheres = scene.specular_bounding_spheres()
         use_caustic = n_c > 0 and spheres.shape[0] > 0
@@ -74,11 +76,9 @@ class PhotonMapping(OneShot):
 
         threads = settings["threads"]
         t0 = time.perf_counter()
-        buf = allocate_buffers(n, mr + 1)
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        terminate = TERMINATIONS[settings["termination"]]
-        compile_s = trace_photon_pass(scene, buf, seed, STREAM_PHOTON, n, mr, terminate, threads=threads,
-                                      progress=bar)
+        buf, _, compile_s = trace_photon_pass(scene, (seed, STREAM_PHOTON, n), (mr, terminate), threads=threads,
+                                              progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["photon_trace_s"] = t1 - t0 - compile_s

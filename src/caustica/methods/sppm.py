@@ -16,9 +16,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..memory import check_budget
-from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
-    allocate_buffers
-from ..photons.trace import trace_photon_pass
+from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers
+from ..photons.trace import planned_records, trace_photon_pass
 from ..scene.description import THINDIELECTRIC
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
@@ -121,28 +120,29 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
 
     @classmethod
     def pass_buffer_bytes(cls, scene, settings) -> int:
-        """A pass's photon records (mr + 1 slots a photon, one a caustic photon), the grid's sorted copy, and
-        in a scene with media the camera's medium segments."""
+        """A pass's photon records (:func:`~caustica.photons.trace.planned_records`, one a caustic photon), the
+        grid's sorted copy, and in a scene with media the camera's medium segments."""
         n, n_c = photon_counts(scene, settings)
-        return 2 * (n * (settings["max_bounces"] + 1) + n_c) * SLOT_BYTES + cls.camera_segment_bytes(scene, settings)
+        records = planned_records(n, settings["max_bounces"], TERMINATIONS[settings["termination"]])
+        return 2 * (records + n_c) * SLOT_BYTES + cls.camera_segment_bytes(scene, settings)
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
         n, n_c = photon_counts(scene, settings)
-        mr = settings["max_bounces"]
-        check_budget(n * (mr + 1) * SLOT_BYTES, f"{n:,} photons x {mr + 1} records per pass",
+        rules = (settings["max_bounces"], TERMINATIONS[settings["termination"]])
+        planned = planned_records(n, *rules)
+        check_budget(planned * SLOT_BYTES, f"{n:,} photons x {planned // max(n, 1)} record slots per pass",
                      "lower --photons or --max-bounces")
         aimed = n_c > 0
         t0 = time.perf_counter()
-        # one buffer: the photons' mr + 1 slots each, then the caustic photons' one slot each (the
-        # caustic photons write into a view of its tail, so no copy joins the two)
-        slots = n * (mr + 1)
-        buf = allocate_buffers(slots + (n_c if aimed else 0), 1)
-        head = TraceBuffers(*(a[:slots] for a in buf))
+        # one buffer: the photons' records, then the caustic photons' one slot each (the caustic photons write
+        # into a view of its tail, so no copy joins the two)
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        compile_s = trace_photon_pass(scene, head, settings["seed"], pass_stream(STREAM_PHOTON, pass_index), n, mr,
-                                      TERMINATIONS[settings["termination"]], threads=settings["threads"], progress=bar)
+        buf, slots, compile_s = trace_photon_pass(scene, (settings["seed"], pass_stream(STREAM_PHOTON, pass_index), n),
+                                                  rules, reserve=n_c if aimed else 0, threads=settings["threads"],
+                                                  progress=bar)
         bar.close()
+        head = TraceBuffers(*(a[:slots] for a in buf))
         if not aimed and not scene.has_media:
             # every record is an event (kind INDIRECT or CAUSTIC; EMPTY slots are 0)
             return (buf.position, buf.power, buf.normal, buf.kind, buf.direction, buf.depth), n, {

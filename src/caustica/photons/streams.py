@@ -97,7 +97,7 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     index = before + k
     trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
               (max_bounces, TERMINATION_ROULETTE, False),
-              ((first_path + index) * (max_bounces + 1), max_bounces + 1, split))
+              ((first_path + index) * (max_bounces + 1), 0, max_bounces + 1, split))
 
 
 @kernel(inline=True)

@@ -2,8 +2,9 @@
 
 One path loop, :func:`trace_one`, for every scene: with media or without (vacuum is the case of
 no medium, ``medium`` = -1, with the same arithmetic; a scene without media has a trivial medium
-table).  Each photon i is a pure function of (seed, pass, i): parallel tracing writes into its
-own fixed slots, so the maps are identical for any thread count.
+table).  Each photon i is a pure function of (seed, pass, i): parallel tracing writes its first records
+into fixed slots of its own and traces a longer path again for the rest (:func:`trace_photon_pass`), so the
+records come in photon order and the maps are identical for any thread count.
 
 * A photon starts in the medium of its light (:func:`caustica.media.light_media`) and keeps
   track of the medium it is in across every surface it leaves (``medium_after``); null
@@ -37,6 +38,8 @@ finite max_depth.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from ..features import has
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, oriented, photon_shading, sample, sample_kind, \
     wrapped
@@ -45,14 +48,20 @@ from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
+from ..memory import check_budget
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
-from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, VOLUME_CAUSTIC, VOLUME_INDIRECT
+from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
+    allocate_buffers
 
 SPECULAR_CAP = 64
+#: A photon's first records go to slots of its own, so parallel tracing needs no atomics and the records
+#: come in photon order for any thread count; a path with more is traced again for the rest
+#: (:func:`trace_photon_pass`).
+FIXED_SLOTS = 8
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
 TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's mean weight (a diffuse albedo), power scaled by 1 / p
 
@@ -236,8 +245,10 @@ def record_power(geom, mats, hit, d, power):
 @kernel
 def trace_one(tables, key, photon, rules, out):
     """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
-    ``medium``.  Its records go to ``out`` = (slot0, slots, buf): slots slot0 .. slot0 + slots - 1 of ``buf``
-    (a :class:`~caustica.photons.records.TraceBuffers`).  Returns the records stored.
+    ``medium``.  ``out`` = (slot0, skip, slots, buf): its records number skip .. skip + slots - 1 (counted
+    from 0 along its path) go to slots slot0 .. slot0 + slots - 1 of ``buf`` (a
+    :class:`~caustica.photons.records.TraceBuffers`), the others nowhere.  Returns how many records the
+    path made, kept or not.
 
     A photon from a light starts with no bounce and not ``scattered``; a split photon of a stream
     (:mod:`caustica.photons.streams`) starts with its stream's.  ``rules`` = (max_bounces, termination,
@@ -247,12 +258,12 @@ def trace_one(tables, key, photon, rules, out):
     geom, mats, _, media = tables
     o, d, power, medium, diffuse_bounces, scattered = photon
     max_bounces, termination, caustic_only = rules
-    slot0, slots, buf = out
+    slot0, skip, slots, buf = out
     dim = 8
     specular_events = 0
     events = 0   # scattering events of this photon's own path (every kind): its records' depth is events + 1
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
-    crossings = stored = 0
+    crossings = records = 0
     while True:
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
@@ -264,10 +275,11 @@ def trace_one(tables, key, photon, rules, out):
         if prim < 0:
             # ---- a scattering event in the medium
             p = vec.madd(o, d, t)
-            if scattered and stored < slots:
-                store_record(slot0 + stored, p, d, power, (0.0, 0.0, 0.0),   # a volume photon has no normal
-                             (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events), buf)
-                stored += 1
+            if scattered:
+                if skip <= records < skip + slots:
+                    store_record(slot0 + records - skip, p, d, power, (0.0, 0.0, 0.0),   # a volume photon: no normal
+                                 (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events), buf)
+                records += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
             alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power,
@@ -291,10 +303,12 @@ def trace_one(tables, key, photon, rules, out):
         if not scatters:
             break  # the black back of a one-sided surface absorbs
         if mats.flags[m] & DIFFUSE_REFLECTION:
-            if scattered and stored < slots:
-                store_record(slot0 + stored, p, d, record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
-                             ng if wrapped(mats, m) else ns, (INDIRECT if diffuse_like else CAUSTIC, events), buf)
-                stored += 1
+            if scattered:
+                if skip <= records < skip + slots:
+                    store_record(slot0 + records - skip, p, d,
+                                 record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
+                                 ng if wrapped(mats, m) else ns, (INDIRECT if diffuse_like else CAUSTIC, events), buf)
+                records += 1
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
         if wrapped(mats, m):   # under a normal or bump map: Mitsuba's flip by the side the photon leaves to
@@ -321,24 +335,44 @@ def trace_one(tables, key, photon, rules, out):
         o, d, medium = vec.offset_origin(p, ng, d_new), d_new, medium_after(media, shape, ng_front, d_new, medium)
         events += 1
         scattered = True
-    return stored
+    return records
+
+
+@kernel(inline=True)
+def emitted_photon(geom, lights, light_medium, source, i):
+    """Photon i of ``source`` = (seed, stream, n_paths) as it leaves its light: (its key, :func:`trace_one`'s
+    ``photon``)."""
+    seed, stream, n_paths = source
+    key = path_key(seed, stream, i)
+    o, d, power, _ = emit_photon(geom, lights, key, n_paths)
+    li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
+    return key, (o, d, power, light_medium[li], 0, False)
 
 
 @kernel
-def trace_photons(tables, light_medium, source, rules, buf, i0, i1):
-    """Emit and trace photons [i0, i1) of ``source`` = (seed, stream, n_paths); photon i writes slots
-    [i * (mr + 1), (i + 1) * (mr + 1)).  ``rules`` = (max_bounces mr, termination)."""
+def trace_photons(tables, light_medium, source, rules, out, i0, i1):
+    """Photons [i0, i1) of ``source`` under ``rules`` = (max_bounces mr, termination), into ``out`` = (buf, slots,
+    counts): photon i keeps its first ``slots`` records in slots [i * slots, (i + 1) * slots) of buf, and counts[i]
+    = the records its path made."""
     tables = borrow_tables(tables)
     geom, _, lights, _ = tables
-    seed, stream, n_paths = source
-    max_bounces, termination = rules
-    slots = max_bounces + 1
+    buf, slots, counts = out
     for i in range(i0, i1):
-        key = path_key(seed, stream, i)
-        o, d, power, _ = emit_photon(geom, lights, key, n_paths)
-        li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-        trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (max_bounces, termination, False),
-                  (i * slots, slots, buf))
+        key, photon = emitted_photon(geom, lights, light_medium, source, i)
+        counts[i] = trace_one(tables, key, photon, (rules[0], rules[1], False), (i * slots, 0, slots, buf))
+
+
+@kernel
+def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
+    """The photons whose paths made more records than their fixed slots, again: ``tails`` = (ids, offsets, skip,
+    buf), photon ids[j] for j in [i0, i1), its records from number ``skip`` on into slots [offsets[j],
+    offsets[j + 1]) of buf."""
+    tables = borrow_tables(tables)
+    geom, _, lights, _ = tables
+    ids, offsets, skip, buf = tails
+    for j in range(i0, i1):
+        key, photon = emitted_photon(geom, lights, light_medium, source, ids[j])
+        trace_one(tables, key, photon, (rules[0], rules[1], False), (offsets[j], skip, offsets[j + 1] - offsets[j], buf))
 
 
 @kernel
@@ -355,15 +389,56 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
             li, _, _ = choose_light(lights, uniform(key, 0))
-            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True), (i, 1, buf))
+            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True),
+                      (i, 0, 1, buf))
 
 
-def trace_photon_pass(scene, buf, seed, stream, n_paths, max_bounces, termination, *, threads=None,
-                      progress=None) -> float:
-    """Trace ``n_paths`` photons of (seed, stream) into ``buf`` (mr + 1 slots each) on the thread pool;
-    returns the compile seconds."""
-    return parallel_for(trace_photons, n_paths, (scene.tables, light_media(scene), (seed, stream, n_paths),
-                                                 (max_bounces, termination), buf), threads=threads, progress=progress)
+def fixed_slots(max_bounces: int) -> int:
+    """The records of each photon kept in slots of its own: mr + 1 (every record a capped path makes, unless
+    it meets plastic coatings or a medium), at most :data:`FIXED_SLOTS`."""
+    return min(max_bounces + 1, FIXED_SLOTS)
+
+
+def planned_records(n_paths: int, max_bounces: int, termination: int) -> int:
+    """The record slots a pass of ``n_paths`` photons is planned with (its memory check): under the cap every
+    photon's mr + 1, which most live out; under roulette the fixed slots, its paths' tails being counted, and
+    checked, when traced."""
+    if termination == TERMINATION_CAP:
+        return n_paths * (max_bounces + 1)
+    return n_paths * fixed_slots(max_bounces)
+
+
+def trace_photon_pass(scene, source, rules, *, reserve=0, threads=None, progress=None):
+    """Trace the photons of ``source`` = (seed, stream, n_paths) with ``rules`` = (max_bounces mr, termination):
+    returns (buf, records, compile seconds).  ``buf`` (:class:`TraceBuffers`) holds every photon's first
+    :func:`fixed_slots` records in slots of its own (EMPTY where it made fewer), then the rest of the records
+    of the photons that made more, in photon order (traced a second time, from their own keys: the same
+    paths), then ``reserve`` empty slots for the caller (sppm's aimed photons); ``records`` = the slots
+    before those.  The same for any thread count, and no slots wasted on paths roulette makes long."""
+    n = source[2]
+    k = fixed_slots(rules[0])
+    buf = allocate_buffers(n * k + reserve, 1)
+    counts = np.zeros(n, np.int32)
+    args = (scene.tables, light_media(scene), source, rules, (TraceBuffers(*(a[:n * k] for a in buf)), k, counts))
+    compile_s = parallel_for(trace_photons, n, args, threads=threads, progress=progress)
+    longer = np.flatnonzero(counts > k)
+    if longer.size == 0:
+        return buf, n * k, compile_s
+    offsets = np.empty(longer.size + 1, np.int64)
+    offsets[0] = n * k
+    np.cumsum(counts[longer] - k, out=offsets[1:])
+    offsets[1:] += n * k
+    records = int(offsets[-1])
+    check_budget((records + reserve + n * k) * SLOT_BYTES,
+                 f"{n:,} photons' {records:,} records (the paths past their first {k})",
+                 "lower --photons or --max-bounces")
+    whole = allocate_buffers(records + reserve, 1)
+    for a, b in zip(whole, buf):
+        a[:n * k] = b[:n * k]
+    del buf
+    compile_s += parallel_for(trace_photon_tails, longer.size, args[:4] + ((longer, offsets, k, whole),),
+                              threads=threads)
+    return whole, records, compile_s
 
 
 def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None, threads=None,
