@@ -1,4 +1,4 @@
-"""sppm takes Mitsuba's ``max_depth`` and ``hide_emitters`` (a scene's integrator sets them, as for pt).
+"""sppm and pspm take Mitsuba's ``max_depth`` and ``hide_emitters`` (a scene's integrator sets them, as for pt).
 
 A path of sppm is the camera's segments to its visible point plus the segments of the photon's path gathered there
 (each record keeps its depth, :attr:`caustica.photons.records.TraceBuffers.depth`); at max_depth M a visible point
@@ -28,15 +28,32 @@ def diacaustic():
     return caustica.load_scene("cornell-diacaustic")
 
 
+@pytest.fixture(scope="module")
+def pt_images(diacaustic):
+    """pt's images of the diacaustic at each max_depth, made once for every method compared with them."""
+    made = {}
+
+    def at(max_depth):
+        if max_depth not in made:
+            made[max_depth] = [caustica.render(diacaustic, "pt", spp=256, res=RES, seed=s, max_depth=max_depth).image
+                               for s in SEEDS]
+        return made[max_depth]
+    return at
+
+
+@pytest.mark.parametrize("method, options", [("sppm", {}), ("pspm", {}), ("pspm", {"specular": "split"}),
+                                             ("pspm", {"estimator": "photons"})],
+                         ids=["sppm", "pspm", "pspm-split", "pspm-photons"])
 @pytest.mark.parametrize("max_depth", [2, 3, 5])
-def test_sppm_max_depth_agrees_with_pt(diacaustic, max_depth):
+def test_max_depth_agrees_with_pt(diacaustic, pt_images, method, options, max_depth):
     """2: direct light only (no photon counts); 3: one photon bounce at a visible point seen directly, none behind
-    the sphere (three segments to the floor through it); 5: two bounces there.  sppm's mean falls with the depth
-    as pt's does, and every 4 x 4 block agrees within imagestats' bound (5 standard errors of both sides)."""
-    pt = [caustica.render(diacaustic, "pt", spp=256, res=RES, seed=s, max_depth=max_depth).image for s in SEEDS]
-    sppm = [caustica.render(diacaustic, "sppm", passes=256, res=RES, seed=s, max_depth=max_depth).image
+    the sphere (three segments to the floor through it); 5: two bounces there.  The mean falls with the depth
+    as pt's does, and every 4 x 4 block agrees within imagestats' bound (5 standard errors of both sides).  pspm's
+    stream records keep their leading photon's depth (an associated photon took the same path), and a split
+    photon's records count its stream's events before it left."""
+    ours = [caustica.render(diacaustic, method, passes=256, res=RES, seed=s, max_depth=max_depth, **options).image
             for s in SEEDS]
-    assert_images_agree(sppm, pt, label=f"sppm vs pt, max_depth {max_depth}")
+    assert_images_agree(ours, pt_images(max_depth), label=f"{method} {options} vs pt, max_depth {max_depth}")
 
 
 def test_sppm_unlimited_depth_is_brighter(diacaustic):
@@ -96,19 +113,58 @@ def box(integrator="", fog=False):
     return compile_scene(parse_scene_string(text, ".", None, "box.xml"))
 
 
-def test_sppm_reads_the_scenes_integrator():
-    """A path integrator's max_depth and hide_emitters become sppm's defaults, with no note; a value given wins;
-    in a scene with media max_depth is not taken (a note says so) and refused when given."""
-    r = caustica.render(box(PATH2), "sppm", passes=1, seed=1)
+@pytest.mark.parametrize("method", ["sppm", "pspm"])
+def test_the_progressive_methods_read_the_scenes_integrator(method):
+    """A path integrator's max_depth and hide_emitters become the method's defaults, with no note; a value given
+    wins; in a scene with media max_depth is not taken (a note says so) and refused when given."""
+    r = caustica.render(box(PATH2), method, passes=1, seed=1)
     assert r.stats["parameters"]["max_depth"] == 2 and r.stats["parameters"]["hide_emitters"] is True
     assert r.stats["integrator_note"] is None
-    r = caustica.render(box(PATH2), "sppm", passes=1, seed=1, max_depth=4)
+    r = caustica.render(box(PATH2), method, passes=1, seed=1, max_depth=4)
     assert r.stats["parameters"]["max_depth"] == 4
     assert "max_depth=2" in r.stats["integrator_note"]
-    r = caustica.render(box(PATH2, fog=True), "sppm", passes=1, seed=1)
+    r = caustica.render(box(PATH2, fog=True), method, passes=1, seed=1)
     assert r.stats["parameters"]["max_depth"] == -1 and "max_depth=2" in r.stats["integrator_note"]
-    with pytest.raises(ParameterError, match="--max-depth 3: sppm does not limit paths in a scene with media"):
-        caustica.render(box(fog=True), "sppm", passes=1, seed=1, max_depth=3)
+    with pytest.raises(ParameterError, match=f"--max-depth 3: {method} does not limit paths in a scene with media"):
+        caustica.render(box(fog=True), method, passes=1, seed=1, max_depth=3)
     # a depth the photons' own cap may cut short is said
-    r = caustica.render(box(PATH2.replace('value="2"', 'value="10"')), "sppm", passes=1, seed=1)
+    r = caustica.render(box(PATH2.replace('value="2"', 'value="10"')), method, passes=1, seed=1)
     assert r.stats["parameters"]["max_depth"] == 10 and "--max-bounces 4" in r.stats["integrator_note"]
+
+
+# A light facing up at a small diffuse panel, which lights a glass ball and the floor: every stream meets the ball
+# after one diffuse bounce, so its split photons leave it with one event behind them.
+PANEL_AND_BALL = """<?xml version="1.0"?><scene version="3.0.0">
+<sensor type="perspective"><transform name="to_world"><lookat origin="0, 3, 5" target="0, 0.6, 0" up="0, 1, 0"/>
+  </transform><film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+<shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+  <bsdf type="diffuse"/></shape>
+<shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/>
+  <translate x="-1.5" y="3"/></transform><bsdf type="diffuse"/></shape>
+<shape type="sphere"><point name="center" x="0" y="1.2" z="0"/><float name="radius" value="0.6"/>
+  <bsdf type="dielectric"/></shape>
+<shape type="rectangle"><transform name="to_world"><scale value="0.15"/><rotate x="1" angle="-90"/>
+  <translate x="-0.6" y="2.3"/></transform><bsdf type="diffuse"><rgb name="reflectance" value="0"/></bsdf>
+  <emitter type="area"><rgb name="radiance" value="400"/></emitter></shape>
+</scene>"""
+
+
+def test_split_photons_count_their_streams_events():
+    """A record's depth is the segments of its path from the light: at least 2, as nothing is stored before the
+    first scattering event.  Here every stream reaches the glass ball through the panel, so a photon split off
+    there starts with one event behind it: its records on the floor have depth 2 (it missed the ball), 3 (off
+    its surface) or 4 (through it); counted from the split, those that missed the ball read 1."""
+    from caustica.photons.records import EMPTY
+    from caustica.photons.streams import StreamBuffers, trace_stream_pass
+    from caustica.photons.trace import TERMINATION_CAP
+    from caustica.sampling.rng import STREAM_SPM
+    scene = compile_scene(parse_scene_string(PANEL_AND_BALL, ".", None, "panel.xml"))
+    n, n_fa, mr = 100_000, 10, 4
+    buf = StreamBuffers(n, n_fa, mr, split=True)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.3, mr, TERMINATION_CAP, split=True)
+    lead = buf.depth[buf.rec.kind != EMPTY]
+    stored = buf.split.kind != EMPTY
+    split = buf.split.depth[stored]
+    assert lead.size > 1000 and split.size > 300 and lead.min() >= 2
+    on_floor = np.bincount(split[np.abs(buf.split.position[stored, 1]) < 1e-3], minlength=5)
+    assert split.min() >= 2 and on_floor[2] > 20 and on_floor[4] > 100, on_floor

@@ -31,11 +31,12 @@ from ..errors import ParameterError
 from ..memory import check_budget
 from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_stream_pass
+from ..photons.visible_points import UNLIMITED_DEPTH, depth_limit
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
 from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS, StreamedBSDFs
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, DEPTH_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod,
                           caustic_event_kind, initial_radius, trace_caustic_pass)
 
@@ -87,6 +88,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
                                          "needs --specular merge)", non_negative, ">= 0"),
         MEDIUM_SCATTERING_PARAM,
         VOLUME_RADIUS_PARAM,
+        *DEPTH_PARAMS,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 
     @classmethod
@@ -146,13 +148,17 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
             cbuf = allocate_buffers(n_c, 1)
             compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, cbuf)
         t1 = time.perf_counter()
-        pos, direction, power, normal = buf.events(settings["estimator"], leave_caustics=n_c > 0)
+        limited = depth_limit(settings) != UNLIMITED_DEPTH
+        # depth: [each event's depth] under a finite max_depth, which the gather holds them against; else []
+        pos, direction, power, normal, *depth = buf.events(settings["estimator"], leave_caustics=n_c > 0,
+                                                           depths=limited)
         valid = np.ones(pos.shape[0], np.int8)
         if n_c > 0:   # kind 2: the caustic photons' events
             kinds = np.empty(n_c, np.int8)
             caustic_event_kind(cbuf.kind, kinds)
             pos, power, normal, direction = (np.concatenate([a, b]) for a, b in (
                 (pos, cbuf.position), (power, cbuf.power), (normal, cbuf.normal), (direction, cbuf.direction)))
+            depth = [np.concatenate([a, cbuf.depth]) for a in depth]
             valid = np.concatenate([valid, kinds])
         stats = {"streams_emitted": n, "photons_emitted": n * (n_fa + 1) + n_c}
         if scene.has_media:
@@ -166,7 +172,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
             stats["volume_photons"] = volume
         stats["timings"] = {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
                             "map_build_s": time.perf_counter() - t1}
-        return (pos, power, normal, valid, direction), n + n_c, stats
+        return (pos, power, normal, valid, direction, *depth), n + n_c, stats
 
     @classmethod
     def final_stats(cls, scene, settings, state):

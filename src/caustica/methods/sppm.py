@@ -14,17 +14,14 @@ import time
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..memory import check_budget
 from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers
 from ..photons.trace import planned_records, trace_photon_pass
-from ..scene.description import THINDIELECTRIC
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
 from .photon_common import TERMINATIONS
-from .pt import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, DEPTH_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
 
 
@@ -67,43 +64,10 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                                             "default photons in a scene with mirrors or glass, else 0)",
               non_negative, ">= 0"),
         VOLUME_RADIUS_PARAM,
-        Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
-                                    "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
-                                    "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
-                                    "the default, except with media or (volpath) a thindielectric",
-              lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
-        Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
-                                            "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
-                                            "default)"),
+        *DEPTH_PARAMS,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 
     pass_memory_hint = "lower --photons, --caustic-photons or --max-bounces"
-
-    @staticmethod
-    def scene_defaults(description) -> dict:
-        """The scene's ``<integrator>`` settings sppm takes: Mitsuba's max_depth (``direct``: 2) and hide_emitters.
-        Not max_depth in a scene with media (the volume estimate does not count a path's segments), nor under
-        volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, sppm does); a note
-        says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
-        s = description.integrator_settings
-        if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
-            return {}
-        out = {"hide_emitters": s.hide_emitters}
-        null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
-        if not description.has_volumes and not null_thin:
-            depth = 2 if s.type == "direct" else s.max_depth
-            if depth == 0:
-                raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even "
-                                     f"the emitters); give -1 (unlimited) or a depth of at least 1")
-            out["max_depth"] = depth
-        return out
-
-    @classmethod
-    def check(cls, scene, settings):
-        if scene.description.has_volumes and settings["max_depth"] != -1:
-            raise ParameterError(f"--max-depth {settings['max_depth']}: sppm does not limit paths in a scene with "
-                                 f"media (its volume estimate does not count their segments); --method pt does")
-        super().check(scene, settings)
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:

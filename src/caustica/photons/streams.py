@@ -63,8 +63,8 @@ from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
-from .records import (CAUSTIC, EMPTY, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, allocate_buffers,
-                      build_photon_map, build_photon_map_with_order)
+from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
+                      allocate_buffers, build_photon_map, build_photon_map_with_order)
 from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
@@ -84,7 +84,8 @@ MEDIUM_SCATTERING = ("merge", "spread")
 def split_off(tables, key, o, d, power, split_path, k, split):
     """An associated photon that leaves its stream at a mirror or glass (``--specular split``): the stream's
     split photon number split_path[1] + k, with ``split_path`` = (the stream's first split path, its split
-    photons so far, its medium, diffuse bounces, whether it has scattered, max_bounces).
+    photons so far, its medium, diffuse bounces, whether it has scattered, its scattering events before o (the
+    depth of the split photon's records counts them), max_bounces).
 
     From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`) with a key of its
     own: its own specular chain (Fresnel per photon), stored where it lands (unless that is direct light)
@@ -93,9 +94,9 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     after the stream's ``max_bounces`` in all.  What escapes or is absorbed on its way is lost, as any
     photon's power is.
     """
-    first_path, before, medium, diffuse_bounces, scattered, max_bounces = split_path
+    first_path, before, medium, diffuse_bounces, scattered, events, max_bounces = split_path
     index = before + k
-    trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
+    trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered, events),
               (max_bounces, TERMINATION_ROULETTE, False),
               ((first_path + index) * (max_bounces + 1), 0, max_bounces + 1, split))
 
@@ -318,7 +319,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
 @kernel
 def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
-    ``buf`` = (records, associated photons, split photons)."""
+    ``buf`` = (records, associated photons, split photons, the records' depths)."""
     tables = borrow_tables(tables)
     geom, _, lights, _ = tables
     seed, stream, n_streams = source
@@ -468,7 +469,7 @@ def trace_stream(tables, key, start, rules, i, buf):
     geom, mats, _, media = tables
     o, d, e_s, n_from, medium = start
     n_assoc, r_s, max_bounces, termination, split, spread = rules
-    rec, assoc, split_buf = buf
+    rec, assoc, split_buf, depth = buf
     slots = max_bounces + 1
     share = 1.0 / (n_assoc + 1)
     zero = (0.0, 0.0, 0.0)
@@ -476,6 +477,7 @@ def trace_stream(tables, key, start, rules, i, buf):
     dim = 8
     bounces = 0           # diffuse and medium scattering events
     specular_events = stored = crossings = 0
+    events = 0            # scattering events of every kind (null crossings not): a record's depth is events + 1
     scattered = False     # any event so far: what is stored from now on is not direct light
     diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
     n_split = 0           # associated photons split off so far
@@ -495,12 +497,15 @@ def trace_stream(tables, key, start, rules, i, buf):
                 tables, medium, (o, zero, x, d, r_s), key, dim, stream,
                 (n_assoc, spread, termination, bounces >= max_bounces),
                 (store, r, VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec, assoc))
-            stored += 1 if store else 0
+            if store:
+                depth[r] = min(events + 1, MAX_RECORD_DEPTH)
+                stored += 1
             if not alive:
                 break
             # a point in a medium: no surface the associated photons could aim into
             o, d, n_from, crossings = x, wo, zero, 0
             bounces += 1
+            events += 1
             scattered = diffuse_like = True
             continue
         # ---- a surface
@@ -517,12 +522,14 @@ def trace_stream(tables, key, start, rules, i, buf):
         scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
-            (split, (i * n_assoc, n_split, medium, bounces, scattered, max_bounces), split_buf))
+            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, max_bounces), split_buf))
         n_split += k
         if not scatters:
             break  # absorbed by the black back of a one-sided surface
         if diffuse:
-            stored += 1 if store else 0
+            if store:
+                depth[r] = min(events + 1, MAX_RECORD_DEPTH)
+                stored += 1
             if bounces >= max_bounces:
                 break
         if diffuse or ((has(mats, MASK) or has(mats, BLEND))
@@ -543,6 +550,7 @@ def trace_stream(tables, key, start, rules, i, buf):
         else:
             bounces += 1
         n_from = ng if diffuse else zero   # from a mirror, glass or glossy surface only after a split
+        events += 1
         scattered = True
 
 
@@ -589,37 +597,40 @@ class StreamBuffers:
         self.assoc = AssociatedPhotons(*(np.zeros((a, 3), f) for _ in range(3)), np.zeros(a, f))
         # split photons: at most n_assoc per stream, mr + 1 slots each
         self.split = allocate_buffers(n_streams * n_assoc if split else 0, max_bounces + 1)
+        self.depth = np.zeros(s, np.uint16)   # each record's depth: segments from the light (TraceBuffers.depth)
         self.n_assoc = n_assoc
 
     @property
     def kernel_args(self) -> tuple:
         """The buffers in trace_streams' argument order."""
-        return self.rec, self.assoc, self.split
+        return self.rec, self.assoc, self.split, self.depth
 
     @staticmethod
     def bytes_needed(n_streams, n_assoc, max_bounces, split=False):
         s = n_streams * (max_bounces + 1)
-        return s * (6 * 12 + 5) + s * n_assoc * (40 + (SLOT_BYTES if split else 0))
+        return s * (6 * 12 + 7) + s * n_assoc * (40 + (SLOT_BYTES if split else 0))
 
     def _records(self, estimator: str, keep: np.ndarray) -> list:
-        """(position, direction, power, normal) parts of the records ``keep`` under ``estimator``.
+        """(position, direction, power, normal, depth) parts of the records ``keep`` under ``estimator`` (an
+        associated photon has its record's depth: it took the same path).
 
         ``stream``: each record's energy E_i at its leading position (eq. 2's reading);
         ``photons``: the leading and every associated photon at its own position.
         """
         pos, dirs, nrm, lead_pow, assoc_pow, energy, count, _ = self.rec
         if estimator == "stream":
-            return [(pos[keep], dirs[keep], energy[keep], nrm[keep])]
-        parts = [(pos[keep], dirs[keep], lead_pow[keep], nrm[keep])]
+            return [(pos[keep], dirs[keep], energy[keep], nrm[keep], self.depth[keep])]
+        parts = [(pos[keep], dirs[keep], lead_pow[keep], nrm[keep], self.depth[keep])]
         if self.n_assoc > 0:
             used = ((np.arange(self.n_assoc)[None, :] < count[:, None]) & keep[:, None]).reshape(-1)
             parts.append((self.assoc[0][used], self.assoc[1][used],
                           associated_power(assoc_pow[keep], count[keep], self.assoc.factor[used]),
-                          self.assoc[2][used]))
+                          self.assoc[2][used], np.repeat(self.depth[keep], count[keep])))
         return parts
 
-    def events(self, estimator: str, leave_caustics: bool = False):
-        """This pass's surface photon events (position, direction, power, normal) for a progressive gather.
+    def events(self, estimator: str, leave_caustics: bool = False, depths: bool = False):
+        """This pass's surface photon events (position, direction, power, normal[, depth]) for a progressive
+        gather; ``depths``: with each event's depth (segments from the light), which a finite max_depth limits.
 
         The records under ``estimator`` (:meth:`_records`).  Split photons (``--specular split``)
         are photons of their own under either estimator.  ``leave_caustics``: the
@@ -635,8 +646,8 @@ class StreamBuffers:
                                   self.split.kind)
         if kind.shape[0]:
             ok = kind != EMPTY
-            parts.append((sp[ok], sd[ok], spow[ok], sn[ok]))
-        return tuple(np.concatenate([part[c] for part in parts]) for c in range(4))
+            parts.append((sp[ok], sd[ok], spow[ok], sn[ok], self.split.depth[ok]))
+        return tuple(np.concatenate([part[c] for part in parts]) for c in range(5 if depths else 4))
 
     def volume_events(self, estimator: str, leave_caustics: bool = False):
         """This pass's volume photons (position, direction of travel, power), as :meth:`events` for surfaces.
