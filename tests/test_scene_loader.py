@@ -862,13 +862,14 @@ def test_pt_takes_the_depths_of_the_scenes_integrator(tmp_path, integrator, expe
         assert r.stats["integrator_note"] is None, r.stats["integrator_note"]
 
 
-def test_pt_refuses_a_scene_asking_for_max_depth_0(tmp_path):
+@pytest.mark.parametrize("method, budget", [("pt", {"spp": 1}), ("sppm", {"passes": 1}), ("pspm", {"passes": 1})])
+def test_a_scene_asking_for_max_depth_0_is_refused(tmp_path, method, budget):
     import caustica
     path = tmp_path / "s.xml"
     path.write_text(scene('<integrator type="path"><integer name="max_depth" value="0"/></integrator>\n'
                           '<emitter type="point"><point name="position" value="0, 0, 3"/></emitter>\n' + RECT.format("")))
     with pytest.raises(caustica.errors.ParameterError, match=r"s\.xml:\d+: max_depth 0 renders nothing"):
-        caustica.render(str(path), "pt", res=4, spp=1, threads=1)
+        caustica.render(str(path), method, res=4, threads=1, **budget)
 
 
 def test_cli_notes_an_unused_integrator_before_rendering(tmp_path, capsys):

@@ -334,11 +334,8 @@ class ProgressivePhotonMethod(IndependentPasses):
             return {}
         out = {"hide_emitters": s.hide_emitters}
         null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
+        depth = s.path_depth()
         if not description.has_volumes and not null_thin:
-            depth = 2 if s.type == "direct" else s.max_depth
-            if depth == 0:
-                raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even "
-                                     f"the emitters); give -1 (unlimited) or a depth of at least 1")
             out["max_depth"] = depth
         return out
 

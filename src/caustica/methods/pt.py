@@ -42,7 +42,6 @@ import numpy as np
 
 from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmitting, oriented, sample
 from ..camera import generate_ray, pixel_of
-from ..errors import ParameterError
 from ..geometry import vec
 from ..emitters import ENV, radiance_at_hit
 from ..features import has
@@ -293,11 +292,8 @@ class PathTracer(IndependentPasses):
         if not description.integrator_source or s.type not in SCENE_INTEGRATORS:
             return {}
         if s.type == "direct":
-            return {"max_depth": 2, "hide_emitters": s.hide_emitters}
-        if s.max_depth == 0:
-            raise ParameterError(f"integrator '{s.type}' in {s.source}: max_depth 0 renders nothing (not even the "
-                                 f"emitters); give -1 (unlimited) or a depth of at least 1")
-        return {"max_depth": s.max_depth, "rr_depth": s.rr_depth, "hide_emitters": s.hide_emitters,
+            return {"max_depth": s.path_depth(), "hide_emitters": s.hide_emitters}
+        return {"max_depth": s.path_depth(), "rr_depth": s.rr_depth, "hide_emitters": s.hide_emitters,
                 "null_thin_dielectric": s.type in NULL_THIN_INTEGRATORS}
 
     @staticmethod

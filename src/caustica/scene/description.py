@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import shorten
+from ..errors import ParameterError, shorten
 
 # Material kinds (also the integer codes stored in the kernels' material table).
 DIFFUSE = 0
@@ -448,6 +448,16 @@ class IntegratorSettings:
     props: dict = field(default_factory=dict)
     source: str = ""
     wrapper_source: str = ""
+
+    def path_depth(self) -> int:
+        """The max_depth this integrator renders with: 2 for ``direct`` (direct light only), else its own
+        (-1: unlimited); 0, an image with nothing in it, not even the emitters, is refused."""
+        if self.type == "direct":
+            return 2
+        if self.max_depth == 0:
+            raise ParameterError(f"integrator '{self.type}' in {self.source}: max_depth 0 renders nothing (not even "
+                                 f"the emitters); give -1 (unlimited) or a depth of at least 1")
+        return self.max_depth
 
 
 @dataclass
