@@ -147,8 +147,17 @@ def test_the_records_past_each_photons_fixed_slots_are_checked_before_they_are_a
     n = 20_000
     planned = n * trace.fixed_slots(1024) * records_module.SLOT_BYTES
     monkeypatch.setattr(memory, "physical_memory_bytes", lambda: int(1.05 * planned / memory.BUDGET_FRACTION))
+    allocated = []
+
+    def first_buffer_only(*a):   # the fixed slots' buffer; the one for every record must not come
+        if allocated:
+            raise AssertionError("allocated before the memory check")
+        allocated.append(a)
+        return records_module.allocate_buffers(*a)
+
+    monkeypatch.setattr(trace, "allocate_buffers", first_buffer_only)
     with pytest.raises(ParameterError, match=r"20,000 photons' [\d,]+ records \(the paths past their first 8\) "
-                                             r"would need about .* GB, more than"):
+                                             r"and their copy would need about .* GB, more than"):
         caustica.render(diacaustic, "pm", res=8, spp=1, photons=n, caustic_photons=0, termination="roulette",
                         max_bounces=1024)
 

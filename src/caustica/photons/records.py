@@ -87,14 +87,17 @@ def empty_photon_map() -> PhotonMap:
 
 
 class TraceBuffers(NamedTuple):
-    """Fixed slots per path so parallel tracing needs no atomics: path i writes slots [i*m, (i+1)*m)."""
+    """Photon records as structures of arrays.  Tracing writes path i into slots of its own, [i*m, (i+1)*m), so
+    threads need no atomics (:func:`caustica.photons.trace.trace_photon_pass` appends the rest of a longer path
+    after every path's slots)."""
     position: np.ndarray
     direction: np.ndarray
     power: np.ndarray
     normal: np.ndarray
     kind: np.ndarray       # int8: EMPTY, INDIRECT or CAUSTIC
     depth: np.ndarray      # uint16: the segments of the photon's path from its light to the record (Mitsuba's
-    #                        depth: 2 after one bounce; a stream's split photon counts from its split), saturating
+    #                        depth: 2 after one bounce; a stream's split photon counts its stream's path too),
+    #                        saturating
 
 
 SLOT_BYTES = 4 * 3 * 4 + 1 + 2

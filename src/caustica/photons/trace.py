@@ -401,8 +401,9 @@ def fixed_slots(max_bounces: int) -> int:
 
 def planned_records(n_paths: int, max_bounces: int, termination: int) -> int:
     """The record slots a pass of ``n_paths`` photons is planned with (its memory check): under the cap every
-    photon's mr + 1, which most live out; under roulette the fixed slots, its paths' tails being counted, and
-    checked, when traced."""
+    photon's mr + 1, which most live out; under roulette the fixed slots only, which a bright closed room's long
+    paths exceed (1.5 x in a box of albedo 0.9): :func:`trace_photon_pass` checks their tails when it has counted
+    them."""
     if termination == TERMINATION_CAP:
         return n_paths * (max_bounces + 1)
     return n_paths * fixed_slots(max_bounces)
@@ -419,8 +420,9 @@ def trace_photon_pass(scene, source, rules, *, reserve=0, threads=None, progress
     k = fixed_slots(rules[0])
     buf = allocate_buffers(n * k + reserve, 1)
     counts = np.zeros(n, np.int32)
-    args = (scene.tables, light_media(scene), source, rules, (TraceBuffers(*(a[:n * k] for a in buf)), k, counts))
-    compile_s = parallel_for(trace_photons, n, args, threads=threads, progress=progress)
+    common = (scene.tables, light_media(scene), source, rules)
+    compile_s = parallel_for(trace_photons, n, common + ((TraceBuffers(*(a[:n * k] for a in buf)), k, counts),),
+                             threads=threads, progress=progress)
     longer = np.flatnonzero(counts > k)
     if longer.size == 0:
         return buf, n * k, compile_s
@@ -429,14 +431,15 @@ def trace_photon_pass(scene, source, rules, *, reserve=0, threads=None, progress
     np.cumsum(counts[longer] - k, out=offsets[1:])
     offsets[1:] += n * k
     records = int(offsets[-1])
-    check_budget((records + reserve + n * k) * SLOT_BYTES,
-                 f"{n:,} photons' {records:,} records (the paths past their first {k})",
+    # the records and a copy of them (the grid's or the kd-tree's), or the first buffer while it is copied
+    check_budget(2 * (records + reserve) * SLOT_BYTES,
+                 f"{n:,} photons' {records:,} records (the paths past their first {k}) and their copy",
                  "lower --photons or --max-bounces")
     whole = allocate_buffers(records + reserve, 1)
     for a, b in zip(whole, buf):
         a[:n * k] = b[:n * k]
     del buf
-    compile_s += parallel_for(trace_photon_tails, longer.size, args[:4] + ((longer, offsets, k, whole),),
+    compile_s += parallel_for(trace_photon_tails, longer.size, common + ((longer, offsets, k, whole),),
                               threads=threads)
     return whole, records, compile_s
 

@@ -537,7 +537,8 @@ class SceneDescription:
             if depth != -1 and depth > parameters.get("max_bounces", depth) + 2:
                 return (f"integrator '{kind}' in {where} asks for max_depth={depth}; --method {method}'s photons end "
                         f"after --max-bounces {parameters['max_bounces']} diffuse bounces, so its paths may be shorter "
-                        f"(raise --max-bounces)")
+                        f"(raise --max-bounces; with --termination roulette --max-bounces 1024 photons run until "
+                        f"roulette ends them)")
             if kind == "path" and self.has_volumes:
                 return (f"integrator 'path' in {where} would ignore the scene's media in Mitsuba; {method} renders "
                         f"them (as Mitsuba's volpath does)")
