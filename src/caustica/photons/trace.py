@@ -244,24 +244,24 @@ def record_power(geom, mats, hit, d, power):
 
 @kernel
 def trace_one(tables, key, photon, rules, out):
-    """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered, events): from o along d in
+    """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
     ``medium``.  ``out`` = (slot0, skip, slots, buf): its records number skip .. skip + slots - 1 (counted
     from 0 along its path) go to slots slot0 .. slot0 + slots - 1 of ``buf`` (a
     :class:`~caustica.photons.records.TraceBuffers`), the others nowhere.  Returns how many records the
     path made, kept or not.
 
-    A photon from a light starts with no bounce or event and not ``scattered``; a split photon of a stream
-    (:mod:`caustica.photons.streams`) starts with its stream's (its records' depths count the stream's path).  ``rules`` = (max_bounces, termination,
+    A photon from a light starts with no bounce and not ``scattered``; a split photon of a stream
+    (:mod:`caustica.photons.streams`) starts with its stream's.  ``rules`` = (max_bounces, termination,
     caustic_only); ``caustic_only``: stop at the first diffuse or medium event (the aimed caustic
     photons).  Random numbers from 8 on.
     """
     geom, mats, _, media = tables
-    o, d, power, medium, diffuse_bounces, scattered, events = photon
+    o, d, power, medium, diffuse_bounces, scattered = photon
     max_bounces, termination, caustic_only = rules
     slot0, skip, slots, buf = out
     dim = 8
     specular_events = 0
-    # events: the scattering events of the photon's path so far (every kind): its records' depth is events + 1
+    events = 0   # scattering events of this photon's own path (every kind): its records' depth is events + 1
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
     crossings = records = 0
     while True:
@@ -346,7 +346,7 @@ def emitted_photon(geom, lights, light_medium, source, i):
     key = path_key(seed, stream, i)
     o, d, power, _ = emit_photon(geom, lights, key, n_paths)
     li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-    return key, (o, d, power, light_medium[li], 0, False, 0)
+    return key, (o, d, power, light_medium[li], 0, False)
 
 
 @kernel
@@ -389,7 +389,7 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
             li, _, _ = choose_light(lights, uniform(key, 0))
-            trace_one(tables, key, (o, d, power, light_medium[li], 0, False, 0), (0, TERMINATION_CAP, True),
+            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True),
                       (i, 0, 1, buf))
 
 
