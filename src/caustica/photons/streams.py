@@ -84,8 +84,8 @@ MEDIUM_SCATTERING = ("merge", "spread")
 def split_off(tables, key, o, d, power, split_path, k, split):
     """An associated photon that leaves its stream at a mirror or glass (``--specular split``): the stream's
     split photon number split_path[1] + k, with ``split_path`` = (the stream's first split path, its split
-    photons so far, its medium, diffuse bounces, whether it has scattered, its scattering events before o (the
-    depth of the split photon's records counts them), max_bounces).
+    photons so far, its medium, diffuse bounces, whether it has scattered, the scattering events of its path up
+    to o, that at o included (added to the depths of the split photon's records), max_bounces).
 
     From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`) with a key of its
     own: its own specular chain (Fresnel per photon), stored where it lands (unless that is direct light)
@@ -99,7 +99,7 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     slot0 = (first_path + index) * (max_bounces + 1)
     made = trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
                      (max_bounces, TERMINATION_ROULETTE, False), (slot0, 0, max_bounces + 1, split))
-    # trace_one counts the depths from o; the stream's events before o come first.  (Not passed into trace_one:
+    # trace_one counts the depths from o; the stream's events up to o come first.  (Not passed into trace_one:
     # a seventh element of its photon made the aimed caustic photons' kernel 55 % slower, measured.)
     for s in range(slot0, slot0 + min(made, max_bounces + 1)):
         split.depth[s] = min(split.depth[s] + events, MAX_RECORD_DEPTH)

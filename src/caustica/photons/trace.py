@@ -372,7 +372,8 @@ def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
     ids, offsets, skip, buf = tails
     for j in range(i0, i1):
         key, photon = emitted_photon(geom, lights, light_medium, source, ids[j])
-        trace_one(tables, key, photon, (rules[0], rules[1], False), (offsets[j], skip, offsets[j + 1] - offsets[j], buf))
+        trace_one(tables, key, photon, (rules[0], rules[1], False),
+                  (offsets[j], skip, offsets[j + 1] - offsets[j], buf))
 
 
 @kernel
@@ -394,8 +395,8 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
 
 
 def fixed_slots(max_bounces: int) -> int:
-    """The records of each photon kept in slots of its own: mr + 1 (every record a capped path makes, unless
-    it meets plastic coatings or a medium), at most :data:`FIXED_SLOTS`."""
+    """The records of each photon kept in slots of its own: mr + 1 (every record a capped path makes, unless a
+    plastic's coating or a blend's mirror part reflects it without a diffuse bounce), at most :data:`FIXED_SLOTS`."""
     return min(max_bounces + 1, FIXED_SLOTS)
 
 
