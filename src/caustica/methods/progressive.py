@@ -39,12 +39,11 @@ from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
 from ..photons.visible_points import BSDF_MATERIAL, UNLIMITED_DEPTH, bsdf_point, camera_pass, depth_limit
-from ..scene.description import THINDIELECTRIC
+from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS, radius_setting
-from .pt import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01

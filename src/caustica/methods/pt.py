@@ -45,7 +45,7 @@ from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..emitters import ENV, radiance_at_hit
 from ..features import has
-from ..scene.description import HETEROGENEOUS, THINDIELECTRIC
+from ..scene.description import HETEROGENEOUS, NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
 from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import cross_null, free_flight, medium_after, phase_sample
@@ -57,13 +57,6 @@ from .params import Param
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
-#: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults
-#: (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights, to
-#: the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
-SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
-#: The integrators for which a thindielectric's straight-on transmission is a null event (Mitsuba's ``Null`` lobe,
-#: which ``volpath`` does not count as a bounce and lets shadow rays through): pt's ``null_thin_dielectric``.
-NULL_THIN_INTEGRATORS = ("volpath", "volpathmis")
 
 
 @kernel(inline=True)

@@ -426,6 +426,15 @@ class Camera:
     focus_distance: float = 1e4    # a thin lens's plane in focus, along camera +z (Mitsuba's default: far_clip)
 
 
+#: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults, and sppm's
+#: and pspm's max_depth (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights,
+#: to the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
+SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
+#: The integrators for which a thindielectric's straight-on transmission is a null event (Mitsuba's ``Null`` lobe,
+#: which ``volpath`` does not count as a bounce and lets shadow rays through): pt's ``null_thin_dielectric``.
+NULL_THIN_INTEGRATORS = ("volpath", "volpathmis")
+
+
 @dataclass
 class IntegratorSettings:
     """The scene file's ``<integrator>``, as the methods may read it (Mitsuba 3's defaults without one).
@@ -521,7 +530,7 @@ class SceneDescription:
             return None
         kind, where = self.integrator, self.integrator_source
         if method != "pt":
-            if kind not in ("path", "volpath", "volpathmis", "direct", "ptracer"):
+            if kind not in SCENE_INTEGRATORS:
                 return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                         f"('caustica methods' lists them)")
             st = self.integrator_settings
@@ -547,7 +556,7 @@ class SceneDescription:
             return None if kind != "direct" else (
                 f"integrator 'direct' in {where}: {method} renders the same image as paths of at most two segments "
                 f"(max_depth 2)")
-        if kind not in ("path", "volpath", "volpathmis", "direct", "ptracer"):
+        if kind not in SCENE_INTEGRATORS:
             return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                     f"('caustica methods' lists them)")
         if kind == "path" and self.has_media:
