@@ -19,13 +19,13 @@ import numpy as np
 from numba import prange
 
 from caustica.jit import parallel_kernel
-from caustica.photons.kdtree import NO_BOUNDS, build_kdtree, knn, memory_bytes
+from caustica.photons.kdtree import EVERY_POINT, NO_BOUNDS, build_kdtree, knn, memory_bytes
 
 
 @parallel_kernel
 def knn_many(tree, normals, qps, qns, k, r_max, out_idx, out_d2, counts, r2s):
     for q in prange(qps.shape[0]):
-        c, r2 = knn(tree, normals, NO_BOUNDS, (qps[q, 0], qps[q, 1], qps[q, 2]),
+        c, r2 = knn(tree, (normals, NO_BOUNDS, EVERY_POINT), (qps[q, 0], qps[q, 1], qps[q, 2]),
                     (qns[q, 0], qns[q, 1], qns[q, 2]), k, r_max, (out_idx[q], out_d2[q]))
         counts[q] = c
         r2s[q] = r2
@@ -40,7 +40,7 @@ def _serial(tree, normals, qps, qns, k, r_max, out_idx, out_d2):
     # a Python loop calling the compiled kernel: includes dispatch overhead,
     # so the serial figure is measured with the prange kernel on 1 thread instead
     for q in range(qps.shape[0]):
-        knn(tree, normals, NO_BOUNDS, tuple(qps[q]), tuple(qns[q]), k, r_max, (out_idx[q], out_d2[q]))
+        knn(tree, (normals, NO_BOUNDS, EVERY_POINT), tuple(qps[q]), tuple(qns[q]), k, r_max, (out_idx[q], out_d2[q]))
 
 
 def main() -> None:
@@ -62,7 +62,7 @@ def main() -> None:
     oi = np.empty((1, k), np.int64)
     od = np.empty((1, k), np.float64)
     t0 = time.perf_counter()
-    knn(tiny, nrm, NO_BOUNDS, (0.5, 0.5, 0.5), (0.0, 0.0, 1.0), k, 0.1, (oi[0], od[0]))
+    knn(tiny, (nrm, NO_BOUNDS, EVERY_POINT), (0.5, 0.5, 0.5), (0.0, 0.0, 1.0), k, 0.1, (oi[0], od[0]))
     t_knn_c = time.perf_counter() - t0
     t0 = time.perf_counter()
     knn_many(tiny, nrm, p[:1], nrm[:1], k, 0.1, oi, od, np.empty(1, np.int64), np.empty(1))

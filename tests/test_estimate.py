@@ -53,8 +53,8 @@ def radial_integral(filt, r2, power=1, n=64):
 def estimate(pmap, p, n, k, r_max, filt="none"):
     idx = np.empty(k, np.int64)
     d2 = np.empty(k)
-    (e0, e1, e2), count = flux_density(pmap, tuple(map(float, p)), tuple(map(float, n)), k, float(r_max),
-                                       FILTERS[filt], idx, d2, None)
+    (e0, e1, e2), count = flux_density(pmap, (tuple(map(float, p)), tuple(map(float, n)), (None, 0)),
+                                       (k, float(r_max), FILTERS[filt]), (idx, d2), None)
     return np.array([e0, e1, e2]), count
 
 
@@ -232,8 +232,9 @@ def test_bsdf_weighted_estimate_matches_brute_force(filt):
     for k, R in [(50, 1.0), (4000, 0.3)]:
         for q in [(0.0, 0.0, 0.0), (0.5, -0.3, 0.0)]:
             idx, d2 = np.empty(k, np.int64), np.empty(k)
-            _, count = flux_density(pmap, q, up, k, R, FILTERS[filt], idx, d2, None)
-            weighted, count_w = flux_density(pmap, q, up, k, R, FILTERS[filt], idx, d2, (mats, 0, d, up, up, NO_UV))
+            _, count = flux_density(pmap, (q, up, (None, 0)), (k, R, FILTERS[filt]), (idx, d2), None)
+            weighted, count_w = flux_density(pmap, (q, up, (None, 0)), (k, R, FILTERS[filt]), (idx, d2),
+                                             (mats, 0, d, up, up, NO_UV))
             assert count_w == count > 0 and (count == k) == (k == 50)
             r2 = d2[:count].max() if count == k else R * R
             want = np.zeros(3)

@@ -9,7 +9,7 @@ from hypothesis.extra import numpy as hnp
 from numba import prange
 
 from caustica.jit import parallel_kernel
-from caustica.photons.kdtree import (FACING_COS, LEAF_SIZE, NO_BOUNDS, KdTree, build_kdtree, knn, memory_bytes,
+from caustica.photons.kdtree import (EVERY_POINT, FACING_COS, LEAF_SIZE, NO_BOUNDS, KdTree, build_kdtree, knn, memory_bytes,
                                      normal_bounds)
 
 SETTINGS = settings(max_examples=150, deadline=None,
@@ -18,12 +18,18 @@ SETTINGS = settings(max_examples=150, deadline=None,
 
 # ----------------------------------------------------------------------------- helpers
 
-def brute(points, normals, qp, qn, k, r_max):
+def admitted_mask(n, admit):
+    """Which of n points ``admit`` = (depths, max_depth, k) admits, written directly: depth + k <= max_depth."""
+    depths, max_depth, k = admit
+    return np.ones(n, bool) if max_depth is None else depths.astype(np.int64) + k <= max_depth
+
+
+def brute(points, normals, qp, qn, k, r_max, admit=EVERY_POINT):
     """Candidates (indices, d2) sorted by d2, computed with the kernel's own formulas."""
     d = points - np.asarray(qp, dtype=np.float64)
     d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
     facing = normals[:, 0] * qn[0] + normals[:, 1] * qn[1] + normals[:, 2] * qn[2] > FACING_COS
-    ok = np.nonzero((d2 <= r_max * r_max) & facing)[0]
+    ok = np.nonzero((d2 <= r_max * r_max) & facing & admitted_mask(len(points), admit))[0]
     order = np.argsort(d2[ok], kind="stable")
     return ok[order], d2[ok][order]
 
@@ -46,17 +52,17 @@ def bounds_for(tree, normals):
     return NO_BOUNDS
 
 
-def run_knn(tree, normals, qp, qn, k, r_max):
+def run_knn(tree, normals, qp, qn, k, r_max, admit=EVERY_POINT):
     out_idx = np.full(max(k, 1), -7, np.int64)
     out_d2 = np.full(max(k, 1), np.nan)
-    count, r2 = knn(tree, normals, bounds_for(tree, normals), tuple(float(x) for x in qp), tuple(float(x) for x in qn),
-                    k, r_max, (out_idx, out_d2))
+    count, r2 = knn(tree, (normals, bounds_for(tree, normals), admit), tuple(float(x) for x in qp),
+                    tuple(float(x) for x in qn), k, r_max, (out_idx, out_d2))
     return count, r2, out_idx[:count].copy(), out_d2[:count].copy()
 
 
-def check_query(points, normals, tree, qp, qn, k, r_max):
-    count, r2, idx, d2 = run_knn(tree, normals, qp, qn, k, r_max)
-    cand, cd2 = brute(points, normals, qp, qn, k, r_max)
+def check_query(points, normals, tree, qp, qn, k, r_max, admit=EVERY_POINT):
+    count, r2, idx, d2 = run_knn(tree, normals, qp, qn, k, r_max, admit)
+    cand, cd2 = brute(points, normals, qp, qn, k, r_max, admit)
     assert count == min(k, len(cand))
     # returned entries are distinct original indices with their true distances
     assert len(set(idx.tolist())) == count
@@ -64,6 +70,7 @@ def check_query(points, normals, tree, qp, qn, k, r_max):
         dd = points[idx] - np.asarray(qp, dtype=np.float64)
         np.testing.assert_array_equal(d2, dd[:, 0] * dd[:, 0] + dd[:, 1] * dd[:, 1] + dd[:, 2] * dd[:, 2])
         assert np.all(normals[idx, 0] * qn[0] + normals[idx, 1] * qn[1] + normals[idx, 2] * qn[2] > FACING_COS)
+        assert admitted_mask(len(points), admit)[idx].all()
         # heap property: slot 0 is the largest
         assert d2[0] == d2.max()
     if count == k and k > 0:
@@ -227,7 +234,7 @@ def test_build_validates_and_does_not_modify_input():
 def test_out_arrays_too_small():
     tree = build_kdtree(np.random.default_rng(2).random((50, 3)))
     with pytest.raises(ValueError):
-        knn(tree, np.ones((50, 3)), NO_BOUNDS, (0.5, 0.5, 0.5), (1.0, 0.0, 0.0), 10, 1.0,
+        knn(tree, (np.ones((50, 3)), NO_BOUNDS, EVERY_POINT), (0.5, 0.5, 0.5), (1.0, 0.0, 0.0), 10, 1.0,
             (np.empty(5, np.int64), np.empty(10)))
 
 
@@ -261,12 +268,32 @@ def test_big_case_against_brute_force():
     assert 50 < full < len(qps)  # both regimes were exercised
 
 
+@pytest.mark.parametrize("max_depth, k_camera", [(None, 0), (3, 1), (5, 1), (5, 3), (4, 3)])
+def test_knn_admits_records_within_the_max_depth(max_depth, k_camera):
+    """With (depths, max_depth, k) the search is the k-nearest search over the points of depth <= max_depth - k
+    alone (a photon map's records that a camera path of k segments may gather), the same answer as brute force
+    over those points; (3, 1) admits a fifth of them, (4, 3) none."""
+    rng = np.random.default_rng(11)
+    n = 20_000
+    points = rng.random((n, 3)) * 10
+    normals = unit_vectors(rng, n)
+    depths = rng.integers(2, 12, n).astype(np.uint16)
+    tree = build_kdtree(points)
+    admit = (depths, max_depth, k_camera)
+    assert admitted_mask(n, admit).sum() == (n if max_depth is None else (depths + k_camera <= max_depth).sum())
+    qps = np.concatenate([rng.random((60, 3)) * 10, points[rng.integers(0, n, 40)]])
+    full = 0
+    for qp, qn, r_max in zip(qps, unit_vectors(rng, len(qps)), rng.choice([0.3, 1.5, 30.0], len(qps))):
+        full += check_query(points, normals, tree, qp, tuple(qn), 50, r_max, admit) == 50
+    assert (full == 0) == (max_depth == 4)
+
+
 # ----------------------------------------------------------------------------- parallel use
 
 @parallel_kernel
 def _knn_prange(tree, normals, bounds, qps, qns, k, r_max, out_idx, out_d2, counts, r2s):
     for q in prange(qps.shape[0]):
-        c, r2 = knn(tree, normals, bounds, (qps[q, 0], qps[q, 1], qps[q, 2]),
+        c, r2 = knn(tree, (normals, bounds, EVERY_POINT), (qps[q, 0], qps[q, 1], qps[q, 2]),
                     (qns[q, 0], qns[q, 1], qns[q, 2]), k, r_max, (out_idx[q], out_d2[q]))
         counts[q] = c
         r2s[q] = r2

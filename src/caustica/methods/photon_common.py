@@ -1,4 +1,5 @@
-"""What the photon-mapping methods (pm, spm) share: parameters, termination, the camera pass, one-shot passes."""
+"""What the photon-mapping methods (pm, spm) share: parameters, termination, the camera pass, one-shot passes; and
+what every photon method (sppm and pspm too) takes from a scene's integrator: Mitsuba's max_depth and hide_emitters."""
 from __future__ import annotations
 
 import time
@@ -13,7 +14,9 @@ from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams import MEDIUM_SCATTERING
 from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
+from ..photons.visible_points import UNLIMITED_DEPTH, depth_limit
 from ..photons.visible_points import camera_pass as progressive_camera_pass
+from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
 from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
@@ -38,6 +41,48 @@ ESTIMATE_PARAMS = (
     Param("max_specular_depth", int, 64, "mirror, glass and glossy bounces of a camera ray (a photon's cap is "
           "the same 64)", non_negative, ">= 0", max=1024),
 )
+
+#: Mitsuba's max_depth and hide_emitters (docs/methods.md, "The scene's integrator"): a path is the camera's
+#: segments to its diffuse point (sppm's and pspm's visible point) plus the segments of the photon (or stream
+#: record) gathered there.
+DEPTH_PARAMS = (
+    Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
+                                "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
+                                "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
+                                "the default, except with media or (volpath) a thindielectric",
+          lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
+    Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
+                                        "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
+                                        "default)"),
+)
+
+
+class SceneDepths:
+    """A photon method that takes the scene's ``<integrator>`` depths (:data:`DEPTH_PARAMS`)."""
+
+    @staticmethod
+    def scene_defaults(description) -> dict:
+        """The scene's ``<integrator>`` settings the photon methods take: Mitsuba's max_depth (``direct``: 2) and
+        hide_emitters.  Not max_depth in a scene with media (the volume estimate does not count a path's segments),
+        nor under volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, these
+        methods do); a note says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
+        s = description.integrator_settings
+        if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
+            return {}
+        out = {"hide_emitters": s.hide_emitters}
+        null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
+        depth = s.path_depth()
+        if not description.has_volumes and not null_thin:
+            out["max_depth"] = depth
+        return out
+
+
+def check_depth_settings(method: str, scene, settings) -> None:
+    """Refuse a max_depth in a scene with media: the volume estimate does not count a path's segments."""
+    if scene.description.has_volumes and settings["max_depth"] != -1:
+        raise ParameterError(f"--max-depth {settings['max_depth']}: {method} does not limit paths in a scene "
+                             f"with media (its volume estimate does not count their segments); --method pt does")
+
 
 #: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
 MEDIUM_SCATTERING_PARAM = Param(
@@ -73,9 +118,10 @@ def one_shot_volume_radius(scene, settings) -> float:
     return radius_setting(scene, settings, "volume_radius", VOLUME_RADIUS_FRACTION)
 
 
-def check_media_settings(scene, settings) -> None:
+def check_media_settings(method: str, scene, settings) -> None:
     """Before any photon is traced: what the camera pass in media does not do (the fixed grid of light
-    samples), and the memory of its segments."""
+    samples, a max_depth), and the memory of its segments."""
+    check_depth_settings(method, scene, settings)
     if not scene.has_media:
         return
     if settings["fixed_light_grid"]:
@@ -94,7 +140,9 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"])
+    max_depth = depth_limit(settings)
+    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"],
+              None if max_depth == UNLIMITED_DEPTH else max_depth, settings["hide_emitters"])
     compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings["seed"], settings["spp"]),
                                                 (global_map, caustic_map), estimate, params, (image, knn_queries)),
                              threads=settings["threads"], progress=bar)
@@ -116,6 +164,7 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     w, h, spp = settings["width"], settings["height"], settings["spp"]
     n = w * h
     filt = FILTERS[settings["filter"]]
+    max_depth = None if depth_limit(settings) == UNLIMITED_DEPTH else depth_limit(settings)
     r_v = one_shot_volume_radius(scene, settings)
     first_build = not volume_grid_compiled()
     t0 = time.perf_counter()
@@ -131,7 +180,8 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
         vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
         vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
         estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-        points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials)   # rows: BSDF-evaluating points
+        # rows: BSDF-evaluating points; a max_depth (scenes with null boundaries or masks, no volumes) limits the records
+        points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials, vps.segments, max_depth)
         c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate, points,
                                                         (radiance, knn_queries)), threads=settings["threads"])
         vol = np.empty((n, 3))
@@ -176,7 +226,7 @@ class OneShotState:
         return 0 if self.image is None else 1
 
 
-class OneShot:
+class OneShot(SceneDepths):
     """A method whose whole render is one pass: ``render_once(scene, settings, progress) -> (image, stats)``."""
     progressive = False
 

@@ -29,8 +29,8 @@ from ..photons.trace import planned_records, trace_caustic_photon_pass, trace_ph
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
 from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
-from .photon_common import ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, camera_pass, \
-    camera_pass_in_media, check_media_settings
+from .photon_common import DEPTH_PARAMS, ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, \
+    camera_pass, camera_pass_in_media, check_media_settings
 
 
 def _map_stats(prefix, pmap, emitted):
@@ -57,7 +57,7 @@ class PhotonMapping(OneShot):
         Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1", scratch=16),
         Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", in_radius_range,
               RADIUS_ALLOWED),
-    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
+    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS + DEPTH_PARAMS
 
     @staticmethod
     def build_maps(scene, settings, progress):
@@ -122,7 +122,7 @@ class PhotonMapping(OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        check_media_settings(scene, settings)
+        check_media_settings(cls.name, scene, settings)
         global_map, caustic_map, volume, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]

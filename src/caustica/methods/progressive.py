@@ -39,11 +39,10 @@ from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
 from ..photons.visible_points import BSDF_MATERIAL, UNLIMITED_DEPTH, bsdf_point, camera_pass, depth_limit
-from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
-from .photon_common import ESTIMATE_PARAMS, radius_setting
+from .photon_common import ESTIMATE_PARAMS, SceneDepths, check_depth_settings, radius_setting
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
@@ -83,19 +82,6 @@ PROGRESSIVE_PARAMS = (
     replace(_ESTIMATE["fixed_light_grid"],
             help="use the n x n grid's cell centres instead of jittered samples (biased: never converges)"),
     _ESTIMATE["max_specular_depth"],
-)
-
-#: Mitsuba's max_depth and hide_emitters (docs/methods.md, "The scene's integrator"): a path is the camera's
-#: segments to its visible point plus the segments of the photon (or stream record) gathered there.
-DEPTH_PARAMS = (
-    Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
-                                "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
-                                "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
-                                "the default, except with media or (volpath) a thindielectric",
-          lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
-    Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
-                                        "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
-                                        "default)"),
 )
 
 #: The volume estimate's radius (scenes with media; docs/media.md).
@@ -294,7 +280,7 @@ class PassMeasurements(NamedTuple):
     count_caustic: np.ndarray | None = None
 
 
-class ProgressivePhotonMethod(IndependentPasses):
+class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     """Shared pass of sppm and pspm; subclasses give ``photon_events(scene, settings, pass_index, radius, progress)``.
 
     ``photon_events`` returns ((position, power, normal, valid, direction[, depth]) of this pass's events (the
@@ -322,28 +308,10 @@ class ProgressivePhotonMethod(IndependentPasses):
     #: What to lower when a pass's photon events would not fit in memory.
     pass_memory_hint = "lower --photons or --max-bounces"
 
-    @staticmethod
-    def scene_defaults(description) -> dict:
-        """The scene's ``<integrator>`` settings sppm and pspm take: Mitsuba's max_depth (``direct``: 2) and
-        hide_emitters.  Not max_depth in a scene with media (the volume estimate does not count a path's segments),
-        nor under volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, these
-        methods do); a note says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
-        s = description.integrator_settings
-        if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
-            return {}
-        out = {"hide_emitters": s.hide_emitters}
-        null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
-        depth = s.path_depth()
-        if not description.has_volumes and not null_thin:
-            out["max_depth"] = depth
-        return out
-
     @classmethod
     def check(cls, scene, settings):
         """Settings the parameters' own ranges cannot refuse; and a pass's memory, before the first is traced."""
-        if scene.description.has_volumes and settings["max_depth"] != -1:
-            raise ParameterError(f"--max-depth {settings['max_depth']}: {cls.name} does not limit paths in a scene "
-                                 f"with media (its volume estimate does not count their segments); --method pt does")
+        check_depth_settings(cls.name, scene, settings)
         if settings["spp"] != 1:
             raise ParameterError(f"--spp: {cls.name} takes one camera sample per pixel per pass "
                                  f"(got {settings['spp']}); more passes give more samples")

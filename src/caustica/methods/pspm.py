@@ -35,8 +35,8 @@ from ..photons.visible_points import UNLIMITED_DEPTH, depth_limit
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
-from .photon_common import MEDIUM_SCATTERING_PARAM, TERMINATIONS, StreamedBSDFs
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, DEPTH_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
+from .photon_common import DEPTH_PARAMS, MEDIUM_SCATTERING_PARAM, TERMINATIONS, StreamedBSDFs
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod,
                           caustic_event_kind, initial_radius, trace_caustic_pass)
 

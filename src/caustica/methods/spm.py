@@ -23,8 +23,8 @@ from ..photons.streams import StreamBuffers, StreamMap, trace_stream_pass
 from ..sampling.rng import STREAM_SPM
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
-from .photon_common import ESTIMATE_PARAMS, MEDIUM_SCATTERING_PARAM, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, \
-    OneShot, StreamedBSDFs, camera_pass, camera_pass_in_media, check_media_settings
+from .photon_common import DEPTH_PARAMS, ESTIMATE_PARAMS, MEDIUM_SCATTERING_PARAM, ONE_SHOT_VOLUME_PARAMS, \
+    TERMINATIONS, OneShot, StreamedBSDFs, camera_pass, camera_pass_in_media, check_media_settings
 
 ESTIMATORS = ("stream", "photons")
 
@@ -42,7 +42,7 @@ class StreamedPhotonMapping(StreamedBSDFs, OneShot):
         Param("estimator", str, "stream", "stream: eq. 2 over stream records (the paper); "
                                           "photons: every photon at its own position", choices=ESTIMATORS),
         MEDIUM_SCATTERING_PARAM,
-    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS
+    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS + DEPTH_PARAMS
 
     @staticmethod
     def build_stream_map(scene, settings, progress):
@@ -77,7 +77,7 @@ class StreamedPhotonMapping(StreamedBSDFs, OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        check_media_settings(scene, settings)
+        check_media_settings(cls.name, scene, settings)
         smap, stats = cls.build_stream_map(scene, settings, progress)
         t0 = time.perf_counter()
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()

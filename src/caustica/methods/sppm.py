@@ -20,8 +20,8 @@ from ..photons.trace import planned_records, trace_photon_pass
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
 from .params import Param, non_negative, positive
-from .photon_common import TERMINATIONS
-from .progressive import (CAUSTIC_STATISTICS_PARAMS, DEPTH_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
+from .photon_common import DEPTH_PARAMS, TERMINATIONS
+from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
 
 

@@ -57,17 +57,25 @@ def filter_weight(filt, d2, r2):
 
 
 @kernel
-def flux_density(pmap, p, n, k, r_max, filt, scratch_idx, scratch_d2, bsdf):
+def flux_density(pmap, at, estimate, scratch, bsdf):
     """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²), and the number of them.
 
+    ``at`` = (p, n, (max_depth, k)): the point, its normal for the same-side test, and the records it may take:
+    those of at most max_depth - k segments from their light, k the camera path's segments to p (every record
+    with max_depth None: a separate compilation, the search as it was).  ``estimate`` = (k, r_max, filter); ``scratch`` = the search's
+    (indices, squared distances).
     With ``bsdf`` = (mats, m, d, ng, ns, uv) (a point that evaluates its BSDF, as
     :func:`caustica.photons.grid.grid_range_sum` takes it) each term is weighted by material m's f(d, -record
     direction): Σ_p W f Φ_p, the radiance towards -d.  With ``bsdf`` None, the plain sum: a separate compilation in
     which Numba prunes the other branch, so the Lambertian points' loop is what it was."""
+    p, n, (max_depth, k_camera) = at
+    k, r_max, filt = estimate
+    scratch_idx, scratch_d2 = scratch
     if pmap.position.shape[0] == 0 or k <= 0:
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
-    count, r2 = knn(tree, pmap.normal, pmap.tree_normal_bounds, p, n, k, r_max, (scratch_idx, scratch_d2))
+    count, r2 = knn(tree, (pmap.normal, pmap.tree_normal_bounds, (pmap.depth, max_depth, k_camera)), p, n, k, r_max,
+                    scratch)
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0

@@ -69,21 +69,31 @@ def push_branch(scratch, top, o, d, beta, depth):
 
 
 @kernel(inline=True)
+def ends_at(max_depth, k):
+    """Whether a camera path that reached a surface in k segments ends there (its emission added, nothing
+    scattered): Mitsuba's ``max_depth`` reached.  Never without one (None)."""
+    if max_depth is None:
+        return False
+    return k >= max_depth
+
+
+@kernel(inline=True)
 def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     """What arrives at the diffuse point ``at`` as an irradiance-like E (the caller scales it by f_r): shadow rays
     to every emitter (numbers from ``dim`` on; weighted by B of plastic ``lobe_b``'s coating, -1 for none) and
-    both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances)).  With ``bsdf`` =
+    both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances), (max_depth, k):
+    the records the estimates take, :func:`~caustica.photons.estimate.flux_density`).  With ``bsdf`` =
     (mats, m, d, ng, ns, uv) (a glossy lobe beside the diffuse one) every shadow ray and every photon is weighted by
     the BSDF's f(d, wi) instead, and E is the radiance towards -d; None elsewhere (the Lambertian arithmetic, a
     separate compilation).  Returns (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
-    (gmap, cmap), (k_g, r_g, k_c, r_c, filt), (idx, d2) = lookup
-    n_strata, fixed_grid, _ = params
+    (gmap, cmap), (k_g, r_g, k_c, r_c, filt), scratch, limit = lookup
+    n_strata, fixed_grid = params[0], params[1]
     E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b, bsdf)
     facing = at.ns   # the same-side test's normal: the geometric one under a map (the records carry theirs)
     if bsdf is not None and wrapped(bsdf[0], bsdf[1]):
         facing = at.ng
-    Eg, _ = flux_density(gmap, at.p, facing, k_g, r_g, filt, idx, d2, bsdf)
-    Ec, _ = flux_density(cmap, at.p, facing, k_c, r_c, filt, idx, d2, bsdf)
+    Eg, _ = flux_density(gmap, (at.p, facing, limit), (k_g, r_g, filt), scratch, bsdf)
+    Ec, _ = flux_density(cmap, (at.p, facing, limit), (k_c, r_c, filt), scratch, bsdf)
     queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
 
@@ -167,12 +177,17 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
     direct light and the maps' estimates are gathered (:func:`diffuse_estimate`).  Returns (L, k-nearest searches
     made).  ``maps`` = (global map, caustic map); ``estimate`` = (k_g, r_g, k_c, r_c, filter) their k-nearest
-    estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular); ``scratch`` = the split stack
-    (origins, directions, throughputs, depths) and the k-nearest buffers (indices, squared distances).
+    estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular, max_depth, hide_emitters):
+    Mitsuba's max_depth (segments of a whole path, None for none) ends a path at the surface it reaches in
+    max_depth segments once its emission is added, and a diffuse point k segments from the camera gathers the
+    records of at most max_depth - k segments; hide_emitters leaves out what the camera
+    sees first.  A path's segments to a surface are its specular depth + 1 (blends' null parts are not vertices).
+    ``scratch`` = the split stack (origins, directions, throughputs, depths) and the k-nearest buffers (indices,
+    squared distances).
     """
     geom, mats, lights, media = tables
-    max_specular = params[2]
-    lookup = (maps, estimate, (scratch[4], scratch[5]))
+    max_specular, max_depth, hide_emitters = params[2], params[3], params[4]
+    knn_scratch = (scratch[4], scratch[5])
     st_o, st_d, st_beta, st_depth = scratch[0], scratch[1], scratch[2], scratch[3]
     L = (0.0, 0.0, 0.0)
     queries = 0
@@ -185,17 +200,21 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
             if prim < 0:
-                if has(lights, ENV) and lights.env[0] >= 0:   # the environment, seen directly or through mirrors, glass or glossy
+                if has(lights, ENV) and lights.env[0] >= 0 and (depth > 0 or not hide_emitters):
+                    # the environment, seen directly or through mirrors, glass or glossy
                     L = vec.madd(L, vec.hadamard(beta, env_radiance(lights, d)), escape_weight(lights, d, last))
                 break
             p, ng, ns, front, m, uv, passed, dim = camera_surface(geom, mats, (prim, t, b1, b2), o, d, key, dim)
             e = geom.prim_emitter[prim]
-            if e >= 0 and front:
+            if e >= 0 and front and (depth > 0 or not hide_emitters):
                 L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, (o, d, t, b1, b2))),
                              seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
             if passed:
                 o = vec.offset_origin(p, ng, d)
                 continue
+            if ends_at(max_depth, depth + 1):
+                break
+            lookup = (maps, estimate, knn_scratch, (max_depth, depth + 1))
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
@@ -306,13 +325,14 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
-    W_i = β ρ / π, the BSDF rows, the material table).  A point whose row names a material (a glossy lobe beside a
+    W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
+    point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (a glossy lobe beside a
     diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s ``bsdf``).
     """
     gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)
     k_g, r_g, k_c, r_c, filt = estimate
-    vp_pos, vp_nrm, vp_found, vp_weight, rows, mats = points
+    vp_pos, vp_nrm, vp_found, vp_weight, rows, mats, segments, max_depth = points
     mats = borrowed(mats)
     out, knn_queries = out
     kmax = max(k_g, k_c, 1)
@@ -324,12 +344,12 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
         p = vec.row(vp_pos, i)
         n = vec.row(vp_nrm, i)
         if rows[i, BSDF_MATERIAL] < 0.0:
-            Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, None)
-            Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, None)
+            Eg, _ = flux_density(gmap, (p, n, (max_depth, segments[i])), (k_g, r_g, filt), (idx, d2), None)
+            Ec, _ = flux_density(cmap, (p, n, (max_depth, segments[i])), (k_c, r_c, filt), (idx, d2), None)
         else:
             bsdf = bsdf_point(mats, rows, i)
-            Eg, _ = flux_density(gmap, p, n, k_g, r_g, filt, idx, d2, bsdf)
-            Ec, _ = flux_density(cmap, p, n, k_c, r_c, filt, idx, d2, bsdf)
+            Eg, _ = flux_density(gmap, (p, n, (max_depth, segments[i])), (k_g, r_g, filt), (idx, d2), bsdf)
+            Ec, _ = flux_density(cmap, (p, n, (max_depth, segments[i])), (k_c, r_c, filt), (idx, d2), bsdf)
         knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
         for c in range(3):
             out[i, c] += vp_weight[i, c] * (Eg[c] + Ec[c])

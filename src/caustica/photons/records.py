@@ -37,6 +37,8 @@ class PhotonMap(NamedTuple):
     direction: np.ndarray  # float32[n, 3], incoming, towards the surface
     power: np.ndarray      # float32[n, 3], W
     normal: np.ndarray     # float32[n, 3], on the side the photon came from
+    depth: np.ndarray      # uint16[n]: segments from the light to the record (TraceBuffers.depth), which a
+    #                        render's max_depth limits at the gather
 
     @property
     def tree(self) -> KdTree:
@@ -47,15 +49,15 @@ class PhotonMap(NamedTuple):
         return self.position.shape[0]
 
     def record_bytes(self) -> int:
-        """Bytes of the records themselves (position, direction, power, normal)."""
-        return sum(a.nbytes for a in (self.position, self.direction, self.power, self.normal))
+        """Bytes of the records themselves (position, direction, power, normal, depth)."""
+        return sum(a.nbytes for a in (self.position, self.direction, self.power, self.normal, self.depth))
 
     def memory_bytes(self) -> int:
         """Records plus the kd-tree's own arrays and normal bounds: what the map costs in memory."""
         return self.record_bytes() + tree_bytes(self.tree) + self.tree_normal_bounds.nbytes
 
 
-def build_photon_map_with_order(position, direction, power, normal) -> tuple[PhotonMap, np.ndarray]:
+def build_photon_map_with_order(position, direction, power, normal, depth) -> tuple[PhotonMap, np.ndarray]:
     """The photon map, its records stored in kd-tree order, and ``order``: record j was input ``order[j]``.
 
     Storing the records in the tree's own order makes the k-nearest search read
@@ -72,13 +74,18 @@ def build_photon_map_with_order(position, direction, power, normal) -> tuple[Pho
     tree = KdTree(tree.points, np.arange(order.shape[0], dtype=np.int64), tree.axis)
     normal = f32(normal)
     pmap = PhotonMap(tree.points, tree.index, tree.axis, normal_bounds(tree, normal), f32(position),
-                     f32(direction), f32(power), normal)
+                     f32(direction), f32(power), normal,
+                     np.ascontiguousarray(np.asarray(depth, dtype=np.uint16)[order]))
     return pmap, order
 
 
-def build_photon_map(position, direction, power, normal) -> PhotonMap:
-    """The photon map of these records (stored in kd-tree order; see :func:`build_photon_map_with_order`)."""
-    return build_photon_map_with_order(position, direction, power, normal)[0]
+def build_photon_map(position, direction, power, normal, depth=None) -> PhotonMap:
+    """The photon map of these records (stored in kd-tree order; see :func:`build_photon_map_with_order`).
+    ``depth``: each record's segments from its light; None for records made without a path (a test's), which
+    every max_depth then admits."""
+    if depth is None:
+        depth = np.zeros(len(position), np.uint16)
+    return build_photon_map_with_order(position, direction, power, normal, depth)[0]
 
 
 def empty_photon_map() -> PhotonMap:
@@ -115,4 +122,5 @@ def allocate_buffers(n_paths: int, slots_per_path: int) -> TraceBuffers:
 def map_from_buffers(buf: TraceBuffers, kinds: tuple[int, ...]) -> PhotonMap:
     """The photon map of the records whose kind is in ``kinds`` (in path order: deterministic)."""
     keep = np.isin(buf.kind, np.asarray(kinds, np.int8))
-    return build_photon_map(buf.position[keep], buf.direction[keep], buf.power[keep], buf.normal[keep])
+    return build_photon_map(buf.position[keep], buf.direction[keep], buf.power[keep], buf.normal[keep],
+                            buf.depth[keep])

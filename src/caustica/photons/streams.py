@@ -692,10 +692,12 @@ class StreamMap:
             self.assoc_pos = self.assoc_dir = self.assoc_nrm = np.zeros((0, 3), np.float32)
             self.assoc_factor = np.zeros(0, np.float32)
         self.assoc_power = assoc_pow[keep]
+        self.depth_traced = buf.depth[keep]   # in tracing order, as ``count``: the associated photons' depths
         # The paper's map: leading positions in the kd-tree, each carrying its stream's energy E_i.
         # Its records are in kd-tree order; ``count`` and ``assoc_power`` stay in tracing
         # order, which the associated photons' flat arrays follow; ``order`` links the two.
-        self.records, self.order = build_photon_map_with_order(pos[keep], dirs[keep], energy[keep], nrm[keep])
+        self.records, self.order = build_photon_map_with_order(pos[keep], dirs[keep], energy[keep], nrm[keep],
+                                                               buf.depth[keep])
         self.lead_power = np.ascontiguousarray(lead_pow[keep][self.order])  # aligned with self.records
 
     @property
@@ -709,7 +711,8 @@ class StreamMap:
     def memory_bytes(self) -> int:
         """Stream records (leading photon + energy), associated photons and the kd-tree."""
         extra = sum(a.nbytes for a in (self.count, self.assoc_pos, self.assoc_dir, self.assoc_nrm, self.assoc_factor,
-                                       self.lead_power, self.assoc_power))  # ``order`` is bookkeeping only
+                                       self.lead_power, self.assoc_power, self.depth_traced))
+        # ``order`` is bookkeeping only
         return self.records.memory_bytes() + extra
 
     def associated_power(self) -> np.ndarray:
@@ -723,4 +726,5 @@ class StreamMap:
         return build_photon_map(np.concatenate([r.position, self.assoc_pos]),
                                 np.concatenate([r.direction, self.assoc_dir]),
                                 np.concatenate([self.lead_power, assoc_power]),
-                                np.concatenate([r.normal, self.assoc_nrm]))
+                                np.concatenate([r.normal, self.assoc_nrm]),
+                                np.concatenate([r.depth, np.repeat(self.depth_traced, self.count)]))

@@ -522,7 +522,7 @@ class SceneDescription:
         ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
         on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not).  A photon method
         gets a note for a max_depth or hide_emitters of ``path``, ``volpath``, ``direct`` or ``ptracer`` that its
-        ``parameters`` do not carry (sppm and pspm take both, but not max_depth in a scene with media); any other
+        ``parameters`` do not carry (every photon method takes both, but not max_depth in a scene with media); any other
         integrator (``bdpt``, ...) gets a note, so a scene never renders differently from what it
         asks without the user being told.
         """
