@@ -84,8 +84,8 @@ def test_beam_gather_finds_each_pierced_sphere_once_and_matches_a_uniform_densit
     vg = build_volume_grid(pos, dirs, power, r)
     out = np.empty((k, 3))
     found = np.empty(k, np.int64)
-    beam_gather(vg, media, (a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.ones(k, np.int32)), 1, (out, found), 0,
-                k)
+    segments = (a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.zeros(k, np.int32), np.ones(k, np.int32))
+    beam_gather(vg, media, (segments, 1, None), (out, found), 0, k)
     density = 1.0 / 8.0                        # N Φ / V
     for j in range(k):
         want, terms, count = brute_force(pos, dirs, power, r, a[j], seg_d[j], seg_len[j], sigma, g)
@@ -95,6 +95,39 @@ def test_beam_gather_finds_each_pierced_sphere_once_and_matches_a_uniform_densit
         expected = density / (4 * math.pi) * -np.expm1(-sigma * seg_len[j]) / sigma
         se = np.sqrt((terms ** 2).sum(0))       # Poisson: Var Σ w_i ≈ Σ w_i²
         assert np.all(np.abs(want - expected) <= N_SIGMA * se), (j, want, expected, se)
+
+
+@pytest.mark.parametrize("max_depth", [None, 4, 6])
+def test_beam_gather_takes_the_photons_within_the_max_depth(max_depth):
+    """Under a max_depth a segment after k surface vertices gathers the photons of depth max_depth - k - 1 at most
+    (camera -> k vertices -> the point on the segment, then the photon's own segments): brute force over those
+    photons alone, segment by segment, for k = 0, 1, 2."""
+    rng = np.random.default_rng(5)
+    n, r, k = 100_000, 0.15, 48
+    pos = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    dirs = rng.normal(size=(n, 3))
+    dirs = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).astype(np.float32)
+    power = rng.uniform(0.5, 1.5, (n, 3)).astype(np.float32) / n
+    depth = rng.integers(1, 8, n).astype(np.uint16)
+    sigma = np.array([0.5, 0.5, 0.5])
+    media = medium_table(sigma, (0.9, 0.9, 0.9), None)
+    a = rng.uniform(-0.7, 0.7, (k, 3))
+    b = rng.uniform(-0.7, 0.7, (k, 3))
+    seg_len = np.linalg.norm(b - a, axis=1)
+    seg_d = (b - a) / seg_len[:, None]
+    vertices = (np.arange(k) % 3).astype(np.int32)
+    vg = build_volume_grid(pos, dirs, power, r, depth)
+    out = np.empty((k, 3))
+    found = np.empty(k, np.int64)
+    segments = (a, seg_d, seg_len, np.ones((k, 3)), np.zeros(k, np.int32), vertices, np.ones(k, np.int32))
+    beam_gather(vg, media, (segments, 1, max_depth), (out, found), 0, k)
+    for j in range(k):
+        keep = np.ones(n, bool) if max_depth is None else depth <= max_depth - vertices[j] - 1
+        want, _, count = brute_force(pos[keep], dirs[keep], power[keep], r, a[j], seg_d[j], seg_len[j], sigma, None)
+        assert found[j] == count
+        np.testing.assert_allclose(out[j], want, rtol=1e-9, atol=1e-15)
+    if max_depth == 4:   # a segment after 2 vertices takes depth 1 only: a seventh of the photons
+        assert 0 < found[vertices == 2].sum() < found[vertices == 0].sum() / 2
 
 
 def test_the_volume_grid_refuses_what_would_exhaust_memory(monkeypatch):
@@ -114,8 +147,9 @@ def test_beam_gather_of_no_photons_is_zero():
     vg = build_volume_grid(z, z, z, 0.5)
     out = np.full((1, 3), 7.0)
     found = np.full(1, 7, np.int64)
-    beam_gather(vg, medium_table((1, 1, 1), (1, 1, 1), None), (np.zeros((1, 3)), np.array([[0, 0, 1.0]]),
-                np.ones(1), np.ones((1, 3)), np.zeros(1, np.int32), np.ones(1, np.int32)), 1, (out, found), 0, 1)
+    segments = (np.zeros((1, 3)), np.array([[0, 0, 1.0]]), np.ones(1), np.ones((1, 3)), np.zeros(1, np.int32),
+                np.zeros(1, np.int32), np.ones(1, np.int32))
+    beam_gather(vg, medium_table((1, 1, 1), (1, 1, 1), None), (segments, 1, None), (out, found), 0, 1)
     assert np.all(out == 0) and found[0] == 0
 
 

@@ -818,17 +818,18 @@ def test_integrator_note_says_what_caustica_does_with_the_scenes_integrator(tmp_
     # Mitsuba's path is pt: a note only when pt runs with settings other than the file's
     d = load_strict(tmp_path, '<integrator type="path"><integer name="max_depth" value="5"/></integrator>')
     assert d.integrator_note("pt", {"max_depth": 5, "rr_depth": 5}) is None
-    note = d.integrator_note("spm", {"max_bounces": 4})
-    assert note.endswith("asks for max_depth=5, which --method spm does not read (its paths are as long as its "
-                         "own settings allow)"), note
+    assert d.integrator_note("spm", {"max_bounces": 4, "max_depth": 5, "hide_emitters": False}) is None
+    note = d.integrator_note("spm", {"max_bounces": 4})   # a method without the depth settings
+    assert note.endswith("asks for max_depth=5; --method spm renders with max_depth -1 (the method does not read "
+                         "the file's)"), note
     note = d.integrator_note("pt", {"max_depth": -1, "rr_depth": 5})
     assert "asks for max_depth=5; pt runs with max_depth=-1 (a setting given to pt wins" in note, note
     assert load_strict(tmp_path, '<integrator type="path"/>').integrator_note("spm", {}) is None
-    # sppm takes max_depth: a note only when it runs with another
+    # the photon methods take max_depth: a note only when one runs with another (a value given wins)
     assert d.integrator_note("sppm", {"max_depth": 5, "hide_emitters": False}) is None
-    note = d.integrator_note("sppm", {"max_depth": -1, "hide_emitters": False})
-    assert note.endswith("asks for max_depth=5, which --method sppm does not read here (its paths are as long as "
-                         "its own settings allow)"), note
+    note = d.integrator_note("sppm", {"max_depth": 3, "hide_emitters": False})
+    assert "asks for max_depth=5; --method sppm renders with max_depth 3 (a value given wins over the file's" \
+        in note, note
     # no <integrator>: nothing to say
     assert load_strict(tmp_path, "").integrator_note("pt", {}) is None
     assert load_scene_description("cornell-diacaustic").integrator_note("pt", {"max_depth": -1}) is None

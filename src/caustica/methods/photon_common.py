@@ -14,7 +14,7 @@ from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams import MEDIUM_SCATTERING
 from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
-from ..photons.visible_points import UNLIMITED_DEPTH, depth_limit
+from ..photons.visible_points import max_depth_of
 from ..photons.visible_points import camera_pass as progressive_camera_pass
 from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
 from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
@@ -49,7 +49,7 @@ DEPTH_PARAMS = (
     Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
                                 "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
                                 "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
-                                "the default, except with media or (volpath) a thindielectric",
+                                "the default, except (volpath) with a thindielectric",
           lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
     Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
                                         "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
@@ -63,25 +63,18 @@ class SceneDepths:
     @staticmethod
     def scene_defaults(description) -> dict:
         """The scene's ``<integrator>`` settings the photon methods take: Mitsuba's max_depth (``direct``: 2) and
-        hide_emitters.  Not max_depth in a scene with media (the volume estimate does not count a path's segments),
-        nor under volpath in a scene with a thindielectric (volpath does not count its straight-on crossing, these
-        methods do); a note says so (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
+        hide_emitters.  Not max_depth under volpath in a scene with a thindielectric (volpath does not count its
+        straight-on crossing, these methods do); a note says so
+        (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
         s = description.integrator_settings
         if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
             return {}
         out = {"hide_emitters": s.hide_emitters}
         null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
         depth = s.path_depth()
-        if not description.has_volumes and not null_thin:
+        if not null_thin:
             out["max_depth"] = depth
         return out
-
-
-def check_depth_settings(method: str, scene, settings) -> None:
-    """Refuse a max_depth in a scene with media: the volume estimate does not count a path's segments."""
-    if scene.description.has_volumes and settings["max_depth"] != -1:
-        raise ParameterError(f"--max-depth {settings['max_depth']}: {method} does not limit paths in a scene "
-                             f"with media (its volume estimate does not count their segments); --method pt does")
 
 
 #: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
@@ -118,10 +111,9 @@ def one_shot_volume_radius(scene, settings) -> float:
     return radius_setting(scene, settings, "volume_radius", VOLUME_RADIUS_FRACTION)
 
 
-def check_media_settings(method: str, scene, settings) -> None:
+def check_media_settings(scene, settings) -> None:
     """Before any photon is traced: what the camera pass in media does not do (the fixed grid of light
-    samples, a max_depth), and the memory of its segments."""
-    check_depth_settings(method, scene, settings)
+    samples), and the memory of its segments."""
     if not scene.has_media:
         return
     if settings["fixed_light_grid"]:
@@ -140,9 +132,8 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-    max_depth = depth_limit(settings)
     params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"],
-              None if max_depth == UNLIMITED_DEPTH else max_depth, settings["hide_emitters"])
+              max_depth_of(settings), settings["hide_emitters"])
     compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings["seed"], settings["spp"]),
                                                 (global_map, caustic_map), estimate, params, (image, knn_queries)),
                              threads=settings["threads"], progress=bar)
@@ -158,17 +149,18 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     (:func:`caustica.photons.visible_points.camera_pass`, sample s keyed as pass s): a
     visible point with its direct light, the direct light scattered along the path's medium
     segments, then the maps' k-nearest estimates at the visible point and the beam radiance
-    estimate of ``volume`` (position, direction, power of the volume photons) along the segments,
+    estimate of ``volume`` (position, direction, power, depth of the volume photons) along the segments,
     within :func:`one_shot_volume_radius`.
     """
     w, h, spp = settings["width"], settings["height"], settings["spp"]
     n = w * h
     filt = FILTERS[settings["filter"]]
-    max_depth = None if depth_limit(settings) == UNLIMITED_DEPTH else depth_limit(settings)
+    max_depth = max_depth_of(settings)
     r_v = one_shot_volume_radius(scene, settings)
     first_build = not volume_grid_compiled()
     t0 = time.perf_counter()
-    vgrid = build_volume_grid(*volume, r_v)
+    position, direction, power, depth = volume
+    vgrid = build_volume_grid(position, direction, power, r_v, depth)
     grid_s = time.perf_counter() - t0
     acc = np.zeros((n, 3))
     knn_queries = np.zeros(n, np.int64)
@@ -180,13 +172,13 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
         vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
         vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
         estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-        # rows: BSDF-evaluating points; a max_depth (scenes with null boundaries or masks, no volumes) limits the records
+        # rows: BSDF-evaluating points; a max_depth limits the records by each point's segments
         points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials, vps.segments, max_depth)
         c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate, points,
                                                         (radiance, knn_queries)), threads=settings["threads"])
         vol = np.empty((n, 3))
         found = np.empty(n, np.int64)
-        c += parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, found)),
+        c += parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth), (vol, found)),
                           threads=settings["threads"])
         gathered += int(found.sum())
         acc += radiance

@@ -100,11 +100,11 @@ class PhotonMapping(OneShot):
             # volume photons: as at surfaces, the aimed photons' light -> S+ -> medium ones replace the others'
             keep = buf.kind == VOLUME_INDIRECT if use_caustic else (buf.kind == VOLUME_INDIRECT) | \
                 (buf.kind == VOLUME_CAUSTIC)
-            volume = (buf.position[keep], buf.direction[keep], buf.power[keep])
+            volume = (buf.position[keep], buf.direction[keep], buf.power[keep], buf.depth[keep])
             if use_caustic:
                 ck = cbuf.kind == VOLUME_CAUSTIC
                 volume = tuple(np.concatenate([a, b[ck]]) for a, b in zip(volume, (cbuf.position, cbuf.direction,
-                                                                                   cbuf.power)))
+                                                                                   cbuf.power, cbuf.depth)))
         timings["map_build_s"] = time.perf_counter() - t2
         del buf, cbuf
         timings["compile_s"] = compile_s
@@ -122,7 +122,7 @@ class PhotonMapping(OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        check_media_settings(cls.name, scene, settings)
+        check_media_settings(scene, settings)
         global_map, caustic_map, volume, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]
         r_c = settings["caustic_radius"] or settings["radius"]

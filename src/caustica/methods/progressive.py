@@ -38,11 +38,11 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_MATERIAL, UNLIMITED_DEPTH, bsdf_point, camera_pass, depth_limit
+from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass, max_depth_of
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
-from .photon_common import ESTIMATE_PARAMS, SceneDepths, check_depth_settings, radius_setting
+from .photon_common import ESTIMATE_PARAMS, SceneDepths, radius_setting
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
@@ -311,7 +311,6 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     @classmethod
     def check(cls, scene, settings):
         """Settings the parameters' own ranges cannot refuse; and a pass's memory, before the first is traced."""
-        check_depth_settings(cls.name, scene, settings)
         if settings["spp"] != 1:
             raise ParameterError(f"--spp: {cls.name} takes one camera sample per pixel per pass "
                                  f"(got {settings['spp']}); more passes give more samples")
@@ -388,8 +387,8 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
         vps, segments, c0 = camera_pass(scene, settings, pass_index, bar)
         vp_weight, vp_found, direct = vps.weight, vps.found, vps.direct
-        max_depth = depth_limit(settings)
-        limited = max_depth != UNLIMITED_DEPTH
+        max_depth = max_depth_of(settings)
+        limited = max_depth is not None
         points = (vps, scene.materials)
         timings["camera_pass_s"] = time.perf_counter() - t0 - c0
         # 2. photon pass, and the grid over its events
@@ -562,7 +561,8 @@ def _volume_estimate(scene, settings, pass_index, volume, segments, timings, sta
     compile_s = 0.0
     t1 = time.perf_counter()
     first_build = not volume_grid_compiled()
-    vgrid = build_volume_grid(*volume, r_v)
+    position, direction, power, depth = volume
+    vgrid = build_volume_grid(position, direction, power, r_v, depth)
     if first_build:
         compile_s += time.perf_counter() - t1
     else:
@@ -570,8 +570,8 @@ def _volume_estimate(scene, settings, pass_index, volume, segments, timings, sta
     vol = np.empty((n, 3))
     vfound = np.empty(n, np.int64)
     t1 = time.perf_counter()
-    c = parallel_for(beam_gather, n, (vgrid, scene.media, segments, MEDIUM_SEGMENTS, (vol, vfound)),
-                     threads=settings["threads"])
+    c = parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth_of(settings)),
+                                      (vol, vfound)), threads=settings["threads"])
     timings["volume_gather_s"] = time.perf_counter() - t1 - c
     stats["volume_photons"] = vgrid.count
     stats["volume_grid_entries"] = vgrid.entries

@@ -31,7 +31,7 @@ from ..errors import ParameterError
 from ..memory import check_budget
 from ..photons.records import SLOT_BYTES, VOLUME_CAUSTIC, allocate_buffers
 from ..photons.streams import StreamBuffers, trace_stream_pass
-from ..photons.visible_points import UNLIMITED_DEPTH, depth_limit
+from ..photons.visible_points import max_depth_of
 from ..sampling.rng import STREAM_SPM, pass_stream
 from . import register
 from .params import RADIUS_ALLOWED, Param, non_negative, positive, zero_or_in_radius_range
@@ -148,7 +148,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
             cbuf = allocate_buffers(n_c, 1)
             compile_s += trace_caustic_pass(scene, settings, pass_index, n_c, cbuf)
         t1 = time.perf_counter()
-        limited = depth_limit(settings) != UNLIMITED_DEPTH
+        limited = max_depth_of(settings) is not None
         # depth: [each event's depth] under a finite max_depth, which the gather holds them against; else []
         pos, direction, power, normal, *depth = buf.events(settings["estimator"], leave_caustics=n_c > 0,
                                                            depths=limited)
@@ -168,7 +168,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
             if n_c > 0:
                 in_medium = cbuf.kind == VOLUME_CAUSTIC
                 volume = tuple(np.concatenate([a, b[in_medium]])
-                               for a, b in zip(volume, (cbuf.position, cbuf.direction, cbuf.power)))
+                               for a, b in zip(volume, (cbuf.position, cbuf.direction, cbuf.power, cbuf.depth)))
             stats["volume_photons"] = volume
         stats["timings"] = {"compile_s": compile_s, "photon_trace_s": t1 - t0 - compile_s,
                             "map_build_s": time.perf_counter() - t1}

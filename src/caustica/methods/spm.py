@@ -77,7 +77,7 @@ class StreamedPhotonMapping(StreamedBSDFs, OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        check_media_settings(cls.name, scene, settings)
+        check_media_settings(scene, settings)
         smap, stats = cls.build_stream_map(scene, settings, progress)
         t0 = time.perf_counter()
         pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()

@@ -131,5 +131,5 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
                 keep = np.concatenate([head.kind == VOLUME_INDIRECT, tail.kind == VOLUME_CAUSTIC])
             else:
                 keep = (buf.kind == VOLUME_INDIRECT) | (buf.kind == VOLUME_CAUSTIC)
-            stats["volume_photons"] = (buf.position[keep], buf.direction[keep], buf.power[keep])
+            stats["volume_photons"] = (buf.position[keep], buf.direction[keep], buf.power[keep], buf.depth[keep])
         return (buf.position, buf.power, buf.normal, valid, buf.direction, buf.depth), n + n_c, stats

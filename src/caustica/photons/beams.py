@@ -52,6 +52,7 @@ class VolumeGrid(NamedTuple):
     position: np.ndarray   # float32[n, 3]
     direction: np.ndarray  # float32[n, 3]: direction of travel at the event
     power: np.ndarray      # float32[n, 3]
+    depth: np.ndarray      # uint16[n]: segments from the light to the event (a render's max_depth limits them)
 
     @property
     def count(self) -> int:
@@ -117,8 +118,10 @@ def volume_grid_compiled() -> bool:
     return _fill.compiled_for_python()
 
 
-def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
-    """The grid over these volume photons (float32 arrays, already compacted) as spheres of ``radius``."""
+def build_volume_grid(position, direction, power, radius: float, depth=None) -> VolumeGrid:
+    """The grid over these volume photons (float32 arrays, already compacted) as spheres of ``radius``; ``depth``:
+    each one's segments from its light (None: photons made without a path, a test's, which every max_depth
+    admits)."""
     position = np.ascontiguousarray(position, np.float32)
     n = position.shape[0]
     r = float(radius)
@@ -142,7 +145,8 @@ def build_volume_grid(position, direction, power, radius: float) -> VolumeGrid:
     if n:
         _fill(position, r, lo, inv, dims, start, key, photon)
     return VolumeGrid(lo, np.array([cell]), np.array([r]), dims, start, key, photon, position,
-                      np.ascontiguousarray(direction, np.float32), np.ascontiguousarray(power, np.float32))
+                      np.ascontiguousarray(direction, np.float32), np.ascontiguousarray(power, np.float32),
+                      np.zeros(n, np.uint16) if depth is None else np.ascontiguousarray(depth, np.uint16))
 
 
 @kernel(inline=True)
@@ -191,9 +195,10 @@ def _dda_start(vg, o, d, t0):
 
 
 @kernel(inline=True)
-def _add_cell(vg, media, seg, k, span, acc):
+def _add_cell(vg, media, seg, k, span, acc, limit):
     """Add to ``acc`` = (a0, a1, a2, found) the photons of grid cell k whose spheres the segment pierces
-    with its closest approach t in ``span`` = [t_enter, t_exit); ``seg`` = (o, d, m, r2)."""
+    with its closest approach t in ``span`` = [t_enter, t_exit); ``seg`` = (o, d, m, r2).  Photons deeper than
+    ``limit`` are left out, unless it is None (Numba prunes the test then: a compilation of its own)."""
     o, d, m, r2 = seg
     t_enter, t_exit = span
     a0, a1, a2, found = acc
@@ -207,6 +212,9 @@ def _add_cell(vg, media, seg, k, span, acc):
         if vg.key[j] != k:
             continue
         i = vg.photon[j]
+        if limit is not None:
+            if vg.depth[i] > limit:
+                continue
         vx = vg.position[i, 0] - o[0]
         vy = vg.position[i, 1] - o[1]
         vz = vg.position[i, 2] - o[2]
@@ -231,14 +239,26 @@ def _add_cell(vg, media, seg, k, span, acc):
     return a0, a1, a2, found
 
 
+@kernel(inline=True)
+def _photon_limit(max_depth, vertices):
+    """The deepest volume photon a camera segment after ``vertices`` surface vertices may gather: max_depth -
+    vertices - 1 (camera -> the vertices -> the point on the segment); None (max_depth itself, never an optional
+    int) without a max_depth."""
+    if max_depth is None:
+        return max_depth
+    return max_depth - vertices - 1
+
+
 @kernel
-def segment_estimate(vg, media, o, d, s, m):
-    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces.
+def segment_estimate(vg, media, segment, m, limit):
+    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) = ``segment`` in m
+    pierces (those of depth ``limit`` at most; every one for None).
 
     Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
     The segment walks the grid's cells in order (a DDA), each photon counted in the cell of its
     closest approach.
     """
+    o, d, s = segment
     acc = (0.0, 0.0, 0.0, 0)
     if vg.position.shape[0] == 0:
         return (0.0, 0.0, 0.0), 0
@@ -255,7 +275,7 @@ def segment_estimate(vg, media, o, d, s, m):
     t_enter = t0
     while t_enter < t1:
         t_exit = min(min(nx, ny), min(nz, t1))
-        acc = _add_cell(vg, media, seg, (ix * dims[1] + iy) * dims[2] + iz, (t_enter, t_exit), acc)
+        acc = _add_cell(vg, media, seg, (ix * dims[1] + iy) * dims[2] + iz, (t_enter, t_exit), acc, limit)
         if t_exit >= t1:
             break
         if nx <= ny and nx <= nz:
@@ -278,12 +298,14 @@ def segment_estimate(vg, media, o, d, s, m):
 
 
 @kernel
-def beam_gather(vg, media, segments, per_pixel, out, i0, i1):
-    """Pixels [i0, i1) of the camera ``segments`` (:class:`~caustica.photons.segments.CameraSegments`, per_pixel
-    slots a pixel): into ``out`` = (radiance, found), radiance[i] = Σ over its segments of β Σ_i T p Φ_i / (π r²),
-    found[i] the photons counted."""
+def beam_gather(vg, media, camera, out, i0, i1):
+    """Pixels [i0, i1) of ``camera`` = (segments, per_pixel, max_depth): the camera's segments
+    (:class:`~caustica.photons.segments.CameraSegments`, per_pixel slots a pixel) into ``out`` = (radiance, found),
+    radiance[i] = Σ over its segments of β Σ_i T p Φ_i / (π r²), found[i] the photons counted.  Under a max_depth
+    (None: none) a segment after k surface vertices takes the photons of depth max_depth - k - 1 at most."""
     vg, media = borrowed(vg), borrowed(media)
-    seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_count = segments
+    segments, per_pixel, max_depth = camera
+    seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_vertices, seg_count = segments
     out, found = out
     norm = 1.0 / (math.pi * vg.radius[0] * vg.radius[0])
     for i in range(i0, i1):
@@ -295,7 +317,8 @@ def beam_gather(vg, media, segments, per_pixel, out, i0, i1):
             k = i * per_pixel + j
             o = (seg_o[k, 0], seg_o[k, 1], seg_o[k, 2])
             d = (seg_d[k, 0], seg_d[k, 1], seg_d[k, 2])
-            a, f = segment_estimate(vg, media, o, d, seg_len[k], seg_medium[k])
+            a, f = segment_estimate(vg, media, (o, d, seg_len[k]), seg_medium[k],
+                                    _photon_limit(max_depth, seg_vertices[k]))
             acc0 += seg_beta[k, 0] * a[0]
             acc1 += seg_beta[k, 1] * a[1]
             acc2 += seg_beta[k, 2] * a[2]

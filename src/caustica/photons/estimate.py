@@ -28,6 +28,7 @@ import math
 from ..bsdfs import eval_photon
 from ..jit import kernel
 from .kdtree import KdTree, knn
+from .records import MIN_RECORD_DEPTH
 
 FILTER_NONE = 0
 FILTER_CONE = 1
@@ -56,14 +57,23 @@ def filter_weight(filt, d2, r2):
     return 2.0 * (1.0 - d2 / r2) * inv_area
 
 
+@kernel(inline=True)
+def _none_admitted(max_depth, k_camera):
+    """Whether a camera path of k_camera segments may gather no record at all under ``max_depth`` (None: never):
+    the k-nearest search would visit every record within its radius for nothing."""
+    if max_depth is None:
+        return False
+    return max_depth - k_camera < MIN_RECORD_DEPTH
+
+
 @kernel
 def flux_density(pmap, at, estimate, scratch, bsdf):
     """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²), and the number of them.
 
     ``at`` = (p, n, (max_depth, k)): the point, its normal for the same-side test, and the records it may take:
     those of at most max_depth - k segments from their light, k the camera path's segments to p (every record
-    with max_depth None: a separate compilation, the search as it was).  ``estimate`` = (k, r_max, filter); ``scratch`` = the search's
-    (indices, squared distances).
+    with max_depth None: a separate compilation, the search as it was).  ``estimate`` = (k, r_max, filter);
+    ``scratch`` = the search's (indices, squared distances).
     With ``bsdf`` = (mats, m, d, ng, ns, uv) (a point that evaluates its BSDF, as
     :func:`caustica.photons.grid.grid_range_sum` takes it) each term is weighted by material m's f(d, -record
     direction): Σ_p W f Φ_p, the radiance towards -d.  With ``bsdf`` None, the plain sum: a separate compilation in
@@ -71,7 +81,7 @@ def flux_density(pmap, at, estimate, scratch, bsdf):
     p, n, (max_depth, k_camera) = at
     k, r_max, filt = estimate
     scratch_idx, scratch_d2 = scratch
-    if pmap.position.shape[0] == 0 or k <= 0:
+    if pmap.position.shape[0] == 0 or k <= 0 or _none_admitted(max_depth, k_camera):
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
     count, r2 = knn(tree, (pmap.normal, pmap.tree_normal_bounds, (pmap.depth, max_depth, k_camera)), p, n, k, r_max,

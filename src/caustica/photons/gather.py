@@ -326,8 +326,9 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
     W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
-    point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (a glossy lobe beside a
-    diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s ``bsdf``).
+    point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (a glossy
+    lobe beside a diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s
+    ``bsdf``).
     """
     gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)

@@ -27,6 +27,11 @@ VOLUME_INDIRECT = 3
 VOLUME_CAUSTIC = 4
 
 
+#: The shallowest surface record a traced path makes: light -> the first scattering event -> the record (direct
+#: light is not stored; shadow rays carry it).
+MIN_RECORD_DEPTH = 2
+
+
 class PhotonMap(NamedTuple):
     """Records plus the kd-tree's arrays, flat (Numba's parallel loops refuse nested tuples)."""
     tree_points: np.ndarray
@@ -81,10 +86,10 @@ def build_photon_map_with_order(position, direction, power, normal, depth) -> tu
 
 def build_photon_map(position, direction, power, normal, depth=None) -> PhotonMap:
     """The photon map of these records (stored in kd-tree order; see :func:`build_photon_map_with_order`).
-    ``depth``: each record's segments from its light; None for records made without a path (a test's), which
-    every max_depth then admits."""
+    ``depth``: each record's segments from its light; None for records made without a path (a test's), which then
+    count as the shallowest a traced path makes (:data:`MIN_RECORD_DEPTH`)."""
     if depth is None:
-        depth = np.zeros(len(position), np.uint16)
+        depth = np.full(len(position), MIN_RECORD_DEPTH, np.uint16)
     return build_photon_map_with_order(position, direction, power, normal, depth)[0]
 
 

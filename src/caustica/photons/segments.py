@@ -40,8 +40,8 @@ MEDIUM_SEGMENTS = 8
 #: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n²,
 #: with n = --light-samples at most 64 (ESTIMATE_PARAMS), so these start past 3 + 2 * 64².
 QMC_SEGMENT_DIM = 3 + 2 * 64 * 64 + 1
-#: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; count).
-SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4) + 4
+#: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; vertices; count).
+SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4 + 4) + 4
 
 
 
@@ -53,6 +53,8 @@ class CameraSegments(NamedTuple):
     length: np.ndarray      # float64[k] (inf: the segment escapes)
     beta: np.ndarray        # float64[k, 3]: the path's throughput at the segment's origin
     medium: np.ndarray      # int32[k]
+    vertices: np.ndarray    # int32[k]: the path's surface vertices before the segment (a point on it is that + 1
+    #                         segments from the camera; null crossings are not vertices)
     count: np.ndarray       # int32[pixels]: segments of each pixel's path
 
 
@@ -60,17 +62,18 @@ def allocate_segments(pixels: int, media: bool) -> CameraSegments:
     """Room for ``pixels`` paths' segments (every entry is written by the camera pass); empty without media."""
     k = pixels * MEDIUM_SEGMENTS if media else 0
     return CameraSegments(np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
-                          np.zeros(pixels, np.int32))
+                          np.empty(k, np.int32), np.zeros(pixels, np.int32))
 
 
 @kernel(inline=True)
-def store_segment(k, o, d, s, beta, medium, segments):
+def store_segment(k, o, d, s, beta, medium, vertices, segments):
     """Write segment slot k."""
     vec.set_row(segments.origin, k, o)
     vec.set_row(segments.direction, k, d)
     vec.set_row(segments.beta, k, beta)
     segments.length[k] = s
     segments.medium[k] = medium
+    segments.vertices[k] = vertices
 
 
 @kernel

@@ -654,7 +654,8 @@ class StreamBuffers:
         return tuple(np.concatenate([part[c] for part in parts]) for c in range(5 if depths else 4))
 
     def volume_events(self, estimator: str, leave_caustics: bool = False):
-        """This pass's volume photons (position, direction of travel, power), as :meth:`events` for surfaces.
+        """This pass's volume photons (position, direction of travel, power, depth), as :meth:`events` for
+        surfaces.
 
         ``leave_caustics``: the light -> specular+ -> medium records are left out (kind VOLUME_CAUSTIC),
         as the aimed caustic photons carry them.
@@ -663,7 +664,7 @@ class StreamBuffers:
         keep = (valid == VOLUME_INDIRECT) if leave_caustics else ((valid == VOLUME_INDIRECT) |
                                                                   (valid == VOLUME_CAUSTIC))
         parts = self._records(estimator, keep)
-        return tuple(np.concatenate([part[c] for part in parts]) for c in range(3))
+        return tuple(np.concatenate([part[c] for part in parts]) for c in (0, 1, 2, 4))
 
 
 def associated_power(assoc_power, count, factor) -> np.ndarray:
@@ -676,7 +677,7 @@ class StreamMap:
     """The stored stream records, compacted, with the kd-tree over leading photons."""
 
     def __init__(self, buf: StreamBuffers):
-        self.volume = None   # (position, direction, power) of the volume photons, in a scene with media
+        self.volume = None   # (position, direction, power, depth) of the volume photons, in a scene with media
         pos, dirs, nrm, lead_pow, assoc_pow, energy, count, valid = buf.rec
         keep = (valid == INDIRECT) | (valid == CAUSTIC)   # every surface record (volume ones: volume_events)
         self.count = count[keep]

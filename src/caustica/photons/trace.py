@@ -33,8 +33,8 @@ What is stored obeys SPEC §2 (surfaces and volume alike): an event only after t
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
 event was a mirror, glass or glossy surface (light -> (S|G)+ -> event: what aimed caustic photons carry),
 INDIRECT / VOLUME_INDIRECT otherwise.  Every record keeps its depth, the segments of the photon's path from its
-light (Mitsuba's count: every scattering event, null crossings not), which sppm's gather holds against a
-finite max_depth.
+light (Mitsuba's count: every scattering event, null crossings not), which every photon method's gather holds
+against a finite max_depth.
 """
 from __future__ import annotations
 

@@ -95,10 +95,16 @@ INV_PI = 1.0 / math.pi
 UNLIMITED_DEPTH = 1 << 30
 
 
-def depth_limit(settings) -> int:
-    """The render's max_depth (Mitsuba's: segments of a whole path), :data:`UNLIMITED_DEPTH` for -1 or none."""
+def max_depth_of(settings) -> int | None:
+    """The render's max_depth (Mitsuba's: segments of a whole path); None for -1 or none (no limit)."""
     m = settings.get("max_depth", -1)
-    return UNLIMITED_DEPTH if m is None or m < 0 else int(m)
+    return None if m is None or m < 0 else int(m)
+
+
+def depth_limit(settings) -> int:
+    """:func:`max_depth_of` as an int for the camera path's own counting: :data:`UNLIMITED_DEPTH` for no limit."""
+    m = max_depth_of(settings)
+    return UNLIMITED_DEPTH if m is None else m
 
 
 #: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates,
@@ -141,14 +147,20 @@ def glass_step(L, beta, seen, branches, u):
 
 @kernel
 def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
-    """A camera path's flight through ``medium``, ``segment`` = (o, d, its length s: to a surface, or inf): it is
-    stored in slot slot0 + n_seg of ``out`` = (slot0, segments).  Returns (the direct light scattered along
-    it towards o, times β; β past it).  ``numbers`` = (key, qkey, vkey, pass_index), see :func:`visible_point`.
+    """A camera path's flight through ``medium``, ``segment`` = (o, d, its length s: to a surface, or inf, the
+    path's surface vertices k before it, max_depth): it is stored in slot slot0 + n_seg of ``out`` = (slot0,
+    segments).  Returns (the direct light scattered along it towards o, times β: none when a path of k + 2
+    segments would pass max_depth; β past it).  ``numbers`` = (key, qkey, vkey, pass_index), see
+    :func:`visible_point`.
     """
-    o, d, s = segment
+    o, d, s, k, max_depth = segment
     _, qkey, vkey, pass_index = numbers
     slot0, segments = out
-    store_segment(slot0 + n_seg, o, d, s, beta, medium, segments)
+    store_segment(slot0 + n_seg, o, d, s, beta, medium, k, segments)
+    if k + 2 > max_depth:   # camera -> k surfaces -> the scattering point -> the light
+        if s < np.inf:
+            beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
+        return (0.0, 0.0, 0.0), beta
     vd = 7 * n_seg
     u_dist = uniform(vkey, vd + 1)
     u1 = uniform(vkey, vd + 3)
@@ -380,8 +392,8 @@ def visible_point(tables, o, d, numbers, params, out):
         if medium >= 0:
             if n_seg >= MEDIUM_SEGMENTS:
                 return False, zero, zero, zero, L, n_seg, k
-            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf), medium, beta, n_seg, numbers,
-                                      (out[0], out[1]))
+            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth), medium, beta, n_seg,
+                                      numbers, (out[0], out[1]))
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:

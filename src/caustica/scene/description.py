@@ -458,15 +458,19 @@ class IntegratorSettings:
     source: str = ""
     wrapper_source: str = ""
 
+    @property
+    def asked_depth(self) -> int:
+        """The max_depth this integrator asks for: 2 for ``direct`` (direct light only), else its own (-1:
+        unlimited)."""
+        return 2 if self.type == "direct" else self.max_depth
+
     def path_depth(self) -> int:
-        """The max_depth this integrator renders with: 2 for ``direct`` (direct light only), else its own
-        (-1: unlimited); 0, an image with nothing in it, not even the emitters, is refused."""
-        if self.type == "direct":
-            return 2
-        if self.max_depth == 0:
+        """:attr:`asked_depth`, the max_depth a method renders with; 0, an image with nothing in it, not even the
+        emitters, is refused."""
+        if self.asked_depth == 0:
             raise ParameterError(f"integrator '{self.type}' in {self.source}: max_depth 0 renders nothing (not even "
                                  f"the emitters); give -1 (unlimited) or a depth of at least 1")
-        return self.max_depth
+        return self.asked_depth
 
 
 @dataclass
@@ -522,7 +526,8 @@ class SceneDescription:
         ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
         on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not).  A photon method
         gets a note for a max_depth or hide_emitters of ``path``, ``volpath``, ``direct`` or ``ptracer`` that its
-        ``parameters`` do not carry (every photon method takes both, but not max_depth in a scene with media); any other
+        ``parameters`` do not carry (every photon method takes both, but not max_depth under volpath with a
+        thindielectric) or that a value given replaced; any other
         integrator (``bdpt``, ...) gets a note, so a scene never renders differently from what it
         asks without the user being told.
         """
@@ -534,15 +539,17 @@ class SceneDescription:
                 return (f"integrator '{shorten(kind)}' in {where} is not used; the method is --method {method} "
                         f"('caustica methods' lists them)")
             st = self.integrator_settings
-            depth = 2 if kind == "direct" else st.max_depth
-            asked = ([(f"max_depth={depth}", "its paths are as long as its own settings allow")]
-                     if depth != -1 and parameters.get("max_depth") != depth else []) + (
-                [("hide_emitters", "the emitters the camera sees show")]
-                if st.hide_emitters and not parameters.get("hide_emitters") else [])
+            depth = st.asked_depth
+            asked = ([f"max_depth={depth}"] if depth != -1 and parameters.get("max_depth") != depth else []) + (
+                ["hide_emitters"] if st.hide_emitters and not parameters.get("hide_emitters") else [])
             if asked:
-                return (f"integrator '{kind}' in {where} asks for {' and '.join(a for a, _ in asked)}, which "
-                        f"--method {method} does not read{' here' if 'max_depth' in parameters else ''} "
-                        f"({'; '.join(why for _, why in asked)})")
+                ran = [f"max_depth {parameters.get('max_depth', -1)}"] if asked[0].startswith("max_depth") else []
+                ran += ["the emitters the camera sees shown"] if "hide_emitters" in asked else []
+                why = ("a value given wins over the file's; under volpath with a thindielectric the photon methods "
+                       "do not take the file's max_depth, as they count the crossing volpath does not"
+                       if "max_depth" in parameters else "the method does not read the file's")
+                return (f"integrator '{kind}' in {where} asks for {' and '.join(asked)}; --method {method} renders "
+                        f"with {' and '.join(ran)} ({why})")
             if depth != -1 and depth > parameters.get("max_bounces", depth) + 2:
                 return (f"integrator '{kind}' in {where} asks for max_depth={depth}; --method {method}'s photons end "
                         f"after --max-bounces {parameters['max_bounces']} diffuse bounces, so its paths may be shorter "
