@@ -113,7 +113,7 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     from caustica.photons.records import VOLUME_CAUSTIC, allocate_buffers
     from caustica.photons.trace import trace_caustic_photon_pass
     from caustica.photons.segments import MEDIUM_SEGMENTS, allocate_segments
-    from caustica.photons.visible_points import BSDF_COLUMNS, VisiblePoints, visible_points
+    from caustica.photons.visible_points import UNLIMITED_DEPTH, VisiblePoints, visible_points
     from caustica.sampling.rng import STREAM_CAUSTIC_MASK, pass_stream
     scene = caustica.load_scene(SCENE, res=res)
     n = res * res
@@ -122,11 +122,10 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
     out = np.zeros((n, 3))
     for p in range(MASK_PASSES):
         vp = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS)))
+                           np.empty((n, 3)), np.empty((n, 1)), np.empty(n, np.int32))   # no BSDF-evaluating points
         seg = allocate_segments(n, True)
-        parallel_for(visible_points, n, (scene.geometry, scene.materials, scene.lights, scene.media, cam, MASK_SEED,
-                                         pass_stream(STREAM_CAUSTIC_MASK, 2 * p),
-                                         pass_stream(STREAM_CAUSTIC_MASK, 2 * p + 1), p, 1, False, 16, vp, seg),
+        keys = (MASK_SEED, pass_stream(STREAM_CAUSTIC_MASK, 2 * p), pass_stream(STREAM_CAUSTIC_MASK, 2 * p + 1), p)
+        parallel_for(visible_points, n, (scene.tables, cam, keys, (1, False, 16, UNLIMITED_DEPTH, False), (vp, seg)),
                      threads=threads)
         buf = allocate_buffers(MASK_PHOTONS, 1)
         trace_caustic_photon_pass(scene, buf, MASK_SEED, pass_stream(STREAM_CAUSTIC_MASK, 2 * MASK_PASSES + p),
@@ -135,8 +134,7 @@ def volumetric_caustic(res: int, threads: int | None = None) -> np.ndarray:
         vg = build_volume_grid(buf.position[keep], buf.direction[keep], buf.power[keep], MASK_RADIUS)
         vol = np.empty((n, 3))
         found = np.empty(n, np.int64)
-        parallel_for(beam_gather, n, (vg, scene.media, *seg[:5], seg[5], MEDIUM_SEGMENTS, vol, found),
-                     threads=threads)
+        parallel_for(beam_gather, n, (vg, scene.media, (seg, MEDIUM_SEGMENTS, None), (vol, found)), threads=threads)
         out += vol
     return (out / MASK_PASSES).reshape(res, res, 3)
 

@@ -210,7 +210,7 @@ def test_pm_with_caustic_photons_builds_a_caustic_map(cli, tmp_path):
     ("spm", "--photons", "10"),
     ("spm", "--caustic-photons", "10"),
     ("pt", "--k", "7"),
-    ("spm", "--max-depth", "3"),
+    ("spm", "--rr-depth", "3"),
 ])
 def test_flag_of_another_method_is_an_error(cli, tmp_path, method, flag, value):
     out = tmp_path / "o" / "x.exr"

@@ -355,13 +355,13 @@ def test_a_refusal_is_alone_on_stderr_under_a_scene_integrator(cli, tmp_path):
     refused = '<bsdf type="blendbsdf"><bsdf type="roughplastic"/><bsdf type="diffuse"/></bsdf>'   # by sppm
     path = write_scene(tmp_path, refused)
     path.write_text(path.read_text().replace('<scene version="3.0.0">', '<scene version="3.0.0">\n'
-                                             '<integrator type="volpath"><integer name="max_depth" value="3"/>'
+                                             '<integrator type="bdpt"><integer name="max_depth" value="3"/>'
                                              '</integrator>'))
     code, _, err = cli("render", path, "-m", "sppm", "--res", "8", "-q", "-o", tmp_path / "o.exr")
     assert code == 2 and err.count("\n") == 1 and err.startswith("caustica: error: "), err
     path.write_text(path.read_text().replace(refused, '<bsdf type="diffuse"/>'))
     code, _, err = cli("render", path, "-m", "pm", "--res", "8", "--photons", "1000", "-q", "-o", tmp_path / "p.exr")
-    assert code == 0 and "note: integrator 'volpath'" in err, err
+    assert code == 0 and "note: integrator 'bdpt'" in err, err
 
 
 def test_methods_that_render_plastic_accept_it(tmp_path):
