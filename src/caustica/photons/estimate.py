@@ -58,7 +58,7 @@ def filter_weight(filt, d2, r2):
 
 
 @kernel(inline=True)
-def _none_admitted(max_depth, k_camera):
+def none_admitted(max_depth, k_camera):
     """Whether a camera path of k_camera segments may gather no record at all under ``max_depth`` (None: never):
     the k-nearest search would visit every record within its radius for nothing."""
     if max_depth is None:
@@ -81,7 +81,7 @@ def flux_density(pmap, at, estimate, scratch, bsdf):
     p, n, (max_depth, k_camera) = at
     k, r_max, filt = estimate
     scratch_idx, scratch_d2 = scratch
-    if pmap.position.shape[0] == 0 or k <= 0 or _none_admitted(max_depth, k_camera):
+    if pmap.position.shape[0] == 0 or k <= 0 or none_admitted(max_depth, k_camera):
         return (0.0, 0.0, 0.0), 0
     tree = KdTree(pmap.tree_points, pmap.tree_index, pmap.tree_axis)
     count, r2 = knn(tree, (pmap.normal, pmap.tree_normal_bounds, (pmap.depth, max_depth, k_camera)), p, n, k, r_max,

@@ -46,7 +46,7 @@ from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import ShadingPoint, borrow_tables, unwrap, with_tangent
-from .estimate import flux_density
+from .estimate import flux_density, none_admitted
 from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
 
 SPLIT_STACK = 8
@@ -94,7 +94,7 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
         facing = at.ng
     Eg, _ = flux_density(gmap, (at.p, facing, limit), (k_g, r_g, filt), scratch, bsdf)
     Ec, _ = flux_density(cmap, (at.p, facing, limit), (k_c, r_c, filt), scratch, bsdf)
-    queries = (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
+    queries = 0 if none_admitted(limit[0], limit[1]) else (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
 
 
@@ -351,6 +351,7 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
             bsdf = bsdf_point(mats, rows, i)
             Eg, _ = flux_density(gmap, (p, n, (max_depth, segments[i])), (k_g, r_g, filt), (idx, d2), bsdf)
             Ec, _ = flux_density(cmap, (p, n, (max_depth, segments[i])), (k_c, r_c, filt), (idx, d2), bsdf)
-        knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
+        if not none_admitted(max_depth, segments[i]):   # (no search made when no record may be gathered)
+            knn_queries[i] += (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
         for c in range(3):
             out[i, c] += vp_weight[i, c] * (Eg[c] + Ec[c])
