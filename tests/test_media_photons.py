@@ -54,6 +54,11 @@ def hg(g, mu):
     return (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * mu) ** 1.5)
 
 
+def no_walls(k):
+    """Start and end walls of k segments: none (the segments run in open medium)."""
+    return np.zeros((k, 3)), np.zeros((k, 3))
+
+
 def brute_force(pos, dirs, power, r, o, d, s, sigma, g):
     """Σ over photons with t in [0, s) and distance <= r of T(t) p Φ / (π r²), and that count."""
     v = pos.astype(np.float64) - o
@@ -84,7 +89,8 @@ def test_beam_gather_finds_each_pierced_sphere_once_and_matches_a_uniform_densit
     vg = build_volume_grid(pos, dirs, power, r)
     out = np.empty((k, 3))
     found = np.empty(k, np.int64)
-    segments = (a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.zeros(k, np.int32), np.ones(k, np.int32))
+    segments = (a, seg_d, seg_len, beta, np.zeros(k, np.int32), np.zeros(k, np.int32), *no_walls(k),
+                np.ones(k, np.int32))
     beam_gather(vg, media, (segments, 1, None), (out, found), 0, k)
     density = 1.0 / 8.0                        # N Φ / V
     for j in range(k):
@@ -119,7 +125,8 @@ def test_beam_gather_takes_the_photons_within_the_max_depth(max_depth):
     vg = build_volume_grid(pos, dirs, power, r, depth)
     out = np.empty((k, 3))
     found = np.empty(k, np.int64)
-    segments = (a, seg_d, seg_len, np.ones((k, 3)), np.zeros(k, np.int32), vertices, np.ones(k, np.int32))
+    segments = (a, seg_d, seg_len, np.ones((k, 3)), np.zeros(k, np.int32), vertices, *no_walls(k),
+                np.ones(k, np.int32))
     beam_gather(vg, media, (segments, 1, max_depth), (out, found), 0, k)
     for j in range(k):
         keep = np.ones(n, bool) if max_depth is None else depth <= max_depth - vertices[j] - 1
@@ -128,6 +135,90 @@ def test_beam_gather_takes_the_photons_within_the_max_depth(max_depth):
         np.testing.assert_allclose(out[j], want, rtol=1e-9, atol=1e-15)
     if max_depth == 4:   # a segment after 2 vertices takes depth 1 only: a seventh of the photons
         assert 0 < found[vertices == 2].sum() < found[vertices == 0].sum() / 2
+
+
+def wall_segments(rng, k, start_on_floor, theta_max):
+    """k segments in a medium filling the slab 0 <= z <= 1: from the floor up to the ceiling (walls at both ends), or
+    from inside down to the floor (a wall at the end), at angles up to theta_max from the vertical."""
+    theta = rng.uniform(0.2, theta_max, k)
+    phi = rng.uniform(0, 2 * math.pi, k)
+    down = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=1)
+    start_wall, end_wall = np.zeros((k, 3)), np.zeros((k, 3))
+    if start_on_floor:
+        a = np.column_stack([rng.uniform(-0.5, 0.5, (k, 2)), np.zeros(k)])
+        d = -down
+        s = 1.0 / d[:, 2]
+        start_wall[:, 2], end_wall[:, 2] = 1.0, -1.0
+    else:
+        a = np.column_stack([rng.uniform(-0.5, 0.5, (k, 2)), rng.uniform(0.3, 0.8, k)])
+        d = down
+        s = a[:, 2] / -d[:, 2]
+        end_wall[:, 2] = 1.0
+    return a, d, s, start_wall, end_wall
+
+
+@pytest.mark.parametrize("start_on_floor", [False, True])
+def test_beam_gather_cuts_the_disc_at_the_medium_s_walls(start_on_floor):
+    """Photons fill a slab of medium (0 <= z <= 1) uniformly; segments end at its floor (or run from floor to
+    ceiling) at a slant.  Near a wall the disc across a segment reaches out of the medium, where there are no photons:
+    the estimate leaves out the photons beyond the wall and weights the others by 1 / the part of the disc inside,
+    so it keeps the closed form of a uniform density.  Without the walls the same segments come out too dark by far
+    more than the noise (the test can fail)."""
+    rng = np.random.default_rng(11)
+    n, r, k, half = 600_000, 0.25, 48, 3.0
+    pos = np.column_stack([rng.uniform(-half, half, (n, 2)), rng.uniform(0, 1, n)]).astype(np.float32)
+    dirs = rng.normal(size=(n, 3))
+    dirs = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).astype(np.float32)
+    phi = 1.0 / n                                                  # each photon's power
+    power = np.full((n, 3), phi, np.float32)
+    sigma = np.array([0.3, 1.0, 2.5])
+    media = medium_table(sigma, (0.9, 0.9, 0.9), None)
+    a, d, s, start_wall, end_wall = wall_segments(rng, k, start_on_floor, 1.0)
+    assert np.all(np.abs(a[:, :2] + d[:, :2] * s[:, None]) < half - 2 * r)   # the slab's sides are far
+    vg = build_volume_grid(pos, dirs, power, r)
+    density = n / (4 * half * half)                                # photons per unit volume
+    p = 1.0 / (4 * math.pi)                                        # directions uniform: p averages 1 / 4π
+    expected = density * phi * p * -np.expm1(-np.outer(s, sigma)) / sigma
+    # Poisson, photons of weight T p Φ / (π r²) along the segment: Var = density p² Φ² / (π r²) ∫ T² dt
+    var_bare = density * (p * phi) ** 2 / (math.pi * r * r) * -np.expm1(-2 * np.outer(s, sigma)) / (2 * sigma)
+    results = {}
+    for walls in ("cut", "none"):
+        out = np.empty((k, 3))
+        found = np.empty(k, np.int64)
+        w = (start_wall, end_wall) if walls == "cut" else no_walls(k)
+        segments = (a, d, s, np.ones((k, 3)), np.zeros(k, np.int32), np.zeros(k, np.int32), *w, np.ones(k, np.int32))
+        beam_gather(vg, media, (segments, 1, None), (out, found), 0, k)
+        results[walls] = out, found
+    out, found = results["cut"]
+    # a weight of 1 / F on the part F >= 1/4 of the disc inside: the variance is at most 4 times the bare one
+    se = np.sqrt(4 * var_bare)
+    assert np.all(np.abs(out - expected) <= N_SIGMA * se), np.abs(out - expected) / se
+    _, _, count = brute_force(pos, dirs, power, r, a[0], d[0], s[0], sigma, None)
+    assert found[0] == count                                       # no photon lies beyond the slab's walls
+    bare = results["none"][0].sum(0)
+    assert np.all(bare + N_SIGMA * np.sqrt(var_bare.sum(0)) < expected.sum(0)), \
+        (bare, expected.sum(0), np.sqrt(var_bare.sum(0)))
+
+
+def test_roulette_in_a_medium_never_raises_a_photon_s_power():
+    """Under --termination roulette a photon scattering in a medium survives with the largest of its albedos and is
+    divided by it, so no channel's power grows along the path: with the mean albedo instead, the red of albedo 0.99
+    gained 0.99 / 0.63 a scattering (photons thousands of times their emitted power, a second moment growing without
+    bound)."""
+    from caustica.photons.trace import TERMINATION_ROULETTE, trace_photon_pass
+    scene = scene_from_xml(f"""<scene version="3.0.0">
+        <medium type="homogeneous" id="fog"><float name="sigma_t" value="3"/>
+            <rgb name="albedo" value="0.99, 0.6, 0.3"/><phase type="isotropic"/></medium>
+        {sensor_xml((0, 0, 3), (0, 0, 0), (0, 1, 0), 40, 8, 8)}
+        <emitter type="point"><point name="position" value="0, 0, 0"/><rgb name="intensity" value="1"/></emitter>
+        <shape type="sphere"><float name="radius" value="1"/><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+    </scene>""")
+    n = 20_000
+    buf, records, _ = trace_photon_pass(scene, (3, 5, n), (1024, TERMINATION_ROULETTE))
+    stored = buf.kind[:records] > 0
+    power = buf.power[:records][stored].astype(np.float64)
+    assert stored.sum() > 3 * n                                    # several scatterings a photon
+    assert np.all(power.max(0) <= 4 * math.pi / n * (1 + 1e-6)), power.max(0) / (4 * math.pi / n)
 
 
 def test_the_volume_grid_refuses_what_would_exhaust_memory(monkeypatch):
@@ -148,7 +239,7 @@ def test_beam_gather_of_no_photons_is_zero():
     out = np.full((1, 3), 7.0)
     found = np.full(1, 7, np.int64)
     segments = (np.zeros((1, 3)), np.array([[0, 0, 1.0]]), np.ones(1), np.ones((1, 3)), np.zeros(1, np.int32),
-                np.zeros(1, np.int32), np.ones(1, np.int32))
+                np.zeros(1, np.int32), *no_walls(1), np.ones(1, np.int32))
     beam_gather(vg, medium_table((1, 1, 1), (1, 1, 1), None), (segments, 1, None), (out, found), 0, 1)
     assert np.all(out == 0) and found[0] == 0
 

@@ -349,13 +349,15 @@ def phase_sample(media, m, d, u1, u2):
 def photon_scatter(media, m, d, key, dim, roulette):
     """A photon (or stream) scattering in medium m: (alive, 1 / q, wo, phase weight, dim + 3); numbers dim .. dim + 2.
 
-    With ``roulette`` it survives with q = the medium's mean albedo, to be scaled by 1 / q (else 1 / q
+    With ``roulette`` it survives with q = the medium's largest albedo, to be scaled by 1 / q (else 1 / q
     is 1; the flight's weight already holds the albedo); then wo from the phase function, with its
-    value / pdf.  Not alive when roulette ends it or the pdf is 0.
+    value / pdf.  Not alive when roulette ends it or the pdf is 0.  The largest, not the mean: with the mean a
+    channel of albedo a above it gains a / q a scattering, and its power's second moment a² / q a scattering
+    grows without bound along the long paths of a bright medium (docs/media.md).
     """
     inv_q = 1.0
     if roulette:
-        q = (media.albedo[m, 0] + media.albedo[m, 1] + media.albedo[m, 2]) / 3.0
+        q = max(media.albedo[m, 0], max(media.albedo[m, 1], media.albedo[m, 2]))
         if uniform(key, dim) >= q:
             return False, 1.0, d, 0.0, dim + 3
         inv_q = 1.0 / q

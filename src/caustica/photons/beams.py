@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..geometry import vec
 from ..jit import borrowed, kernel
 from ..media import phase_value
 from ..memory import check_budget
@@ -195,11 +196,49 @@ def _dda_start(vg, o, d, t0):
 
 
 @kernel(inline=True)
+def _wall(n, d, s, r):
+    """A wall of normal n (turned into the medium; zero: none) through the point at s of a segment along d, as
+    :func:`_add_cell` cuts the disc with it: (n, h0, n·d, 1 / (r sin θ)) — a photon at v from the segment's origin
+    is beyond it where v·n < h0; the disc at t has its centre (t n·d - h0) in front of the wall, a fraction
+    :func:`_disc_inside` of r sin θ.  The last is 0 where nothing is cut: no wall, or one across the segment."""
+    nd = vec.dot(n, d)
+    sin_r = math.sqrt(max(1.0 - nd * nd, 0.0)) * r
+    if sin_r <= 0.0 or not vec.dot(n, n) > 0.0:
+        return n, 0.0, nd, 0.0
+    return n, s * nd, nd, 1.0 / sin_r
+
+
+@kernel(inline=True)
+def _disc_inside(x):
+    """The fraction of a unit disc on the near side of a line at distance x >= 0 beyond its centre."""
+    if x >= 1.0:
+        return 1.0
+    return 1.0 - (math.acos(x) - x * math.sqrt(1.0 - x * x)) / math.pi
+
+
+@kernel(inline=True)
+def _walls_weight(walls, v, t):
+    """1 / the fraction of the disc at t inside both ``walls`` (:func:`_wall`) for a photon at v from the segment's
+    origin; 0 for a photon beyond either wall.  Two cuts are taken as independent (exact for one)."""
+    w = 1.0
+    for wall in walls:
+        n, h0, nd, inv = wall
+        if inv > 0.0:
+            if v[0] * n[0] + v[1] * n[1] + v[2] * n[2] < h0:
+                return 0.0
+            w /= _disc_inside((t * nd - h0) * inv)
+    return w
+
+
+@kernel(inline=True)
 def _add_cell(vg, media, seg, k, span, acc, limit):
     """Add to ``acc`` = (a0, a1, a2, found) the photons of grid cell k whose spheres the segment pierces
-    with its closest approach t in ``span`` = [t_enter, t_exit); ``seg`` = (o, d, m, r2).  Photons deeper than
-    ``limit`` are left out, unless it is None (Numba prunes the test then: a compilation of its own)."""
-    o, d, m, r2 = seg
+    with its closest approach t in ``span`` = [t_enter, t_exit); ``seg`` = (o, d, m, r2, walls).  Photons deeper than
+    ``limit`` are left out, unless it is None (Numba prunes the test then: a compilation of its own).  At a wall
+    (:func:`_wall`) the disc across the segment is cut: photons beyond it are left out and the others weighted by
+    1 / the fraction of the disc left (:func:`_walls_weight`), so a disc that reaches past the medium does not
+    count the empty part as a density of zero."""
+    o, d, m, r2, walls = seg
     t_enter, t_exit = span
     a0, a1, a2, found = acc
     st0 = media.sigma_t[m, 0]
@@ -224,8 +263,11 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
         d2 = vx * vx + vy * vy + vz * vz - ti * ti
         if d2 > r2:
             continue
+        cut = _walls_weight(walls, (vx, vy, vz), ti)
+        if cut == 0.0:
+            continue
         wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
-        ph = phase_value(media, m, wi, wo)
+        ph = phase_value(media, m, wi, wo) * cut
         if grey:
             w = math.exp(-st0 * ti) * ph
             a0 += w * vg.power[i, 0]
@@ -251,14 +293,15 @@ def _photon_limit(max_depth, vertices):
 
 @kernel
 def segment_estimate(vg, media, segment, m, limit):
-    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) = ``segment`` in m
-    pierces (those of depth ``limit`` at most; every one for None).
+    """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces (those of
+    depth ``limit`` at most; every one for None); ``segment`` = (o, d, s, (the normals of the walls at its start and
+    end, turned into the medium; zero: none)), each photon weighted as :func:`_walls_weight` says.
 
     Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
     The segment walks the grid's cells in order (a DDA), each photon counted in the cell of its
     closest approach.
     """
-    o, d, s = segment
+    o, d, s, (start_wall, end_wall) = segment
     acc = (0.0, 0.0, 0.0, 0)
     if vg.position.shape[0] == 0:
         return (0.0, 0.0, 0.0), 0
@@ -271,7 +314,9 @@ def segment_estimate(vg, media, segment, m, limit):
     sx, sy, sz = step
     nx, ny, nz = nxt
     dx, dy, dz = delta
-    seg = (o, d, m, vg.radius[0] * vg.radius[0])
+    r = vg.radius[0]
+    walls = (_wall(start_wall, d, 0.0, r), _wall(end_wall, d, s, r))
+    seg = (o, d, m, r * r, walls)
     t_enter = t0
     while t_enter < t1:
         t_exit = min(min(nx, ny), min(nz, t1))
@@ -305,7 +350,7 @@ def beam_gather(vg, media, camera, out, i0, i1):
     (None: none) a segment after k surface vertices takes the photons of depth max_depth - k - 1 at most."""
     vg, media = borrowed(vg), borrowed(media)
     segments, per_pixel, max_depth = camera
-    seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_vertices, seg_count = segments
+    seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_vertices, seg_start, seg_end, seg_count = segments
     out, found = out
     norm = 1.0 / (math.pi * vg.radius[0] * vg.radius[0])
     for i in range(i0, i1):
@@ -317,7 +362,8 @@ def beam_gather(vg, media, camera, out, i0, i1):
             k = i * per_pixel + j
             o = (seg_o[k, 0], seg_o[k, 1], seg_o[k, 2])
             d = (seg_d[k, 0], seg_d[k, 1], seg_d[k, 2])
-            a, f = segment_estimate(vg, media, (o, d, seg_len[k]), seg_medium[k],
+            walls = ((seg_start[k, 0], seg_start[k, 1], seg_start[k, 2]), (seg_end[k, 0], seg_end[k, 1], seg_end[k, 2]))
+            a, f = segment_estimate(vg, media, (o, d, seg_len[k], walls), seg_medium[k],
                                     _photon_limit(max_depth, seg_vertices[k]))
             acc0 += seg_beta[k, 0] * a[0]
             acc1 += seg_beta[k, 1] * a[1]

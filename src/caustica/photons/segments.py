@@ -40,8 +40,9 @@ MEDIUM_SEGMENTS = 8
 #: first segment's next-event estimate over the passes; the surface's own numbers of that key are 0 .. 3 + 2 n²,
 #: with n = --light-samples at most 64 (ESTIMATE_PARAMS), so these start past 3 + 2 * 64².
 QMC_SEGMENT_DIM = 3 + 2 * 64 * 64 + 1
-#: Bytes per pixel of the segment arrays (origin, direction, β: 3 float64 each; length; medium; vertices; count).
-SEGMENT_BYTES = MEDIUM_SEGMENTS * (9 * 8 + 8 + 4 + 4) + 4
+#: Bytes per pixel of the segment arrays (origin, direction, β, the two walls: 3 float64 each; length; medium;
+#: vertices; count).
+SEGMENT_BYTES = MEDIUM_SEGMENTS * (15 * 8 + 8 + 4 + 4) + 4
 
 
 
@@ -55,6 +56,9 @@ class CameraSegments(NamedTuple):
     medium: np.ndarray      # int32[k]
     vertices: np.ndarray    # int32[k]: the path's surface vertices before the segment (a point on it is that + 1
     #                         segments from the camera; null crossings are not vertices)
+    start_wall: np.ndarray  # float64[k, 3]: the normal, turned into the medium, of the wall the segment starts at
+    end_wall: np.ndarray    # float64[k, 3]: likewise where it ends; zero where there is none (the camera, an
+    #                         escape, a null boundary with the same medium beyond): :func:`wall_normal`
     count: np.ndarray       # int32[pixels]: segments of each pixel's path
 
 
@@ -62,18 +66,37 @@ def allocate_segments(pixels: int, media: bool) -> CameraSegments:
     """Room for ``pixels`` paths' segments (every entry is written by the camera pass); empty without media."""
     k = pixels * MEDIUM_SEGMENTS if media else 0
     return CameraSegments(np.empty((k, 3)), np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty(k, np.int32),
-                          np.empty(k, np.int32), np.zeros(pixels, np.int32))
+                          np.empty(k, np.int32), np.empty((k, 3)), np.empty((k, 3)), np.zeros(pixels, np.int32))
 
 
 @kernel(inline=True)
-def store_segment(k, o, d, s, beta, medium, vertices, segments):
-    """Write segment slot k."""
+def store_segment(k, o, d, s, beta, medium, vertices, start_wall, segments):
+    """Write segment slot k, with no wall at its end yet (:func:`end_segment_at_wall` adds one)."""
     vec.set_row(segments.origin, k, o)
     vec.set_row(segments.direction, k, d)
     vec.set_row(segments.beta, k, beta)
     segments.length[k] = s
     segments.medium[k] = medium
     segments.vertices[k] = vertices
+    vec.set_row(segments.start_wall, k, vec.mul(start_wall, 1.0 if vec.dot(start_wall, d) >= 0.0 else -1.0))
+    vec.set_row(segments.end_wall, k, (0.0, 0.0, 0.0))
+
+
+@kernel(inline=True)
+def end_segment_at_wall(k, ng, segments):
+    """Segment slot k ends at a wall of normal ng (either side): kept turned back into the segment's medium."""
+    d = (segments.direction[k, 0], segments.direction[k, 1], segments.direction[k, 2])
+    vec.set_row(segments.end_wall, k, vec.mul(ng, -1.0 if vec.dot(ng, d) > 0.0 else 1.0))
+
+
+@kernel(inline=True)
+def wall_normal(ng, crossed, medium_before, medium_after):
+    """The surface of geometric normal ng a camera path meets bounds the medium it was in — a wall for the volume
+    estimate (:mod:`caustica.photons.beams`) — unless it is a null boundary with the same medium beyond: ng, or
+    zero."""
+    if crossed and medium_before == medium_after:
+        return (0.0, 0.0, 0.0)
+    return ng
 
 
 @kernel

@@ -87,8 +87,8 @@ from ..media import attenuation, light_sample, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
-from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, escaped_radiance, \
-    first_segment_numbers, segment_inscatter, store_segment
+from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, end_segment_at_wall, \
+    escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
 INV_PI = 1.0 / math.pi
 #: A camera path's max_depth where a render sets none (-1): more segments than any path takes.
@@ -148,15 +148,16 @@ def glass_step(L, beta, seen, branches, u):
 @kernel
 def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
     """A camera path's flight through ``medium``, ``segment`` = (o, d, its length s: to a surface, or inf, the
-    path's surface vertices k before it, max_depth): it is stored in slot slot0 + n_seg of ``out`` = (slot0,
+    path's surface vertices k before it, max_depth, the normal of the wall it starts at or zero,
+    :func:`~caustica.photons.segments.wall_normal`): it is stored in slot slot0 + n_seg of ``out`` = (slot0,
     segments).  Returns (the direct light scattered along it towards o, times β: none when a path of k + 2
     segments would pass max_depth; β past it).  ``numbers`` = (key, qkey, vkey, pass_index), see
     :func:`visible_point`.
     """
-    o, d, s, k, max_depth = segment
+    o, d, s, k, max_depth, start_wall = segment
     _, qkey, vkey, pass_index = numbers
     slot0, segments = out
-    store_segment(slot0 + n_seg, o, d, s, beta, medium, k, segments)
+    store_segment(slot0 + n_seg, o, d, s, beta, medium, k, start_wall, segments)
     if k + 2 > max_depth:   # camera -> k surfaces -> the scattering point -> the light
         if s < np.inf:
             beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
@@ -387,13 +388,15 @@ def visible_point(tables, o, d, numbers, params, out):
     pdf_last = 0.0    # after a glossy scattering: its sampled direction's density, and where it was (MIS)
     p_last = o
     medium = media.camera[0]
+    wall = zero   # the wall the path leaves (none at the camera), where a medium segment starting here starts
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
-        if medium >= 0:
+        in_segment = medium >= 0
+        if in_segment:
             if n_seg >= MEDIUM_SEGMENTS:
                 return False, zero, zero, zero, L, n_seg, k
-            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth), medium, beta, n_seg,
-                                      numbers, (out[0], out[1]))
+            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth, wall), medium, beta,
+                                      n_seg, numbers, (out[0], out[1]))
             L = vec.add(L, Ls)
             n_seg += 1
         if prim < 0:
@@ -403,8 +406,12 @@ def visible_point(tables, o, d, numbers, params, out):
             return False, zero, zero, zero, L, n_seg, k
         crossed = crossings
         ray = (o, d, t, b1, b2)
+        before = medium
         p, ng, ns, uv, front, m, kind, shape, medium, o, crossings, nxt, dim = surface_interaction(
             tables, (prim, t, b1, b2), o, d, medium, crossings, key, dim)
+        wall = wall_normal(ng, nxt == CROSSED, before, medium)
+        if in_segment:
+            end_segment_at_wall(out[0] + n_seg - 1, wall, out[1])
         e = geom.prim_emitter[prim]
         if nxt != CROSSED:
             k += 1
