@@ -401,8 +401,8 @@ def test_glossy_caustic_mean_matches_mitsuba(mi, test_scenes_dir, dist, alpha):
 
 
 def test_photon_roulette_survival_is_a_probability(tmp_path):
-    """Russian roulette at a photon's non-delta bounce survives with q = the mean albedo, capped at 1: Mitsuba accepts
-    a roughconductor's specular_reflectance of 1.5, and a q above 1 kept every photon but scaled its power by
+    """Russian roulette at a photon's non-delta bounce survives with q = the largest albedo, capped at 1: Mitsuba
+    accepts a roughconductor's specular_reflectance of 1.5, and a q above 1 kept every photon but scaled its power by
     1 / q = 2/3 at each glossy bounce (its caustic too dark by that factor)."""
     from caustica.photons.trace import TERMINATION_ROULETTE, bounce
     from caustica.sampling.rng import path_key

@@ -32,7 +32,7 @@ ESTIMATE_PARAMS = (
     Param("filter", str, "none", "radiance-estimate filter kernel", choices=tuple(FILTERS)),
     Param("termination", str, "cap",
           "cap: scale power by the albedo and stop after max_bounces (the paper); "
-          "roulette: Russian roulette on each bounce's mean weight (a diffuse surface's albedo)",
+          "roulette: Russian roulette on each bounce's largest weight (a diffuse surface's albedo)",
           choices=tuple(TERMINATIONS)),
     Param("light_samples", int, 5, "n for n x n stratified shadow rays per area light",
           positive, ">= 1", max=64),

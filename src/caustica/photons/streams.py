@@ -29,7 +29,7 @@ A *stream* is a leading photon plus up to n_fa associated photons.
      bounces in a cosine-distributed direction; each associated photon survives with
      probability p = mean albedo, its power scaled by albedo / p, so streams thin out
      as they travel.  With ``termination=roulette`` the whole stream plays Russian
-     roulette once, with the leading photon (survival p = mean albedo, every power
+     roulette once, with the leading photon (survival p = its largest albedo, every power
      scaled by albedo / p), which keeps the expected power right.
    - after mr diffuse bounces the stream ends.
    - at a coated diffuse surface (plastic, roughplastic) every photon's record carries the coating's factor B
@@ -65,7 +65,7 @@ from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_ROULETTE, bounce, record_factor, record_power, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, bounce, record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -98,7 +98,7 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     index = before + k
     slot0 = (first_path + index) * (max_bounces + 1)
     made = trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
-                     (max_bounces, TERMINATION_ROULETTE, False), (slot0, 0, max_bounces + 1, split))
+                     (max_bounces, TERMINATION_DECAY, False), (slot0, 0, max_bounces + 1, split))
     # trace_one counts the depths from o; the stream's events up to o come first.  (Not passed into trace_one:
     # a seventh element of its photon made the aimed caustic photons' kernel 55 % slower, measured.)
     for s in range(slot0, slot0 + min(made, max_bounces + 1)):

@@ -63,7 +63,9 @@ SPECULAR_CAP = 64
 #: (:func:`trace_photon_pass`).
 FIXED_SLOTS = 8
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
-TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's mean weight (a diffuse albedo), power scaled by 1 / p
+TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's largest weight (a diffuse albedo), power scaled by 1 / p
+TERMINATION_DECAY = 2     # survive with p = its mean weight: the decay of a stream's associated photons (SPEC), which
+#                           its split photons keep (streams.split_off)
 
 
 @kernel(inline=True)
@@ -96,17 +98,24 @@ def bounce(mats, m, d, at, key, dim, termination):
 def survive(ok, wi, weight, delta, numbers):
     """:func:`bounce`'s end, after a sample (ok, wi, weight, delta lobe): after a non-delta lobe Russian roulette on
     the number ``numbers`` = (key, dim, termination) give (``TERMINATION_ROULETTE``: survive with probability p,
-    power scaled by 1 / p).  p is the mean of the sample's weight f cos / pdf, capped at 1: a diffuse surface's
-    albedo, and for a lobe whose weight is not the material's colour (a rough coating over a black base, a metal)
-    what that lobe keeps, so a photon's power stays about what it was and no lobe that reflects light loses all its
-    photons."""
+    power scaled by 1 / p).  p is the largest channel of the sample's weight f cos / pdf, capped at 1: a diffuse
+    surface's albedo, and for a lobe whose weight is not the material's colour (a rough coating over a black base, a
+    metal) what that lobe keeps, so no channel of a photon's power grows and no lobe that reflects light loses all
+    its photons.  The largest, not the mean: with the mean, a channel above it gained weight / mean a bounce, and
+    its second moment weight² / mean grew without bound in a coloured closed room (docs/results.md).
+    ``TERMINATION_DECAY`` takes the mean: the paper's decay of a stream's associated photons (SPEC), whose paths the
+    stream's cap bounds."""
     key, dim, termination = numbers
     if delta:
         return ok, wi, weight, 1.0, True, dim
     u = uniform(key, dim)
     dim += 1
-    if termination == TERMINATION_ROULETTE:
-        q = min((weight[0] + weight[1] + weight[2]) / 3.0, 1.0)   # a probability, for a weight above 1 too
+    if termination != TERMINATION_CAP:
+        if termination == TERMINATION_ROULETTE:
+            q = max(weight[0], max(weight[1], weight[2]))
+        else:
+            q = (weight[0] + weight[1] + weight[2]) / 3.0
+        q = min(q, 1.0)   # a probability, for a weight above 1 too
         if not q > 0.0:
             return False, wi, weight, 0.0, False, dim
         return ok and u < q, wi, weight, 1.0 / q, False, dim
@@ -283,7 +292,7 @@ def trace_one(tables, key, photon, rules, out):
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
             alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power,
-                                                   termination == TERMINATION_ROULETTE)
+                                                   termination != TERMINATION_CAP)
             if not alive:
                 break
             o, d, crossings = p, wo, 0
