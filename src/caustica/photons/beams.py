@@ -37,6 +37,7 @@ from ..jit import borrowed, kernel
 from ..media import phase_value
 from ..memory import check_budget
 from .grid import MAX_DIM, bucket_count
+from .kdtree import depth_left
 
 #: Cells are this many photon radii across (>= 2, so a sphere overlaps at most 2 cells a side).
 CELL_PER_RADIUS = 2.0
@@ -281,16 +282,6 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
     return a0, a1, a2, found
 
 
-@kernel(inline=True)
-def _photon_limit(max_depth, vertices):
-    """The deepest volume photon a camera segment after ``vertices`` surface vertices may gather: max_depth -
-    vertices - 1 (camera -> the vertices -> the point on the segment); None (max_depth itself, never an optional
-    int) without a max_depth."""
-    if max_depth is None:
-        return max_depth
-    return max_depth - vertices - 1
-
-
 @kernel
 def segment_estimate(vg, media, segment, m, limit):
     """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces (those of
@@ -364,7 +355,7 @@ def beam_gather(vg, media, camera, out, i0, i1):
             d = (seg_d[k, 0], seg_d[k, 1], seg_d[k, 2])
             walls = ((seg_start[k, 0], seg_start[k, 1], seg_start[k, 2]), (seg_end[k, 0], seg_end[k, 1], seg_end[k, 2]))
             a, f = segment_estimate(vg, media, (o, d, seg_len[k], walls), seg_medium[k],
-                                    _photon_limit(max_depth, seg_vertices[k]))
+                                    depth_left(max_depth, seg_vertices[k] + 1))   # camera -> k vertices -> the segment
             acc0 += seg_beta[k, 0] * a[0]
             acc1 += seg_beta[k, 1] * a[1]
             acc2 += seg_beta[k, 2] * a[2]

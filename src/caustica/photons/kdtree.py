@@ -303,12 +303,13 @@ def _heap_replace_top(out_idx, out_d2, count, i, d2):
 
 
 @kernel(inline=True)
-def _depth_limit(max_depth, k_camera):
-    """max_depth - k_camera, the deepest point admitted; None (max_depth itself, so that an int max_depth gives an
-    int in both branches, never an optional) when max_depth is None."""
+def depth_left(max_depth, segments):
+    """max_depth - segments: the deepest record (photon) a camera path of that many segments may take, here and in
+    the beam estimate (:mod:`caustica.photons.beams`); None (max_depth itself, so that an int max_depth gives an int
+    in both branches, never an optional) when max_depth is None."""
     if max_depth is None:
         return max_depth
-    return max_depth - k_camera
+    return max_depth - segments
 
 
 @kernel(inline=True)
@@ -446,7 +447,7 @@ def knn(tree, candidates, qp, qn, k, r_max, out):
     arrays = (pts, tree.index, normals, depths)
     axis = tree.axis
     query = (float(qp[0]), float(qp[1]), float(qp[2]), float(qn[0]), float(qn[1]), float(qn[2]), k)
-    limit = _depth_limit(max_depth, k_camera)
+    limit = depth_left(max_depth, k_camera)
     use_bounds = bounds.shape[0] == n
     # Stack entries: (lo, hi, and the cell: lower bound, offsets to the cell along x, y, z).
     stk = np.empty(6 * STACK_SIZE, dtype=np.float64)
