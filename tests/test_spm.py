@@ -255,6 +255,30 @@ def test_split_photons_deposit_what_independent_photons_do():
     assert (kinds[:, :, 0] != EMPTY).any() and (kinds[:, :, 1] != EMPTY).any()
 
 
+COLOURED_ROOM_WITH_GLASS = """<shape type="cube"><transform name="to_world"><scale value="5"/></transform>
+  <boolean name="flip_normals" value="true"/>
+  <bsdf type="diffuse"><rgb name="reflectance" value="0.9, 0.25, 0.1"/></bsdf></shape>
+<shape type="sphere"><point name="center" x="0" y="2" z="0"/><float name="radius" value="1"/>
+  <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf></shape>
+<emitter type="point"><point name="position" x="0" y="4" z="0"/><rgb name="intensity" value="10"/></emitter>"""
+
+
+def test_split_photons_under_roulette_never_raise_their_power():
+    """Under --termination roulette a split photon survives its bounces as the stream's roulette does, with the
+    largest albedo, so none of its records holds more than its share of the stream's power; with the mean, as the
+    cap's decay of associated photons takes it, its red grew 0.9 / 0.42 a bounce in this red room (thousands of
+    times its share over paths up to --max-bounces 1024)."""
+    scene = xml_scene(COLOURED_ROOM_WITH_GLASS, "red-room-glass.xml")
+    n, n_fa, mr = 4_000, 4, 1024
+    buf = StreamBuffers(n, n_fa, mr, True)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_ROULETTE, split=True)
+    stored = buf.split.kind != EMPTY
+    share = 4 * math.pi * 10.0 / n / (n_fa + 1)                   # Φ = 4π I over n streams of n_fa + 1 photons
+    assert stored.sum() > n                                        # split photons bounce on in the room
+    assert np.all(buf.split.power[stored].astype(np.float64).max(axis=0) <= share * (1 + 1e-6)), \
+        buf.split.power[stored].max(axis=0) / share
+
+
 # ----------------------------------------------------------------------------- the PM limit
 
 @pytest.fixture(scope="module")

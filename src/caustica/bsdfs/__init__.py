@@ -65,7 +65,7 @@ class MaterialTable(NamedTuple):
     eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, thindielectric, roughdielectric, a plastic's
     #                        coating)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
-    albedo_mean: np.ndarray  # float64[M]: mean of rgb, the survival probability of photons at a bounce
+    albedo_mean: np.ndarray  # float64[M]: mean of rgb (read by no kernel since photon roulette takes the weight)
     distribution: np.ndarray  # int32[M]: microfacet distribution (BECKMANN, GGX; rough BSDFs)
     alpha: np.ndarray      # float64[M]: microfacet roughness (rough BSDFs); alpha_u where anisotropic
     alpha_v: np.ndarray    # float64[M]: the roughness across dp/du (= alpha where isotropic; microfacet.shading_frame)

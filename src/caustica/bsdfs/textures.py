@@ -227,7 +227,8 @@ def colour(mats, m, uv):
 
 @kernel(inline=True)
 def albedo_mean(mats, m, rgb):
-    """The mean of material m's colour ``rgb`` (from :func:`colour`): photons' survival probability at a bounce."""
+    """The mean of material m's colour ``rgb`` (from :func:`colour`).  No kernel reads it since photon roulette takes the
+    bounce's sampled weight (:func:`caustica.photons.trace.survive`)."""
     if not has(mats, TEXTURED) or mats.texture[m] < 0:
         return mats.albedo_mean[m]
     return (rgb[0] + rgb[1] + rgb[2]) / 3.0

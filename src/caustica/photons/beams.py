@@ -199,14 +199,15 @@ def _dda_start(vg, o, d, t0):
 @kernel(inline=True)
 def _wall(n, d, s, r):
     """A wall of normal n (turned into the medium; zero: none) through the point at s of a segment along d, as
-    :func:`_add_cell` cuts the disc with it: (n, h0, n·d, 1 / (r sin θ)) — a photon at v from the segment's origin
-    is beyond it where v·n < h0; the disc at t has its centre (t n·d - h0) in front of the wall, a fraction
-    :func:`_disc_inside` of r sin θ.  The last is 0 where nothing is cut: no wall, or one across the segment."""
+    :func:`_add_cell` cuts the disc with it: (n, h0, n·d, 1 / (r sin θ), e) — a photon at v from the segment's origin
+    is beyond it where v·n < h0; the disc at t has its centre (t n·d - h0) in front of the wall, a distance x of
+    r sin θ, and the disc's part beyond lies towards -e (e: n across the segment, a unit vector).  1 / (r sin θ) is 0
+    where nothing is cut: no wall, or one across the segment."""
     nd = vec.dot(n, d)
-    sin_r = math.sqrt(max(1.0 - nd * nd, 0.0)) * r
-    if sin_r <= 0.0 or not vec.dot(n, n) > 0.0:
-        return n, 0.0, nd, 0.0
-    return n, s * nd, nd, 1.0 / sin_r
+    sin_t = math.sqrt(max(1.0 - nd * nd, 0.0))
+    if sin_t * r <= 0.0 or not vec.dot(n, n) > 0.0:
+        return n, 0.0, nd, 0.0, n
+    return n, s * nd, nd, 1.0 / (sin_t * r), vec.mul(vec.madd(n, d, -nd), 1.0 / sin_t)
 
 
 @kernel(inline=True)
@@ -217,18 +218,77 @@ def _disc_inside(x):
     return 1.0 - (math.acos(x) - x * math.sqrt(1.0 - x * x)) / math.pi
 
 
+#: Points of the quadrature of :func:`_disc_inside_two` in each of its (at most three) smooth pieces.
+TWO_CUT_POINTS = 16
+
+
+@kernel(inline=True)
+def _chords_inside(phi, x1, a, b):
+    """The part of the chord y = cos φ e0 + τ f (|τ| <= sin φ) of the unit disc with y·e1 >= -x1, e1 = a e0 + b f, times
+    sin φ (the chords' measure ds = sin φ dφ)."""
+    c = math.cos(phi)
+    w = math.sin(phi)
+    lo, hi = -w, w
+    bound = -x1 - c * a   # τ b >= bound
+    if abs(b) < 1e-12:
+        if bound > 0.0:
+            hi = lo
+    elif b > 0.0:
+        lo = max(lo, bound / b)
+    else:
+        hi = min(hi, bound / b)
+    return (hi - lo) * w if hi > lo else 0.0
+
+
+@kernel(inline=True)
+def _disc_inside_two(x0, x1, a, b):
+    """The fraction of a unit disc on the near side of two lines: {y·e0 >= -x0} ∩ {y·e1 >= -x1}, x0, x1 >= 0, with
+    e1 = a e0 + b f (f ⊥ e0 in the disc's plane).  Over the chords y = cos φ e0 + τ f, φ from 0 to acos(-x0), of the
+    part of each on the near side of the second line (:func:`_chords_inside`): smooth in φ between the points where
+    the second line meets the circle, so the midpoint rule in each piece between them."""
+    phi_max = math.acos(-min(x0, 1.0))
+    # the second line meets the circle at s = y·e0 = -x1 a -+ b sqrt(1 - x1²)
+    root = b * math.sqrt(max(1.0 - x1 * x1, 0.0))
+    p1 = math.acos(min(max(-x1 * a - root, -1.0), 1.0))
+    p2 = math.acos(min(max(-x1 * a + root, -1.0), 1.0))
+    if p1 > p2:
+        p1, p2 = p2, p1
+    area = 0.0
+    lo = 0.0
+    for piece in range(3):
+        hi = min(p1, phi_max) if piece == 0 else (min(p2, phi_max) if piece == 1 else phi_max)
+        if hi > lo:
+            h = (hi - lo) / TWO_CUT_POINTS
+            for j in range(TWO_CUT_POINTS):
+                area += _chords_inside(lo + (j + 0.5) * h, x1, a, b) * h
+            lo = hi
+    return area / math.pi
+
+
 @kernel(inline=True)
 def _walls_weight(walls, v, t):
-    """1 / the fraction of the disc at t inside both ``walls`` (:func:`_wall`) for a photon at v from the segment's
-    origin; 0 for a photon beyond either wall.  Two cuts are taken as independent (exact for one)."""
-    w = 1.0
-    for wall in walls:
-        n, h0, nd, inv = wall
+    """1 / the fraction of the disc at t inside both walls (:func:`_wall`) for a photon at v from the segment's
+    origin; 0 for a photon beyond either wall.  ``walls`` = (start wall, end wall, (a, b): the end wall's e in the
+    start wall's frame, :func:`_disc_inside_two`)."""
+    start, end, (a, b) = walls
+    x0 = x1 = 1.0
+    for k in range(2):
+        n, h0, nd, inv, _ = start if k == 0 else end
         if inv > 0.0:
             if v[0] * n[0] + v[1] * n[1] + v[2] * n[2] < h0:
                 return 0.0
-            w /= _disc_inside((t * nd - h0) * inv)
-    return w
+            x = (t * nd - h0) * inv
+            if k == 0:
+                x0 = x
+            else:
+                x1 = x
+    if x0 >= 1.0 and x1 >= 1.0:
+        return 1.0
+    if x1 >= 1.0:
+        return 1.0 / _disc_inside(x0)
+    if x0 >= 1.0:
+        return 1.0 / _disc_inside(x1)
+    return 1.0 / _disc_inside_two(x0, x1, a, b)
 
 
 @kernel(inline=True)
@@ -306,7 +366,9 @@ def segment_estimate(vg, media, segment, m, limit):
     nx, ny, nz = nxt
     dx, dy, dz = delta
     r = vg.radius[0]
-    walls = (_wall(start_wall, d, 0.0, r), _wall(end_wall, d, s, r))
+    start, end = _wall(start_wall, d, 0.0, r), _wall(end_wall, d, s, r)
+    e0, e1 = start[4], end[4]
+    walls = (start, end, (vec.dot(e1, e0), vec.dot(e1, vec.cross(d, e0))))
     seg = (o, d, m, r * r, walls)
     t_enter = t0
     while t_enter < t1:

@@ -85,20 +85,23 @@ def split_off(tables, key, o, d, power, split_path, k, split):
     """An associated photon that leaves its stream at a mirror or glass (``--specular split``): the stream's
     split photon number split_path[1] + k, with ``split_path`` = (the stream's first split path, its split
     photons so far, its medium, diffuse bounces, whether it has scattered, the scattering events of its path up
-    to o, that at o included (added to the depths of the split photon's records), max_bounces).
+    to o, that at o included (added to the depths of the split photon's records), the stream's (max_bounces,
+    termination)).
 
     From o along d it is a photon of its own (:func:`caustica.photons.trace.trace_one`) with a key of its
     own: its own specular chain (Fresnel per photon), stored where it lands (unless that is direct light)
     and at every later diffuse hit, in its own mr + 1 slots of ``split``.  It decays as an associated
-    photon does (survives a diffuse bounce with p = mean albedo, power scaled by albedo / p) and ends
-    after the stream's ``max_bounces`` in all.  What escapes or is absorbed on its way is lost, as any
-    photon's power is.
+    photon does — under the cap it survives a diffuse bounce with p = mean albedo, power scaled by albedo / p
+    (``TERMINATION_DECAY``), under roulette with the largest albedo, as the stream's roulette does
+    (``TERMINATION_ROULETTE``) — and ends after the stream's ``max_bounces`` in all.  What escapes or is
+    absorbed on its way is lost, as any photon's power is.
     """
-    first_path, before, medium, diffuse_bounces, scattered, events, max_bounces = split_path
+    first_path, before, medium, diffuse_bounces, scattered, events, (max_bounces, termination) = split_path
     index = before + k
     slot0 = (first_path + index) * (max_bounces + 1)
+    decay = TERMINATION_ROULETTE if termination == TERMINATION_ROULETTE else TERMINATION_DECAY
     made = trace_one(tables, path_key(key, SPLIT_TAG, index), (o, d, power, medium, diffuse_bounces, scattered),
-                     (max_bounces, TERMINATION_DECAY, False), (slot0, 0, max_bounces + 1, split))
+                     (max_bounces, decay, False), (slot0, 0, max_bounces + 1, split))
     # trace_one counts the depths from o; the stream's events up to o come first.  (Not passed into trace_one:
     # a seventh element of its photon made the aimed caustic photons' kernel 55 % slower, measured.)
     for s in range(slot0, slot0 + min(made, max_bounces + 1)):
@@ -526,7 +529,8 @@ def trace_stream(tables, key, start, rules, i, buf):
         scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
-            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, max_bounces), split_buf))
+            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)),
+             split_buf))
         n_split += k
         if not scatters:
             break  # absorbed by the black back of a one-sided surface

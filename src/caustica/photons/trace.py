@@ -64,8 +64,8 @@ SPECULAR_CAP = 64
 FIXED_SLOTS = 8
 TERMINATION_CAP = 0       # scale power by the albedo, stop after mr diffuse bounces (the paper)
 TERMINATION_ROULETTE = 1  # survive with p = the BSDF sample's largest weight (a diffuse albedo), power scaled by 1 / p
-TERMINATION_DECAY = 2     # survive with p = its mean weight: the decay of a stream's associated photons (SPEC), which
-#                           its split photons keep (streams.split_off)
+TERMINATION_DECAY = 2     # survive with p = its mean weight: the decay of a stream's associated photons under the cap
+#                           (SPEC), which its split photons keep (streams.split_off); in a medium roulette as above
 
 
 @kernel(inline=True)
@@ -103,8 +103,8 @@ def survive(ok, wi, weight, delta, numbers):
     metal) what that lobe keeps, so no channel of a photon's power grows and no lobe that reflects light loses all
     its photons.  The largest, not the mean: with the mean, a channel above it gained weight / mean a bounce, and
     its second moment weight² / mean grew without bound in a coloured closed room (docs/results.md).
-    ``TERMINATION_DECAY`` takes the mean: the paper's decay of a stream's associated photons (SPEC), whose paths the
-    stream's cap bounds."""
+    ``TERMINATION_DECAY`` takes the mean: the paper's decay of a stream's associated photons under the cap (SPEC),
+    whose paths that cap bounds."""
     key, dim, termination = numbers
     if delta:
         return ok, wi, weight, 1.0, True, dim
