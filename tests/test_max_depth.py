@@ -273,3 +273,32 @@ def test_split_photons_count_their_streams_events():
     assert lead.size > 1000 and split.size > 300 and lead.min() >= 2
     on_floor = np.bincount(split[np.abs(buf.split.position[stored, 1]) < 1e-3], minlength=5)
     assert split.min() >= 2 and on_floor[2] > 20 and on_floor[4] > 100, on_floor
+
+
+THIN_BALL = """<?xml version="1.0"?><scene version="3.0.0">
+  <integrator type="volpath"><integer name="max_depth" value="{max_depth}"/></integrator>
+  <medium type="homogeneous" id="fog"><float name="sigma_t" value="1.5"/><float name="albedo" value="0.8"/></medium>
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 1.5, 4" target="0, 0.3, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/></film></sensor>
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
+  <shape type="sphere"><point name="center" value="0, 0.8, 0"/><float name="radius" value="0.7"/>
+     <bsdf type="thindielectric"><float name="int_ior" value="1.8"/></bsdf>{interior}</shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/><translate y="2.5"/>
+     </transform><emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("max_depth, fog", [(2, False), (3, True)])
+def test_sppm_follows_volpaths_thin_dielectric(max_depth, fog):
+    """Under volpath a thindielectric's straight-on crossing is a null event: no vertex, and shadow rays pass it with
+    1 - R.  sppm follows it (camera paths and photons cross it without a vertex, so the light through it is direct
+    light) and takes the file's max_depth: a thin ball over a floor, empty or holding fog, against pt under the same
+    integrator.  Counting the crossing as a vertex (as Mitsuba's path does) makes the ball's shadow and caustic
+    several times the noise darker at these depths."""
+    text = THIN_BALL.format(max_depth=max_depth, interior='<ref name="interior" id="fog"/>' if fog else "")
+    scene = compile_scene(parse_scene_string(text, ".", None, "thin-ball.xml"))
+    ours = [caustica.render(scene, "sppm", passes=64, seed=s, photons=20_000).image for s in SEEDS]
+    pt = [caustica.render(scene, "pt", spp=512, seed=100 + s).image for s in SEEDS]
+    assert_images_agree(ours, pt, label=f"sppm vs pt, thin ball, volpath max_depth {max_depth}")

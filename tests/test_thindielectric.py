@@ -234,9 +234,8 @@ def test_shadow_ray_through_pane_passes_mitsubas_null_transmission(mi):
     tables for a volpath scene: Mitsuba's eval_null_transmission.  The scene's own tables (the photon methods') block
     it."""
     from caustica.media import transmittance
-    from caustica.methods.pt import null_thin_tables
     scene = caustica.load_scene(SCENE)
-    geom, mats, lights, media = null_thin_tables(scene.tables)
+    geom, mats, lights, media = scene.with_null_thin_dielectric().tables
     pane = next(m for m in range(len(mats.kind)) if mats.kind[m] == THINDIELECTRIC and mats.eta[m] > 1.9)
     assert mats.flags[pane] & bsdfs.NULL_TRANSMISSION and not scene.tables[1].flags[pane] & bsdfs.NULL_TRANSMISSION
     theirs = mi.load_dict({"type": "thindielectric", "int_ior": 2.0})   # the pane's ($ior), ext_ior air as ours

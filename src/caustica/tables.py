@@ -9,11 +9,12 @@ medium and the camera is in none, so every kernel runs the vacuum case).  It is 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features, \
+    null_transmitting
 from .camera import CameraParams, camera_params
 from .emitters import AREA, POINT, TEX_OF, TEXTURED_AREA, LightTable, build_light_table
 from .errors import SceneError
@@ -48,6 +49,17 @@ class Scene:
     def tables(self) -> tuple:
         """(geometry, materials, lights, media): what the kernels take as ``tables``."""
         return self.geometry, self.materials, self.lights, self.media
+
+    def with_null_thin_dielectric(self) -> Scene:
+        """This scene with a thindielectric's straight-on lobe made Mitsuba volpath's null event: a copy of the
+        material table flagged ``NULL_TRANSMISSION`` there (:func:`caustica.bsdfs.null_transmitting`) and of the media
+        table saying shadow rays may cross surfaces, so that they reach :func:`caustica.media.crossing`.  What a
+        method that follows ``volpath``'s depths renders with (``null_thin_dielectric``); this scene stays as it is.
+        Itself without a thindielectric."""
+        flagged = null_transmitting(self.materials)
+        if flagged is None:
+            return self
+        return replace(self, materials=flagged, media=self.media._replace(null_surfaces=np.ones(1, np.int8)))
 
     @property
     def width(self) -> int:

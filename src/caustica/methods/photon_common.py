@@ -59,21 +59,26 @@ DEPTH_PARAMS = (
 
 class SceneDepths:
     """A photon method that takes the scene's ``<integrator>`` depths (:data:`DEPTH_PARAMS`)."""
+    #: Whether the method follows volpath's thindielectric (``null_thin_dielectric``: its straight-on crossing no
+    #: bounce, for camera paths, photons and shadow rays alike).
+    null_thin_lobes = False
 
-    @staticmethod
-    def scene_defaults(description) -> dict:
+    @classmethod
+    def scene_defaults(cls, description) -> dict:
         """The scene's ``<integrator>`` settings the photon methods take: Mitsuba's max_depth (``direct``: 2) and
-        hide_emitters.  Not max_depth under volpath in a scene with a thindielectric (volpath does not count its
-        straight-on crossing, these methods do); a note says so
+        hide_emitters.  Under volpath in a scene with a thindielectric, a method that follows its null crossing
+        (:attr:`null_thin_lobes`) takes max_depth with it; the others do not take max_depth there (volpath does not
+        count the crossing, they do), and a note says so
         (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
         s = description.integrator_settings
         if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
             return {}
         out = {"hide_emitters": s.hide_emitters}
         null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
-        depth = s.path_depth()
-        if not null_thin:
-            out["max_depth"] = depth
+        if cls.null_thin_lobes:
+            out["null_thin_dielectric"] = s.type in NULL_THIN_INTEGRATORS
+        if not null_thin or cls.null_thin_lobes:
+            out["max_depth"] = s.path_depth()
         return out
 
 

@@ -31,7 +31,8 @@ null crossing (not counted in the depth, the last real scattering kept for MIS, 
 surface is sampled even at the last depth, where a reflection then ends the path) and lets shadow rays
 through with ``eval_null_transmission`` = 1 - R; its ``path`` counts the pass as a bounce and blocks shadow
 rays, as pt does without the setting.  The setting reaches the kernels as a copy of the material table
-flagged ``NULL_TRANSMISSION`` there (:func:`null_thin_tables`); the scene's own tables are not changed.
+flagged ``NULL_TRANSMISSION`` there (:meth:`caustica.tables.Scene.with_null_thin_dielectric`); the scene's own
+tables are not changed.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ import time
 
 import numpy as np
 
-from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, null_transmitting, oriented, sample
+from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, oriented, sample
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..emitters import ENV, radiance_at_hit
@@ -53,7 +54,7 @@ from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..transport import CROSSED, SCATTER, ShadingPoint, borrow_tables, in_medium, surface_interaction
 from . import register
 from .independent import IndependentPasses
-from .params import Param
+from .params import NULL_THIN_PARAM, Param
 
 INV_PI = 1.0 / math.pi
 DEPTH_CAP = 1024
@@ -243,18 +244,6 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
         image[y, x, 2] = acc[2] * inv
 
 
-def null_thin_tables(tables):
-    """The scene tables with a thindielectric's straight-on lobe made Mitsuba volpath's null event: a copy of the
-    material table flagged ``NULL_TRANSMISSION`` there (:func:`caustica.bsdfs.null_transmitting`) and of the media
-    table saying shadow rays may cross surfaces, so that they reach :func:`caustica.media.crossing`.  The scene's
-    tables stay as they are (the photon methods carry that light by photons).  Unchanged without thindielectric."""
-    geom, mats, lights, media = tables
-    flagged = null_transmitting(mats)
-    if flagged is None:
-        return tables
-    return geom, flagged, lights, media._replace(null_surfaces=np.ones(1, np.int8))
-
-
 @register
 class PathTracer(IndependentPasses):
     name = "pt"
@@ -273,9 +262,7 @@ class PathTracer(IndependentPasses):
               max=DEPTH_CAP),
         Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
               "black, as Mitsuba's hide_emitters (a scene's integrator sets the default)"),
-        Param("null_thin_dielectric", bool, False, "thindielectric's straight-on transmission is Mitsuba volpath's "
-              "null event: not counted in max_depth, and shadow rays pass it with 1 - R (a scene's volpath "
-              "integrator sets it; else a crossing is a bounce and blocks shadow rays, as Mitsuba's path)"),
+        NULL_THIN_PARAM,
     )
 
     @staticmethod
@@ -302,7 +289,7 @@ class PathTracer(IndependentPasses):
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
         params = (settings["spp"], max_depth, settings["rr_depth"], settings["hide_emitters"])
-        tables = null_thin_tables(scene.tables) if settings["null_thin_dielectric"] else scene.tables
+        tables = (scene.with_null_thin_dielectric() if settings["null_thin_dielectric"] else scene).tables
         compile_s = parallel_for(render_pixels, n, (tables, cam, (settings["seed"], stream), params, (image, rays)),
                                  threads=settings["threads"], progress=bar)
         bar.close()

@@ -41,8 +41,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import has
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, oriented, photon_shading, sample, sample_kind, \
-    wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, NULL_TRANSMISSION, entry, eval_pdf, oriented, photon_shading, sample, \
+    sample_kind, wrapped
 from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
 from ..emitters import choose_light
@@ -51,7 +51,7 @@ from ..jit import kernel, parallel_for
 from ..memory import check_budget
 from ..media import free_flight, light_media, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
+from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
@@ -329,6 +329,15 @@ def trace_one(tables, key, photon, rules, out):
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)
+        straight = vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0
+        if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION and straight:
+            # volpath's thindielectric (null_thin_dielectric): straight on is a null crossing, no event, so what
+            # the photon lights next is direct light if it had not scattered (shadow rays pass the surface too)
+            specular_events += 1
+            if specular_events > SPECULAR_CAP:
+                break
+            o, medium = vec.offset_origin(p, ng, d_new), medium_after(media, shape, ng_front, d_new, medium)
+            continue
         if delta or not mats.flags[m] & DIFFUSE_REFLECTION:
             # a mirror, glass or glossy bounce: the photon is still on a caustic path, light -> (S|G)+
             specular_events += 1

@@ -73,15 +73,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
-    delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, coat, \
+    colour, delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import borrowed, kernel, parallel_for
 from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
-from ..scene.description import PLASTIC, ROUGHPLASTIC
+from ..scene.description import PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
 from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import attenuation, light_sample, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
@@ -420,8 +420,11 @@ def visible_point(tables, o, d, numbers, params, out):
                          seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:
             continue
-        if nxt == TRAPPED or k >= max_depth:   # at max_depth: no light the path scatters here can count
+        # volpath's thindielectric (null_thin_dielectric): its straight-on lobe is a null crossing, no vertex
+        null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0
+        if nxt == TRAPPED or k >= max_depth and not null_lobe:   # at max_depth: no light scattered here can count
             return False, zero, zero, zero, L, n_seg, k
+        arrived_counted = counted
         counted = False
         ng_front = ng
         scatters, ng, ns = oriented(mats, m, front, ng, ns)
@@ -475,6 +478,21 @@ def visible_point(tables, o, d, numbers, params, out):
                     if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
                         return False, zero, zero, zero, L, n_seg, k   # the lobe's sample fell below the surface
                     specular, pdf_last, p_last = False, pdf_coat, p
+            elif null_lobe:
+                # crossed straight on as a null boundary (not a vertex), or reflected (at the last depth that ends
+                # the path, as volpath samples the surface there too).  No emission in expectation here: what
+                # lies beyond was already counted by a glass before if ``counted`` came in set (emitted_along
+                # passes such a surface), and is met by the path itself otherwise.
+                u, first_glass, dim = branch_number(first_glass, numbers, dim)
+                wr, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+                beta = vec.hadamard(beta, tint)
+                if u >= F:
+                    wi, counted = d, arrived_counted
+                    k -= 1
+                elif k >= max_depth:
+                    return False, zero, zero, zero, L, n_seg, k
+                else:
+                    wi = wr
             else:
                 L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta),
                                                                       (first_glass, numbers, dim))
