@@ -10,7 +10,10 @@ T(t) = exp(−σt t) per channel, p the medium's phase function, ω_i the photon
 travel and Φ_i its stored power, which already holds σs / σt and the transmittance of its
 flight (:mod:`caustica.photons.trace`): with photons stored at scattering events, Σ Φ_i
 δ(x − x_i) δ(ω − ω_i) estimates σs L, and the 2-D kernel 1 / (π r²) across the segment
-turns the integral of T σs p L along it into that sum.  The kernel is 2-D (across the beam),
+turns the integral of T σs p L along it into that sum.  Where the segment starts or ends at a wall of its
+medium (:class:`~caustica.photons.segments.CameraSegments`), the disc is cut there: photons beyond the wall's
+plane are left out and the others weighted by 1 / the part of the disc inside (:func:`_walls_weight`), so the
+empty part past the medium is not read as a density of zero.  The kernel is 2-D (across the beam),
 so its progressive radius follows the 2-D rule of Knaus & Zwicker 2011: r_p² ∝ ∏ (i + α) / (i + 1),
 the surfaces' global schedule (docs/media.md).
 
