@@ -35,6 +35,7 @@ class Scene:
     timings: dict = field(default_factory=dict)
     media: MediumTable | None = None   # always built by compile_scene: trivial (no medium anywhere) without media
     _specular_spheres: np.ndarray | None = field(default=None, repr=False, compare=False)
+    _null_thin: Scene | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:
@@ -55,11 +56,12 @@ class Scene:
         material table flagged ``NULL_TRANSMISSION`` there (:func:`caustica.bsdfs.null_transmitting`) and of the media
         table saying shadow rays may cross surfaces, so that they reach :func:`caustica.media.crossing`.  What a
         method that follows ``volpath``'s depths renders with (``null_thin_dielectric``); this scene stays as it is.
-        Itself without a thindielectric."""
-        flagged = null_transmitting(self.materials)
-        if flagged is None:
-            return self
-        return replace(self, materials=flagged, media=self.media._replace(null_surfaces=np.ones(1, np.int8)))
+        Itself without a thindielectric.  Built once (every pass of sppm asks for it)."""
+        if self._null_thin is None:
+            flagged = null_transmitting(self.materials)
+            self._null_thin = self if flagged is None else replace(
+                self, materials=flagged, media=self.media._replace(null_surfaces=np.ones(1, np.int8)), _null_thin=None)
+        return self._null_thin
 
     @property
     def width(self) -> int:

@@ -122,13 +122,13 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
     return out
 
 
-#: Settings every method takes (``caustica.render``'s own keywords), next to its own parameters, with the bounds of caustica.limits.
 #: Mitsuba volpath's treatment of a thindielectric (pt, sppm; a scene's volpath or volpathmis integrator sets it).
 NULL_THIN_PARAM = Param(
     "null_thin_dielectric", bool, False, "thindielectric's straight-on transmission is Mitsuba volpath's null event: "
     "not counted in max_depth, and shadow rays pass it with 1 - R (a scene's volpath integrator sets it; else a "
     "crossing is a bounce and blocks shadow rays, as Mitsuba's path)")
 
+#: Settings every method takes (``caustica.render``'s own keywords), next to its own parameters, with the bounds of caustica.limits.
 COMMON_PARAMS = (
     Param("spp", int, None, "samples per pixel", positive, ">= 1", max=MAX_SPP),
     Param("width", int, None, "image width", positive, ">= 1", option="--res width"),

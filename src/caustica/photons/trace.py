@@ -329,8 +329,8 @@ def trace_one(tables, key, photon, rules, out):
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)
-        straight = vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0
-        if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION and straight:
+        if (has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION
+                and vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0):
             # volpath's thindielectric (null_thin_dielectric): straight on is a null crossing, no event, so what
             # the photon lights next is direct light if it had not scattered (shadow rays pass the surface too)
             specular_events += 1
