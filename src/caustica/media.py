@@ -634,15 +634,38 @@ def medium_at(geom, media, o, d, fallback):
     return fallback
 
 
+#: :func:`light_media`'s value for a light that spans media (part of an area light inside a medium, part
+#: outside): each photon finds its own (:func:`photon_medium`).
+PROBE_EACH = -2
+
+#: Points on an area light that :func:`light_medium` probes (a Hammersley set: the first number, which picks a mesh's
+#: triangle by area, takes every value apart).
+LIGHT_PROBES = 256
+
+
+@kernel(inline=True)
+def radical_inverse_2(i):
+    """i's binary digits mirrored about the point (van der Corput): 0, 1/2, 1/4, 3/4, ..."""
+    out, f = 0.0, 0.5
+    while i > 0:
+        out += f * (i & 1)
+        i >>= 1
+        f *= 0.5
+    return out
+
+
 @kernel
 def light_medium(geom, lights, media, e):
-    """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe).
+    """The medium light e emits into: its shape's exterior medium, else the medium around it (a probe);
+    :data:`PROBE_EACH` when an area light's points are in different media.
 
     An area light on a shape with media emits into that shape's exterior (its front side, as
     Mitsuba); the environment into what a probe from outside the scene's bounding sphere meets first (a
-    directional light: a probe along its direction);
-    otherwise a probe from just in front of the light's middle, along its normal
-    (:func:`medium_at`), says where it is.  A point, spot or projector is probed from its position.
+    directional light: a probe along its direction); a point, spot or projector is probed from its position.
+    Another area light is probed (:func:`medium_at`) from just in front of :data:`LIGHT_PROBES` points spread over
+    it by area, along its normal: one medium when they agree, else :data:`PROBE_EACH` (a light that pierces a
+    medium's boundary, as the torus of Mitsuba's ``test_homo_emitter_inside_medium``).  A part of less than about
+    1 / LIGHT_PROBES of its area can be missed.
     """
     fallback = media.camera[0]
     if has(lights, ENV) and lights.kind[e] == ENV:   # from outside the scene's bounding sphere, towards its centre
@@ -657,16 +680,30 @@ def light_medium(geom, lights, media, e):
         shape = geom.prim_shape[lights.prims[lights.prim_first[e]]]
         if media.interior[shape] >= 0 or media.exterior[shape] >= 0:
             return media.exterior[shape]
-        p, n = sample_area_emitter(lights, geom, e, 0.5, 0.5)
-        return medium_at(geom, media, vec.offset_origin(p, n, n), n, fallback)
+        first = 0
+        for i in range(LIGHT_PROBES):
+            p, n = sample_area_emitter(lights, geom, e, (i + 0.5) / LIGHT_PROBES, radical_inverse_2(i))
+            m = medium_at(geom, media, vec.offset_origin(p, n, n), n, fallback)
+            if i == 0:
+                first = m
+            elif m != first:
+                return PROBE_EACH
+        return first
     return medium_at(geom, media, vec.row(lights.position, e), vec.normalize((0.3, 0.5, 0.81)), fallback)
 
 
-def light_media(scene) -> np.ndarray:
-    """int32[L]: the medium each light emits into (:func:`light_medium`).
+@kernel(inline=True)
+def photon_medium(geom, media, light_medium, li, o, d):
+    """The medium a photon leaving light li from o along d starts in: the light's (:func:`light_media`), or for
+    a light that spans media (:data:`PROBE_EACH`) a probe from o along d, the first boundary it meets."""
+    m = light_medium[li]
+    if m == PROBE_EACH:
+        return medium_at(geom, media, o, d, media.camera[0])
+    return m
 
-    A light is taken to sit wholly in one medium (docs/media.md).
-    """
+
+def light_media(scene) -> np.ndarray:
+    """int32[L]: the medium each light emits into, or :data:`PROBE_EACH` (:func:`light_medium`)."""
     lights = scene.lights
     if not scene.has_media:
         return np.full(lights.kind.shape[0], -1, np.int32)

@@ -21,7 +21,7 @@ from .errors import SceneError
 from .features import ALL, bits, specialised
 from .geometry.bounds import shape_bounding_sphere
 from .geometry.scene_geometry import Geometry, build_geometry
-from .media import MediumTable, build_medium_table
+from .media import MediumTable, build_medium_table, light_media
 from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, SceneDescription
 from .scene.transforms import MAX_ABS_FLOAT
 
@@ -36,6 +36,7 @@ class Scene:
     media: MediumTable | None = None   # always built by compile_scene: trivial (no medium anywhere) without media
     _specular_spheres: np.ndarray | None = field(default=None, repr=False, compare=False)
     _null_thin: Scene | None = field(default=None, repr=False, compare=False)
+    _light_media: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:
@@ -62,6 +63,13 @@ class Scene:
             self._null_thin = self if flagged is None else replace(
                 self, materials=flagged, media=self.media._replace(null_surfaces=np.ones(1, np.int8)), _null_thin=None)
         return self._null_thin
+
+    def light_media(self) -> np.ndarray:
+        """int32[L]: the medium each light emits into (:func:`caustica.media.light_media`); probed once, as every
+        photon pass asks for it."""
+        if self._light_media is None:
+            self._light_media = light_media(self)
+        return self._light_media
 
     @property
     def width(self) -> int:

@@ -57,7 +57,7 @@ from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import kernel, parallel_for
-from ..media import free_flight, light_media, medium_after, photon_scatter
+from ..media import free_flight, medium_after, photon_medium, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
@@ -328,13 +328,14 @@ def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
     ``buf`` = (records, associated photons, split photons, the records' depths)."""
     tables = borrow_tables(tables)
-    geom, _, lights, _ = tables
+    geom, _, lights, media = tables
     seed, stream, n_streams = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
         li, _, _ = choose_light(lights, uniform(key, 0))                   # the light emit_photon chose
-        trace_stream(tables, key, (o, d, e_s, n_from, light_medium[li]), rules, i, buf)
+        medium = photon_medium(geom, media, light_medium, li, o, d)
+        trace_stream(tables, key, (o, d, e_s, n_from, medium), rules, i, buf)
 
 
 @kernel(inline=True)
@@ -568,7 +569,7 @@ def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bou
     pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE."""
     rules = (n_assoc, float(r_s), max_bounces, termination, bool(split), bool(spread))
     return parallel_for(trace_streams, n_streams,
-                        (scene.tables, light_media(scene), (seed, stream, n_streams), rules, buf.kernel_args),
+                        (scene.tables, scene.light_media(), (seed, stream, n_streams), rules, buf.kernel_args),
                         threads=threads, progress=progress)
 
 

@@ -6,7 +6,8 @@ table).  Each photon i is a pure function of (seed, pass, i): parallel tracing w
 into fixed slots of its own and traces a longer path again for the rest (:func:`trace_photon_pass`), so the
 records come in photon order and the maps are identical for any thread count.
 
-* A photon starts in the medium of its light (:func:`caustica.media.light_media`) and keeps
+* A photon starts in the medium of its light (:func:`caustica.media.light_media`), or of the point it leaves
+  from when the light spans media (:func:`caustica.media.photon_medium`), and keeps
   track of the medium it is in across every surface it leaves (``medium_after``); null
   boundaries are crossed without scattering.
 * In a medium it samples a free flight (:func:`caustica.media.free_flight`); the flight ends in
@@ -49,7 +50,7 @@ from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..memory import check_budget
-from ..media import free_flight, light_media, medium_after, photon_scatter
+from ..media import free_flight, medium_after, photon_medium, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
@@ -357,14 +358,15 @@ def trace_one(tables, key, photon, rules, out):
 
 
 @kernel(inline=True)
-def emitted_photon(geom, lights, light_medium, source, i):
+def emitted_photon(tables, light_medium, source, i):
     """Photon i of ``source`` = (seed, stream, n_paths) as it leaves its light: (its key, :func:`trace_one`'s
     ``photon``)."""
+    geom, _, lights, media = tables
     seed, stream, n_paths = source
     key = path_key(seed, stream, i)
     o, d, power, _ = emit_photon(geom, lights, key, n_paths)
     li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-    return key, (o, d, power, light_medium[li], 0, False)
+    return key, (o, d, power, photon_medium(geom, media, light_medium, li, o, d), 0, False)
 
 
 @kernel
@@ -373,10 +375,9 @@ def trace_photons(tables, light_medium, source, rules, out, i0, i1):
     counts): photon i keeps its first ``slots`` records in slots [i * slots, (i + 1) * slots) of buf, and counts[i]
     = the records its path made."""
     tables = borrow_tables(tables)
-    geom, _, lights, _ = tables
     buf, slots, counts = out
     for i in range(i0, i1):
-        key, photon = emitted_photon(geom, lights, light_medium, source, i)
+        key, photon = emitted_photon(tables, light_medium, source, i)
         counts[i] = trace_one(tables, key, photon, (rules[0], rules[1], False), (i * slots, 0, slots, buf))
 
 
@@ -386,10 +387,9 @@ def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
     buf), photon ids[j] for j in [i0, i1), its records from number ``skip`` on into slots [offsets[j],
     offsets[j + 1]) of buf."""
     tables = borrow_tables(tables)
-    geom, _, lights, _ = tables
     ids, offsets, skip, buf = tails
     for j in range(i0, i1):
-        key, photon = emitted_photon(geom, lights, light_medium, source, ids[j])
+        key, photon = emitted_photon(tables, light_medium, source, ids[j])
         trace_one(tables, key, photon, (rules[0], rules[1], False),
                   (offsets[j], skip, offsets[j + 1] - offsets[j], buf))
 
@@ -401,14 +401,15 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
     a medium or meets a diffuse surface before any of them stores nothing (that light is the other photons' and
     the direct light's)."""
     tables = borrow_tables(tables)
-    geom, _, lights, _ = tables
+    geom, _, lights, media = tables
     seed, stream, n_paths = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
             li, _, _ = choose_light(lights, uniform(key, 0))
-            trace_one(tables, key, (o, d, power, light_medium[li], 0, False), (0, TERMINATION_CAP, True),
+            medium = photon_medium(geom, media, light_medium, li, o, d)
+            trace_one(tables, key, (o, d, power, medium, 0, False), (0, TERMINATION_CAP, True),
                       (i, 0, 1, buf))
 
 
@@ -439,7 +440,7 @@ def trace_photon_pass(scene, source, rules, *, reserve=0, threads=None, progress
     k = fixed_slots(rules[0])
     buf = allocate_buffers(n * k + reserve, 1)
     counts = np.zeros(n, np.int32)
-    common = (scene.tables, light_media(scene), source, rules)
+    common = (scene.tables, scene.light_media(), source, rules)
     compile_s = parallel_for(trace_photons, n, common + ((TraceBuffers(*(a[:n * k] for a in buf)), k, counts),),
                              threads=threads, progress=progress)
     longer = np.flatnonzero(counts > k)
@@ -469,5 +470,5 @@ def trace_caustic_photon_pass(scene, buf, seed, stream, n_paths, *, spheres=None
     radius) into ``buf`` (one slot each); returns the compile seconds."""
     spheres = scene.specular_bounding_spheres() if spheres is None else spheres
     return parallel_for(trace_caustic_photons, n_paths,
-                        (scene.tables, light_media(scene), spheres, (seed, stream, n_paths), buf),
+                        (scene.tables, scene.light_media(), spheres, (seed, stream, n_paths), buf),
                         threads=threads, progress=progress)
