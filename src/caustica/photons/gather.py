@@ -33,8 +33,8 @@ import math
 
 import numpy as np
 
-from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, delta_branches, \
-    oriented, resolve, wrapped
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, NULL_TRANSMISSION, SMOOTH, coat, \
+    colour, delta_branches, oriented, resolve, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance, radiance_at_hit
@@ -44,7 +44,7 @@ from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
+from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
 from ..transport import ShadingPoint, borrow_tables, unwrap, with_tangent
 from .estimate import flux_density, none_admitted
 from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
@@ -172,6 +172,28 @@ def delta_branch(mats, m, d, at, path, stack, key, dim):
     return d, beta, top, dim
 
 
+@kernel(inline=True)
+def null_thin_branch(mats, m, d, at, path, stack, key, dim):
+    """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``): the path goes
+    on straight with (1 - R), no vertex, and the reflection, a vertex, is pushed on ``stack`` = (scratch, top) as
+    :func:`delta_branch` pushes glass's; deeper, or when the stack is full, one of them is taken with the Fresnel
+    probability.  ``path`` = (β, specular depth, max_specular, max_depth): no reflection where a vertex would pass
+    either.  Returns (alive, the direction, whether it is the reflection, β, top, dim)."""
+    beta, depth, max_specular, max_depth = path
+    scratch, top = stack
+    d_r, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta = vec.hadamard(beta, tint)
+    reflects = not ends_at(max_depth, depth + 1) and depth + 1 <= max_specular
+    if depth + 1 <= SPLIT_DEPTH and top < scratch[0].shape[0]:
+        if reflects:
+            top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta, F), depth + 1)
+        return True, d, False, vec.mul(beta, 1.0 - F), top, dim
+    u = uniform(key, dim)
+    if u >= F:
+        return True, d, False, beta, top, dim + 1
+    return reflects, d_r, True, beta, top, dim + 1
+
+
 @kernel
 def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
@@ -181,7 +203,8 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     Mitsuba's max_depth (segments of a whole path, None for none) ends a path at the surface it reaches in
     max_depth segments once its emission is added, and a diffuse point k segments from the camera gathers the
     records of at most max_depth - k segments; hide_emitters leaves out what the camera
-    sees first.  A path's segments to a surface are its specular depth + 1 (blends' null parts are not vertices).
+    sees first.  A path's segments to a surface are its specular depth + 1 (blends' null parts and, under
+    ``null_thin_dielectric``, a thindielectric crossed straight on are not vertices).
     ``scratch`` = the split stack (origins, directions, throughputs, depths) and the k-nearest buffers (indices,
     squared distances).
     """
@@ -197,6 +220,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
         top -= 1
         o, d, beta, depth = vec.row(st_o, top), vec.row(st_d, top), vec.row(st_beta, top), st_depth[top]
         last = (True, 0.0, o)   # (specular, pdf_last, p_last): a split branch starts after a delta bounce
+        crossed = 0   # surfaces passed since the last vertex (MIS's distance to an emitter: seen_weight)
         while True:
             prim, t, b1, b2 = intersect(geom, o, d, np.inf)
             if prim < 0:
@@ -208,11 +232,14 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             e = geom.prim_emitter[prim]
             if e >= 0 and front and (depth > 0 or not hide_emitters):
                 L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, (o, d, t, b1, b2))),
-                             seen_weight(lights, e, last, (-vec.dot(d, ng), t, 0, p)))
+                             seen_weight(lights, e, last, (-vec.dot(d, ng), t, crossed, p)))
             if passed:
                 o = vec.offset_origin(p, ng, d)
+                crossed += 1
                 continue
-            if ends_at(max_depth, depth + 1):
+            # volpath's thindielectric (null_thin_dielectric): its straight-on lobe is a null crossing, no vertex
+            null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0
+            if ends_at(max_depth, depth + 1) and not null_lobe:
                 break
             lookup = (maps, estimate, knn_scratch, (max_depth, depth + 1))
             ng_front = ng
@@ -232,7 +259,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 if not alive:
                     break
                 last = (lobe & DELTA != 0, pdf, p)
-                o, d = vec.offset_origin(p, ng, wi), wi
+                o, d, crossed = vec.offset_origin(p, ng, wi), wi, 0
                 continue
             if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC and not wrap:
                 # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
@@ -244,7 +271,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                         break   # the lobe's sample fell below the surface
                     beta = vec.hadamard(beta, w_coat)
                     last = (False, pdf, p)
-                    o, d = vec.offset_origin(p, ng, wc), wc
+                    o, d, crossed = vec.offset_origin(p, ng, wc), wc, 0
                     continue
                 E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
                 queries += q
@@ -259,6 +286,17 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 queries += q
                 L = vec.add(L, vec.hadamard(beta, E))
                 break
+            if null_lobe:
+                alive, d, reflected, beta, top, dim = null_thin_branch(
+                    mats, m, d, at, (beta, depth, max_specular, max_depth), (scratch, top), key, dim)
+                if not alive:
+                    break
+                o = vec.offset_origin(p, ng, d)
+                if reflected:
+                    depth, last, crossed = depth + 1, (True, 0.0, p), 0
+                else:
+                    crossed += 1
+                continue
             last = (True, 0.0, p)
             if flags & SMOOTH:
                 take_coat, fr, lobe_b, top, wc, w_coat, dim = diffuse_or_coating(
@@ -266,7 +304,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 if take_coat:
                     depth += 1
                     beta = vec.hadamard(beta, w_coat)
-                    o, d = vec.offset_origin(p, ng, wc), wc
+                    o, d, crossed = vec.offset_origin(p, ng, wc), wc, 0
                     continue
                 E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, None, key, dim)
                 queries += q
@@ -277,6 +315,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 break
             d, beta, top, dim = delta_branch(mats, m, d, at, (beta, depth), (scratch, top), key, dim)
             o = vec.offset_origin(p, ng, d)
+            crossed = 0
     return L, queries
 
 
