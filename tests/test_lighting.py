@@ -20,8 +20,8 @@ def pyramid():
 def irradiance(scene, p, key, n, fixed):
     """E at floor point p (its shape: the floor's, in no medium), n x n strata, jittered by ``key``."""
     floor = int(scene.geometry.prim_shape[0])   # any shape: in a scene without media it changes nothing
-    return np.array(direct_stratified(scene.tables, ShadingPoint(p, UP, UP, UP, floor, -1), np.uint64(key), 0, n,
-                                      fixed, -1, -1, None))
+    return np.array(direct_stratified(scene.tables, ShadingPoint(p, UP, UP, UP, floor, -1), np.uint64(key), 0,
+                                      (n, fixed, -1), -1, None))
 
 
 def test_fixed_grid_is_the_midpoint_rule_and_ignores_the_random_numbers(pyramid):

@@ -142,7 +142,7 @@ def _light_samples_kernel(tables, points, contrib, wi, direct):
     for i in range(points.shape[0]):
         at = ShadingPoint((points[i, 0], points[i, 1], points[i, 2]), up, up, up, 0, -1, NO_UV)
         c, w, _, _, _, _, _ = light_sample(tables, at, (0.5, 0.5, 0.5), False)
-        e = direct_stratified(tables, at, path_key(1, 1, i), 0, 1, True, -1, -1, None)
+        e = direct_stratified(tables, at, path_key(1, 1, i), 0, (1, True, -1), -1, None)
         for k in range(3):
             contrib[i, k] = c[k]
             wi[i, k] = w[k]

@@ -112,15 +112,15 @@ def env_transmittance(tables, at, wi):
 
 
 @kernel
-def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, coated, bsdf):
+def direct_stratified(tables, at, key, dim, strata, coated, bsdf):
     """Irradiance E = Σ_lights ∫ L T cos θ dω at ``at`` (a :class:`caustica.transport.ShadingPoint` on a
     surface), every light sampled (SPEC §2).
 
-    Area lights: n_strata x n_strata strata; stratum s = (i, j) is jittered by its cell centre when
-    ``fixed_grid`` (the paper's grid of point lights); else, when ``pass_index`` < 0, by numbers
-    dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the passes k, u those numbers
-    (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a pixel's passes
-    fill it evenly).  Point and spot lights exactly (a spot's intensity times its falloff; a projector's or a textured
+    Area lights (:func:`area_direct`), ``strata`` = (n_strata, fixed_grid, pass_index): n_strata x n_strata strata;
+    stratum s = (i, j) is jittered by its cell centre when ``fixed_grid`` (the paper's grid of point lights); else,
+    when ``pass_index`` < 0, by numbers dim + 2 s, dim + 2 s + 1 of ``key``; else by frac(u + k alpha) over the
+    passes k, u those numbers (a shifted Kronecker sequence: each pass's point is uniform in its stratum and a
+    pixel's passes fill it evenly).  Point and spot lights exactly (a spot's intensity times its falloff; a projector's or a textured
     spot's by :func:`profiled_direct`), a directional light by one shadow ray against its direction (E cos θ T); the environment by :func:`env_direct`.  Each shadow ray's
     visibility is its transmittance (:func:`caustica.media.shadow_transmittance`, from the medium on the
     light's side of the surface; 0 or 1 in vacuum, with the vacuum arithmetic).  ``at``'s ng, ns: normals on
@@ -130,75 +130,111 @@ def direct_stratified(tables, at, key, dim, n_strata, fixed_grid, pass_index, co
     ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (a glossy lobe beside a diffuse one:
     pplastic, principled), each shadow ray then weighted by f(d, wi) (:func:`times_bsdf`): the radiance towards -d.
     """
-    geom, mats, lights, media = tables
-    p, ng, ns, ng_front, shape, medium, _ = at
+    lights = tables[2]
     E = (0.0, 0.0, 0.0)
-    n_total = n_strata * n_strata
     for li in range(lights.kind.shape[0]):
-        rad = vec.row(lights.radiance, li)
         if has(lights, ENV) and lights.kind[li] == ENV:
-            E = vec.add(E, env_direct(tables, at, key, dim, (n_strata, fixed_grid, pass_index), coated, bsdf))
+            E = vec.add(E, env_direct(tables, at, key, dim, strata, coated, bsdf))
         elif lights.kind[li] == AREA:
-            acc = (0.0, 0.0, 0.0)
-            textured = has(lights, TEXTURED_AREA) and lights.tex_int[li, TEX_OF] != 0
-            for s in range(n_total):
-                u1, u2 = stratum_point(s, key, dim, n_strata, fixed_grid, pass_index)
-                q, nq, Lq = emitter_point(lights, geom, li, u1, u2)
-                to_l = vec.sub(q, p)
-                dist2 = vec.dot(to_l, to_l)
-                if not dist2 > 0.0:
-                    continue
-                wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-                cos_l = -vec.dot(nq, wi)
-                cos_s = vec.dot(ns, wi)
-                if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                    continue
-                T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
-                                     vec.offset_origin(q, nq, vec.neg(to_l)),
-                                     medium_after(media, shape, ng_front, wi, medium))
-                g = cos_s * cos_l / dist2
-                if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
-                    g *= entry(mats, coated, cos_s)
-                if textured:
-                    T = vec.hadamard(T, Lq)   # the radiance there, the row's included
-                acc = vec.madd(acc, times_bsdf(bsdf, wi, T), g)
-            if textured:
-                rad = (1.0, 1.0, 1.0)
-            area = lights.area[li]
-            E = (E[0] + rad[0] * (acc[0] * area / n_total), E[1] + rad[1] * (acc[1] * area / n_total),
-                 E[2] + rad[2] * (acc[2] * area / n_total))
+            E = vec.add(E, area_direct(tables, at, li, (key, dim, strata), coated, bsdf))
         elif has(lights, DIRECTIONAL) and lights.kind[li] == DIRECTIONAL:
-            wi = vec.neg(vec.row(lights.normal, li))
-            cos_s = vec.dot(ns, wi)
-            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                continue
-            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
-                cos_s *= entry(mats, coated, cos_s)
-            E = vec.madd(E, vec.hadamard(rad, times_bsdf(bsdf, wi, env_transmittance(tables, at, wi))), cos_s)
+            lit, value, cos_s = directional_direct(tables, at, li, coated, bsdf)
+            if lit:
+                E = vec.madd(E, value, cos_s)
         elif profiled(lights, li):
             E = vec.add(E, profiled_direct(tables, at, li, coated, bsdf))
         else:
-            q = vec.row(lights.position, li)
-            to_l = vec.sub(q, p)
-            dist2 = vec.dot(to_l, to_l)
-            if not dist2 > 0.0:
-                continue
-            wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-            cos_s = vec.dot(ns, wi)
-            if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
-                continue
-            falloff = spot_falloff(lights, li, vec.neg(wi)) if has(lights, SPOT) and lights.kind[li] == SPOT else 1.0
-            if not falloff > 0.0:
-                continue
-            T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
-                                 medium_after(media, shape, ng_front, wi, medium))
-            g = cos_s / dist2
-            if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
-                g *= entry(mats, coated, cos_s)
-            if has(lights, SPOT) and lights.kind[li] == SPOT:
-                g *= falloff
-            E = vec.madd(E, vec.hadamard(rad, times_bsdf(bsdf, wi, T)), g)
+            lit, value, g = point_direct(tables, at, li, coated, bsdf)
+            if lit:
+                E = vec.madd(E, value, g)
     return E
+
+
+@kernel(inline=True)
+def area_direct(tables, at, li, numbers, coated, bsdf):
+    """Area light li's share of :func:`direct_stratified`: a shadow ray to a point of each of its strata, ``numbers``
+    = (key, dim, strata)."""
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium, _ = at
+    key, dim, strata = numbers
+    n_strata, fixed_grid, pass_index = strata
+    n_total = n_strata * n_strata
+    rad = vec.row(lights.radiance, li)
+    acc = (0.0, 0.0, 0.0)
+    textured = has(lights, TEXTURED_AREA) and lights.tex_int[li, TEX_OF] != 0
+    for s in range(n_total):
+        u1, u2 = stratum_point(s, key, dim, n_strata, fixed_grid, pass_index)
+        q, nq, Lq = emitter_point(lights, geom, li, u1, u2)
+        to_l = vec.sub(q, p)
+        dist2 = vec.dot(to_l, to_l)
+        if not dist2 > 0.0:
+            continue
+        wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+        cos_l = -vec.dot(nq, wi)
+        cos_s = vec.dot(ns, wi)
+        if cos_l <= 0.0 or cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+            continue
+        T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l),
+                                    vec.offset_origin(q, nq, vec.neg(to_l)),
+                                    medium_after(media, shape, ng_front, wi, medium))
+        g = cos_s * cos_l / dist2
+        if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
+            g *= entry(mats, coated, cos_s)
+        if textured:
+            T = vec.hadamard(T, Lq)   # the radiance there, the row's included
+        acc = vec.madd(acc, times_bsdf(bsdf, wi, T), g)
+    if textured:
+        rad = (1.0, 1.0, 1.0)
+    area = lights.area[li]
+    return (rad[0] * (acc[0] * area / n_total), rad[1] * (acc[1] * area / n_total),
+            rad[2] * (acc[2] * area / n_total))
+
+
+@kernel(inline=True)
+def directional_direct(tables, at, li, coated, bsdf):
+    """Directional light li's share of :func:`direct_stratified`, as (lit, E_i, cos θ): E cos θ T by one shadow ray
+    against its direction."""
+    lights = tables[2]
+    mats = tables[1]
+    _, ng, ns, _, _, _, _ = at
+    wi = vec.neg(vec.row(lights.normal, li))
+    cos_s = vec.dot(ns, wi)
+    zero = (0.0, 0.0, 0.0)
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return False, zero, 0.0
+    if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
+        cos_s *= entry(mats, coated, cos_s)
+    return True, vec.hadamard(vec.row(lights.radiance, li), times_bsdf(bsdf, wi, env_transmittance(tables, at, wi))), \
+        cos_s
+
+
+@kernel(inline=True)
+def point_direct(tables, at, li, coated, bsdf):
+    """Point or spot light li's share of :func:`direct_stratified`, as (lit, I T, cos θ / r² (times the spot's
+    falloff)): one shadow ray."""
+    geom, mats, lights, media = tables
+    p, ng, ns, ng_front, shape, medium, _ = at
+    zero = (0.0, 0.0, 0.0)
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    if not dist2 > 0.0:
+        return False, zero, 0.0
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    cos_s = vec.dot(ns, wi)
+    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+        return False, zero, 0.0
+    falloff = spot_falloff(lights, li, vec.neg(wi)) if has(lights, SPOT) and lights.kind[li] == SPOT else 1.0
+    if not falloff > 0.0:
+        return False, zero, 0.0
+    T, _ = shadow_transmittance(geom, mats, media, vec.offset_origin(p, ng, to_l), q,
+                                medium_after(media, shape, ng_front, wi, medium))
+    g = cos_s / dist2
+    if (has(mats, PLASTIC) or has(mats, ROUGHPLASTIC)) and coated >= 0:
+        g *= entry(mats, coated, cos_s)
+    if has(lights, SPOT) and lights.kind[li] == SPOT:
+        g *= falloff
+    return True, vec.hadamard(vec.row(lights.radiance, li), times_bsdf(bsdf, wi, T)), g
 
 
 @kernel

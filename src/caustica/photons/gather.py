@@ -88,7 +88,7 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     separate compilation).  Returns (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
     (gmap, cmap), (k_g, r_g, k_c, r_c, filt), scratch, limit = lookup
     n_strata, fixed_grid = params[0], params[1]
-    E = direct_stratified(tables, at, key, dim, n_strata, fixed_grid, -1, lobe_b, bsdf)
+    E = direct_stratified(tables, at, key, dim, (n_strata, fixed_grid, -1), lobe_b, bsdf)
     facing = at.ns   # the same-side test's normal: the geometric one under a map (the records carry theirs)
     if bsdf is not None and wrapped(bsdf[0], bsdf[1]):
         facing = at.ng
@@ -194,6 +194,67 @@ def null_thin_branch(mats, m, d, at, path, stack, key, dim):
     return reflects, d_r, True, beta, top, dim + 1
 
 
+@kernel(inline=True)
+def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
+    """What :func:`gather_radiance`'s camera path does at ``at`` (material m; normals turned to the ray): an estimate
+    that ends it, or a bounce it goes on by.  ``lookups`` = (the maps' lookup, gather_radiance's params); ``path`` =
+    (L, β, d, specular depth, last, surfaces crossed since it, whether m is a null-thin thindielectric); ``stack`` =
+    (scratch, top).  Returns (goes on, L, β, the new direction, depth, last, crossed, k-nearest searches, top,
+    dim)."""
+    mats = tables[1]
+    lookup, params = lookups
+    max_specular, max_depth = params[2], params[3]
+    L, beta, d, depth, last, crossed, null_lobe = path
+    scratch, top = stack
+    p = at.p
+    flags = mats.flags[m]
+    wrap = wrapped(mats, m)   # under a normal or bump map
+    if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrap) and not flags & DIFFUSE_REFLECTION:
+        # a glossy surface (or a mirror or glass under a map): no estimate here, the path goes on by the BSDF's
+        # sample (as SPPM's camera paths)
+        depth += 1
+        if depth > max_specular:
+            return False, L, beta, d, depth, last, crossed, 0, top, dim
+        L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
+        return alive, L, beta, wi, depth, (lobe & DELTA != 0, pdf, p), 0, 0, top, dim
+    if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC and not wrap:
+        # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
+        take_coat, (wc, P, w_coat, A), L, pdf, _, dim = rough_coating_step(
+            tables, at, m, d, (L, beta), (False, (key, key, key, 0), dim), depth >= max_specular)
+        if take_coat:
+            if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
+                return False, L, beta, d, depth + 1, last, crossed, 0, top, dim   # the sample fell below the surface
+            return True, L, vec.hadamard(beta, w_coat), wc, depth + 1, (False, pdf, p), 0, 0, top, dim
+        E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
+        L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
+        return False, L, beta, d, depth, last, crossed, q, top, dim
+    if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
+        # a glossy lobe beside a diffuse one (pplastic, principled), or any diffuse lobe under a map: no lobe to
+        # split off; the estimate here weighs each shadow ray and photon by the BSDF's f(d, wi), both lobes, in the
+        # perturbed frame (as sppm's visible points)
+        E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
+        return False, vec.add(L, vec.hadamard(beta, E)), beta, d, depth, last, crossed, q, top, dim
+    if null_lobe:
+        alive, d, reflected, beta, top, dim = null_thin_branch(
+            mats, m, d, at, (beta, depth, max_specular, max_depth), (scratch, top), key, dim)
+        if reflected:
+            return alive, L, beta, d, depth + 1, (True, 0.0, p), 0, 0, top, dim
+        return alive, L, beta, d, depth, last, crossed + 1, 0, top, dim
+    last = (True, 0.0, p)
+    if flags & SMOOTH:
+        take_coat, fr, lobe_b, top, wc, w_coat, dim = diffuse_or_coating(
+            mats, m, d, at, (beta, depth, max_specular), (scratch, top), key, dim)
+        if take_coat:
+            return True, L, vec.hadamard(beta, w_coat), wc, depth + 1, last, 0, 0, top, dim
+        E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, None, key, dim)
+        return False, vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E))), beta, d, depth, last, crossed, q, top, dim
+    depth += 1
+    if depth > max_specular:
+        return False, L, beta, d, depth, last, crossed, 0, top, dim
+    d, beta, top, dim = delta_branch(mats, m, d, at, (beta, depth), (scratch, top), key, dim)
+    return True, L, beta, d, depth, last, 0, 0, top, dim
+
+
 @kernel
 def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
@@ -209,7 +270,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     squared distances).
     """
     geom, mats, lights, media = tables
-    max_specular, max_depth, hide_emitters = params[2], params[3], params[4]
+    max_depth, hide_emitters = params[3], params[4]
     knn_scratch = (scratch[4], scratch[5])
     st_o, st_d, st_beta, st_depth = scratch[0], scratch[1], scratch[2], scratch[3]
     L = (0.0, 0.0, 0.0)
@@ -246,76 +307,14 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
-            flags = mats.flags[m]
-            wrap = wrapped(mats, m)   # under a normal or bump map
             at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
-            if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrap) and not flags & DIFFUSE_REFLECTION:
-                # a glossy surface (or a mirror or glass under a map): no estimate here, the path goes on by the
-                # BSDF's sample (as SPPM's camera paths)
-                depth += 1
-                if depth > max_specular:
-                    break
-                L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
-                if not alive:
-                    break
-                last = (lobe & DELTA != 0, pdf, p)
-                o, d, crossed = vec.offset_origin(p, ng, wi), wi, 0
-                continue
-            if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC and not wrap:
-                # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
-                take_coat, (wc, P, w_coat, A), L, pdf, _, dim = rough_coating_step(
-                    tables, at, m, d, (L, beta), (False, (key, key, key, 0), dim), depth >= max_specular)
-                if take_coat:
-                    depth += 1
-                    if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
-                        break   # the lobe's sample fell below the surface
-                    beta = vec.hadamard(beta, w_coat)
-                    last = (False, pdf, p)
-                    o, d, crossed = vec.offset_origin(p, ng, wc), wc, 0
-                    continue
-                E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
-                queries += q
-                L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
+            go, L, beta, d, depth, last, crossed, q, top, dim = camera_vertex(
+                tables, (lookup, params), at, m, (L, beta, d, depth, last, crossed, null_lobe), (scratch, top), key,
+                dim)
+            queries += q
+            if not go:
                 break
-            if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
-                # a glossy lobe beside a diffuse one (pplastic, principled), or any diffuse lobe under a map: no lobe
-                # to split off; the estimate here weighs each shadow ray and photon by the BSDF's f(d, wi), both
-                # lobes, in the perturbed frame (as sppm's visible points)
-                E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key,
-                                             dim)
-                queries += q
-                L = vec.add(L, vec.hadamard(beta, E))
-                break
-            if null_lobe:
-                alive, d, reflected, beta, top, dim = null_thin_branch(
-                    mats, m, d, at, (beta, depth, max_specular, max_depth), (scratch, top), key, dim)
-                if not alive:
-                    break
-                o = vec.offset_origin(p, ng, d)
-                if reflected:
-                    depth, last, crossed = depth + 1, (True, 0.0, p), 0
-                else:
-                    crossed += 1
-                continue
-            last = (True, 0.0, p)
-            if flags & SMOOTH:
-                take_coat, fr, lobe_b, top, wc, w_coat, dim = diffuse_or_coating(
-                    mats, m, d, at, (beta, depth, max_specular), (scratch, top), key, dim)
-                if take_coat:
-                    depth += 1
-                    beta = vec.hadamard(beta, w_coat)
-                    o, d, crossed = vec.offset_origin(p, ng, wc), wc, 0
-                    continue
-                E, dim, q = diffuse_estimate(tables, lookup, params, at, lobe_b, None, key, dim)
-                queries += q
-                L = vec.add(L, vec.hadamard(beta, vec.hadamard(fr, E)))
-                break
-            depth += 1
-            if depth > max_specular:
-                break
-            d, beta, top, dim = delta_branch(mats, m, d, at, (beta, depth), (scratch, top), key, dim)
             o = vec.offset_origin(p, ng, d)
-            crossed = 0
     return L, queries
 
 

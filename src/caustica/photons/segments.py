@@ -70,8 +70,11 @@ def allocate_segments(pixels: int, media: bool) -> CameraSegments:
 
 
 @kernel(inline=True)
-def store_segment(k, o, d, s, beta, medium, vertices, start_wall, segments):
-    """Write segment slot k, with no wall at its end yet (:func:`end_segment_at_wall` adds one)."""
+def store_segment(k, ray, path, start_wall, segments):
+    """Write segment slot k: ``ray`` = (o, d, length s), ``path`` = (β, medium, the path's surface vertices before
+    it), with no wall at its end yet (:func:`end_segment_at_wall` adds one)."""
+    o, d, s = ray
+    beta, medium, vertices = path
     vec.set_row(segments.origin, k, o)
     vec.set_row(segments.direction, k, d)
     vec.set_row(segments.beta, k, beta)

@@ -157,7 +157,7 @@ def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
     o, d, s, k, max_depth, start_wall = segment
     _, qkey, vkey, pass_index = numbers
     slot0, segments = out
-    store_segment(slot0 + n_seg, o, d, s, beta, medium, k, start_wall, segments)
+    store_segment(slot0 + n_seg, (o, d, s), (beta, medium, k), start_wall, segments)
     if k + 2 > max_depth:   # camera -> k surfaces -> the scattering point -> the light
         if s < np.inf:
             beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
@@ -248,9 +248,9 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
         w = vec.mul(vec.hadamard(beta, colour(tables[1], m, at.uv)), INV_PI)
     lobe_b = m if P >= 0.0 else -1
     if fixed_grid:
-        E = direct_stratified(tables, at, key, dim, n_strata, True, -1, lobe_b, None)
+        E = direct_stratified(tables, at, key, dim, (n_strata, True, -1), lobe_b, None)
     else:
-        E = direct_stratified(tables, at, qkey, 3, n_strata, False, pass_index, lobe_b, None)
+        E = direct_stratified(tables, at, qkey, 3, (n_strata, False, pass_index), lobe_b, None)
     return w, vec.hadamard(w, E)
 
 
