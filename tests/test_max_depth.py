@@ -291,20 +291,20 @@ THIN_BALL = """<?xml version="1.0"?><scene version="3.0.0">
 
 
 @pytest.mark.parametrize("method, max_depth, fog", [("sppm", 2, False), ("sppm", 3, True), ("pm", 3, False),
-                                                    ("pm", 3, True)])
+                                                    ("pm", 3, True), ("spm", 3, False), ("pspm", 3, False),
+                                                    ("pspm", 3, True)])
 def test_photon_methods_follow_volpaths_thin_dielectric(method, max_depth, fog):
     """Under volpath a thindielectric's straight-on crossing is a null event: no vertex, and shadow rays pass it with
-    1 - R.  sppm and pm follow it (camera paths and photons cross it without a vertex, so the light through it is
-    direct light) and take the file's max_depth: a thin ball over a floor, empty or holding fog, against pt under the
+    1 - R.  The photon methods follow it (camera paths, photons and streams cross it without a vertex, so the light
+    through it is direct light) and take the file's max_depth: a thin ball over a floor, empty or holding fog, against pt under the
     same integrator.  Counting the crossing as a vertex (as Mitsuba's path does) makes the ball's shadow and caustic
-    several times the noise darker at these depths.  pm's camera pass is gather_radiance's in the empty ball, the
-    visible points' in the fog."""
+    several times the noise darker at these depths.  pm's and spm's camera pass is gather_radiance's in the empty
+    ball, the visible points' in the fog."""
     text = THIN_BALL.format(max_depth=max_depth, interior='<ref name="interior" id="fog"/>' if fog else "")
     scene = compile_scene(parse_scene_string(text, ".", None, "thin-ball.xml"))
     assert scene.has_media == fog
-    if method == "sppm":
-        ours = [caustica.render(scene, "sppm", passes=64, seed=s, photons=20_000).image for s in SEEDS]
-    else:
-        ours = [caustica.render(scene, "pm", spp=64, seed=s, photons=400_000).image for s in SEEDS]
+    options = {"sppm": dict(passes=64, photons=20_000), "pm": dict(spp=64, photons=400_000),
+               "spm": dict(spp=64, streams=40_000), "pspm": dict(passes=64, streams=2_000)}[method]
+    ours = [caustica.render(scene, method, seed=s, **options).image for s in SEEDS]
     pt = [caustica.render(scene, "pt", spp=512, seed=100 + s).image for s in SEEDS]
     assert_images_agree(ours, pt, label=f"{method} vs pt, thin ball, volpath max_depth {max_depth}")

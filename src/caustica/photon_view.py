@@ -95,8 +95,7 @@ def _panel(scene, cam, position, power) -> np.ndarray:
 def photon_picture(scene, method, settings, progress) -> tuple[np.ndarray, dict]:
     """Two panels (H x (2W + 2) x 3, linear values in [0, 1]) and the method's map statistics."""
     cam = scene.camera(settings["width"], settings["height"])
-    if settings.get("null_thin_dielectric"):   # the photons the render traces (pm: PhotonMapping.render_once)
-        scene = scene.with_null_thin_dielectric()
+    scene = method.path_scene(scene, settings)   # the photons the render traces
     if method.name == "spm":
         smap, stats = method.build_stream_map(scene, settings, progress)
         left = _panel(scene, cam, smap.records.position, smap.lead_power)

@@ -122,7 +122,8 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
     return out
 
 
-#: Mitsuba volpath's treatment of a thindielectric (pt, sppm, pm; a scene's volpath or volpathmis integrator sets it).
+#: Mitsuba volpath's treatment of a thindielectric (pt and the photon methods; a scene's volpath or volpathmis
+#: integrator sets it).
 NULL_THIN_PARAM = Param(
     "null_thin_dielectric", bool, False, "thindielectric's straight-on transmission is Mitsuba volpath's null event: "
     "not counted in max_depth, and shadow rays pass it with 1 - R (a scene's volpath integrator sets it; else a "

@@ -16,8 +16,8 @@ from ..photons.streams import MEDIUM_SCATTERING
 from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
 from ..photons.visible_points import max_depth_of
 from ..photons.visible_points import camera_pass as progressive_camera_pass
-from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
-from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
+from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
+from .params import NULL_THIN_PARAM, RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
 
 TERMINATIONS = {"cap": TERMINATION_CAP, "roulette": TERMINATION_ROULETTE}
 
@@ -49,37 +49,37 @@ DEPTH_PARAMS = (
     Param("max_depth", int, -1, "longest path in segments, camera to light (Mitsuba's max_depth: 2 is direct "
                                 "light only); -1 = unlimited; photons still end after --max-bounces diffuse "
                                 "bounces either way; a scene's path, volpath, direct or ptracer integrator sets "
-                                "the default, except (volpath) with a thindielectric",
+                                "the default",
           lambda v: v == -1 or v >= 1, "-1 or >= 1", max=1024),
     Param("hide_emitters", bool, False, "emitters (and the environment) seen directly by the camera render "
                                         "black, as Mitsuba's hide_emitters (a scene's integrator sets the "
                                         "default)"),
+    NULL_THIN_PARAM,
 )
 
 
 class SceneDepths:
     """A photon method that takes the scene's ``<integrator>`` depths (:data:`DEPTH_PARAMS`)."""
-    #: Whether the method follows volpath's thindielectric (``null_thin_dielectric``: its straight-on crossing no
-    #: bounce, for camera paths, photons and shadow rays alike).
-    null_thin_lobes = False
 
     @classmethod
     def scene_defaults(cls, description) -> dict:
-        """The scene's ``<integrator>`` settings the photon methods take: Mitsuba's max_depth (``direct``: 2) and
-        hide_emitters.  Under volpath in a scene with a thindielectric, a method that follows its null crossing
-        (:attr:`null_thin_lobes`) takes max_depth with it; the others do not take max_depth there (volpath does not
-        count the crossing, they do), and a note says so
-        (:meth:`~caustica.scene.description.SceneDescription.integrator_note`)."""
+        """The scene's ``<integrator>`` settings the photon methods take: Mitsuba's max_depth (``direct``: 2),
+        hide_emitters, and under volpath its thindielectric (``null_thin_dielectric``: :meth:`path_scene`)."""
         s = description.integrator_settings
         if not description.integrator_source or s.type not in SCENE_INTEGRATORS:   # pt's: the same images
             return {}
-        out = {"hide_emitters": s.hide_emitters}
-        null_thin = s.type in NULL_THIN_INTEGRATORS and any(m.kind == THINDIELECTRIC for m in description.materials)
-        if cls.null_thin_lobes:
-            out["null_thin_dielectric"] = s.type in NULL_THIN_INTEGRATORS
-        if not null_thin or cls.null_thin_lobes:
-            out["max_depth"] = s.path_depth()
-        return out
+        return {"hide_emitters": s.hide_emitters, "null_thin_dielectric": s.type in NULL_THIN_INTEGRATORS,
+                "max_depth": s.path_depth()}
+
+    @staticmethod
+    def path_scene(scene, settings):
+        """The scene a pass traces: under ``null_thin_dielectric`` its copy where a thindielectric's straight-on lobe
+        is volpath's null event (:meth:`~caustica.tables.Scene.with_null_thin_dielectric`), so that camera paths
+        (:func:`~caustica.photons.gather.gather_radiance`, :func:`~caustica.photons.visible_points.visible_point`),
+        photons (:func:`~caustica.photons.trace.trace_one`) and streams
+        (:func:`~caustica.photons.streams.trace_stream`) cross it without a vertex and shadow rays pass it with
+        1 - R: the light straight through it is direct light.  Else the scene itself."""
+        return scene.with_null_thin_dielectric() if settings["null_thin_dielectric"] else scene
 
 
 #: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
@@ -233,7 +233,7 @@ class OneShot(SceneDepths):
 
     @classmethod
     def run_pass(cls, scene, settings, state, progress):
-        image, stats = cls.render_once(scene, settings, progress)
+        image, stats = cls.render_once(cls.path_scene(scene, settings), settings, progress)
         return OneShotState(image), stats
 
     @staticmethod

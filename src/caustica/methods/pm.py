@@ -28,7 +28,7 @@ from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOL
 from ..photons.trace import planned_records, trace_caustic_photon_pass, trace_photon_pass
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, STREAM_PHOTON
 from . import register
-from .params import NULL_THIN_PARAM, RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
+from .params import RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
 from .photon_common import DEPTH_PARAMS, ESTIMATE_PARAMS, ONE_SHOT_VOLUME_PARAMS, TERMINATIONS, OneShot, \
     camera_pass, camera_pass_in_media, check_media_settings
 
@@ -48,7 +48,6 @@ class PhotonMapping(OneShot):
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)
-    null_thin_lobes = True   # volpath's thindielectric: its crossing no bounce for camera paths and photons (render_once)
     default_spp = 1
     params = (
         Param("photons", int, 100_000, "photons emitted for the global map", positive, ">= 1"),
@@ -58,7 +57,7 @@ class PhotonMapping(OneShot):
         Param("caustic_k", int, None, "k of the caustic map (default: --k)", positive, ">= 1", scratch=16),
         Param("caustic_radius", float, None, "R of the caustic map (default: --radius)", in_radius_range,
               RADIUS_ALLOWED),
-    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS + DEPTH_PARAMS + (NULL_THIN_PARAM,)
+    ) + ONE_SHOT_VOLUME_PARAMS + ESTIMATE_PARAMS + DEPTH_PARAMS
 
     @staticmethod
     def build_maps(scene, settings, progress):
@@ -123,12 +122,6 @@ class PhotonMapping(OneShot):
 
     @classmethod
     def render_once(cls, scene, settings, progress):
-        """Under ``null_thin_dielectric`` on the scene's copy where a thindielectric's straight-on lobe is volpath's
-        null event (:meth:`~caustica.tables.Scene.with_null_thin_dielectric`), as sppm: camera paths
-        (:func:`~caustica.photons.gather.gather_radiance`, and the visible points in media) and photons cross it
-        without a vertex, and shadow rays pass it with 1 - R."""
-        if settings["null_thin_dielectric"]:
-            scene = scene.with_null_thin_dielectric()
         check_media_settings(scene, settings)
         global_map, caustic_map, volume, stats = cls.build_maps(scene, settings, progress)
         k_c = settings["caustic_k"] or settings["k"]

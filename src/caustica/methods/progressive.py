@@ -375,8 +375,9 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         """Camera pass, photon pass and gather within ``radius`` (float64[n]): (PassMeasurements, stats).
 
         With ``radius_caustic`` (float64[n]) the events of kind 2 go into a grid of their own and are
-        gathered within it; the others (kind != 0) within ``radius``.
+        gathered within it; the others (kind != 0) within ``radius``.  On :meth:`path_scene`'s scene.
         """
+        scene = cls.path_scene(scene, settings)
         timings = {}
         n = settings["width"] * settings["height"]
         threads = settings["threads"]

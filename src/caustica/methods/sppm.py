@@ -19,7 +19,7 @@ from ..photons.records import CAUSTIC, INDIRECT, SLOT_BYTES, VOLUME_CAUSTIC, VOL
 from ..photons.trace import planned_records, trace_photon_pass
 from ..sampling.rng import STREAM_PHOTON, pass_stream
 from . import register
-from .params import NULL_THIN_PARAM, Param, non_negative, positive
+from .params import Param, non_negative, positive
 from .photon_common import DEPTH_PARAMS, TERMINATIONS
 from .progressive import (CAUSTIC_STATISTICS_PARAMS, PROGRESSIVE_PARAMS, VOLUME_RADIUS_PARAM,
                           ProgressivePhotonMethod, caustic_event_kind, trace_caustic_pass)
@@ -53,7 +53,6 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)
-    null_thin_lobes = True   # volpath's thindielectric: its crossing no bounce for camera paths and photons (measure_pass)
     params = (
         Param("photons", int, None, "photons traced per pass (default: one per pixel, as pbrt-v4; half of them "
                                     "aimed at the mirrors, glass and glossy objects, if any, when --caustic-photons is not "
@@ -66,21 +65,9 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
               non_negative, ">= 0"),
         VOLUME_RADIUS_PARAM,
         *DEPTH_PARAMS,
-        NULL_THIN_PARAM,
     ) + CAUSTIC_STATISTICS_PARAMS + PROGRESSIVE_PARAMS
 
     pass_memory_hint = "lower --photons, --caustic-photons or --max-bounces"
-
-    @classmethod
-    def measure_pass(cls, scene, settings, *args, **kwargs):
-        """The pass of :class:`ProgressivePhotonMethod` on the scene's tables, or under ``null_thin_dielectric`` on
-        those where a thindielectric's straight-on lobe is volpath's null event
-        (:meth:`~caustica.tables.Scene.with_null_thin_dielectric`): camera paths (:func:`~caustica.photons.
-        visible_points.visible_point`) and photons (:func:`~caustica.photons.trace.trace_one`) cross it without a
-        vertex, and shadow rays pass it with 1 - R, so the light through it is direct light, not a photon's."""
-        if settings["null_thin_dielectric"]:
-            scene = scene.with_null_thin_dielectric()
-        return super().measure_pass(scene, settings, *args, **kwargs)
 
     @classmethod
     def emitted_per_pass(cls, scene, settings) -> int:

@@ -50,7 +50,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, NULL_TRANSMISSION, oriented
 from ..bsdfs.mixtures import resolve
 from ..features import has
 from ..emitters import choose_light
@@ -60,7 +60,7 @@ from ..jit import kernel, parallel_for
 from ..media import free_flight, medium_after, photon_medium, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
+from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
@@ -467,6 +467,23 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
     return alive, o, d_new, medium_after(media, shape, ng_front, d_new, medium), (lead, p_assoc, n_alive), delta, dim
 
 
+@kernel(inline=True)
+def null_thin_crossing(mats, m, hit, stream, key, dim, termination):
+    """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``), ``hit`` =
+    (d, front, ng, ns, uv, p): the leading photon's sample (:func:`~caustica.photons.trace.bounce`, as the bounce after it
+    draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's weight, and
+    its associated photons are aimed from past the surface.  Returns (crossed straight on, the origin past it, the
+    stream, dim past the sample); not crossed: the stream and dim as they came."""
+    d, front, ng, ns, uv, p = hit
+    _, ng, ns = oriented(mats, m, front, ng, ns)
+    alive, d_new, weight, inv_q, _, dim_past = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+    if not alive or vec.dot(d_new, ng) * vec.dot(d, ng) <= 0.0:
+        return False, p, stream, dim
+    lead, p_assoc, n_alive = stream
+    stream = (vec.mul(vec.hadamard(lead, weight), inv_q), vec.mul(vec.hadamard(p_assoc, weight), inv_q), n_alive)
+    return True, vec.offset_origin(p, ng, d), stream, dim_past
+
+
 @kernel
 def trace_stream(tables, key, start, rules, i, buf):
     """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium)
@@ -525,6 +542,15 @@ def trace_stream(tables, key, start, rules, i, buf):
         if nxt == TRAPPED:
             break
         ng_front = ng
+        if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0:
+            alive, o_past, stream, dim_past = null_thin_crossing(mats, m, (d, front, ng, ns, uv, p), stream, key, dim,
+                                                                 termination)
+            if alive:   # straight on: no event; a reflection is taken below, by the same sample
+                specular_events += 1
+                if specular_events > SPECULAR_CAP:
+                    break
+                o, medium, n_from, dim = o_past, medium_after(media, shape, ng_front, d, medium), zero, dim_past
+                continue
         # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
         # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
         scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(

@@ -526,8 +526,7 @@ class SceneDescription:
         ``direct`` is pt with max_depth 2 and ``ptracer`` pt with its depths (a note says so).  ``path``
         on a scene with media gets a note (Mitsuba's ``path`` ignores them, ``pt`` does not).  A photon method
         gets a note for a max_depth or hide_emitters of ``path``, ``volpath``, ``direct`` or ``ptracer`` that its
-        ``parameters`` do not carry (every photon method takes both, but spm and pspm not max_depth under volpath
-        with a thindielectric) or that a value given replaced; any other
+        ``parameters`` do not carry (every photon method takes both) or that a value given replaced; any other
         integrator (``bdpt``, ...) gets a note, so a scene never renders differently from what it
         asks without the user being told.
         """
@@ -545,9 +544,8 @@ class SceneDescription:
             if asked:
                 ran = [f"max_depth {parameters.get('max_depth', -1)}"] if asked[0].startswith("max_depth") else []
                 ran += ["the emitters the camera sees shown"] if "hide_emitters" in asked else []
-                why = ("a value given wins over the file's; under volpath with a thindielectric spm and pspm "
-                       "do not take the file's max_depth, as they count the crossing volpath does not"
-                       if "max_depth" in parameters else "the method does not read the file's")
+                why = "a value given wins over the file's" if "max_depth" in parameters else \
+                    "the method does not read the file's"
                 return (f"integrator '{kind}' in {where} asks for {' and '.join(asked)}; --method {method} renders "
                         f"with {' and '.join(ran)} ({why})")
             if depth != -1 and depth > parameters.get("max_bounces", depth) + 2:
