@@ -173,7 +173,7 @@ def material_features(mats: MaterialTable) -> int:
 def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
     """A copy of ``mats`` whose thindielectric rows carry ``NULL_TRANSMISSION`` (their straight-on lobe is Mitsuba's
     ``Null`` one, as its ``volpath`` integrator treats it), or None when no row is a thindielectric.  The scene's
-    own table stays as it is: the photon methods carry light through the slab by their photons.  A thindielectric
+    own table stays as it is (Mitsuba's ``path``: a crossing is a bounce).  A thindielectric
     inside a mask or blendbsdf is left as it is (a bounce, blocking shadow rays): :func:`pass_probability` does not
     add Mitsuba's share of its null transmission, and the camera paths and shadow rays must agree."""
     thin = mats.kind == THINDIELECTRIC

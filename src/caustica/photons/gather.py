@@ -51,7 +51,8 @@ from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_ste
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
-#: bounces; deeper interactions choose one branch with the Fresnel probability.
+#: bounces; deeper interactions choose one branch with the Fresnel probability.  (A null-thin crossing adds no
+#: depth: each one before that depth pushes its reflection, null_thin_branch.)
 SPLIT_DEPTH = 2
 INV_PI = 1.0 / math.pi
 
@@ -178,20 +179,26 @@ def null_thin_branch(mats, m, d, at, path, stack, key, dim):
     on straight with (1 - R), no vertex, and the reflection, a vertex, is pushed on ``stack`` = (scratch, top) as
     :func:`delta_branch` pushes glass's; deeper, or when the stack is full, one of them is taken with the Fresnel
     probability.  ``path`` = (β, specular depth, max_specular, max_depth): no reflection where a vertex would pass
-    either.  Returns (alive, the direction, whether it is the reflection, β, top, dim)."""
+    either (then straight on with 1 - R).  A straight crossing counts towards neither limit (sppm's visible points
+    count it towards max_specular, photons towards their SPECULAR_CAP).  Returns (alive, the direction, whether it
+    is the reflection, β, top, dim)."""
     beta, depth, max_specular, max_depth = path
     scratch, top = stack
     d_r, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
     beta = vec.hadamard(beta, tint)
     reflects = not ends_at(max_depth, depth + 1) and depth + 1 <= max_specular
+    if F >= 1.0:   # nothing passes straight on
+        return reflects, d_r, True, beta, top, dim
     if depth + 1 <= SPLIT_DEPTH and top < scratch[0].shape[0]:
         if reflects:
             top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta, F), depth + 1)
         return True, d, False, vec.mul(beta, 1.0 - F), top, dim
+    if not reflects:   # no reflection may follow: straight on with (1 - F), no number drawn
+        return True, d, False, vec.mul(beta, 1.0 - F), top, dim
     u = uniform(key, dim)
     if u >= F:
         return True, d, False, beta, top, dim + 1
-    return reflects, d_r, True, beta, top, dim + 1
+    return True, d_r, True, beta, top, dim + 1
 
 
 @kernel(inline=True)

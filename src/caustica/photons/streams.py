@@ -32,6 +32,9 @@ A *stream* is a leading photon plus up to n_fa associated photons.
      roulette once, with the leading photon (survival p = its largest albedo, every power
      scaled by albedo / p), which keeps the expected power right.
    - after mr diffuse bounces the stream ends.
+   - under ``null_thin_dielectric`` (volpath's thin dielectric), where the leading photon goes straight on, the
+     whole stream crosses with no event, every photon taking its weight (:func:`null_thin_crossing`); where it
+     reflects, the associated photons merge, even under ``--specular split``.
    - at a coated diffuse surface (plastic, roughplastic) every photon's record carries the coating's factor B
      at its own direction (as :func:`~caustica.photons.trace.record_power`), and the stream reflects whole by
      the lobe its leading photon samples, its associated photons decaying by that lobe's weight; a coating's
@@ -470,8 +473,8 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
 @kernel(inline=True)
 def null_thin_crossing(mats, m, hit, stream, key, dim, termination):
     """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``), ``hit`` =
-    (d, front, ng, ns, uv, p): the leading photon's sample (:func:`~caustica.photons.trace.bounce`, as the bounce after it
-    draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's weight, and
+    (d, front, ng, ns, uv, p): the leading photon's sample (:func:`~caustica.photons.trace.bounce`, as the bounce
+    after it draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's weight, and
     its associated photons are aimed from past the surface.  Returns (crossed straight on, the origin past it, the
     stream, dim past the sample); not crossed: the stream and dim as they came."""
     d, front, ng, ns, uv, p = hit
@@ -542,6 +545,7 @@ def trace_stream(tables, key, start, rules, i, buf):
         if nxt == TRAPPED:
             break
         ng_front = ng
+        splits_here = split
         if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0:
             alive, o_past, stream, dim_past = null_thin_crossing(mats, m, (d, front, ng, ns, uv, p), stream, key, dim,
                                                                  termination)
@@ -551,12 +555,14 @@ def trace_stream(tables, key, start, rules, i, buf):
                     break
                 o, medium, n_from, dim = o_past, medium_after(media, shape, ng_front, d, medium), zero, dim_past
                 continue
+            # reflected: the associated photons merge (split off, each would draw reflection again: R² of them)
+            splits_here = False
         # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
         # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
         scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
-            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)),
+            (splits_here, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)),
              split_buf))
         n_split += k
         if not scatters:

@@ -470,7 +470,7 @@ def visible_point(tables, o, d, numbers, params, out):
             depth += 1
             if depth > max_specular:
                 return False, zero, zero, zero, L, n_seg, k
-            specular = True
+            arrived_specular, specular = specular, True
             if take_coat:
                 # plastic's delta coating added its first hit's emission above; a glossy one did not
                 wi, beta, counted = wc, vec.hadamard(beta, w_coat), flags & DELTA != 0
@@ -486,8 +486,8 @@ def visible_point(tables, o, d, numbers, params, out):
                 u, first_glass, dim = branch_number(first_glass, numbers, dim)
                 wr, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
                 beta = vec.hadamard(beta, tint)
-                if u >= F:
-                    wi, counted = d, arrived_counted
+                if u >= F:   # no vertex: an emitter met next is weighed from the vertex before (its MIS distance)
+                    wi, counted, specular, crossings = d, arrived_counted, arrived_specular, crossed + 1
                     k -= 1
                 elif k >= max_depth:
                     return False, zero, zero, zero, L, n_seg, k

@@ -426,12 +426,13 @@ class Camera:
     focus_distance: float = 1e4    # a thin lens's plane in focus, along camera +z (Mitsuba's default: far_clip)
 
 
-#: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults, and sppm's
-#: and pspm's max_depth (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the lights,
-#: to the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
+#: Mitsuba integrators whose image pt renders: their ``max_depth`` and ``rr_depth`` are pt's defaults, and the
+#: photon methods' max_depth (``direct``: paths of at most two segments, max_depth 2; ``ptracer`` traces from the
+#: lights, to the same image; ``volpathmis`` is volpath with spectral MIS: the same image and settings).
 SCENE_INTEGRATORS = ("path", "volpath", "volpathmis", "ptracer", "direct")
 #: The integrators for which a thindielectric's straight-on transmission is a null event (Mitsuba's ``Null`` lobe,
-#: which ``volpath`` does not count as a bounce and lets shadow rays through): pt's ``null_thin_dielectric``.
+#: which ``volpath`` does not count as a bounce and lets shadow rays through): ``null_thin_dielectric`` of pt and the
+#: photon methods.
 NULL_THIN_INTEGRATORS = ("volpath", "volpathmis")
 
 
