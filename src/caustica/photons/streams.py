@@ -474,9 +474,9 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
 def null_thin_crossing(mats, m, hit, stream, key, dim, termination):
     """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``), ``hit`` =
     (d, front, ng, ns, uv, p): the leading photon's sample (:func:`~caustica.photons.trace.bounce`, as the bounce
-    after it draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's weight, and
-    its associated photons are aimed from past the surface.  Returns (crossed straight on, the origin past it, the
-    stream, dim past the sample); not crossed: the stream and dim as they came."""
+    after it draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's
+    weight, and its associated photons are aimed from past the surface.  Returns (crossed straight on, the origin
+    past it, the stream, dim past the sample); not crossed: the stream and dim as they came."""
     d, front, ng, ns, uv, p = hit
     _, ng, ns = oriented(mats, m, front, ng, ns)
     alive, d_new, weight, inv_q, _, dim_past = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
