@@ -209,20 +209,29 @@ def directional_direct(tables, at, li, coated, bsdf):
 
 
 @kernel(inline=True)
+def towards_position(lights, li, at):
+    """From ``at`` towards light li's position q: (whether the surface's lit side faces it, q, q - p, |q - p|², the
+    unit direction wi, cos θ = ns·wi)."""
+    p, ng, ns = at.p, at.ng, at.ns
+    q = vec.row(lights.position, li)
+    to_l = vec.sub(q, p)
+    dist2 = vec.dot(to_l, to_l)
+    if not dist2 > 0.0:
+        return False, q, to_l, dist2, to_l, 0.0
+    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
+    cos_s = vec.dot(ns, wi)
+    return not (cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0), q, to_l, dist2, wi, cos_s
+
+
+@kernel(inline=True)
 def point_direct(tables, at, li, coated, bsdf):
     """Point or spot light li's share of :func:`direct_stratified`, as (lit, I T, cos θ / r² (times the spot's
     falloff)): one shadow ray."""
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium, _ = at
     zero = (0.0, 0.0, 0.0)
-    q = vec.row(lights.position, li)
-    to_l = vec.sub(q, p)
-    dist2 = vec.dot(to_l, to_l)
-    if not dist2 > 0.0:
-        return False, zero, 0.0
-    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-    cos_s = vec.dot(ns, wi)
-    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+    faces, q, to_l, dist2, wi, cos_s = towards_position(lights, li, at)
+    if not faces:
         return False, zero, 0.0
     falloff = spot_falloff(lights, li, vec.neg(wi)) if has(lights, SPOT) and lights.kind[li] == SPOT else 1.0
     if not falloff > 0.0:
@@ -245,14 +254,8 @@ def profiled_direct(tables, at, li, coated, bsdf):
     geom, mats, lights, media = tables
     p, ng, ns, ng_front, shape, medium, _ = at
     zero = (0.0, 0.0, 0.0)
-    q = vec.row(lights.position, li)
-    to_l = vec.sub(q, p)
-    dist2 = vec.dot(to_l, to_l)
-    if not dist2 > 0.0:
-        return zero
-    wi = vec.mul(to_l, 1.0 / math.sqrt(dist2))
-    cos_s = vec.dot(ns, wi)
-    if cos_s <= 0.0 or vec.dot(ng, wi) <= 0.0:
+    faces, q, to_l, dist2, wi, cos_s = towards_position(lights, li, at)
+    if not faces:
         return zero
     intensity = vec.hadamard(vec.row(lights.radiance, li), profile(lights, li, vec.neg(wi)))
     if not (intensity[0] > 0.0 or intensity[1] > 0.0 or intensity[2] > 0.0):

@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .bsdfs import NULL_TRANSMISSION, TEXTURED, null_transmission
+from .bsdfs import TEXTURED, has_null_lobe, null_transmission
 from .bsdfs.mixtures import pass_probability
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, emitter_point, env_sample, profile, profiled, \
     sample_area_emitter, spot_falloff
@@ -46,8 +46,7 @@ from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, sur
 from .features import ALL, bits, has, specialisable, specialised
 from .jit import kernel
 from .sampling.rng import uniform
-from .scene.description import BLEND, HENYEY_GREENSTEIN, HETEROGENEOUS, HOMOGENEOUS, MASK, NULL, THINDIELECTRIC, \
-    SceneDescription
+from .scene.description import BLEND, HENYEY_GREENSTEIN, HETEROGENEOUS, HOMOGENEOUS, MASK, NULL, SceneDescription
 from .volumes import delta_tracking, grid_columns, ratio_tracking, ray_key
 
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -291,7 +290,7 @@ def crossing(geom, mats, prim, ray):
     if kind == NULL:
         return (1.0, 1.0, 1.0)
     o, d, t, b1, b2 = ray
-    if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION:
+    if has_null_lobe(mats, m):
         _, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
         uv = surface_uv(geom, prim, o, d, t, b1, b2) if has(mats, TEXTURED) and mats.texture[m] >= 0 else NO_UV
         return null_transmission(mats, m, d, ng, ns, uv)

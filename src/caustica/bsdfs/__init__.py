@@ -187,6 +187,14 @@ def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
 
 
 @kernel(inline=True)
+def has_null_lobe(mats, m):
+    """Whether material m's straight-on lobe is a null event (a thindielectric flagged ``NULL_TRANSMISSION`` by
+    :func:`null_transmitting`, volpath's): a path crosses it without a vertex and shadow rays pass it with 1 - R.
+    Compiled away in a scene without a thindielectric."""
+    return has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0
+
+
+@kernel(inline=True)
 def null_transmission(mats, m, d, ng, ns, uv):
     """Per channel, the share of a shadow ray along d (front normals ng, ns at the hit) that passes material m
     unscattered: :func:`caustica.bsdfs.thindielectric.null_transmission` (the only BSDF with such a lobe)."""

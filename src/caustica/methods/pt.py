@@ -41,12 +41,12 @@ import time
 
 import numpy as np
 
-from ..bsdfs import DELTA, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, oriented, sample
+from ..bsdfs import DELTA, SMOOTH, TRANSMISSION, has_null_lobe, oriented, sample
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..emitters import ENV, radiance_at_hit
 from ..features import has
-from ..scene.description import HETEROGENEOUS, NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS, THINDIELECTRIC
+from ..scene.description import HETEROGENEOUS, NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
 from ..jit import kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import cross_null, free_flight, medium_after, phase_sample
@@ -185,7 +185,7 @@ def radiance(tables, o, d, key, depths):
                 break
             ng_front = ng
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
-            null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0   # sampled at the last depth too, as volpath does
+            null_lobe = has_null_lobe(mats, m)   # sampled at the last depth too, as volpath does
             if not scatters or (depth + 1 >= max_depth and not null_lobe):
                 break
             L, beta, n_shadow, (alive, wi, pdf, lobe, eta2), dim = surface_event(

@@ -33,8 +33,8 @@ import math
 
 import numpy as np
 
-from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, NULL_TRANSMISSION, SMOOTH, coat, \
-    colour, delta_branches, oriented, resolve, wrapped
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, \
+    delta_branches, has_null_lobe, oriented, resolve, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance, radiance_at_hit
@@ -44,7 +44,7 @@ from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
-from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
+from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import ShadingPoint, borrow_tables, unwrap, with_tangent
 from .estimate import flux_density, none_admitted
 from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
@@ -306,7 +306,7 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
                 crossed += 1
                 continue
             # volpath's thindielectric (null_thin_dielectric): its straight-on lobe is a null crossing, no vertex
-            null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0
+            null_lobe = has_null_lobe(mats, m)
             if ends_at(max_depth, depth + 1) and not null_lobe:
                 break
             lookup = (maps, estimate, knn_scratch, (max_depth, depth + 1))

@@ -53,7 +53,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, NULL_TRANSMISSION, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented
 from ..bsdfs.mixtures import resolve
 from ..features import has
 from ..emitters import choose_light
@@ -63,7 +63,7 @@ from ..jit import kernel, parallel_for
 from ..media import free_flight, medium_after, photon_medium, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
+from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
@@ -546,7 +546,7 @@ def trace_stream(tables, key, start, rules, i, buf):
             break
         ng_front = ng
         splits_here = split
-        if has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0:
+        if has_null_lobe(mats, m):
             alive, o_past, stream, dim_past = null_thin_crossing(mats, m, (d, front, ng, ns, uv, p), stream, key, dim,
                                                                  termination)
             if alive:   # straight on: no event; a reflection is taken below, by the same sample

@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import has
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, NULL_TRANSMISSION, entry, eval_pdf, oriented, photon_shading, sample, \
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, has_null_lobe, oriented, photon_shading, sample, \
     sample_kind, wrapped
 from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
@@ -52,7 +52,7 @@ from ..jit import kernel, parallel_for
 from ..memory import check_budget
 from ..media import free_flight, medium_after, photon_medium, photon_scatter
 from ..sampling.rng import path_key, uniform
-from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
+from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon
 from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
@@ -330,8 +330,7 @@ def trace_one(tables, key, photon, rules, out):
         if not alive:
             break
         power = vec.mul(vec.hadamard(power, weight), inv_q)
-        if (has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION
-                and vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0):
+        if has_null_lobe(mats, m) and vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0:
             # volpath's thindielectric (null_thin_dielectric): straight on is a null crossing, no event, so what
             # the photon lights next is direct light if it had not scattered (shadow rays pass the surface too)
             specular_events += 1

@@ -73,15 +73,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, NULL_TRANSMISSION, SMOOTH, TRANSMISSION, coat, \
-    colour, delta_branches, eval_coating, eval_pdf, oriented, rough_coat, sample, sample_coating, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
+    delta_branches, eval_coating, eval_pdf, has_null_lobe, oriented, rough_coat, sample, sample_coating, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import borrowed, kernel, parallel_for
 from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
-from ..scene.description import PLASTIC, ROUGHPLASTIC, THINDIELECTRIC
+from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import attenuation, light_sample, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
@@ -421,7 +421,7 @@ def visible_point(tables, o, d, numbers, params, out):
         if nxt == CROSSED:
             continue
         # volpath's thindielectric (null_thin_dielectric): its straight-on lobe is a null crossing, no vertex
-        null_lobe = has(mats, THINDIELECTRIC) and mats.flags[m] & NULL_TRANSMISSION != 0
+        null_lobe = has_null_lobe(mats, m)
         if nxt == TRAPPED or k >= max_depth and not null_lobe:   # at max_depth: no light scattered here can count
             return False, zero, zero, zero, L, n_seg, k
         arrived_counted = counted
