@@ -204,9 +204,7 @@ def radiance(tables, o, d, key, depths):
             specular = lobe & DELTA != 0
             if not specular:
                 pdf_last = pdf
-            medium = medium_after(media, shape, ng_front, wi, medium)
-            o = vec.offset_origin(p, ng, wi)
-            d = wi
+            o, d, medium = vec.offset_origin(p, ng, wi), wi, medium_after(media, shape, ng_front, wi, medium)
         p_last = p
         crossings = 0    # a real scattering event: null crossings are counted from here
         if depth >= rr_depth:

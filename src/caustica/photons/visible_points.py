@@ -359,6 +359,128 @@ def delta_vertex(tables, at, m, d, path, branch):
     return L, wi, beta, counted, first_glass, dim
 
 
+@kernel(inline=True)
+def diffuse_vertex(tables, at, m, d, path, branch, rules):
+    """The visible point on a surface with a diffuse lobe, unless a coating over it is taken instead
+    (:func:`coating_step`, :func:`rough_coating_step`; ``rules`` = (params as :func:`visible_point` takes them, the
+    last specular vertex allowed, the pixel's row of :attr:`VisiblePoints.bsdf`)).  Under a normal or bump map, or
+    beside a glossy lobe (pplastic, principled), the point evaluates the BSDF (:func:`bsdf_visible_point`).
+    ``path`` = (L, β); ``branch`` = (first_glass, numbers, dim) as :func:`branch_number` takes it.  Returns (found,
+    its normal, its weight W, L with its direct light, take the coating, (wc, P, its weight, A) with P < 0 without a
+    coating, the coating's sampled density, first_glass, dim)."""
+    mats = tables[1]
+    L, beta = path
+    params, last, pixel = rules
+    first_glass, numbers, dim = branch
+    flags = mats.flags[m]
+    zero = (0.0, 0.0, 0.0)
+    take_coat, coating, pdf_coat = False, (zero, -1.0, zero, zero), 0.0
+    if wrapped(mats, m):
+        # a diffuse lobe under a map: the visible point evaluates the BSDF in its perturbed frame (at.ns); its
+        # normal for the same-side test is the geometric one (the photons' records carry theirs)
+        Ld = bsdf_visible_point(tables, at, m, d, beta, (numbers[0], dim), pixel)
+        return True, at.ng, beta, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
+    if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
+        # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
+        take_coat, coating, L, first_glass, dim = coating_step(tables, at, m, d, path, branch, last)
+    elif has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
+        # a glossy coating over a diffuse lobe: the coating's lobe, else the visible point here
+        take_coat, coating, L, pdf_coat, first_glass, dim = rough_coating_step(tables, at, m, d, path, branch, last)
+    elif has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
+        # a glossy lobe beside a diffuse one (pplastic, principled): the visible point evaluates the BSDF
+        Ld = bsdf_visible_point(tables, at, m, d, beta, (numbers[0], dim), pixel)
+        return True, at.ns, beta, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
+    if flags & SMOOTH and not take_coat:
+        w, Ld = visible_point_here(tables, at, m, beta, (coating[1], coating[3]), numbers, params, dim)
+        return True, at.ns, w, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
+    return False, zero, zero, L, take_coat, coating, pdf_coat, first_glass, dim
+
+
+@kernel(inline=True)
+def null_thin_vertex(mats, at, m, d, beta, branch):
+    """volpath's thin dielectric (null_thin_dielectric): crossed straight on as a null boundary, or reflected, by the
+    branch number (:func:`branch_number`; ``branch`` as it takes it).  Returns (straight on, the direction, β for it,
+    first_glass, dim)."""
+    u, first_glass, dim = branch_number(branch[0], branch[1], branch[2])
+    wr, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta = vec.hadamard(beta, tint)
+    if u >= F:
+        return True, d, beta, first_glass, dim
+    return False, wr, beta, first_glass, dim
+
+
+#: What the camera path does at a surface (:func:`camera_vertex`): it ends, it makes its visible point, it goes on.
+ENDED, VISIBLE, ONWARD = 0, 1, 2
+
+
+@kernel(inline=True)
+def camera_vertex(tables, at, m, d, path, counters, branch, rules):
+    """The camera path at a surface it scatters at (``at``, material m, arriving along d): on by a glossy step
+    (:func:`glossy_step`), its visible point on a diffuse lobe (:func:`diffuse_vertex`), else on by a coating's
+    lobe, volpath's thin dielectric (:func:`null_thin_vertex`) or a mirror or glass (:func:`delta_vertex`).
+    ``path`` = (L, β, whether this hit's emission was already added, the MIS state (specular, pdf_last, p_last));
+    ``counters`` = (null crossings before this surface, the segments k from the camera, the specular depth);
+    ``branch`` = (first_glass, numbers, dim); ``rules`` = (params as :func:`visible_point` takes them, the pixel's
+    BSDF row).  Returns (ENDED, VISIBLE or ONWARD, the visible point's normal and weight, the path after it, the new
+    direction, the counters after it, first_glass, dim)."""
+    mats = tables[1]
+    L, beta, arrived_counted, mis = path
+    crossed, k, depth = counters
+    first_glass, numbers, dim = branch
+    params, pixel = rules
+    max_specular, max_depth = params[2], params[3]
+    zero = (0.0, 0.0, 0.0)
+    flags = mats.flags[m]
+    if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrapped(mats, m)) and not flags & DIFFUSE_REFLECTION:
+        # a glossy surface, or a mirror or glass under a map (sampled with the terminator's shadowing)
+        if depth >= max_specular:
+            return ENDED, zero, zero, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
+        L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), numbers[0], dim)
+        return (ONWARD if alive else ENDED), zero, zero, (L, beta, False, (lobe & DELTA != 0, pdf, at.p)), wi, \
+            (0, k, depth + 1), first_glass, dim
+    found, n, w, L, take_coat, (wc, _, w_coat, _), pdf_coat, first_glass, dim = diffuse_vertex(
+        tables, at, m, d, (L, beta), (first_glass, numbers, dim), (params, depth >= max_specular, pixel))
+    if found or depth >= max_specular:
+        return VISIBLE if found else ENDED, n, w, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
+    after_delta = (True, mis[1], mis[2])   # emitters the path meets next count in full
+    if take_coat:
+        # plastic's delta coating added its first hit's emission above; a glossy one did not
+        counted, beta = flags & DELTA != 0, vec.hadamard(beta, w_coat)
+        if has(mats, ROUGHPLASTIC) and not counted:   # a glossy coating: its light sample was MIS-weighted
+            if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:   # its sample fell below the surface
+                return ENDED, zero, zero, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
+            after_delta = (False, pdf_coat, at.p)
+        return ONWARD, zero, zero, (L, beta, counted, after_delta), wc, (0, k, depth + 1), first_glass, dim
+    if has_null_lobe(mats, m):
+        # Crossed straight on (no vertex) or reflected (at the last depth that ends the path, as volpath samples the
+        # surface there too).  No emission in expectation here: what lies beyond was already counted by a glass
+        # before if the path came with it counted (emitted_along passes such a surface), else the path meets it.
+        straight, wi, beta, first_glass, dim = null_thin_vertex(mats, at, m, d, beta, (first_glass, numbers, dim))
+        if straight:   # no vertex: an emitter met next is weighed from the vertex before (its MIS distance)
+            return ONWARD, zero, zero, (L, beta, arrived_counted, mis), wi, (crossed + 1, k - 1, depth + 1), \
+                first_glass, dim
+        if k >= max_depth:
+            return ENDED, zero, zero, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
+        return ONWARD, zero, zero, (L, beta, False, after_delta), wi, (0, k, depth + 1), first_glass, dim
+    L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta), (first_glass, numbers, dim))
+    return ONWARD, zero, zero, (L, beta, counted, after_delta), wi, (0, k, depth + 1), first_glass, dim
+
+
+@kernel(inline=True)
+def camera_flight(tables, flight, medium, path, n_seg, numbers, out):
+    """The camera path's flight ``flight`` = (o, d, the distance to the surface hit or inf, k, max_depth, the wall
+    it starts at) through ``medium`` (none: nothing to do): one medium segment (:func:`medium_segment`), its
+    in-scattered light added to ``path`` = (L, β) and β attenuated.  Returns (a slot was free: fewer than
+    MEDIUM_SEGMENTS segments so far, L, β, n_seg)."""
+    L, beta = path
+    if medium < 0:
+        return True, L, beta, n_seg
+    if n_seg >= MEDIUM_SEGMENTS:
+        return False, L, beta, n_seg
+    Ls, beta = medium_segment(tables, flight, medium, beta, n_seg, numbers, out)
+    return True, vec.add(L, Ls), beta, n_seg + 1
+
+
 @kernel
 def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, the medium
@@ -372,11 +494,11 @@ def visible_point(tables, o, d, numbers, params, out):
     The path's medium segments are written to ``out`` = (slot0, segments, pixel): slots slot0, slot0 + 1, ...;
     a visible point that evaluates its BSDF writes it to ``pixel`` (:func:`bsdf_visible_point`).
     k, the last of what it returns, is the path's segments from the camera to the visible point (the photons
-    gathered there may take max_depth - k more).
+    gathered there may take max_depth - k more).  At each surface: :func:`camera_vertex`.
     """
     geom, mats, lights, media = tables
     key = numbers[0]
-    max_specular, max_depth, hide_emitters = params[2], params[3], params[4]
+    max_depth, hide_emitters = params[3], params[4]
     L = zero = (0.0, 0.0, 0.0)
     beta = (1.0, 1.0, 1.0)
     dim = 2
@@ -384,25 +506,20 @@ def visible_point(tables, o, d, numbers, params, out):
     k = 0   # segments from the camera to the current surface (null crossings are not vertices)
     first_glass = True
     counted = False   # the next surface's emission was already added, in expectation, at the glass before it
-    specular = True   # no glossy scattering yet, or a delta one since: emitters the path meets count in full
-    pdf_last = 0.0    # after a glossy scattering: its sampled direction's density, and where it was (MIS)
-    p_last = o
+    mis = (True, 0.0, o)   # (no glossy scattering yet, or a delta one since; after one, its sample's density, where)
     medium = media.camera[0]
     wall = zero   # the wall the path leaves (none at the camera), where a medium segment starting here starts
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         in_segment = medium >= 0
-        if in_segment:
-            if n_seg >= MEDIUM_SEGMENTS:
-                return False, zero, zero, zero, L, n_seg, k
-            Ls, beta = medium_segment(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth, wall), medium, beta,
-                                      n_seg, numbers, (out[0], out[1]))
-            L = vec.add(L, Ls)
-            n_seg += 1
+        free, L, beta, n_seg = camera_flight(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth, wall), medium,
+                                             (L, beta), n_seg, numbers, (out[0], out[1]))
+        if not free:
+            return False, zero, zero, zero, L, n_seg, k
         if prim < 0:
             if has(lights, ENV) and lights.env[0] >= 0 and not counted and (k > 0 or not hide_emitters):
                 L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
-                             escape_weight(lights, d, (specular, pdf_last, p_last)))
+                             escape_weight(lights, d, mis))
             return False, zero, zero, zero, L, n_seg, k
         crossed = crossings
         ray = (o, d, t, b1, b2)
@@ -417,86 +534,22 @@ def visible_point(tables, o, d, numbers, params, out):
             k += 1
         if e >= 0 and front and not counted and (k > (0 if nxt == CROSSED else 1) or not hide_emitters):
             L = vec.madd(L, vec.hadamard(beta, radiance_at_hit(geom, lights, e, prim, ray)),
-                         seen_weight(lights, e, (specular, pdf_last, p_last), (-vec.dot(d, ng), t, crossed, p)))
+                         seen_weight(lights, e, mis, (-vec.dot(d, ng), t, crossed, p)))
         if nxt == CROSSED:
             continue
-        # volpath's thindielectric (null_thin_dielectric): its straight-on lobe is a null crossing, no vertex
-        null_lobe = has_null_lobe(mats, m)
-        if nxt == TRAPPED or k >= max_depth and not null_lobe:   # at max_depth: no light scattered here can count
+        # at max_depth no light scattered here can count (volpath's thin dielectric may still be crossed)
+        if nxt == TRAPPED or k >= max_depth and not has_null_lobe(mats, m):
             return False, zero, zero, zero, L, n_seg, k
-        arrived_counted = counted
-        counted = False
-        ng_front = ng
-        scatters, ng, ns = oriented(mats, m, front, ng, ns)
+        scatters, ng_seen, ns_seen = oriented(mats, m, front, ng, ns)
         if not scatters:
             return False, zero, zero, zero, L, n_seg, k
-        at = ShadingPoint(p, ng, ns, ng_front, shape, medium, uv)
-        flags = mats.flags[m]
-        wrap = wrapped(mats, m)   # under a normal or bump map: at.ns is the perturbed normal
-        if (has(mats, GLOSSY_LOBES) and flags & SMOOTH or wrap) and not flags & DIFFUSE_REFLECTION:
-            # a glossy surface, or a mirror or glass under a map (sampled with the terminator's shadowing)
-            depth += 1
-            if depth > max_specular:
-                return False, zero, zero, zero, L, n_seg, k
-            L, alive, wi, beta, lobe, pdf_last, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
-            if not alive:
-                return False, zero, zero, zero, L, n_seg, k
-            specular = lobe & DELTA != 0
-            p_last = p
-        else:
-            take_coat, coating = False, (zero, -1.0, zero, zero)   # (wc, P, w_coat, A): P < 0 without a coating
-            pdf_coat = 0.0   # a glossy coating's sampled direction's density
-            if wrap:
-                # a diffuse lobe under a map: the visible point evaluates the BSDF in its perturbed frame; its
-                # normal for the same-side test is the geometric one (the photons' records carry theirs)
-                return True, p, ng, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
-                    n_seg, k
-            if has(mats, PLASTIC) and flags & SMOOTH and flags & DELTA:
-                # a delta coating over a diffuse lobe (plastic): the coating, else the visible point here
-                take_coat, coating, L, first_glass, dim = coating_step(
-                    tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)
-            elif has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
-                # a glossy coating over a diffuse lobe: the coating's lobe, else the visible point here
-                take_coat, coating, L, pdf_coat, first_glass, dim = rough_coating_step(
-                    tables, at, m, d, (L, beta), (first_glass, numbers, dim), depth >= max_specular)
-            elif has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
-                # a glossy lobe beside a diffuse one (pplastic, principled): the visible point evaluates the BSDF
-                return True, p, ns, beta, vec.add(L, bsdf_visible_point(tables, at, m, d, beta, (key, dim), out[2])), \
-                    n_seg, k
-            wc, P, w_coat, A = coating
-            if flags & SMOOTH and not take_coat:
-                w, Ld = visible_point_here(tables, at, m, beta, (P, A), numbers, params, dim)
-                return True, p, ns, w, vec.add(L, Ld), n_seg, k
-            depth += 1
-            if depth > max_specular:
-                return False, zero, zero, zero, L, n_seg, k
-            arrived_specular, specular = specular, True
-            if take_coat:
-                # plastic's delta coating added its first hit's emission above; a glossy one did not
-                wi, beta, counted = wc, vec.hadamard(beta, w_coat), flags & DELTA != 0
-                if has(mats, ROUGHPLASTIC) and not counted:   # a glossy coating: its light sample was MIS-weighted
-                    if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
-                        return False, zero, zero, zero, L, n_seg, k   # the lobe's sample fell below the surface
-                    specular, pdf_last, p_last = False, pdf_coat, p
-            elif null_lobe:
-                # crossed straight on as a null boundary (not a vertex), or reflected (at the last depth that ends
-                # the path, as volpath samples the surface there too).  No emission in expectation here: what
-                # lies beyond was already counted by a glass before if ``counted`` came in set (emitted_along
-                # passes such a surface), and is met by the path itself otherwise.
-                u, first_glass, dim = branch_number(first_glass, numbers, dim)
-                wr, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
-                beta = vec.hadamard(beta, tint)
-                if u >= F:   # no vertex: an emitter met next is weighed from the vertex before (its MIS distance)
-                    wi, counted, specular, crossings = d, arrived_counted, arrived_specular, crossed + 1
-                    k -= 1
-                elif k >= max_depth:
-                    return False, zero, zero, zero, L, n_seg, k
-                else:
-                    wi = wr
-            else:
-                L, wi, beta, counted, first_glass, dim = delta_vertex(tables, at, m, d, (L, beta),
-                                                                      (first_glass, numbers, dim))
-        o, d, medium = vec.offset_origin(p, ng, wi), wi, medium_after(media, shape, ng_front, wi, medium)
+        at = ShadingPoint(p, ng_seen, ns_seen, ng, shape, medium, uv)
+        status, n, w, (L, beta, counted, mis), wi, (crossings, k, depth), first_glass, dim = camera_vertex(
+            tables, at, m, d, (L, beta, counted, mis), (crossed, k, depth), (first_glass, numbers, dim),
+            (params, out[2]))
+        if status != ONWARD:
+            return status == VISIBLE, p if status == VISIBLE else zero, n, w, L, n_seg, k
+        o, d, medium = vec.offset_origin(p, ng_seen, wi), wi, medium_after(media, shape, ng, wi, medium)
 
 
 @kernel
