@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +25,18 @@ PINS_FILE = Path(__file__).resolve().parent / "bit_pins.json"
 DIA = "cornell-diacaustic"
 CATA = "cornell-catacaustic"
 FOG = "cornell-diacaustic-fog"
+SCENES = Path(__file__).resolve().parent / "scenes"
+#: The feature scenes of tests/scenes (the branches the Cornell boxes do not take: coatings, normal maps, glossy
+#: lobes, mixtures, media behind glass, volpath's thin dielectric); a (file, (old, new)) pair renders a copy of the
+#: file with one string replaced.
+PLASTIC, NORMALMAP, PPLASTIC = SCENES / "plastic.xml", SCENES / "normalmap.xml", SCENES / "pplastic.xml"
+GLOSSY, MASK, BLEND, MEDIA_GLASS = (SCENES / "glossy-caustic.xml", SCENES / "mask.xml", SCENES / "blend.xml",
+                                    SCENES / "media-glass.xml")
+THIN_VOLPATH = (SCENES / "thindielectric.xml", ('<integrator type="path"/>', '<integrator type="volpath"/>'))
 
 #: name -> (scene, method, render keywords).  Small images and budgets: the pins are about bits,
 #: not quality, but each case goes through every branch of its method (glass and mirror chains,
-#: diffuse bounces, media, the caustic map, split streams).
+#: diffuse bounces, media, the caustic map, split streams, and the feature scenes' materials).
 CASES = {
     "pt": (DIA, "pt", dict(res=24, spp=4, passes=2)),
     "pt-cata-rr": (CATA, "pt", dict(res=24, spp=4, rr_depth=2, max_depth=8)),
@@ -51,6 +60,24 @@ CASES = {
     "sppm-fog": (FOG, "sppm", dict(res=16, passes=2)),
     "pspm-fog-merge": (FOG, "pspm", dict(res=16, passes=2)),
     "pspm-fog-spread": (FOG, "pspm", dict(res=16, passes=2, medium_scattering="spread", estimator="photons")),
+    "pt-normalmap": (NORMALMAP, "pt", dict(res=16, spp=4)),
+    "pt-thin-volpath": (THIN_VOLPATH, "pt", dict(res=16, spp=4)),
+    "pm-plastic": (PLASTIC, "pm", dict(res=16, photons=3000, k=10)),
+    "pm-normalmap": (NORMALMAP, "pm", dict(res=16, photons=3000, k=10)),
+    "pm-glossy": (GLOSSY, "pm", dict(res=16, photons=3000, k=10)),
+    "pm-thin-volpath": (THIN_VOLPATH, "pm", dict(res=16, photons=3000, k=10)),
+    "spm-glossy": (GLOSSY, "spm", dict(res=16, streams=500, assoc=4, k=10)),
+    "spm-thin-volpath": (THIN_VOLPATH, "spm", dict(res=16, streams=500, assoc=4, k=10)),
+    "sppm-plastic": (PLASTIC, "sppm", dict(res=16, passes=2)),
+    "sppm-normalmap": (NORMALMAP, "sppm", dict(res=16, passes=2)),
+    "sppm-pplastic": (PPLASTIC, "sppm", dict(res=16, passes=2)),
+    "sppm-glossy": (GLOSSY, "sppm", dict(res=16, passes=2)),
+    "sppm-mask": (MASK, "sppm", dict(res=16, passes=2)),
+    "sppm-blend": (BLEND, "sppm", dict(res=16, passes=2)),
+    "sppm-media-glass": (MEDIA_GLASS, "sppm", dict(res=16, passes=2)),
+    "sppm-thin-volpath": (THIN_VOLPATH, "sppm", dict(res=16, passes=2)),
+    "pspm-glossy-split": (GLOSSY, "pspm", dict(res=16, passes=2, specular="split", stream_radius=1.0)),
+    "pspm-thin-volpath": (THIN_VOLPATH, "pspm", dict(res=16, passes=2)),
 }
 
 
@@ -58,7 +85,13 @@ def render_hash(name: str, threads: int = 2) -> str:
     import caustica
 
     scene, method, kw = CASES[name]
-    result = caustica.render(scene, method=method, seed=3, threads=threads, **kw)
+    with tempfile.TemporaryDirectory() as tmp:
+        if isinstance(scene, tuple):
+            (path, (old, new)), scene = scene, Path(tmp) / scene[0].name
+            text = path.read_text()
+            assert old in text, f"{name}: {old!r} is not in {path}"
+            scene.write_text(text.replace(old, new))
+        result = caustica.render(str(scene), method=method, seed=3, threads=threads, **kw)
     image = np.ascontiguousarray(result.image, dtype=np.float32)
     return hashlib.sha256(image.tobytes()).hexdigest()[:20]
 
