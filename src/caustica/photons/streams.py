@@ -68,7 +68,8 @@ from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, bounce, record_factor, record_power, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce, count_bounce, \
+    record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -433,19 +434,23 @@ def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
 def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
     """What the stream does at a surface, ``hit`` = (prim, m, uv, front, ng, ns): at a mirror, glass or glossy surface
     (:func:`stream_at_specular`, before the side is known) or at a diffuse surface that scatters on this side
-    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Returns (scatters, diffuse, ng, ns turned to the ray, the
-    stream, split photons added, dim)."""
+    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Where volpath's thin dielectric reflects (straight on it is
+    :func:`null_thin_crossing`), the associated photons merge even with ``splitting`` = (split, split_path,
+    split_buf) split: split off, each would draw the reflection again (R² of them).  Returns (scatters, diffuse, ng,
+    ns turned to the ray, the stream, the split photons so far (split_path's with those added here), dim)."""
     _, mats, _, _ = tables
     prim, m, uv, front, ng, ns = hit
+    split, split_path, split_buf = splitting
     diffuse = mats.flags[m] & DIFFUSE_REFLECTION
     k = 0
     if not diffuse:
-        stream, k = stream_at_specular(tables, key, beam, stream, splitting)
+        stream, k = stream_at_specular(tables, key, beam, stream,
+                                       (split and not has_null_lobe(mats, m), split_path, split_buf))
     scatters, ng, ns = oriented(mats, m, front, ng, ns)
     if scatters and diffuse:
         stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (prim, m, uv, front, ng, ns), out,
                                            splitting)
-    return scatters, diffuse, ng, ns, stream, k, dim
+    return scatters, diffuse, ng, ns, stream, split_path[1] + k, dim
 
 
 @kernel(inline=True)
@@ -471,20 +476,66 @@ def stream_bounce(tables, surface, d, key, dim, stream, decay):
 
 
 @kernel(inline=True)
-def null_thin_crossing(mats, m, hit, stream, key, dim, termination):
+def null_thin_crossing(tables, m, hit, stream, numbers, place):
     """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``), ``hit`` =
-    (d, front, ng, ns, uv, p): the leading photon's sample (:func:`~caustica.photons.trace.bounce`, as the bounce
-    after it draws it).  Straight on, the stream crosses whole, no event, every photon taking the leading photon's
-    weight, and its associated photons are aimed from past the surface.  Returns (crossed straight on, the origin
-    past it, the stream, dim past the sample); not crossed: the stream and dim as they came."""
-    d, front, ng, ns, uv, p = hit
-    _, ng, ns = oriented(mats, m, front, ng, ns)
+    (d, front, ng, ns, uv, p) (front normals): the leading photon's sample (:func:`~caustica.photons.trace.bounce`,
+    ``numbers`` = (key, dim, termination), as the bounce after it draws it).  Straight on, the stream crosses whole,
+    no event, every photon taking the leading photon's weight, and its associated photons are aimed from past the
+    surface; where it reflects, that bounce takes the same sample.  ``place`` = (shape, medium): the surface's shape
+    and the medium the stream arrives in.  Returns (crossed straight on, the origin past it, the medium there, the
+    stream, dim past the sample); at any other material, or not crossed: (False, p, the medium, the stream and dim
+    as they came)."""
+    _, mats, _, media = tables
+    d, front, ng_front, ns, uv, p = hit
+    key, dim, termination = numbers
+    shape, medium = place
+    if not has_null_lobe(mats, m):
+        return False, p, medium, stream, dim
+    _, ng, ns = oriented(mats, m, front, ng_front, ns)
     alive, d_new, weight, inv_q, _, dim_past = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
     if not alive or vec.dot(d_new, ng) * vec.dot(d, ng) <= 0.0:
-        return False, p, stream, dim
+        return False, p, medium, stream, dim
     lead, p_assoc, n_alive = stream
     stream = (vec.mul(vec.hadamard(lead, weight), inv_q), vec.mul(vec.hadamard(p_assoc, weight), inv_q), n_alive)
-    return True, vec.offset_origin(p, ng, d), stream, dim_past
+    return True, vec.offset_origin(p, ng, d), medium_after(media, shape, ng_front, d, medium), stream, dim_past
+
+
+@kernel(inline=True)
+def emitted_stream(e_s, n_assoc):
+    """A stream as it leaves its light with power E_s (eq. 1): (the leading photon's power, each associated
+    photon's, how many are alive), E_s split equally among its n_fa + 1 photons."""
+    share = 1.0 / (n_assoc + 1)
+    return vec.mul(e_s, share), vec.mul(e_s, share), n_assoc
+
+
+@kernel(inline=True)
+def record_slot(scattered, stored, i, max_bounces):
+    """Whether stream i's next event stores a record, having stored ``stored``, and the slot it goes to: its records
+    take slots [i (mr + 1), (i + 1) (mr + 1)) in turn, once it has ``scattered`` (before, what it carries is direct
+    light)."""
+    slots = max_bounces + 1
+    return scattered and stored < slots, i * slots + stored
+
+
+@kernel(inline=True)
+def count_stored(store, r, events, depth, stored):
+    """After an event that stores stream record r when ``store`` says so: its depth, events + 1 (the segments from
+    the light, Mitsuba's count), into ``depth``.  Returns the records the stream has stored."""
+    if store:
+        depth[r] = min(events + 1, MAX_RECORD_DEPTH)
+        stored += 1
+    return stored
+
+
+@kernel(inline=True)
+def stream_goes_indirect(geom, mats, prim, diffuse):
+    """Whether the records after the stream's bounce at primitive prim are INDIRECT whichever lobe it takes
+    there: a ``diffuse`` one, or the reflection of a plastic's coating or of a blend's mirror or glossy part
+    beside a diffuse one (:func:`~caustica.photons.trace.beside_diffuse`), as the photon tracer's (trace_one).
+    Asked before the bounce, not after it: the same test after it made stream tracing 25 % slower, measured."""
+    if diffuse:
+        return True
+    return (has(mats, MASK) or has(mats, BLEND)) and beside_diffuse(geom, mats, prim)
 
 
 @kernel
@@ -498,10 +549,8 @@ def trace_stream(tables, key, start, rules, i, buf):
     o, d, e_s, n_from, medium = start
     n_assoc, r_s, max_bounces, termination, split, spread = rules
     rec, assoc, split_buf, depth = buf
-    slots = max_bounces + 1
-    share = 1.0 / (n_assoc + 1)
     zero = (0.0, 0.0, 0.0)
-    stream = (vec.mul(e_s, share), vec.mul(e_s, share), n_assoc)
+    stream = emitted_stream(e_s, n_assoc)
     dim = 8
     bounces = 0           # diffuse and medium scattering events
     specular_events = stored = crossings = 0
@@ -509,28 +558,24 @@ def trace_stream(tables, key, start, rules, i, buf):
     scattered = False     # any event so far: what is stored from now on is not direct light
     diffuse_like = False  # a diffuse or medium event so far: records are (VOLUME_)INDIRECT
     n_split = 0           # associated photons split off so far
-    while True:
+    while specular_events <= SPECULAR_CAP:
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
             break
         alive, stream = attenuate_stream(stream, medium, w)
         if not alive:
             break
-        store = scattered and stored < slots
-        r = i * slots + stored
+        store, r = record_slot(scattered, stored, i, max_bounces)
         if prim < 0:
-            # ---- a scattering event in the medium
+            # ---- a scattering event in the medium: a point, no surface the associated photons could aim into
             x = vec.madd(o, d, t)
             alive, wo, stream, dim = stream_medium_event(
                 tables, medium, (o, zero, x, d, r_s), key, dim, stream,
                 (n_assoc, spread, termination, bounces >= max_bounces),
                 (store, r, VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, rec, assoc))
-            if store:
-                depth[r] = min(events + 1, MAX_RECORD_DEPTH)
-                stored += 1
+            stored = count_stored(store, r, events, depth, stored)
             if not alive:
                 break
-            # a point in a medium: no surface the associated photons could aim into
             o, d, n_from, crossings = x, wo, zero, 0
             bounces += 1
             events += 1
@@ -544,52 +589,31 @@ def trace_stream(tables, key, start, rules, i, buf):
             continue
         if nxt == TRAPPED:
             break
+        crossed, o_past, medium_past, stream, dim_past = null_thin_crossing(
+            tables, m, (d, front, ng, ns, uv, p), stream, (key, dim, termination), (shape, medium))
+        if crossed:   # volpath's thin dielectric straight on: no event, but a specular one towards the cap
+            specular_events += 1
+            o, medium, n_from, dim = o_past, medium_past, zero, dim_past
+            continue
+        # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the caustic that aimed
+        # caustic photons may carry instead (pspm --caustic-photons)
         ng_front = ng
-        splits_here = split
-        if has_null_lobe(mats, m):
-            alive, o_past, stream, dim_past = null_thin_crossing(mats, m, (d, front, ng, ns, uv, p), stream, key, dim,
-                                                                 termination)
-            if alive:   # straight on: no event; a reflection is taken below, by the same sample
-                specular_events += 1
-                if specular_events > SPECULAR_CAP:
-                    break
-                o, medium, n_from, dim = o_past, medium_after(media, shape, ng_front, d, medium), zero, dim_past
-                continue
-            # reflected: the associated photons merge (split off, each would draw reflection again: R² of them)
-            splits_here = False
-        # CAUSTIC: a light -> specular+ -> diffuse record (no diffuse bounce before it), the
-        # caustic that aimed caustic photons may carry instead (pspm --caustic-photons)
-        scatters, diffuse, ng, ns, stream, k, dim = stream_at_surface(
+        scatters, diffuse, ng, ns, stream, n_split, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
-            (splits_here, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)),
-             split_buf))
-        n_split += k
+            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)), split_buf))
         if not scatters:
             break  # absorbed by the black back of a one-sided surface
         if diffuse:
-            if store:
-                depth[r] = min(events + 1, MAX_RECORD_DEPTH)
-                stored += 1
+            stored = count_stored(store, r, events, depth, stored)
             if bounces >= max_bounces:
                 break
-        if diffuse or ((has(mats, MASK) or has(mats, BLEND))
-                       and mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION):
-            # whichever lobe the stream takes here, a diffuse one or the reflection of a plastic's coating or of a
-            # blend's mirror or glossy part beside a diffuse one (no caustic caster: tables.py), the records after
-            # it are INDIRECT, as the photon tracer's (trace_one).  (Set here, not after the bounce: the same
-            # test after it made stream tracing 25 % slower, measured.)
-            diffuse_like = True
+        diffuse_like = diffuse_like or stream_goes_indirect(geom, mats, prim, diffuse)
         alive, o, d, medium, stream, delta, dim = stream_bounce(
             tables, (p, ng, ns, uv, ng_front, m, shape, medium), d, key, dim, stream, (n_assoc, termination))
         if not alive:
             break
-        if delta or not diffuse:   # a mirror, glass or glossy bounce: the stream is still on a caustic path
-            specular_events += 1
-            if specular_events > SPECULAR_CAP:
-                break
-        else:
-            bounces += 1
+        specular_events, bounces = count_bounce(delta or not diffuse, (specular_events, bounces))
         n_from = ng if diffuse else zero   # from a mirror, glass or glossy surface only after a split
         events += 1
         scattered = True

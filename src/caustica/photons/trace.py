@@ -252,6 +252,87 @@ def record_power(geom, mats, hit, d, power):
     return vec.mul(power, record_factor(geom, mats, hit, d))
 
 
+@kernel(inline=True)
+def keep_record(out, records, p, d, power, n, tag):
+    """Record number ``records`` of a photon's path (position, direction of travel, power, normal, ``tag`` = (kind,
+    the photon's events before it)): written by :func:`store_record` when ``out`` = (slot0, skip, slots, buf) keeps
+    it (numbers skip .. skip + slots - 1 go to slots slot0 ..), only counted otherwise.  Returns the records the
+    path has made, this one included."""
+    slot0, skip, slots, buf = out
+    if skip <= records < skip + slots:
+        store_record(slot0 + records - skip, p, d, power, n, tag, buf)
+    return records + 1
+
+
+@kernel(inline=True)
+def attenuate_photon(power, medium, w):
+    """A photon's power times a free flight's weight w in ``medium`` (none: unchanged).  Returns (alive: some
+    power is left, the power)."""
+    if medium < 0:
+        return True, power
+    power = vec.hadamard(power, w)
+    return not (power[0] == 0.0 and power[1] == 0.0 and power[2] == 0.0), power
+
+
+@kernel(inline=True)
+def photon_bounce(tables, m, prim, ray, at, numbers, power):
+    """A photon's bounce from material m, where ``ray`` = (o, d, t, b1, b2) met primitive prim, at ``at`` = (ng, ns,
+    uv) (:func:`bounce`'s): under a normal or bump map :func:`wrapped_bounce`, Mitsuba's flip by the side the photon
+    leaves to; elsewhere :func:`bounce`.  ``numbers`` = (key, dim, termination).  Returns (alive, the new direction,
+    the power times the BSDF's weight and the roulette's 1 / p, in that order, delta, dim)."""
+    geom, mats, _, _ = tables
+    key, dim, termination = numbers
+    d, uv = ray[1], at[2]
+    if wrapped(mats, m):
+        frames = map_frames(geom, mats, prim, ray, uv)
+        alive, d_new, weight, inv_q, delta, dim = wrapped_bounce(mats, m, d, at, frames, numbers)
+    else:
+        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, at, key, dim, termination)
+    return alive, d_new, vec.mul(vec.hadamard(power, weight), inv_q), delta, dim
+
+
+@kernel(inline=True)
+def beside_diffuse(geom, mats, prim):
+    """Whether the material of primitive prim itself (not the lobe or part a path took there) has a diffuse lobe.
+    A mirror, glass or glossy bounce there (a plastic's coating's reflection, or a blend's delta or glossy part
+    beside a diffuse one) is no caustic caster (tables.py): the records after it are INDIRECT, though it is no
+    diffuse bounce."""
+    return mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION != 0
+
+
+@kernel(inline=True)
+def classify_bounce(tables, prim, m, turn, delta):
+    """What a photon's bounce from material m on primitive prim was, ``turn`` = (d, the new direction, ng) and
+    ``delta`` :func:`bounce`'s: (a null crossing, a specular event, indirect: the records after it are INDIRECT).
+
+    * volpath's thindielectric (null_thin_dielectric) straight on is a null crossing, no event, so what the photon
+      lights next is direct light if it had not scattered (shadow rays pass the surface too); it counts towards the
+      specular cap.
+    * A mirror, glass or glossy bounce is a specular event: the photon is still on a caustic path, light -> (S|G)+,
+      unless it was :func:`beside_diffuse`.
+    * Any other is a diffuse bounce."""
+    geom, mats, _, _ = tables
+    d, d_new, ng = turn
+    if has_null_lobe(mats, m) and vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0:
+        return True, True, False
+    if delta or not mats.flags[m] & DIFFUSE_REFLECTION:
+        return False, True, beside_diffuse(geom, mats, prim)
+    return False, False, True
+
+
+@kernel(inline=True)
+def count_bounce(specular, counts):
+    """``counts`` = (specular events, diffuse bounces) after a bounce: a specular one (a mirror, glass or glossy
+    bounce, or a null crossing) counts towards :data:`SPECULAR_CAP`, past which the path ends, any other towards
+    max_bounces.  Returns the two."""
+    specular_events, bounces = counts
+    if specular:
+        specular_events += 1
+    else:
+        bounces += 1
+    return specular_events, bounces
+
+
 @kernel
 def trace_one(tables, key, photon, rules, out):
     """Follow one photon, ``photon`` = (o, d, power, medium, diffuse_bounces, scattered): from o along d in
@@ -268,32 +349,27 @@ def trace_one(tables, key, photon, rules, out):
     geom, mats, _, media = tables
     o, d, power, medium, diffuse_bounces, scattered = photon
     max_bounces, termination, caustic_only = rules
-    slot0, skip, slots, buf = out
     dim = 8
     specular_events = 0
     events = 0   # scattering events of this photon's own path (every kind): its records' depth is events + 1
     diffuse_like = diffuse_bounces > 0   # a diffuse or medium event so far: records are INDIRECT
     crossings = records = 0
-    while True:
+    while specular_events <= SPECULAR_CAP:
         prim, t, b1, b2, w, dim, escaped = free_flight(geom, media, medium, o, d, key, dim)
         if escaped:
             break
-        if medium >= 0:
-            power = vec.hadamard(power, w)
-            if power[0] == 0.0 and power[1] == 0.0 and power[2] == 0.0:
-                break
+        alive, power = attenuate_photon(power, medium, w)
+        if not alive:
+            break
         if prim < 0:
             # ---- a scattering event in the medium
             p = vec.madd(o, d, t)
             if scattered:
-                if skip <= records < skip + slots:
-                    store_record(slot0 + records - skip, p, d, power, (0.0, 0.0, 0.0),   # a volume photon: no normal
-                                 (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events), buf)
-                records += 1
+                records = keep_record(out, records, p, d, power, (0.0, 0.0, 0.0),   # a volume photon: no normal
+                                      (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events))
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power,
-                                                   termination != TERMINATION_CAP)
+            alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power, termination != TERMINATION_CAP)
             if not alive:
                 break
             o, d, crossings = p, wo, 0
@@ -314,43 +390,22 @@ def trace_one(tables, key, photon, rules, out):
             break  # the black back of a one-sided surface absorbs
         if mats.flags[m] & DIFFUSE_REFLECTION:
             if scattered:
-                if skip <= records < skip + slots:
-                    store_record(slot0 + records - skip, p, d,
-                                 record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power),
-                                 ng if wrapped(mats, m) else ns, (INDIRECT if diffuse_like else CAUSTIC, events), buf)
-                records += 1
+                stored_power = record_power(geom, mats, (prim, m, uv, front, ng, ns), d, power)
+                records = keep_record(out, records, p, d, stored_power, ng if wrapped(mats, m) else ns,
+                                      (INDIRECT if diffuse_like else CAUSTIC, events))
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-        if wrapped(mats, m):   # under a normal or bump map: Mitsuba's flip by the side the photon leaves to
-            frames = map_frames(geom, mats, prim, (o, d, t, b1, b2), uv)
-            alive, d_new, weight, inv_q, delta, dim = wrapped_bounce(mats, m, d, (ng, ns, uv), frames,
-                                                                     (key, dim, termination))
-        else:
-            alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+        alive, d_new, power, delta, dim = photon_bounce(tables, m, prim, (o, d, t, b1, b2), (ng, ns, uv),
+                                                        (key, dim, termination), power)
         if not alive:
             break
-        power = vec.mul(vec.hadamard(power, weight), inv_q)
-        if has_null_lobe(mats, m) and vec.dot(d_new, ng) * vec.dot(d, ng) > 0.0:
-            # volpath's thindielectric (null_thin_dielectric): straight on is a null crossing, no event, so what
-            # the photon lights next is direct light if it had not scattered (shadow rays pass the surface too)
-            specular_events += 1
-            if specular_events > SPECULAR_CAP:
-                break
-            o, medium = vec.offset_origin(p, ng, d_new), medium_after(media, shape, ng_front, d_new, medium)
+        null, specular, indirect = classify_bounce(tables, prim, m, (d, d_new, ng), delta)
+        specular_events, diffuse_bounces = count_bounce(specular, (specular_events, diffuse_bounces))
+        o, medium = vec.offset_origin(p, ng, d_new), medium_after(media, shape, ng_front, d_new, medium)
+        if null:   # no event: the photon goes straight on
             continue
-        if delta or not mats.flags[m] & DIFFUSE_REFLECTION:
-            # a mirror, glass or glossy bounce: the photon is still on a caustic path, light -> (S|G)+
-            specular_events += 1
-            if specular_events > SPECULAR_CAP:
-                break
-            if mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION:
-                # a coating's reflection (plastic), or a blend's delta or glossy part beside a diffuse one: no caustic
-                # caster (tables.py), so records after it are INDIRECT, though it is no diffuse bounce
-                diffuse_like = True
-        else:
-            diffuse_bounces += 1
-            diffuse_like = True
-        o, d, medium = vec.offset_origin(p, ng, d_new), d_new, medium_after(media, shape, ng_front, d_new, medium)
+        d = d_new
+        diffuse_like = diffuse_like or indirect
         events += 1
         scattered = True
     return records
