@@ -111,3 +111,40 @@ def test_no_module_imports_from_a_layer_above_its_own():
     upward = [f"{m} ({LAYERS[layer(m)][0]}) imports {d} ({LAYERS[layer(d)][0]})"
               for m, deps in sorted(imports(modules()).items()) for d in sorted(deps) if layer(d) > layer(m)]
     assert upward == []
+
+
+#: Issue 18's limits on the transport and method layers: a loop a reader can hold in view, kernels that take a few
+#: structured arguments (the scene tables, the method's parameters, the pass state) rather than dozens.
+MAX_FUNCTION_LINES = 80
+MAX_KERNEL_ARGUMENTS = 8
+
+
+def functions_of(layers: tuple[str, ...]):
+    """(module, function node, is a kernel) for every function defined in a module of ``layers``."""
+    names = {n for n, _ in LAYERS}
+    assert set(layers) <= names, set(layers) - names
+    wanted = {i for i, (n, _) in enumerate(LAYERS) if n in layers}
+    for name, path in sorted(modules().items()):
+        if layer(name) not in wanted:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                kernel = any((d.func if isinstance(d, ast.Call) else d).id == "kernel"
+                             for d in node.decorator_list
+                             if isinstance(d.func if isinstance(d, ast.Call) else d, ast.Name))
+                yield name, node, kernel
+
+
+def test_transport_and_method_functions_are_at_most_80_lines():
+    """Counted from ``def`` to the last line, docstring included."""
+    long = [f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines"
+            for name, node, _ in functions_of(("transport", "methods"))
+            if node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]
+    assert not long, f"over {MAX_FUNCTION_LINES} lines (split it into named steps): {long}"
+
+
+def test_kernels_take_at_most_8_arguments():
+    wide = [f"{name}.{node.name}: {len(node.args.args)} arguments"
+            for name, node, kernel in functions_of(("tables", "transport", "methods"))
+            if kernel and len(node.args.args) > MAX_KERNEL_ARGUMENTS]
+    assert not wide, f"kernels over {MAX_KERNEL_ARGUMENTS} arguments (group them in tuples): {wide}"
