@@ -49,6 +49,7 @@ from ..emitters import AREA, DIRECTIONAL, ENV, PROJECTOR, SPOT, TEX_OF, choose_l
 from ..geometry import vec
 from ..features import has
 from ..jit import kernel
+from ..media import photon_medium
 from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_disk, \
     square_to_uniform_sphere
@@ -80,6 +81,16 @@ def emit_photon(geom, lights, key, n_paths):
     w = FOUR_PI / (sel_pdf * n_paths)
     power = (lights.radiance[li, 0] * w, lights.radiance[li, 1] * w, lights.radiance[li, 2] * w)
     return p, d, power, (0.0, 0.0, 0.0)
+
+
+@kernel(inline=True)
+def start_medium(tables, light_medium, key, ray):
+    """The medium photon (or stream) ``key`` starts in, leaving its light along ``ray`` = (o, d):
+    :func:`caustica.media.photon_medium` of the light that :func:`emit_photon` and :func:`emit_caustic_photon` chose
+    with the photon's number 0 (``light_medium`` as :meth:`caustica.tables.Scene.light_media` gives it)."""
+    geom, _, lights, media = tables
+    li, _, _ = choose_light(lights, uniform(key, 0))
+    return photon_medium(geom, media, light_medium, li, ray[0], ray[1])
 
 
 @kernel

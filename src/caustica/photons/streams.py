@@ -56,16 +56,15 @@ from typing import NamedTuple
 from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented
 from ..bsdfs.mixtures import resolve
 from ..features import has
-from ..emitters import choose_light
 from ..geometry import vec
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import kernel, parallel_for
-from ..media import free_flight, medium_after, photon_medium, photon_scatter
+from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
-from .emission import emit_photon
+from .emission import emit_photon, start_medium
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
 from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce, count_bounce, \
@@ -332,13 +331,12 @@ def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
     ``buf`` = (records, associated photons, split photons, the records' depths)."""
     tables = borrow_tables(tables)
-    geom, _, lights, media = tables
+    geom, _, lights, _ = tables
     seed, stream, n_streams = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs
-        li, _, _ = choose_light(lights, uniform(key, 0))                   # the light emit_photon chose
-        medium = photon_medium(geom, media, light_medium, li, o, d)
+        medium = start_medium(tables, light_medium, key, (o, d))
         trace_stream(tables, key, (o, d, e_s, n_from, medium), rules, i, buf)
 
 

@@ -46,15 +46,14 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, has_null_lobe, o
     sample_kind, wrapped
 from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
-from ..emitters import choose_light
 from ..geometry import vec
 from ..jit import kernel, parallel_for
 from ..memory import check_budget
-from ..media import free_flight, medium_after, photon_medium, photon_scatter
+from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
-from .emission import emit_caustic_photon, emit_photon
+from .emission import emit_caustic_photon, emit_photon, start_medium
 from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
 
@@ -415,12 +414,11 @@ def trace_one(tables, key, photon, rules, out):
 def emitted_photon(tables, light_medium, source, i):
     """Photon i of ``source`` = (seed, stream, n_paths) as it leaves its light: (its key, :func:`trace_one`'s
     ``photon``)."""
-    geom, _, lights, media = tables
+    geom, _, lights, _ = tables
     seed, stream, n_paths = source
     key = path_key(seed, stream, i)
     o, d, power, _ = emit_photon(geom, lights, key, n_paths)
-    li, _, _ = choose_light(lights, uniform(key, 0))   # the light emit_photon chose
-    return key, (o, d, power, photon_medium(geom, media, light_medium, li, o, d), 0, False)
+    return key, (o, d, power, start_medium(tables, light_medium, key, (o, d)), 0, False)
 
 
 @kernel
@@ -455,14 +453,13 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
     a medium or meets a diffuse surface before any of them stores nothing (that light is the other photons' and
     the direct light's)."""
     tables = borrow_tables(tables)
-    geom, _, lights, media = tables
+    geom, _, lights, _ = tables
     seed, stream, n_paths = source
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)
         if ok:
-            li, _, _ = choose_light(lights, uniform(key, 0))
-            medium = photon_medium(geom, media, light_medium, li, o, d)
+            medium = start_medium(tables, light_medium, key, (o, d))
             trace_one(tables, key, (o, d, power, medium, 0, False), (0, TERMINATION_CAP, True),
                       (i, 0, 1, buf))
 
