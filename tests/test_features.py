@@ -11,6 +11,7 @@ import hashlib
 import pickle
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -18,7 +19,7 @@ import caustica
 from caustica.bsdfs import MaterialTable
 from caustica.emitters import LightTable
 from caustica.features import ALL, features_of, has, specialised
-from caustica.jit import kernel
+from caustica.jit import KernelCompiler, kernel
 from caustica.scene.description import CONDUCTOR, DIELECTRIC, PLASTIC
 from caustica.tables import CORE_LIGHTS, CORE_MATERIALS
 
@@ -62,6 +63,51 @@ def test_has_is_decided_by_the_tables_type():
     assert _has_plastic_and_conductor(MaterialTable(*core)) == (True, True)
     only_glass = specialised(MaterialTable, 1 << DIELECTRIC)(*core)
     assert _has_plastic_and_conductor(only_glass) == (False, False)
+
+
+# Not cached (plain njit with the kernels' pipeline), so that what is compiled is what this process compiled.
+@numba.njit
+def _under_plastic_as_argument():
+    return 1.0
+
+
+@numba.njit
+def _under_plastic_as_item():
+    return 2.0
+
+
+@numba.njit
+def _under_plastic_unpacked():
+    return 3.0
+
+
+@numba.njit(pipeline_class=KernelCompiler)
+def _plastic_branches(mats, tables):
+    """``has`` on an argument, on an item of a tuple argument, on a name unpacked from one: the three ways kernels
+    reach their tables."""
+    total = 0.0
+    if has(mats, PLASTIC):
+        total += _under_plastic_as_argument()
+    second = tables[1]
+    if has(second, PLASTIC):
+        total += _under_plastic_as_item()
+    _, third = tables
+    if has(third, PLASTIC):
+        total += _under_plastic_unpacked()
+    return total
+
+
+def test_the_code_of_a_missing_kind_is_not_even_compiled():
+    """jit.FoldFeatureTests: ``has`` is folded before typing, so the callees of a missing kind's branch are never
+    typed or compiled (they were, for LLVM to drop them: a third of the paper's scene's cold start).  With every
+    kind, each callee is compiled and taken."""
+    core = caustica.load_scene("cornell-diacaustic").materials
+    callees = (_under_plastic_as_argument, _under_plastic_as_item, _under_plastic_unpacked)
+    assert _plastic_branches(core, (core, core)) == 0.0
+    assert [len(k.signatures) for k in callees] == [0, 0, 0]
+    every = MaterialTable(*core)
+    assert _plastic_branches(every, (every, every)) == 6.0
+    assert [len(k.signatures) for k in callees] == [1, 1, 1]
 
 
 @pytest.mark.parametrize("name", ["pt", "pm", "spm", "sppm", "pspm-split", "pt-fog", "sppm-fog"])

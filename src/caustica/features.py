@@ -8,9 +8,11 @@ So a table built for a scene is an instance of a *specialised* subclass of its n
 (base, features), whose class attribute ``FEATURES`` is a bit set: bit c set when rows of kind (or feature) code c
 may occur.  The class is part of the Numba type of the tuple, so each feature set compiles (and caches) its own
 kernels, and :func:`has` (table, c) is a compile-time constant in them: ``if has(mats, PLASTIC) and kind == PLASTIC:``
-leaves nothing in the compiled loop when the scene has no plastic (Numba still types and compiles the callee once;
-LLVM drops the branch).  The arithmetic of the code kept is the same, so the images are bit for bit those of the
-code compiled for every kind.  A table of the base class (built by hand, in tests) holds every feature.
+leaves nothing in the compiled loop when the scene has no plastic: :class:`caustica.jit.FoldFeatureTests` folds
+the test to a constant before typing wherever the table's type follows from the kernel's arguments, so Numba's
+dead-branch pruning drops the branch and the callees only it reaches are never compiled.  The arithmetic of the
+code kept is the same, so the images are bit for bit those of the code compiled for every kind (the bit pins and
+tests/test_features.py hold it).  A table of the base class (built by hand, in tests) holds every feature.
 
 Each feature set compiles its kernels once more, so :func:`caustica.tables.specialise` rounds a scene up to one of
 two sets.

@@ -53,7 +53,9 @@ that short: kernels called from kernels get no Python wrappers (:class:`Kernel`)
 calls are typed with plain, never literal, argument types (one specialisation per
 kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
 carries no reference counts, so binding one generates no code; helpers are inlined by LLVM
-(``inline``), never by Numba's IR inlining, which compiles the helper again at every call site.
+(``inline``), never by Numba's IR inlining, which compiles the helper again at every call site; and
+the code of the kinds a scene lacks is dropped before typing (:class:`FoldFeatureTests`), so the callees
+only it calls are never compiled.
 """
 from __future__ import annotations
 
@@ -68,11 +70,17 @@ from pathlib import Path
 
 import numba
 from numba import njit, types
-from numba.core import cgutils
+from numba.core import cgutils, ir
 from numba.core.boxing import unbox_unsupported
+from numba.core.compiler import Compiler, DefaultPassBuilder
+from numba.core.compiler_machinery import FunctionPass, register_pass
+from numba.core.ir_utils import GuardException, find_const, get_definition
+from numba.core.untyped_passes import WithLifting
 from numba.core.datamodel.models import StructModel
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic, register_model, unbox
+
+from .features import features_of, has
 
 CACHE_SERIAL = os.environ.get("CAUSTICA_NO_CACHE", "0") != "1"
 
@@ -106,6 +114,81 @@ def _configure_cache_dir() -> None:
 _configure_cache_dir()
 
 
+def _static_type(func_ir, arg_types, var, depth=0):
+    """The Numba type of ``var`` where the untyped IR says it: an argument, or an item or field of one (``tables[1]``,
+    ``geom, mats, lights, media = tables``, ``scene.lights``); None otherwise (a variable assigned twice, a call)."""
+    try:
+        d = get_definition(func_ir, var)
+    except GuardException:
+        return None
+    if isinstance(d, ir.Arg):
+        return arg_types[d.index] if d.index < len(arg_types) else None
+    if not isinstance(d, ir.Expr) or depth > 8:
+        return None
+    if d.op == "exhaust_iter":
+        return _static_type(func_ir, arg_types, d.value, depth + 1)
+    of = _static_type(func_ir, arg_types, d.value, depth + 1) if d.op in ("static_getitem", "getitem",
+                                                                           "getattr") else None
+    index = d.index if d.op == "static_getitem" else None
+    if d.op == "getitem":   # tables[1] before Numba's rewrites make it a static_getitem
+        try:
+            index = find_const(func_ir, d.index)
+        except GuardException:
+            return None
+    if index is not None and isinstance(of, types.BaseTuple) and isinstance(index, int) and 0 <= index < len(of.types):
+        return of.types[index]
+    if d.op == "getattr" and isinstance(of, types.BaseNamedTuple) and d.attr in of.fields:
+        return of.types[of.fields.index(d.attr)]
+    return None
+
+
+@register_pass(mutates_CFG=False, analysis_only=False)
+class FoldFeatureTests(FunctionPass):
+    """``has(table, CODE)`` (:mod:`caustica.features`) replaced by its constant before typing, wherever the table's
+    type follows from the arguments, so that Numba's dead-branch pruning (the pass after it) drops the code it
+    guards before type inference.  Typing a call compiles the callee: without this, a scene without plastic still
+    compiled plastic's BSDF (and every missing kind's) once, for LLVM to drop from the caller afterwards.  A call
+    whose table is not found this way stays as it was (``has`` is a constant at code generation anyway)."""
+    _name = "caustica_fold_feature_tests"
+
+    def __init__(self):
+        FunctionPass.__init__(self)
+
+    def run_pass(self, state):
+        func_ir = state.func_ir
+        changed = False
+        for block in func_ir.blocks.values():
+            for stmt in block.body:
+                if not (isinstance(stmt, ir.Assign) and isinstance(stmt.value, ir.Expr) and stmt.value.op == "call"
+                        and len(stmt.value.args) == 2 and not stmt.value.kws):
+                    continue
+                try:
+                    fn = get_definition(func_ir, stmt.value.func)
+                    code = find_const(func_ir, stmt.value.args[1])
+                except GuardException:
+                    continue
+                if not isinstance(fn, (ir.Global, ir.FreeVar)) or fn.value is not has or not isinstance(code, int):
+                    continue
+                table = _static_type(func_ir, state.args, stmt.value.args[0])
+                if table is None or not hasattr(table, "instance_class"):
+                    continue
+                value = ir.Const(bool(features_of(table.instance_class) >> code & 1), stmt.loc)
+                func_ir._definitions[stmt.target.name] = [value]
+                stmt.value = value
+                changed = True
+        return changed
+
+
+class KernelCompiler(Compiler):
+    """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning."""
+
+    def define_pipelines(self):
+        pm = DefaultPassBuilder.define_nopython_pipeline(self.state)
+        pm.add_pass_after(FoldFeatureTests, WithLifting)
+        pm.finalize()
+        return [pm]
+
+
 _OPTIONS = dict(nogil=True, fastmath=False, error_model="numpy")
 _TWIN_LOCK = threading.Lock()
 
@@ -133,7 +216,7 @@ class Kernel(CPUDispatcher):
     def __init__(self, py_func, inline):
         options = dict(_OPTIONS, inline="never", forceinline=inline, no_cpython_wrapper=True,
                        no_cfunc_wrapper=True)
-        super().__init__(py_func=py_func, locals={}, targetoptions=options)
+        super().__init__(py_func=py_func, locals={}, targetoptions=options, pipeline_class=KernelCompiler)
         if CACHE_SERIAL:
             self.enable_caching()
         self._from_python = None
@@ -149,7 +232,7 @@ class Kernel(CPUDispatcher):
                 twin.__qualname__ = f.__qualname__ + "_from_python"  # its own cache entry
                 twin.__doc__ = f.__doc__
                 twin.__module__ = f.__module__
-                self._from_python = njit(cache=CACHE_SERIAL, **_OPTIONS)(twin)
+                self._from_python = njit(cache=CACHE_SERIAL, pipeline_class=KernelCompiler, **_OPTIONS)(twin)
         return self._from_python
 
     def __call__(self, *args, **kwargs):
