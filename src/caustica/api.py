@@ -113,8 +113,9 @@ def check_bsdfs(cls, scene) -> None:
     (``pm``, ``sppm``; ``spm``, ``pspm``, whose streams meet them as mirrors); ``renders_coated = True`` — a delta coating over a diffuse lobe (plastic:
     every photon method); ``renders_mixtures = True`` — mask and blendbsdf, resolved
     at each hit to one of their parts (every method; a stream's associated photons each resolve their own);
-    ``renders_normal_maps = True`` — normalmap and bumpmap (``pt``; ``pm`` and ``sppm``, whose visible points under
-    a map weight each photon by the BSDF in the perturbed frame, except under a delta coating);
+    ``renders_normal_maps = True`` — normalmap and bumpmap (``pt``; every photon method: its visible points under a
+    map weight each photon, or stream record, by the BSDF in the perturbed frame, except under a delta coating, and
+    its photons, or a stream's leading photon, scatter there by the adjoint wrapped BSDF);
     ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe (roughplastic: every photon
     method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
     reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
@@ -125,8 +126,7 @@ def check_bsdfs(cls, scene) -> None:
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
             raise SceneError(f"{mat.source}: <bsdf type=\"{MATERIAL_NAMES[mat.kind]}\">: method {cls.name} does not "
-                             f"render normalmap or bumpmap yet (a stream's associated photons would meet the map "
-                             f"at points of their own); use --method pt, pm or sppm")
+                             f"render normalmap or bumpmap yet; use --method pt")
         if mat.kind in WRAPPERS and not getattr(cls, "renders_glossy", False):
             inner = mat.nested[0]
             if scene.materials.flags[inner] & DELTA and scene.materials.flags[inner] & DIFFUSE_REFLECTION:

@@ -7,8 +7,10 @@ as in SPM (:mod:`caustica.photons.streams`), keyed by (seed, stream phase, pass,
 What the gather sees of a pass:
 
 * ``--estimator stream`` (the paper's eq. 2): a stream record counts as one event
-  of energy E_i at its leading position;
-* ``--estimator photons``: the leading and each associated photon at its own position.
+  of energy E_i at its leading position, and where a visible point evaluates its BSDF (pplastic, principled, any
+  diffuse lobe under a normal or bump map) E_i is weighted by f at the leading photon's direction;
+* ``--estimator photons``: the leading and each associated photon at its own position, each weighted at its own
+  direction.
 
 ``--specular merge`` is the paper's rule: at a mirror or glass the associated photons
 merge into the leading one, so every light → specular → diffuse event is one leading

@@ -39,6 +39,11 @@ A *stream* is a leading photon plus up to n_fa associated photons.
      at its own direction (as :func:`~caustica.photons.trace.record_power`), and the stream reflects whole by
      the lobe its leading photon samples, its associated photons decaying by that lobe's weight; a coating's
      reflection is no diffuse bounce, but the records after it are not caustic (plastic is no caustic caster).
+   - under a normal or bump map the leading photon bounces as the photon tracer's does
+     (:func:`~caustica.photons.trace.bounce_at`: Mitsuba's flip by the side it leaves to, the adjoint's weights),
+     the stream decaying by that weight; its record, and each associated photon that lands under a map (each
+     resolves the surface it meets: :func:`unwrapped`), carry the geometric normal and no coating's factor, as the
+     photon tracer's records: the visible points there weight each photon by the BSDF in their own perturbed frame.
 4. Only leading photons go into the kd-tree (:class:`StreamMap`); the ``photons``
    view counts every photon at its own position.
 
@@ -53,7 +58,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented
+from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented, wrapped
 from ..bsdfs.mixtures import resolve
 from ..features import has
 from ..geometry import vec
@@ -62,13 +67,13 @@ from ..jit import kernel, parallel_for
 from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
-from ..scene.description import BLEND, MASK, NULL, PLASTIC, ROUGHPLASTIC
+from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon, start_medium
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce, count_bounce, \
-    record_factor, record_power, trace_one
+from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce, bounce_at, \
+    count_bounce, record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
 #: points its associated photons are aimed through at a specular split.
@@ -112,7 +117,7 @@ def split_off(tables, key, o, d, power, split_path, k, split):
 
 
 @kernel(inline=True)
-def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q):
+def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q, capped):
     """The associated photons after the leading photon's bounce, whose BSDF weight (f cos / pdf of the lobe it
     sampled) was ``weight``: (how many survive, their power).  The stream moves as one, so they take its lobe.
 
@@ -120,11 +125,16 @@ def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q):
     (numbers key, dim + j).  With roulette (``roulette_inv_q`` > 0: the 1 / p of the leading photon's game,
     :func:`~caustica.photons.trace.bounce`) the stream lives or dies with the leading photon: a second,
     per-photon roulette would leave the associated photons alive with probability p^2 while compensating only
-    1 / p, so they all survive, scaled by weight / p.
+    1 / p, so they all survive, scaled by weight / p.  ``capped``: p = min(the mean, 1), for a weight whose mean
+    may pass 1 (under a normal or bump map, the adjoint's ratio of shading and geometric cosines:
+    :func:`~caustica.photons.trace.wrapped_bounce`), where p = the mean would lose power (every photon survives,
+    scaled by weight / mean).
     """
     if roulette_inv_q > 0.0:
         return n_alive, vec.mul(vec.hadamard(p_assoc, weight), roulette_inv_q)
     q = (weight[0] + weight[1] + weight[2]) / 3.0
+    if capped:
+        q = min(q, 1.0)
     survivors = 0
     for j in range(n_alive):
         if uniform(key, dim + j) < q:
@@ -177,6 +187,15 @@ def disc_point(beam, u1, u2):
 
 
 @kernel(inline=True)
+def unwrapped(mats, m):
+    """Material row m, or a normal or bump map's nested row (its sides and lobes; where an associated photon lands it
+    needs no perturbed normal: :func:`place_associated`)."""
+    if has(mats, NORMALMAP) and mats.kind[m] == NORMALMAP or has(mats, BUMPMAP) and mats.kind[m] == BUMPMAP:
+        return mats.nested[m, 0]
+    return m
+
+
+@kernel(inline=True)
 def associated_surface(tables, o, d, key):
     """The surface an associated photon's ray from o along d lands on or merges at: (prim (-1: none), t, b1, b2,
     the ray's origin o' for them, the part m of the surface's material it took, uv).  A mixture
@@ -210,7 +229,9 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     leading photon — except, with ``splitting`` = (split, split_path, split_buf) split, those whose ray
     meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A mixture
     is resolved per photon (:func:`associated_surface`); one that takes a part that stores nothing there merges,
-    so it is stored with the leading photon's factor.  A photon
+    so it is stored with the leading photon's factor.  A normal or bump map is resolved per photon to its nested row
+    (:func:`unwrapped`), whose record carries the geometric normal and no coating's factor, as the photon tracer's
+    (the visible points there weight each photon by the BSDF in their own perturbed frame).  A photon
     whose direction q - o points into the surface o lies on (``n_from``, facing the side the stream
     leaves by) cannot leave it and is merged (before this check such rays met the surface again at
     t ~ 1e-4 and landed where the stream left from).
@@ -237,6 +258,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
             m = geom.prim_material[max(prim, 0)]
         if prim < 0:
             continue  # escaped: merged into the leading photon
+        m = unwrapped(mats, m)
         if not mats.flags[m] & DIFFUSE_REFLECTION:
             if split:
                 split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
@@ -250,8 +272,8 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
         factor = 1.0
         if has(mats, PLASTIC) or has(mats, ROUGHPLASTIC) or has(mats, MASK) or has(mats, BLEND):
             factor = record_factor(geom, mats, (prim, m, uv, front, ng, ns), d)
-        if store:
-            store_associated(a0 + landed, p, d, ns, factor, assoc)
+        if store:   # its normal as the photon tracer's record's (the geometric one under a map)
+            store_associated(a0 + landed, p, d, ng if wrapped(mats, m) else ns, factor, assoc)
         landed += 1
         entered += factor
     return landed, n_split, entered
@@ -319,7 +341,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
     prim, t, b1, b2 = intersect(geom, o, d, 1e30)
     if prim < 0:
         return False
-    m = geom.prim_material[prim]
+    m = unwrapped(mats, geom.prim_material[prim])
     if not mats.flags[m] & DIFFUSE_REFLECTION or mats.twosided[m] != 0:
         return True
     _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
@@ -412,10 +434,11 @@ def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
     (:func:`place_associated`, written from assoc slot r * n_assoc on), split off or merge into it; with ``out`` =
     (store, r, kind, n_assoc, rec, assoc), stream record r of ``kind`` is written when ``store`` says, the leading
     photon's power as the photon tracer stores it (:func:`~caustica.photons.trace.record_power`: a coated lobe's
-    factor B, a mixture's storing probability).  Returns (the stream, split photons added, dim past its 2 n_assoc
-    numbers)."""
+    factor B, a mixture's storing probability) and its normal as the photon tracer's (the geometric one under a
+    normal or bump map, for the gather's same-side test).  Returns (the stream, split photons added, dim past its
+    2 n_assoc numbers)."""
     geom, mats, _, _ = tables
-    ns = hit[5]
+    m, ng, ns = hit[1], hit[4], hit[5]
     lead, p_assoc, n_alive = stream
     store, r, kind, n_assoc, rec, assoc = out
     landed, split_now, entered = place_associated(tables, beam, key, dim, (n_alive, p_assoc),
@@ -424,7 +447,8 @@ def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
     lead = vec.madd(lead, p_assoc, float(n_alive - landed - split_now))   # the ones that did not land merge
     if store:
         stored = record_power(geom, mats, hit, beam[3], lead)
-        store_stream_record(r, beam[2], beam[3], ns, (stored, p_assoc, landed), entered, kind, rec)
+        store_stream_record(r, beam[2], beam[3], ng if wrapped(mats, m) else ns, (stored, p_assoc, landed), entered,
+                            kind, rec)
     return (lead, p_assoc, landed), split_now, dim
 
 
@@ -452,22 +476,25 @@ def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
 
 
 @kernel(inline=True)
-def stream_bounce(tables, surface, d, key, dim, stream, decay):
-    """The leading photon's bounce at ``surface`` = (p, ng, ns, uv, ng_front, m, shape, medium) (normals from
-    :func:`stream_at_surface`; :func:`~caustica.photons.trace.bounce`) and, after a non-delta lobe or at a coated
-    diffuse surface, stream decay (:func:`associated_decay`, n_assoc numbers); ``decay`` = (n_assoc, termination).
+def stream_bounce(tables, surface, ray, key, dim, stream, decay):
+    """The leading photon's bounce at ``surface`` = (p, ng, ns, uv, ng_front, m, shape, medium, prim) where ``ray`` =
+    (o, d, t, b1, b2) met primitive prim (normals from :func:`stream_at_surface`): the photon tracer's
+    (:func:`~caustica.photons.trace.bounce_at`: under a normal or bump map its wrapped bounce, Mitsuba's flip by the
+    side it leaves to) and, after a non-delta lobe or at a coated diffuse surface, stream decay
+    (:func:`associated_decay`, n_assoc numbers; its p capped at 1 under a map); ``decay`` = (n_assoc, termination).
     Returns (alive, the new origin, direction and medium, the stream, delta, dim)."""
     _, mats, _, media = tables
-    p, ng, ns, uv, ng_front, m, shape, medium = surface
+    p, ng, ns, uv, ng_front, m, shape, medium, prim = surface
     lead, p_assoc, n_alive = stream
     n_assoc, termination = decay
-    alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+    alive, d_new, weight, inv_q, delta, dim = bounce_at(tables, m, prim, ray, (ng, ns, uv), (key, dim, termination))
     if alive:
         lead = vec.mul(vec.hadamard(lead, weight), inv_q)
         if not delta or has(mats, PLASTIC) and mats.flags[m] & DIFFUSE_REFLECTION:   # (a plastic's coating:
             #                                                                     the stream reflects whole)
             n_alive, p_assoc = associated_decay(key, dim, n_alive, p_assoc, weight,
-                                                inv_q if termination == TERMINATION_ROULETTE else 0.0)
+                                                inv_q if termination == TERMINATION_ROULETTE else 0.0,
+                                                wrapped(mats, m))
             dim += n_assoc
     o = vec.offset_origin(p, ng, d_new)
     return alive, o, d_new, medium_after(media, shape, ng_front, d_new, medium), (lead, p_assoc, n_alive), delta, dim
@@ -608,7 +635,8 @@ def trace_stream(tables, key, start, rules, i, buf):
                 break
         diffuse_like = diffuse_like or stream_goes_indirect(geom, mats, prim, diffuse)
         alive, o, d, medium, stream, delta, dim = stream_bounce(
-            tables, (p, ng, ns, uv, ng_front, m, shape, medium), d, key, dim, stream, (n_assoc, termination))
+            tables, (p, ng, ns, uv, ng_front, m, shape, medium, prim), (o, d, t, b1, b2), key, dim, stream,
+            (n_assoc, termination))
         if not alive:
             break
         specular_events, bounces = count_bounce(delta or not diffuse, (specular_events, bounces))

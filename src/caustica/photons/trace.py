@@ -274,19 +274,26 @@ def attenuate_photon(power, medium, w):
 
 
 @kernel(inline=True)
-def photon_bounce(tables, m, prim, ray, at, numbers, power):
+def bounce_at(tables, m, prim, ray, at, numbers):
     """A photon's bounce from material m, where ``ray`` = (o, d, t, b1, b2) met primitive prim, at ``at`` = (ng, ns,
     uv) (:func:`bounce`'s): under a normal or bump map :func:`wrapped_bounce`, Mitsuba's flip by the side the photon
-    leaves to; elsewhere :func:`bounce`.  ``numbers`` = (key, dim, termination).  Returns (alive, the new direction,
-    the power times the BSDF's weight and the roulette's 1 / p, in that order, delta, dim)."""
+    leaves to; elsewhere :func:`bounce`.  ``numbers`` = (key, dim, termination).  Returns :func:`bounce`'s (alive, the
+    new direction, the BSDF's weight, the roulette's 1 / p, delta, dim): the photon tracer's bounce
+    (:func:`photon_bounce`) and a stream's leading photon's (:func:`caustica.photons.streams.stream_bounce`)."""
     geom, mats, _, _ = tables
     key, dim, termination = numbers
     d, uv = ray[1], at[2]
     if wrapped(mats, m):
         frames = map_frames(geom, mats, prim, ray, uv)
-        alive, d_new, weight, inv_q, delta, dim = wrapped_bounce(mats, m, d, at, frames, numbers)
-    else:
-        alive, d_new, weight, inv_q, delta, dim = bounce(mats, m, d, at, key, dim, termination)
+        return wrapped_bounce(mats, m, d, at, frames, numbers)
+    return bounce(mats, m, d, at, key, dim, termination)
+
+
+@kernel(inline=True)
+def photon_bounce(tables, m, prim, ray, at, numbers, power):
+    """A photon's bounce (:func:`bounce_at`, the same arguments), its power carried on: returns (alive, the new
+    direction, the power times the BSDF's weight and the roulette's 1 / p, in that order, delta, dim)."""
+    alive, d_new, weight, inv_q, delta, dim = bounce_at(tables, m, prim, ray, at, numbers)
     return alive, d_new, vec.mul(vec.hadamard(power, weight), inv_q), delta, dim
 
 
