@@ -117,7 +117,7 @@ def split_off(tables, key, o, d, power, split_path, k, split):
 
 
 @kernel(inline=True)
-def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q, capped):
+def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q):
     """The associated photons after the leading photon's bounce, whose BSDF weight (f cos / pdf of the lobe it
     sampled) was ``weight``: (how many survive, their power).  The stream moves as one, so they take its lobe.
 
@@ -125,16 +125,14 @@ def associated_decay(key, dim, n_alive, p_assoc, weight, roulette_inv_q, capped)
     (numbers key, dim + j).  With roulette (``roulette_inv_q`` > 0: the 1 / p of the leading photon's game,
     :func:`~caustica.photons.trace.bounce`) the stream lives or dies with the leading photon: a second,
     per-photon roulette would leave the associated photons alive with probability p^2 while compensating only
-    1 / p, so they all survive, scaled by weight / p.  ``capped``: p = min(the mean, 1), for a weight whose mean
-    may pass 1 (under a normal or bump map, the adjoint's ratio of shading and geometric cosines:
-    :func:`~caustica.photons.trace.wrapped_bounce`), where p = the mean would lose power (every photon survives,
-    scaled by weight / mean).
+    1 / p, so they all survive, scaled by weight / p.  p is at most 1: a weight's mean may pass 1 (a plastic's
+    coating taken with a probability below its reflectance; under a normal or bump map, the adjoint's ratio of
+    shading and geometric cosines, :func:`~caustica.photons.trace.wrapped_bounce`), and p = the mean there would
+    lose power (every photon survives, scaled by weight / mean).
     """
     if roulette_inv_q > 0.0:
         return n_alive, vec.mul(vec.hadamard(p_assoc, weight), roulette_inv_q)
-    q = (weight[0] + weight[1] + weight[2]) / 3.0
-    if capped:
-        q = min(q, 1.0)
+    q = min((weight[0] + weight[1] + weight[2]) / 3.0, 1.0)
     survivors = 0
     for j in range(n_alive):
         if uniform(key, dim + j) < q:
@@ -481,7 +479,7 @@ def stream_bounce(tables, surface, ray, key, dim, stream, decay):
     (o, d, t, b1, b2) met primitive prim (normals from :func:`stream_at_surface`): the photon tracer's
     (:func:`~caustica.photons.trace.bounce_at`: under a normal or bump map its wrapped bounce, Mitsuba's flip by the
     side it leaves to) and, after a non-delta lobe or at a coated diffuse surface, stream decay
-    (:func:`associated_decay`, n_assoc numbers; its p capped at 1 under a map); ``decay`` = (n_assoc, termination).
+    (:func:`associated_decay`, n_assoc numbers); ``decay`` = (n_assoc, termination).
     Returns (alive, the new origin, direction and medium, the stream, delta, dim)."""
     _, mats, _, media = tables
     p, ng, ns, uv, ng_front, m, shape, medium, prim = surface
@@ -493,8 +491,7 @@ def stream_bounce(tables, surface, ray, key, dim, stream, decay):
         if not delta or has(mats, PLASTIC) and mats.flags[m] & DIFFUSE_REFLECTION:   # (a plastic's coating:
             #                                                                     the stream reflects whole)
             n_alive, p_assoc = associated_decay(key, dim, n_alive, p_assoc, weight,
-                                                inv_q if termination == TERMINATION_ROULETTE else 0.0,
-                                                wrapped(mats, m))
+                                                inv_q if termination == TERMINATION_ROULETTE else 0.0)
             dim += n_assoc
     o = vec.offset_origin(p, ng, d_new)
     return alive, o, d_new, medium_after(media, shape, ng_front, d_new, medium), (lead, p_assoc, n_alive), delta, dim
