@@ -62,8 +62,9 @@ from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented, wrapped
 from ..bsdfs.mixtures import resolve
 from ..features import has
 from ..geometry import vec
+from ..geometry.primitives import borrow
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
@@ -353,6 +354,8 @@ def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     tables = borrow_tables(tables)
     geom, _, lights, _ = tables
     seed, stream, n_streams = source
+    rec, assoc, split_buf, depth = buf
+    buf = (borrowed(rec), borrowed(assoc), borrowed(split_buf), borrow(depth))   # no reference counts in the loop
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, e_s, n_from = emit_photon(geom, lights, key, n_streams)      # eq. 1: E_s = E_z / n_fs

@@ -47,7 +47,7 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, has_null_lobe, o
 from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
 from ..geometry import vec
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
@@ -435,6 +435,7 @@ def trace_photons(tables, light_medium, source, rules, out, i0, i1):
     = the records its path made."""
     tables = borrow_tables(tables)
     buf, slots, counts = out
+    buf = borrowed(buf)   # no reference counts on the records' arrays, wherever trace_one passes them
     for i in range(i0, i1):
         key, photon = emitted_photon(tables, light_medium, source, i)
         counts[i] = trace_one(tables, key, photon, (rules[0], rules[1], False), (i * slots, 0, slots, buf))
@@ -447,6 +448,7 @@ def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
     offsets[j + 1]) of buf."""
     tables = borrow_tables(tables)
     ids, offsets, skip, buf = tails
+    buf = borrowed(buf)
     for j in range(i0, i1):
         key, photon = emitted_photon(tables, light_medium, source, ids[j])
         trace_one(tables, key, photon, (rules[0], rules[1], False),
@@ -462,6 +464,7 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
     tables = borrow_tables(tables)
     geom, _, lights, _ = tables
     seed, stream, n_paths = source
+    buf = borrowed(buf)
     for i in range(i0, i1):
         key = path_key(seed, stream, i)
         o, d, power, ok = emit_caustic_photon(geom, lights, spheres, key, n_paths)

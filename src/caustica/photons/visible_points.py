@@ -560,7 +560,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
     tables = borrow_tables(tables)
     seed, stream, vstream, pass_index = keys
     points, segments = out
-    points = borrowed(points)
+    points, segments = borrowed(points), borrowed(segments)   # no reference counts where the path passes them
     for i in range(i0, i1):
         x, y = pixel_of(cam, i)
         key = path_key(seed, stream, i)
