@@ -110,6 +110,24 @@ def test_the_code_of_a_missing_kind_is_not_even_compiled():
     assert [len(k.signatures) for k in callees] == [1, 1, 1]
 
 
+@numba.njit(pipeline_class=KernelCompiler)
+def _has_then_reassigned(mats, change):
+    ok = has(mats, CONDUCTOR)
+    if change:
+        ok = False
+    if ok:
+        return 1
+    return 0
+
+
+def test_a_folded_test_keeps_the_variables_other_assignments():
+    """A variable assigned from ``has`` and again elsewhere keeps both values (the fold's first version replaced the
+    variable's every definition by the constant, and the branch on it was pruned as if it could not change)."""
+    core = caustica.load_scene("cornell-diacaustic").materials   # holds conductors
+    assert _has_then_reassigned(core, False) == 1
+    assert _has_then_reassigned(core, True) == 0
+
+
 @pytest.mark.parametrize("name", ["pt", "pm", "spm", "sppm", "pspm-split", "pt-fog", "sppm-fog"])
 def test_every_kind_compiled_gives_the_pinned_bits(name):
     scene_name, method, kw = CASES[name]

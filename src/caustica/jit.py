@@ -173,7 +173,8 @@ class FoldFeatureTests(FunctionPass):
                 if table is None or not hasattr(table, "instance_class"):
                     continue
                 value = ir.Const(bool(features_of(table.instance_class) >> code & 1), stmt.loc)
-                func_ir._definitions[stmt.target.name] = [value]
+                defs = func_ir._definitions[stmt.target.name]   # the call's own entry only: the name (a user's
+                defs[defs.index(stmt.value)] = value            # variable) may have other assignments
                 stmt.value = value
                 changed = True
         return changed

@@ -73,7 +73,7 @@ from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
 from .emission import emit_photon, start_medium
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
-from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce, bounce_at, \
+from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce_at, \
     count_bounce, record_factor, record_power, trace_one
 
 #: Sub-streams of a stream's key: its split photons' own paths (one key per split photon), and the disc
@@ -503,21 +503,22 @@ def stream_bounce(tables, surface, ray, key, dim, stream, decay):
 @kernel(inline=True)
 def null_thin_crossing(tables, m, hit, stream, numbers, place):
     """At a thindielectric whose straight-on lobe is volpath's null event (``null_thin_dielectric``), ``hit`` =
-    (d, front, ng, ns, uv, p) (front normals): the leading photon's sample (:func:`~caustica.photons.trace.bounce`,
-    ``numbers`` = (key, dim, termination), as the bounce after it draws it).  Straight on, the stream crosses whole,
+    (the ray (o, d, t, b1, b2), the primitive it met, front, ng, ns, uv, p) (front normals): the leading photon's
+    sample (:func:`~caustica.photons.trace.bounce_at`, the wrapped one under a normal or bump map, ``numbers`` =
+    (key, dim, termination), as :func:`stream_bounce` after it draws it).  Straight on, the stream crosses whole,
     no event, every photon taking the leading photon's weight, and its associated photons are aimed from past the
     surface; where it reflects, that bounce takes the same sample.  ``place`` = (shape, medium): the surface's shape
     and the medium the stream arrives in.  Returns (crossed straight on, the origin past it, the medium there, the
     stream, dim past the sample); at any other material, or not crossed: (False, p, the medium, the stream and dim
     as they came)."""
     _, mats, _, media = tables
-    d, front, ng_front, ns, uv, p = hit
-    key, dim, termination = numbers
+    ray, prim, front, ng_front, ns, uv, p = hit
+    d, dim = ray[1], numbers[1]
     shape, medium = place
     if not has_null_lobe(mats, m):
         return False, p, medium, stream, dim
     _, ng, ns = oriented(mats, m, front, ng_front, ns)
-    alive, d_new, weight, inv_q, _, dim_past = bounce(mats, m, d, (ng, ns, uv), key, dim, termination)
+    alive, d_new, weight, inv_q, _, dim_past = bounce_at(tables, m, prim, ray, (ng, ns, uv), numbers)
     if not alive or vec.dot(d_new, ng) * vec.dot(d, ng) <= 0.0:
         return False, p, medium, stream, dim
     lead, p_assoc, n_alive = stream
@@ -615,7 +616,8 @@ def trace_stream(tables, key, start, rules, i, buf):
         if nxt == TRAPPED:
             break
         crossed, o_past, medium_past, stream, dim_past = null_thin_crossing(
-            tables, m, (d, front, ng, ns, uv, p), stream, (key, dim, termination), (shape, medium))
+            tables, m, ((o, d, t, b1, b2), prim, front, ng, ns, uv, p), stream, (key, dim, termination),
+            (shape, medium))
         if crossed:   # volpath's thin dielectric straight on: no event, but a specular one towards the cap
             specular_events += 1
             o, medium, n_from, dim = o_past, medium_past, zero, dim_past
