@@ -5,12 +5,15 @@ import os
 import re
 import subprocess
 import sys
+import types as pytypes
+from typing import NamedTuple
 
 import numpy as np
+import pytest
 from numba import njit, typeof
 
 from caustica.geometry.bvh import _stable_sort
-from caustica.jit import BorrowedTuple
+from caustica.jit import BorrowedTuple, borrowed, kernel
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 
@@ -106,6 +109,74 @@ def test_binding_a_borrowed_tuple_generates_no_reference_counting(monkeypatch):
         refops[ty] = len(re.findall(r'call void @"?NRT_(?:incref|decref)', ir))
     assert refops[plain] >= 2 * len(scene.geometry)           # every array, at every binding
     assert refops[BorrowedTuple(plain)] <= 4                  # only the one array taken out of it
+
+
+def _pass_on(geom):
+    return _rebind(geom)
+
+
+def test_a_borrowed_tuple_is_passed_by_reference(monkeypatch):
+    """A call passing a borrowed table moves one pointer, not every scalar of its ~27 arrays (which Numba
+    passes a struct as: most of the compiled kernels' LLVM IR, and so most of the compile time)."""
+    from numba.core import codegen
+
+    generated = []
+    add_ir_module = codegen.CPUCodeLibrary.add_ir_module
+    monkeypatch.setattr(codegen.CPUCodeLibrary, "add_ir_module",
+                        lambda lib, mod: (generated.append(str(mod)), add_ir_module(lib, mod))[1])
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    plain = typeof(scene.geometry)
+    moves = {}
+    for ty in (plain, BorrowedTuple(plain)):
+        callee = njit(no_cpython_wrapper=True, no_cfunc_wrapper=True)(_rebind)
+        caller = pytypes.FunctionType(_pass_on.__code__, {"_rebind": callee})
+        generated.clear()
+        njit(no_cpython_wrapper=True, no_cfunc_wrapper=True)(caller).compile((ty,))
+        ir = generated[-1]   # the caller's own module (the callee was compiled while typing it)
+        moves[ty] = len(re.findall(r"= (?:extractvalue|insertvalue) ", ir))
+    assert moves[plain] >= 6 * len(scene.geometry)        # each array's fields out and back in
+    assert moves[BorrowedTuple(plain)] == 0
+
+
+class _Pair(NamedTuple):
+    a: np.ndarray
+    b: np.ndarray
+
+
+@kernel
+def _read_borrowed(geom, tables, pair):
+    """Fields of borrowed tuples, read every way kernels read them: by name, by index, unpacked, passed on."""
+    g = borrowed(geom)
+    t_geom, t_mats, _, _ = borrowed(tables)
+    a, b = borrowed(pair)
+    return (g.prim_kind.shape[0], g[0].shape[0], g[-1].shape[0], _rebind_kernel(g),
+            t_geom.prim_kind.shape[0], t_mats.kind.shape[0], a[1] + b[2])
+
+
+@kernel
+def _rebind_kernel(geom):
+    return geom.prim_kind.shape[0]
+
+
+@kernel
+def _borrow_and_return(geom):
+    return borrowed(geom)
+
+
+@kernel
+def _use_returned(geom):
+    return _borrow_and_return(geom).prim_kind.shape[0]
+
+
+def test_borrowed_tuples_read_the_same_values_and_are_never_returned():
+    scene = compile_scene(load_scene_description("cornell-diacaustic"))
+    geom, mats = scene.geometry, scene.tables[1]
+    n = geom.prim_kind.shape[0]
+    pair = _Pair(np.arange(3.0), np.arange(10.0, 13.0))
+    assert _read_borrowed(geom, scene.tables, pair) == (n, geom[0].shape[0], geom[-1].shape[0], n, n,
+                                                        mats.kind.shape[0], 1.0 + 12.0)
+    with pytest.raises(Exception, match="borrows and returns a borrowed tuple"):
+        _use_returned(geom)
 
 
 def test_stable_sort_matches_numpy_mergesort_argsort():

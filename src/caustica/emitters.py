@@ -396,7 +396,7 @@ def find_cdf(cdf, first, count, u):
     return lo
 
 
-@kernel
+@kernel(inline=True)
 def choose_light(lights, u):
     """A light chosen in proportion to power: (index, probability, u rescaled to [0,1))."""
     n = lights.kind.shape[0]
@@ -583,7 +583,7 @@ def parallelogram_point(lights, e, u1, u2):
     return p, vec.row(lights.normal, e)
 
 
-@kernel
+@kernel(inline=True)
 def sample_emitter_primitives(lights, geom, e, u1, u2):
     """A point uniformly by area on emitter e via its primitives' area CDF: (position, front normal)."""
     prim, u1r = emitter_primitive(lights, e, u1)

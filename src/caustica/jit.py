@@ -51,8 +51,9 @@ A fresh install compiles every kernel of its first render (``make render``: abou
 260, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
 that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
 calls are typed with plain, never literal, argument types (one specialisation per
-kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`), whose type
-carries no reference counts, so binding one generates no code; helpers are inlined by LLVM
+kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`): held by reference, with no
+reference counts, so binding or passing one generates one pointer, not the ~600 scalars Numba passes
+a struct of arrays as (-29 % compile time, 2026-12-05, ``docs/results.md``); helpers are inlined by LLVM
 (``inline``), never by Numba's IR inlining, which compiles the helper again at every call site; and
 the code of the kinds a scene lacks is dropped before typing (:class:`FoldFeatureTests`), so the callees
 only it calls are never compiled.
@@ -68,15 +69,18 @@ import time
 import types as pytypes
 from pathlib import Path
 
+import llvmlite.ir as llvm_ir
 import numba
 from numba import njit, types
 from numba.core import cgutils, ir
 from numba.core.boxing import unbox_unsupported
+from numba.core.callconv import CPUCallConv
 from numba.core.compiler import Compiler, DefaultPassBuilder
 from numba.core.compiler_machinery import FunctionPass, register_pass
 from numba.core.ir_utils import GuardException, find_const, get_definition
 from numba.core.untyped_passes import WithLifting
-from numba.core.datamodel.models import StructModel
+from numba.core.datamodel.models import PrimitiveModel
+from numba.core.imputils import lower_builtin, lower_getattr_generic
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic, register_model, unbox
 
@@ -249,6 +253,15 @@ class Kernel(CPUDispatcher):
         """Whether a call from Python has compiled (or loaded) this kernel in this process."""
         return self._from_python is not None and len(self._from_python.signatures) > 0
 
+    def add_overload(self, cres):
+        # A borrowed tuple points into the frame of the kernel that borrowed it: one that borrows and returns a
+        # borrowed tuple (not only passes on one it was given) would return a pointer into its own, ended, frame.
+        if "borrowed" in self.py_func.__code__.co_names and holds_borrowed(cres.signature.return_type):
+            raise TypeError(f"kernel {self.py_func.__qualname__} borrows and returns a borrowed tuple "
+                            f"({cres.signature.return_type}), which would point into its own frame: borrow in "
+                            "the caller")
+        super().add_overload(cres)
+
     def get_call_template(self, args, kws):
         return super().get_call_template(tuple(types.unliteral(a) for a in args),
                                          {k: types.unliteral(v) for k, v in kws.items()})
@@ -410,12 +423,17 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
 
 
 class BorrowedTuple(types.NamedTuple):
-    """The Numba type of a named tuple of arrays whose reference counts are detached.
+    """The Numba type of a named tuple of arrays whose reference counts are detached, held by reference.
 
-    Same layout as the named tuple it comes from, but its data model lists no
-    members to reference-count and it cannot be unboxed from Python, so a kernel
-    that binds or passes one generates no reference-count code and no unboxing
-    code for its ~27 arrays (see :func:`borrowed`).
+    Its value is a pointer to the tuple, stored once in the frame of the kernel that
+    made it (:func:`borrowed`): binding or passing one generates no reference-count
+    code, no unboxing code and no copy of its ~27 arrays, and reading a field loads that
+    field alone.  Numba passes a struct argument as all of its scalars, one LLVM argument
+    each: the four scene tables by value were some 600 arguments, taken apart at every call
+    site and put together again in every callee (a 20-line helper taking them compiled to
+    0.8 MB of LLVM IR, 3,000 of its instructions moving them), most of the compile time.
+    A named tuple is immutable, so the pointer means the same as the value while the frame
+    that holds it lives: see :func:`borrowed` for the rules.
     """
 
     def __init__(self, tup):
@@ -428,20 +446,94 @@ class BorrowedTuple(types.NamedTuple):
 
 
 @register_model(BorrowedTuple)
-class _BorrowedTupleModel(StructModel):
-    def __init__(self, dmm, fe_type):
-        super().__init__(dmm, fe_type, [("f" + str(i), t) for i, t in enumerate(fe_type)])
+class _BorrowedTupleModel(PrimitiveModel):
+    """A pointer to the tuple's struct (each array's data model, in order): nothing to reference-count."""
 
-    def traverse(self, builder):
-        return []  # nothing inside is reference-counted
+    def __init__(self, dmm, fe_type):
+        struct = llvm_ir.LiteralStructType([dmm.lookup(t).get_data_type() for t in fe_type])
+        super().__init__(dmm, fe_type, struct.as_pointer())
 
 
 unbox(BorrowedTuple)(unbox_unsupported)
 
 
+def _borrowed_pointer_types(context, ty, out):
+    """The LLVM types of the BorrowedTuple pointers inside a value of type ``ty``."""
+    if isinstance(ty, BorrowedTuple):
+        out.add(context.get_value_type(ty))
+    elif isinstance(ty, types.BaseTuple):
+        for t in ty:
+            _borrowed_pointer_types(context, t, out)
+    return out
+
+
+def _mentions(llvm_type, pointer_types, depth=0):
+    """Whether ``llvm_type`` is or holds one of ``pointer_types``."""
+    if llvm_type in pointer_types:
+        return True
+    members = getattr(llvm_type, "elements", None)
+    return depth < 4 and members is not None and any(_mentions(t, pointer_types, depth + 1) for t in members)
+
+
+_decorate_function = CPUCallConv.decorate_function
+
+
+def _decorate_borrowed(self, fn, args, fe_argtypes, noalias=False):
+    """Numba's argument attributes, and on each borrowed tuple's pointer what is true of it: nothing writes the
+    tuple (noalias, readonly), it is the whole tuple (dereferenceable), and a callee keeps no copy of the pointer
+    unless it returns it (captures(none)): so LLVM may load its fields once, out of loops and across calls."""
+    _decorate_function(self, fn, args, fe_argtypes, noalias)
+    pointer_types = set()
+    for ty in fe_argtypes:
+        _borrowed_pointer_types(self.context, ty, pointer_types)
+    if not pointer_types:
+        return
+    returned = _mentions(self._get_return_argument(fn).type.pointee, pointer_types)
+    for arg in self.get_arguments(fn):
+        if arg.type in pointer_types:
+            set.add(arg.attributes, "noalias")
+            set.add(arg.attributes, "readonly")
+            set.add(arg.attributes, "nonnull")
+            arg.attributes.dereferenceable = self.context.get_abi_sizeof(arg.type.pointee)
+            if not returned:
+                set.add(arg.attributes, "captures(none)")
+
+
+CPUCallConv.decorate_function = _decorate_borrowed
+
+
+def _borrowed_field(context, builder, tup_ty, ptr, index):
+    """Field ``index`` of a :class:`BorrowedTuple`: the array loaded from the tuple's storage, with its meminfo and
+    parent the constant null they are there (so that LLVM drops the reference counting of the array wherever it
+    is used, as it does where the tuple was borrowed)."""
+    field = builder.load(cgutils.gep_inbounds(builder, ptr, 0, index))
+    arr = cgutils.create_struct_proxy(tup_ty[index])(
+        context, builder, value=context.data_model_manager[tup_ty[index]].from_data(builder, field))
+    arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
+    arr.parent = cgutils.get_null_value(arr.parent.type)
+    return arr._getvalue()
+
+
+@lower_getattr_generic(BorrowedTuple)
+def _borrowed_getattr(context, builder, typ, value, attr):
+    return _borrowed_field(context, builder, typ, value, typ.fields.index(attr))
+
+
+@lower_builtin("static_getitem", BorrowedTuple, types.IntegerLiteral)
+def _borrowed_static_getitem(context, builder, sig, args):
+    tup_ty, index = sig.args[0], sig.args[1].literal_value
+    if index < 0:
+        index += len(tup_ty)
+    if not 0 <= index < len(tup_ty):
+        raise IndexError(f"tuple index {sig.args[1].literal_value} out of range for {tup_ty}")
+    return _borrowed_field(context, builder, tup_ty, args[0], index)
+
+
 @intrinsic
 def borrowed(typingctx, tup):
-    """The same named tuple with every array's reference count detached.
+    """The same named tuple with every array's reference count detached, held by reference (:class:`BorrowedTuple`);
+    of a plain tuple of arrays, the same tuple with detached views; of a plain tuple of named tuples (the scene
+    tables), each borrowed.
 
     Numba increments and decrements the reference count of every array in a tuple
     each time the tuple is bound to a variable or a function's argument: with the
@@ -449,25 +541,68 @@ def borrowed(typingctx, tup):
     of the compile time of the kernels that take it) and ~400 ns per call at run time,
     with threads contending on shared counters.  Range kernels call this once on the
     scene tuples they receive; everything below them gets a :class:`BorrowedTuple`,
-    whose bindings cost nothing.  Only for tuples that do not outlive the kernel call
-    in which their owners are alive: never return or store one.
-    (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
+    whose bindings cost nothing.
+
+    The tuple is stored in the frame of the kernel that calls this, once per call site, and
+    the result points there.  So: only for tuples whose owners outlive that kernel's call;
+    never return or store the result (a kernel returning one is refused when it compiles);
+    and a call site runs once per kernel call, not in a loop whose earlier results are
+    still in use.  (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
     """
-    if isinstance(tup, BorrowedTuple):
-        return tup(tup), lambda context, builder, signature, args: args[0]
-    if not isinstance(tup, types.BaseTuple) or not all(isinstance(t, types.Array) for t in tup):
+    out = _borrowed_type(tup)
+    if out is None:
         return None
-    # A named tuple becomes a BorrowedTuple; a plain tuple keeps its type (views only).
-    out = BorrowedTuple(tup) if isinstance(tup, types.BaseNamedTuple) else tup
 
     def codegen(context, builder, signature, args):
-        value = args[0]
-        result = cgutils.get_null_value(context.get_value_type(out))
-        for i, arr_ty in enumerate(tup):
-            arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
-            arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
-            arr.parent = cgutils.get_null_value(arr.parent.type)
-            result = builder.insert_value(result, arr._getvalue(), i)
-        return result
+        return _borrow(context, builder, tup, args[0])
 
     return out(tup), codegen
+
+
+def _borrowed_type(ty):
+    """What :func:`borrowed` makes of a value of type ``ty`` (None: not a tuple it takes)."""
+    if isinstance(ty, BorrowedTuple):
+        return ty
+    if not isinstance(ty, types.BaseTuple) or len(ty) == 0:
+        return None
+    if all(isinstance(t, types.Array) for t in ty):
+        return BorrowedTuple(ty) if isinstance(ty, types.BaseNamedTuple) else ty
+    if isinstance(ty, types.BaseNamedTuple):
+        return None
+    inner = [_borrowed_type(t) for t in ty]
+    return None if any(t is None for t in inner) else types.Tuple(inner)
+
+
+def _borrow(context, builder, ty, value):
+    out = _borrowed_type(ty)
+    if isinstance(ty, BorrowedTuple):
+        return value
+    if all(isinstance(t, types.Array) for t in ty):
+        value = _detached(context, builder, ty, value)
+        if not isinstance(out, BorrowedTuple):
+            return value
+        storage = cgutils.alloca_once(builder, context.get_value_type(out).pointee)
+        for i, arr_ty in enumerate(ty):
+            builder.store(context.data_model_manager[arr_ty].as_data(builder, builder.extract_value(value, i)),
+                          cgutils.gep_inbounds(builder, storage, 0, i))
+        return storage
+    # A plain tuple of tuples (the scene tables): each borrowed.
+    items = [_borrow(context, builder, t, builder.extract_value(value, i)) for i, t in enumerate(ty)]
+    return context.make_tuple(builder, out, items)
+
+
+def holds_borrowed(ty) -> bool:
+    """Whether a value of type ``ty`` is or contains a :class:`BorrowedTuple` (which must not be returned)."""
+    return isinstance(ty, BorrowedTuple) or (isinstance(ty, types.BaseTuple)
+                                             and any(holds_borrowed(t) for t in ty))
+
+
+def _detached(context, builder, tup_ty, value):
+    """The tuple ``value`` with every array's meminfo and parent cleared (no reference counts)."""
+    result = cgutils.get_null_value(context.get_value_type(tup_ty))
+    for i, arr_ty in enumerate(tup_ty):
+        arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
+        arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
+        arr.parent = cgutils.get_null_value(arr.parent.type)
+        result = builder.insert_value(result, arr._getvalue(), i)
+    return result

@@ -178,7 +178,7 @@ def tracked_flight(geom, media, m, o, d, key, dim):
     return prim, t, b1, b2, w, dim, prim < 0
 
 
-@kernel
+@kernel(inline=True)
 def flight_weight(media, m, t, scattered):
     """Per channel: the path throughput's factor for a flight of length t sampled by :func:`sample_distance`.
 
@@ -320,7 +320,7 @@ def phase_pdf(media, m, d, wo):
     return INV_4PI
 
 
-@kernel
+@kernel(inline=True)
 def phase_sample(media, m, d, u1, u2):
     """(wo, value / pdf, pdf): a direction sampled from medium m's phase function about d.
 
@@ -574,7 +574,7 @@ def sample_distance_within(media, m, s, u_channel, u):
     return min(-math.log1p(u * math.expm1(-sc * s)) / sc, s)
 
 
-@kernel
+@kernel(inline=True)
 def within_weight(media, m, s, t):
     """Per channel T_k(t) σs,k / p(t) for t drawn by :func:`sample_distance_within` over [0, s].
 

@@ -19,7 +19,7 @@ from typing import NamedTuple
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, surface_at, surface_tangents, surface_uv
 from .features import has
-from .jit import borrowed, kernel
+from .jit import kernel
 from .bsdfs.flags import ANISOTROPIC, TEXTURED
 from .bsdfs.mixtures import resolve
 from .bsdfs.perturb import both_normals, perturbed_normal
@@ -44,14 +44,6 @@ def in_medium(p, medium):
     """A :class:`ShadingPoint` at p inside ``medium``: no surface, no normals."""
     zero = (0.0, 0.0, 0.0)
     return ShadingPoint(p, zero, zero, zero, -1, medium, NO_UV)
-
-
-@kernel(inline=True)
-def borrow_tables(tables):
-    """The scene tables (geometry, materials, lights, media) with their reference counts detached
-    (:func:`caustica.jit.borrowed`): what a range kernel does once with the tables it is given."""
-    geom, mats, lights, media = tables
-    return borrowed(geom), borrowed(mats), borrowed(lights), borrowed(media)
 
 
 #: What a loop does after :func:`surface_interaction`.

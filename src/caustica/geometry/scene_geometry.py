@@ -436,7 +436,7 @@ def occluded(geom, o, d, tmax):
     return bvh_any_hit(geom, o, d, tmax)
 
 
-@kernel
+@kernel(inline=True)
 def surface_at(geom, prim, o, d, t, b1, b2):
     """``(p, ng, ns)`` at a hit from :func:`intersect`.
 

@@ -47,11 +47,11 @@ from ..geometry import vec
 from ..emitters import ENV, radiance_at_hit
 from ..features import has
 from ..scene.description import HETEROGENEOUS, NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
-from ..jit import kernel, parallel_for
+from ..jit import borrowed, kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
 from ..media import cross_null, free_flight, medium_after, phase_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
-from ..transport import CROSSED, SCATTER, ShadingPoint, borrow_tables, in_medium, surface_interaction
+from ..transport import CROSSED, SCATTER, ShadingPoint, in_medium, surface_interaction
 from . import register
 from .independent import IndependentPasses
 from .params import NULL_THIN_PARAM, Param
@@ -221,7 +221,7 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
     Sample s of pixel i is random path (i * spp + s) of ``keys`` = (seed, the pass's camera stream);
     ``params`` = (spp, max_depth, rr_depth, hide_emitters).  rays[i] receives pixel i's (extension, shadow) ray counts.
     """
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     seed, stream = keys
     spp, max_depth, rr_depth, hide_emitters = params
     image, rays = out

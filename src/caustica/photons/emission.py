@@ -57,7 +57,7 @@ from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone
 FOUR_PI = 4.0 * math.pi
 
 
-@kernel
+@kernel(inline=True)
 def emit_photon(geom, lights, key, n_paths):
     """A photon leaving a light: (origin, unit direction, power RGB in W, front normal or zero)."""
     li, sel_pdf, _ = choose_light(lights, uniform(key, 0))

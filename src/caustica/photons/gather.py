@@ -45,7 +45,7 @@ from ..jit import borrowed, kernel
 from ..lighting import direct_stratified
 from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
-from ..transport import ShadingPoint, borrow_tables, unwrap, with_tangent
+from ..transport import ShadingPoint, unwrap, with_tangent
 from .estimate import flux_density, none_admitted
 from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
 
@@ -331,7 +331,7 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
     per pixel (:func:`gather_radiance`) into ``out`` = (image, knn_queries): knn_queries[i] receives the number
     of k-nearest searches pixel i made.
     """
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     gmap, cmap = maps
     maps = (borrowed(gmap), borrowed(cmap))
     cam, seed, spp = camera

@@ -102,7 +102,7 @@ def wall_normal(ng, crossed, medium_before, medium_after):
     return ng
 
 
-@kernel
+@kernel(inline=True)
 def emission_weighted(tables, o, d, medium, pdf_dir):
     """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
 
@@ -156,7 +156,7 @@ def escaped_radiance(lights, media, d, medium):
     return vec.hadamard(env_radiance(lights, d), escape_transmittance(media, medium))
 
 
-@kernel
+@kernel(inline=True)
 def emitted_along(tables, o, d, medium):
     """The radiance reaching o from along d from emitters, attenuated by the media and past null boundaries."""
     return emission_weighted(tables, o, d, medium, -1.0)

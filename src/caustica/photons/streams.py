@@ -69,7 +69,7 @@ from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
-from ..transport import CROSSED, TRAPPED, borrow_tables, surface_interaction
+from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_photon, start_medium
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
                       allocate_buffers, build_photon_map, build_photon_map_with_order)
@@ -351,7 +351,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
 def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
     ``buf`` = (records, associated photons, split photons, the records' depths)."""
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     geom, _, lights, _ = tables
     seed, stream, n_streams = source
     rec, assoc, split_buf, depth = buf

@@ -52,7 +52,7 @@ from ..memory import check_budget
 from ..media import free_flight, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
-from ..transport import CROSSED, TRAPPED, borrow_tables, map_frames, surface_interaction
+from ..transport import CROSSED, TRAPPED, map_frames, surface_interaction
 from .emission import emit_caustic_photon, emit_photon, start_medium
 from .records import CAUSTIC, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT, TraceBuffers, \
     allocate_buffers
@@ -433,7 +433,7 @@ def trace_photons(tables, light_medium, source, rules, out, i0, i1):
     """Photons [i0, i1) of ``source`` under ``rules`` = (max_bounces mr, termination), into ``out`` = (buf, slots,
     counts): photon i keeps its first ``slots`` records in slots [i * slots, (i + 1) * slots) of buf, and counts[i]
     = the records its path made."""
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     buf, slots, counts = out
     buf = borrowed(buf)   # no reference counts on the records' arrays, wherever trace_one passes them
     for i in range(i0, i1):
@@ -446,7 +446,7 @@ def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
     """The photons whose paths made more records than their fixed slots, again: ``tails`` = (ids, offsets, skip,
     buf), photon ids[j] for j in [i0, i1), its records from number ``skip`` on into slots [offsets[j],
     offsets[j + 1]) of buf."""
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     ids, offsets, skip, buf = tails
     buf = borrowed(buf)
     for j in range(i0, i1):
@@ -461,7 +461,7 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
     glass, glossy objects): the first event after a chain of them only (one slot each).  A photon that scatters in
     a medium or meets a diffuse surface before any of them stores nothing (that light is the other photons' and
     the direct light's)."""
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     geom, _, lights, _ = tables
     seed, stream, n_paths = source
     buf = borrowed(buf)

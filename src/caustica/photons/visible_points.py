@@ -86,7 +86,7 @@ from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import attenuation, light_sample, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
-from ..transport import CROSSED, TRAPPED, ShadingPoint, borrow_tables, surface_interaction
+from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
 from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, end_segment_at_wall, \
     escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
@@ -557,7 +557,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
     """The visible points of pixels [i0, i1) (row-major) into ``out`` = (points: :class:`VisiblePoints`, segments):
     the radiance each pixel saw directly, and each pixel's medium segments.  ``keys`` = (seed, camera
     stream, media stream, pass index); ``params`` as :func:`visible_point` takes them."""
-    tables = borrow_tables(tables)
+    tables = borrowed(tables)
     seed, stream, vstream, pass_index = keys
     points, segments = out
     points, segments = borrowed(points), borrowed(segments)   # no reference counts where the path passes them
