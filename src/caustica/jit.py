@@ -476,6 +476,8 @@ def _mentions(llvm_type, pointer_types, depth=0):
 
 
 _decorate_function = CPUCallConv.decorate_function
+#: LLVM's "keeps no copy of this pointer" attribute, as the LLVM of this llvmlite spells it.
+_NO_CAPTURE = "captures(none)" if "captures(none)" in llvm_ir.values.ArgumentAttributes._known else "nocapture"
 
 
 def _decorate_borrowed(self, fn, args, fe_argtypes, noalias=False):
@@ -496,7 +498,7 @@ def _decorate_borrowed(self, fn, args, fe_argtypes, noalias=False):
             set.add(arg.attributes, "nonnull")
             arg.attributes.dereferenceable = self.context.get_abi_sizeof(arg.type.pointee)
             if not returned:
-                set.add(arg.attributes, "captures(none)")
+                set.add(arg.attributes, _NO_CAPTURE)
 
 
 CPUCallConv.decorate_function = _decorate_borrowed
