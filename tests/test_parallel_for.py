@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from caustica.jit import _Chunks, kernel, parallel_for
+from caustica.jit import _WORKERS, _Chunks, kernel, parallel_for
 
 
 @kernel
@@ -46,8 +46,9 @@ class _Bar:
             raise KeyboardInterrupt
 
 
-def _workers_alive():
-    return [t for t in threading.enumerate() if t.name == "caustica-worker"]
+def _workers_busy():
+    """Worker threads still running a task (the pool's threads live on, idle, between calls)."""
+    return _WORKERS.started - _WORKERS.idle
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3])
@@ -107,9 +108,9 @@ def test_interrupt_returns_at_once_and_cancels_the_pending_chunks(threads):
         parallel_for(_mark, out.size, (out, 20_000), threads=threads, progress=bar)
     returned_s = time.perf_counter() - t0
     deadline = time.monotonic() + 30
-    while _workers_alive() and time.monotonic() < deadline:
+    while _workers_busy() and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert not _workers_alive()
+    assert not _workers_busy()
     done = int(out.sum())
     assert np.all((out == 0.0) | (out == 1.0))
     # without cancelling, every item would have run (the whole job takes many seconds)
@@ -117,11 +118,48 @@ def test_interrupt_returns_at_once_and_cancels_the_pending_chunks(threads):
     assert done >= bar.items
 
 
+def test_calls_side_by_side_each_get_their_threads():
+    """Worker threads are kept between calls.  A call gets the threads it asks for even while every kept thread is
+    busy (a Dask worker's other task, a notebook's interrupted chunk still finishing), and calls from several
+    threads at once each run every item once."""
+    release = threading.Event()
+    _WORKERS.run(lambda: release.wait(120), _WORKERS.idle + 2)   # every kept thread busy, and two more
+    out = np.zeros(1000)
+    caller = threading.Thread(target=parallel_for, args=(_mark, out.size, (out, 1)), kwargs={"threads": 2})
+    caller.start()
+    caller.join(60)   # a call that had to share the busy threads would still be waiting for the release
+    finished = not caller.is_alive()
+    release.set()
+    caller.join(60)
+    assert finished and np.all(out == 1.0)
+    outs = [np.zeros(3000) for _ in range(4)]
+    errors = []
+
+    def call(out):
+        try:
+            parallel_for(_mark, out.size, (out, 200), threads=2)
+        except BaseException as exc:   # reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=call, args=(out,)) for out in outs]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join(60)
+    assert not errors and all(np.all(out == 1.0) for out in outs)
+    deadline = time.monotonic() + 30
+    while _workers_busy() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    started = _WORKERS.started
+    parallel_for(_mark, 100, (np.zeros(100), 1), threads=2)   # served by the threads already started
+    assert _WORKERS.started == started and not _workers_busy()
+
+
 def test_an_error_in_a_chunk_is_raised_in_the_caller():
     out = np.zeros(5000)
     with pytest.raises(ValueError, match="item failed"):
         parallel_for(_fail_at, out.size, (out, 3000), threads=2)
     deadline = time.monotonic() + 30
-    while _workers_alive() and time.monotonic() < deadline:
+    while _workers_busy() and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert not _workers_alive()
+    assert not _workers_busy()
