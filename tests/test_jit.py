@@ -14,6 +14,7 @@ from numba import njit, typeof
 
 from caustica.geometry.bvh import _stable_sort
 from caustica.jit import BorrowedTuple, borrowed, kernel
+from caustica.jit import borrowed as borrow_alias
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 
@@ -24,6 +25,7 @@ from caustica.tables import compile_scene
 # with caching off (CAUSTICA_NO_CACHE=1, read when caustica.jit is imported).
 _SPECIALISATION_CHECKS = """
 from caustica.jit import BorrowedTuple, borrowed, kernel
+from caustica.jit import borrowed as borrow_alias
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 
@@ -168,6 +170,48 @@ def _use_returned(geom):
     return _borrow_and_return(geom).prim_kind.shape[0]
 
 
+@kernel
+def _borrow_and_return_optional(geom, flag):
+    g = borrowed(geom)
+    return g if flag else None
+
+
+@kernel
+def _use_optional(geom):
+    g = _borrow_and_return_optional(geom, True)
+    return 0 if g is None else g.prim_kind.shape[0]
+
+
+@kernel
+def _borrow_and_return_in_list(geom):
+    return [borrowed(geom)]
+
+
+@kernel
+def _use_list(geom):
+    return _borrow_and_return_in_list(geom)[0].prim_kind.shape[0]
+
+
+@kernel
+def _borrow_by_alias_and_return(geom):
+    return borrow_alias(geom)
+
+
+@kernel
+def _use_alias(geom):
+    return _borrow_by_alias_and_return(geom).prim_kind.shape[0]
+
+
+@kernel
+def _borrow_in_a_loop(pair, other):
+    first = borrowed(pair)
+    for i in range(2):
+        b = borrowed(pair if i == 0 else other)   # the second iteration would overwrite the first's slot
+        if i == 0:
+            first = b
+    return first.a[0]
+
+
 def test_borrowed_tuples_read_the_same_values_and_are_never_returned():
     scene = compile_scene(load_scene_description("cornell-diacaustic"))
     geom, mats = scene.geometry, scene.tables[1]
@@ -175,8 +219,11 @@ def test_borrowed_tuples_read_the_same_values_and_are_never_returned():
     pair = _Pair(np.arange(3.0), np.arange(10.0, 13.0))
     assert _read_borrowed(geom, scene.tables, pair) == (n, geom[0].shape[0], geom[-1].shape[0], n, n,
                                                         mats.kind.shape[0], 1.0 + 12.0)
-    with pytest.raises(Exception, match="borrows and returns a borrowed tuple"):
-        _use_returned(geom)
+    for use in (_use_returned, _use_optional, _use_list, _use_alias):   # in an optional, a list, by an alias too
+        with pytest.raises(Exception, match="borrows and returns a borrowed tuple"):
+            use(geom)
+    with pytest.raises(Exception, match=r"borrowed\(\) inside a loop"):
+        _borrow_in_a_loop(pair, _Pair(np.full(3, 99.0), np.full(3, 77.0)))
 
 
 def test_stable_sort_matches_numpy_mergesort_argsort():

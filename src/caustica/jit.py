@@ -72,7 +72,8 @@ from pathlib import Path
 import llvmlite.ir as llvm_ir
 import numba
 from numba import njit, types
-from numba.core import cgutils, ir
+from numba.core import cgutils, errors, ir
+from numba.core.analysis import compute_cfg_from_blocks
 from numba.core.boxing import unbox_unsupported
 from numba.core.callconv import CPUCallConv
 from numba.core.compiler import Compiler, DefaultPassBuilder
@@ -184,12 +185,44 @@ class FoldFeatureTests(FunctionPass):
         return changed
 
 
+@register_pass(mutates_CFG=False, analysis_only=True)
+class BorrowOutsideLoops(FunctionPass):
+    """Refuses a :func:`borrowed` call inside a loop: its tuple is stored in one slot of the kernel's frame, which
+    each iteration would overwrite while an earlier iteration's result may still be in use."""
+    _name = "caustica_borrow_outside_loops"
+
+    def __init__(self):
+        FunctionPass.__init__(self)
+
+    def run_pass(self, state):
+        func_ir = state.func_ir
+        in_loops = set()
+        for loop in compute_cfg_from_blocks(func_ir.blocks).loops().values():
+            in_loops |= loop.body
+        for label in in_loops:
+            for stmt in func_ir.blocks[label].body:
+                if not (isinstance(stmt, ir.Assign) and isinstance(stmt.value, ir.Expr) and stmt.value.op == "call"):
+                    continue
+                try:
+                    fn = get_definition(func_ir, stmt.value.func)
+                except GuardException:
+                    continue
+                if isinstance(fn, (ir.Global, ir.FreeVar)) and fn.value is borrowed:
+                    raise errors.UnsupportedError(
+                        f"{func_ir.func_id.func_qualname}: borrowed() inside a loop; borrow once, before the loop "
+                        "(its tuple has one slot in the kernel's frame, which each iteration would overwrite)",
+                        stmt.loc)
+        return False
+
+
 class KernelCompiler(Compiler):
-    """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning."""
+    """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning, and
+    :class:`BorrowOutsideLoops`."""
 
     def define_pipelines(self):
         pm = DefaultPassBuilder.define_nopython_pipeline(self.state)
         pm.add_pass_after(FoldFeatureTests, WithLifting)
+        pm.add_pass_after(BorrowOutsideLoops, FoldFeatureTests)
         pm.finalize()
         return [pm]
 
@@ -256,7 +289,7 @@ class Kernel(CPUDispatcher):
     def add_overload(self, cres):
         # A borrowed tuple points into the frame of the kernel that borrowed it: one that borrows and returns a
         # borrowed tuple (not only passes on one it was given) would return a pointer into its own, ended, frame.
-        if "borrowed" in self.py_func.__code__.co_names and holds_borrowed(cres.signature.return_type):
+        if _borrows(self.py_func) and holds_borrowed(cres.signature.return_type):
             raise TypeError(f"kernel {self.py_func.__qualname__} borrows and returns a borrowed tuple "
                             f"({cres.signature.return_type}), which would point into its own frame: borrow in "
                             "the caller")
@@ -473,7 +506,9 @@ class BorrowedTuple(types.NamedTuple):
     site and put together again in every callee (a 20-line helper taking them compiled to
     0.8 MB of LLVM IR, 3,000 of its instructions moving them), most of the compile time.
     A named tuple is immutable, so the pointer means the same as the value while the frame
-    that holds it lives: see :func:`borrowed` for the rules.
+    that holds it lives: see :func:`borrowed` for the rules.  What kernels do with one: read a
+    field by name or literal index, unpack it, take its ``len``, pass it on.  Slicing it,
+    ``literal_unroll`` over it, ``f(*t)`` and printing it do not compile.
     """
 
     def __init__(self, tup):
@@ -507,12 +542,14 @@ def _borrowed_pointer_types(context, ty, out):
     return out
 
 
-def _mentions(llvm_type, pointer_types, depth=0):
-    """Whether ``llvm_type`` is or holds one of ``pointer_types``."""
+def _mentions(llvm_type, pointer_types):
+    """Whether ``llvm_type`` is or holds one of ``pointer_types`` (at any depth of structs and arrays)."""
     if llvm_type in pointer_types:
         return True
     members = getattr(llvm_type, "elements", None)
-    return depth < 4 and members is not None and any(_mentions(t, pointer_types, depth + 1) for t in members)
+    if members is None and isinstance(llvm_type, llvm_ir.ArrayType):
+        members = (llvm_type.element,)
+    return members is not None and any(_mentions(t, pointer_types) for t in members)
 
 
 _decorate_function = CPUCallConv.decorate_function
@@ -587,9 +624,9 @@ def borrowed(typingctx, tup):
 
     The tuple is stored in the frame of the kernel that calls this, once per call site, and
     the result points there.  So: only for tuples whose owners outlive that kernel's call;
-    never return or store the result (a kernel returning one is refused when it compiles);
-    and a call site runs once per kernel call, not in a loop whose earlier results are
-    still in use.  (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
+    never return or store the result (a kernel that borrows and returns one, in any container, is
+    refused when it compiles); and never borrow inside a loop (refused too: :class:`BorrowOutsideLoops`).
+    (See also :func:`caustica.geometry.primitives.borrow`, the same for one array.)
     """
     out = _borrowed_type(tup)
     if out is None:
@@ -634,9 +671,19 @@ def _borrow(context, builder, ty, value):
 
 
 def holds_borrowed(ty) -> bool:
-    """Whether a value of type ``ty`` is or contains a :class:`BorrowedTuple` (which must not be returned)."""
-    return isinstance(ty, BorrowedTuple) or (isinstance(ty, types.BaseTuple)
-                                             and any(holds_borrowed(t) for t in ty))
+    """Whether a value of type ``ty`` is or contains a :class:`BorrowedTuple` (which must not be returned): in a
+    tuple, an optional, a list, any container."""
+    if isinstance(ty, BorrowedTuple):
+        return True
+    if isinstance(ty, types.BaseTuple):
+        return any(holds_borrowed(t) for t in ty)
+    return "borrowed " in str(ty)   # BorrowedTuple's name, inside another type's
+
+
+def _borrows(py_func) -> bool:
+    """Whether ``py_func`` calls :func:`borrowed` (by that name, an alias, or as ``jit.borrowed``)."""
+    names = py_func.__code__.co_names
+    return "borrowed" in names or any(py_func.__globals__.get(n) is borrowed for n in names)
 
 
 def _detached(context, builder, tup_ty, value):
