@@ -387,7 +387,8 @@ class _WorkerThreads:
     """Daemon threads started once and kept, each running one task at a time from a shared queue.
 
     Starting threads for each parallel call cost about 0.5 ms a call (three starts with two threads: the item that
-    compiles, then the workers), 15 % of an sppm pass at 96 x 96.  A task is handed out only to a thread reserved
+    compiles, then the workers); kept threads 0.1-0.2 ms.  An sppm pass at 96 x 96 makes four calls: 300 passes on
+    the glossy scene took 3.20 s against 3.56 s (medians of five runs, 2026-12-05, docs/results.md).  A task is handed out only to a thread reserved
     for it, an idle one or one started for it, so every call gets its threads at once, however many calls run
     side by side (a Dask worker's tasks, a notebook whose interrupted chunks are still finishing).
     """
