@@ -25,7 +25,6 @@ from caustica.tables import compile_scene
 # with caching off (CAUSTICA_NO_CACHE=1, read when caustica.jit is imported).
 _SPECIALISATION_CHECKS = """
 from caustica.jit import BorrowedTuple, borrowed, kernel
-from caustica.jit import borrowed as borrow_alias
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 

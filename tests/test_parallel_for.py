@@ -51,6 +51,14 @@ def _workers_busy():
     return _WORKERS.started - _WORKERS.idle
 
 
+def _wait_until_idle(seconds=30):
+    """Wait (up to ``seconds``) for every worker thread to finish its task; the number still busy."""
+    deadline = time.monotonic() + seconds
+    while _workers_busy() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return _workers_busy()
+
+
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_every_item_runs_exactly_once(threads):
     out = np.zeros(10_001)
@@ -107,10 +115,7 @@ def test_interrupt_returns_at_once_and_cancels_the_pending_chunks(threads):
     with pytest.raises(KeyboardInterrupt):
         parallel_for(_mark, out.size, (out, 20_000), threads=threads, progress=bar)
     returned_s = time.perf_counter() - t0
-    deadline = time.monotonic() + 30
-    while _workers_busy() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert not _workers_busy()
+    assert not _wait_until_idle()
     done = int(out.sum())
     assert np.all((out == 0.0) | (out == 1.0))
     # without cancelling, every item would have run (the whole job takes many seconds)
@@ -147,9 +152,7 @@ def test_calls_side_by_side_each_get_their_threads():
     for t in callers:
         t.join(60)
     assert not errors and all(np.all(out == 1.0) for out in outs)
-    deadline = time.monotonic() + 30
-    while _workers_busy() and time.monotonic() < deadline:
-        time.sleep(0.01)
+    assert not _wait_until_idle()
     started = _WORKERS.started
     parallel_for(_mark, 100, (np.zeros(100), 1), threads=2)   # served by the threads already started
     assert _WORKERS.started == started and not _workers_busy()
@@ -159,7 +162,4 @@ def test_an_error_in_a_chunk_is_raised_in_the_caller():
     out = np.zeros(5000)
     with pytest.raises(ValueError, match="item failed"):
         parallel_for(_fail_at, out.size, (out, 3000), threads=2)
-    deadline = time.monotonic() + 30
-    while _workers_busy() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert not _workers_busy()
+    assert not _wait_until_idle()

@@ -388,9 +388,10 @@ class _WorkerThreads:
 
     Starting threads for each parallel call cost about 0.5 ms a call (three starts with two threads: the item that
     compiles, then the workers); kept threads 0.1-0.2 ms.  An sppm pass at 96 x 96 makes four calls: 300 passes on
-    the glossy scene took 3.20 s against 3.56 s (medians of five runs, 2026-12-05, docs/results.md).  A task is handed out only to a thread reserved
-    for it, an idle one or one started for it, so every call gets its threads at once, however many calls run
-    side by side (a Dask worker's tasks, a notebook whose interrupted chunks are still finishing).
+    the glossy scene took 3.20 s against 3.56 s (medians of five runs, 2026-12-05, docs/results.md).  A task is
+    handed out only to a thread reserved for it, an idle one or one started for it, so every call gets its threads
+    at once, however many calls run side by side (a Dask worker's tasks, a notebook whose interrupted chunks are
+    still finishing).
     """
 
     def __init__(self):
@@ -587,11 +588,8 @@ def _borrowed_field(context, builder, tup_ty, ptr, index):
     parent the constant null they are there (so that LLVM drops the reference counting of the array wherever it
     is used, as it does where the tuple was borrowed)."""
     field = builder.load(cgutils.gep_inbounds(builder, ptr, 0, index))
-    arr = cgutils.create_struct_proxy(tup_ty[index])(
-        context, builder, value=context.data_model_manager[tup_ty[index]].from_data(builder, field))
-    arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
-    arr.parent = cgutils.get_null_value(arr.parent.type)
-    return arr._getvalue()
+    arr_ty = tup_ty[index]
+    return _unowned(context, builder, arr_ty, context.data_model_manager[arr_ty].from_data(builder, field))
 
 
 @lower_getattr_generic(BorrowedTuple)
@@ -691,8 +689,13 @@ def _detached(context, builder, tup_ty, value):
     """The tuple ``value`` with every array's meminfo and parent cleared (no reference counts)."""
     result = cgutils.get_null_value(context.get_value_type(tup_ty))
     for i, arr_ty in enumerate(tup_ty):
-        arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=builder.extract_value(value, i))
-        arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
-        arr.parent = cgutils.get_null_value(arr.parent.type)
-        result = builder.insert_value(result, arr._getvalue(), i)
+        result = builder.insert_value(result, _unowned(context, builder, arr_ty, builder.extract_value(value, i)), i)
     return result
+
+
+def _unowned(context, builder, arr_ty, value):
+    """The array ``value`` with its meminfo and parent the constant null: no reference counting where it is used."""
+    arr = cgutils.create_struct_proxy(arr_ty)(context, builder, value=value)
+    arr.meminfo = cgutils.get_null_value(arr.meminfo.type)
+    arr.parent = cgutils.get_null_value(arr.parent.type)
+    return arr._getvalue()
