@@ -19,6 +19,7 @@ pytest.importorskip("distributed")
 import caustica  # noqa: E402
 from caustica import cluster  # noqa: E402
 from caustica.driver import QuietBar  # noqa: E402
+from caustica.methods.params import Settings  # noqa: E402
 from caustica.errors import ParameterError  # noqa: E402
 from caustica.scene import builtin_scene_path  # noqa: E402
 
@@ -228,7 +229,7 @@ def test_task_size_is_capped_by_the_workers_memory():
     """A part holds a float64 image per whole 64-pass block it covers (plus two chains of at most 7):
     the task cap keeps that and a pass's work within 60 % of a worker thread's memory share."""
     cls = caustica.methods.get("pt")
-    settings = {"width": 1000, "height": 1000}
+    settings = Settings("pt", {"width": 1000, "height": 1000})
     px = 10 ** 6
     per_pass = getattr(cls, "bytes_per_pixel", caustica.film.IMAGE_BYTES_PER_PIXEL)
     need = px * per_pass + px * cluster.part_bytes_per_pixel(1)

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 
 import caustica
+from caustica.api import resolve_settings
 from caustica.errors import ParameterError
 from caustica.media import MediumTable
 from caustica.photons.beams import beam_gather, build_volume_grid
@@ -308,8 +309,8 @@ def test_single_scattering_along_camera_segments_has_the_closed_form(sigma, albe
     n = 16 * 16
     direct = np.zeros((n, 3))
     passes = 16
-    settings = {"width": 16, "height": 16, "seed": 2, "threads": None, "light_samples": 1, "fixed_light_grid": False,
-                "max_specular_depth": 16}
+    _, _, settings = resolve_settings(scene, "sppm", res=16, seed=2, light_samples=1, fixed_light_grid=False,
+                                      max_specular_depth=16)
     for p in range(passes):
         vp, seg, _ = camera_pass(scene, settings, p)
         assert not vp.found.any() and np.all(seg.count == 1)   # no surface to stop at; one segment, a to b

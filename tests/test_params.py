@@ -176,3 +176,32 @@ def test_the_image_memory_check_counts_each_method_s_own_arrays(scene, monkeypat
     assert s["width"] == 2000
     with pytest.raises(ParameterError, match=r"a 2000x2000 image would need about 1\.4 GB"):
         resolve_settings(scene, "sppm", res=2000)                          # 2000^2 x 340 bytes = 1.36 GB
+
+
+def test_resolved_settings_are_read_by_attribute_and_cannot_change(scene):
+    """What resolve_settings returns is a typed, read-only structure: a misspelt name is an error that names
+    the nearest setting, not a KeyError or a silent None."""
+    _, _, settings = resolve_settings(scene, "sppm", res=16, seed=3, alpha=0.5)
+    assert (settings.alpha, settings.width, settings.seed, settings.caustic_radius) == (0.5, 16, 3, None)
+    assert isinstance(settings.alpha, float) and isinstance(settings.width, int)
+    with pytest.raises(AttributeError, match=r"method 'sppm' has no setting 'alhpa' \(did you mean 'alpha'\?\)"):
+        settings.alhpa
+    with pytest.raises(AttributeError, match="read-only"):
+        settings.alpha = 0.3
+    with pytest.raises(TypeError):
+        settings["alpha"] = 0.3
+    one_thread = settings.replace(threads=1)
+    assert one_thread.threads == 1
+    assert dict(one_thread, threads=settings.threads) == dict(settings)   # only threads changed
+    with pytest.raises(AttributeError, match="did you mean 'threads'"):
+        settings.replace(thread=1)
+
+
+def test_settings_survive_pickling_and_json(scene):
+    """Dask tasks pickle the settings; sidecars and checkpoints write them as JSON."""
+    import json
+    import pickle
+    _, _, settings = resolve_settings(scene, "pspm", res=8, streams=100)
+    back = pickle.loads(pickle.dumps(settings))
+    assert back == settings and back.streams == 100 and type(back) is type(settings)
+    assert json.loads(json.dumps(dict(settings))) == dict(settings)

@@ -101,9 +101,11 @@ def test_sobol02_prefixes_are_nets_whatever_the_shift(key):
 
 
 def camera_settings(width, height, seed, light_samples=1, max_specular_depth=64):
-    """What :func:`caustica.photons.visible_points.camera_pass` reads of a render's settings."""
-    return {"width": width, "height": height, "seed": seed, "threads": 1, "light_samples": light_samples,
-            "fixed_light_grid": False, "max_specular_depth": max_specular_depth}
+    """sppm's settings with these values, the rest defaults (what camera_pass reads of a render's)."""
+    from caustica.methods.params import COMMON_PARAMS, resolve
+    return resolve("sppm", tuple(caustica.methods.get("sppm").params) + COMMON_PARAMS,
+                   {"width": width, "height": height, "seed": seed, "threads": 1, "light_samples": light_samples,
+                    "fixed_light_grid": False, "max_specular_depth": max_specular_depth})
 
 
 def test_sobol02_and_kronecker_points_are_uniform_over_shifts():
@@ -524,9 +526,10 @@ def test_pspm_stream_radius_follows_only_the_pixels_that_gather(diacaustic):
     """Pixels that never gather keep R_0; the median of every pixel followed them (S4: r_s stayed at
     0.5 of its start while the gathering pixels were at 0.225).  Six pixels in ten never gathered here."""
     from caustica.methods.pspm import stream_radius
+    from caustica.methods.params import Settings
     from caustica.methods.progressive import initial_radius
 
-    settings = {"stream_radius": 5.0, "radius": None}
+    settings = Settings("pspm", {"stream_radius": 5.0, "radius": None})
     r0 = initial_radius(diacaustic, settings)
     radius = np.concatenate([np.full(60, r0), np.full(40, 0.2 * r0)])
     assert stream_radius(diacaustic, settings, radius) == pytest.approx(5.0 * 0.2)

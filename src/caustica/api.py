@@ -23,7 +23,7 @@ from .version import __version__
 from .jit import default_threads
 from .limits import MAX_PIXELS
 from .memory import check_budget
-from .methods.params import COMMON, COMMON_PARAMS
+from .methods.params import COMMON, COMMON_PARAMS, Settings
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
 from .scene.description import HETEROGENEOUS, MATERIAL_NAMES, MIXTURES, ROUGHPLASTIC, WRAPPERS
@@ -81,18 +81,18 @@ def _parse_res(res):
 
 
 def check_common(*, spp, width, height, seed, threads, film_source: str | None = None,
-                 bytes_per_pixel: int = IMAGE_BYTES_PER_PIXEL) -> dict:
+                 bytes_per_pixel: int = IMAGE_BYTES_PER_PIXEL) -> Settings:
     """spp, width, height, seed and threads converted and checked (caustica.limits), the image's memory too.
 
     ``film_source`` ("file:line") when the size is the scene's film rather than --res.
     """
     common = methods.params.resolve("common", COMMON_PARAMS, dict(spp=spp, width=width, height=height,
                                                                   seed=seed, threads=threads))
-    if common["width"] is None or common["height"] is None or common["spp"] is None:
+    if common.width is None or common.height is None or common.spp is None:
         raise ParameterError("--res and --spp need a value")   # only reachable from Python
-    if common["threads"] is None:
-        common["threads"] = default_threads()
-    w, h = common["width"], common["height"]
+    if common.threads is None:
+        common = common.replace(threads=default_threads())
+    w, h = common.width, common.height
     what, hint = f"a {w}x{h} image", "lower --res"
     if film_source:  # the scene's film: name its file and line
         what = f"{film_source}: <film>: {what}"
@@ -226,11 +226,10 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
     # Work arrays each worker thread allocates, sized by a parameter (e.g. the k-nearest search's).
     for p in cls.params:
         if p.scratch and settings[p.name]:
-            check_budget(common["threads"] * settings[p.name] * p.scratch,
-                         f"{p.flag} {settings[p.name]:,} on {common['threads']} threads "
+            check_budget(common.threads * settings[p.name] * p.scratch,
+                         f"{p.flag} {settings[p.name]:,} on {common.threads} threads "
                          f"({p.scratch} bytes per unit per thread)", f"lower {p.flag} or --threads")
-    settings.update(common)
-    return scene, cls, settings
+    return scene, cls, settings.merged(common)
 
 
 
@@ -293,7 +292,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
     require_finite(image, method, state.passes if plan.multi else None)
     stats = dict(log.counters)
     stats.update(cls.final_stats(scene, settings, state))
-    width, height, spp, threads = settings["width"], settings["height"], settings["spp"], settings["threads"]
+    width, height, spp, threads = settings.width, settings.height, settings.spp, settings.threads
     timings = {"scene_load_s": scene.timings.get("scene_load_s", 0.0)}
     timings.update(log.timings)
     # total_s covers the scene load too, also when the scene was loaded before render().

@@ -28,6 +28,7 @@ import json
 import os
 import socket
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -222,7 +223,7 @@ def _flag(method_cls, key: str) -> str:
     return key
 
 
-def _value(settings: dict, auto: dict, key: str) -> str:
+def _value(settings: Mapping, auto: dict, key: str) -> str:
     if key not in settings:
         return "no value recorded"
     v = settings[key]

@@ -34,6 +34,7 @@ from . import checkpoint as ckpt
 from .errors import CausticaError, ClusterError, ParameterError, quoted, shorten
 from .film import MAX_FILM_IMAGES, TRUNK_PASSES
 from .limits import MAX_THREADS
+from .methods.params import Settings
 
 #: Address schemes of Dask's comms a scheduler can listen on.
 SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
@@ -515,7 +516,7 @@ class WorkerBuildError(ParameterError):
     """A worker that runs another build of caustica than the client (its passes would have other bits)."""
 
 
-def render_part_task(scene, method_name: str, settings: dict, start: int, stop: int, source: str):
+def render_part_task(scene, method_name: str, settings: Settings, start: int, stop: int, source: str):
     """A worker's task: the passes [start, stop) on one thread, (part, per-pass log, seconds).
 
     ``source`` is the client's source hash: a worker that joined after connecting and runs
@@ -528,7 +529,7 @@ def render_part_task(scene, method_name: str, settings: dict, start: int, stop: 
                                f"{source}): install the same caustica on every worker")
     _kill_hook(start, stop)
     t0 = time.perf_counter()
-    part, log = methods.get(method_name).render_part(scene, dict(settings, threads=1), start, stop, QuietBar)
+    part, log = methods.get(method_name).render_part(scene, settings.replace(threads=1), start, stop, QuietBar)
     return part, log, time.perf_counter() - t0
 
 
@@ -613,14 +614,14 @@ def max_task_passes(cluster: Cluster, method_cls, settings, scene=None) -> int:
     if budget is None:
         return MAX_TASK_PASSES
     budget = int(budget * TASK_MEMORY_FRACTION)
-    pixels = settings["width"] * settings["height"]
+    pixels = settings.width * settings.height
     from .film import IMAGE_BYTES_PER_PIXEL
     per_pass = pixels * getattr(method_cls, "bytes_per_pixel", IMAGE_BYTES_PER_PIXEL)
     if scene is not None and hasattr(method_cls, "pass_buffer_bytes"):
         per_pass += method_cls.pass_buffer_bytes(scene, settings)
     need = per_pass + pixels * part_bytes_per_pixel(1)
     if need > budget:
-        raise ParameterError(f"--dask: a task of a {settings['width']}x{settings['height']} {method_cls.name} render "
+        raise ParameterError(f"--dask: a task of a {settings.width}x{settings.height} {method_cls.name} render "
                              f"would need about {need / 1e9:.2f} GB, more than the {budget / 1e9:.2f} GB a worker "
                              f"thread may use ({TASK_MEMORY_FRACTION:.0%} of its share of the worker's memory "
                              f"limit); give the workers more memory or fewer threads, or lower --res")

@@ -94,7 +94,7 @@ def _panel(scene, cam, position, power) -> np.ndarray:
 
 def photon_picture(scene, method, settings, progress) -> tuple[np.ndarray, dict]:
     """Two panels (H x (2W + 2) x 3, linear values in [0, 1]) and the method's map statistics."""
-    cam = scene.camera(settings["width"], settings["height"])
+    cam = scene.camera(settings.width, settings.height)
     scene = method.path_scene(scene, settings)   # the photons the render traces
     if method.name == "spm":
         smap, stats = method.build_stream_map(scene, settings, progress)

@@ -61,7 +61,7 @@ def caustic_density(scene, width: int, height: int, *, photons: int = 200_000, s
         return img.sum(axis=2)
     buf = allocate_buffers(photons, 1)
     trace_caustic_photon_pass(scene, buf, seed, STREAM_CAUSTIC_MASK, photons, spheres=spheres,
-                              threads=settings["threads"])
+                              threads=settings.threads)
     keep = buf.kind == CAUSTIC
     if keep.any():
         splat_records(scene.geometry, scene.materials, scene.camera(width, height),

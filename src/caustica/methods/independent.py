@@ -29,7 +29,7 @@ class IndependentPasses:
 
     @classmethod
     def new_state(cls, scene, settings):
-        return PassSums.empty(settings["width"], settings["height"])
+        return PassSums.empty(settings.width, settings.height)
 
     @classmethod
     def run_pass(cls, scene, settings, state, progress):
@@ -39,7 +39,7 @@ class IndependentPasses:
     @classmethod
     def render_part(cls, scene, settings, start: int, stop: int, progress):
         """The passes [start, stop) as a part to merge into the render's state, with (seconds, stats) per pass."""
-        part = PassSums.part(settings["width"], settings["height"], start)
+        part = PassSums.part(settings.width, settings.height, start)
         log = []
         for p in range(start, stop):
             t0 = time.perf_counter()
@@ -55,7 +55,7 @@ class IndependentPasses:
     @classmethod
     def state_from_arrays(cls, scene, settings, arrays):
         """The film a checkpoint holds, every array's dtype, shape and range checked first."""
-        h, w = settings["height"], settings["width"]
+        h, w = settings.height, settings.width
         shape = require_array(arrays, "film_shape", np.int64, (3,))
         if tuple(int(v) for v in shape) != (h, w, 3):
             raise ParameterError(f"checkpoint: its film is {shape[1]}x{shape[0]}, this render is {w}x{h}")

@@ -8,12 +8,14 @@ pbrt's ``ReportUnused`` and Mitsuba's unused-property check do.
 Every integer has an upper bound the kernels can honour (``max``, by default
 :data:`caustica.limits.INT_MAX`); every float must be finite.  The common render
 settings (spp, image size, seed, threads) are Params too and pass through the
-same :func:`resolve`.
+same :func:`resolve`.  What :func:`resolve` returns is a :class:`Settings`: read by
+attribute (``settings.alpha``), immutable, so a method reads exactly what was checked.
 """
 from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -83,7 +85,66 @@ def non_negative(x) -> bool:
     return x >= 0
 
 
-def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dict[str, Any]:
+def _did_you_mean(name: str, names) -> str:
+    close = difflib.get_close_matches(name, names, n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+class Settings(Mapping):
+    """A render's settings after :func:`resolve`: each value has its parameter's type and passed its checks.
+
+    Read by attribute (``settings.radius``); a name only some methods have is read with ``settings.get(name)``.
+    Immutable: :meth:`replace` gives a changed copy.  A mapping too (``dict(settings)``, JSON, ``**settings``),
+    and picklable, so Dask tasks and checkpoints take it as they took a dict.
+    """
+
+    __slots__ = ("_owner", "_values")
+
+    def __init__(self, owner: str, values: Mapping[str, Any]):
+        object.__setattr__(self, "_owner", owner)   # the method (or "common") whose parameters these are
+        object.__setattr__(self, "_values", dict(values))
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):   # the slots themselves (unset while unpickling): no lookup in the values
+            raise AttributeError(name)
+        try:
+            return self._values[name]
+        except KeyError:
+            raise AttributeError(f"method '{self._owner}' has no setting '{name}'"
+                                 f"{_did_you_mean(name, self._values)}") from None
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"settings are read-only; use settings.replace({name}=...)")
+
+    def __getitem__(self, name: str):
+        return self._values[name]
+
+    def __iter__(self):
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __reduce__(self):
+        return Settings, (self._owner, self._values)
+
+    def __repr__(self) -> str:
+        return f"Settings({self._owner!r}, {self._values!r})"
+
+    def replace(self, **changes) -> Settings:
+        """A copy with ``changes``, which must name settings this one has (values not checked again)."""
+        for name in changes:
+            if name not in self._values:
+                raise AttributeError(f"method '{self._owner}' has no setting '{name}'"
+                                     f"{_did_you_mean(name, self._values)}")
+        return Settings(self._owner, {**self._values, **changes})
+
+    def merged(self, other: Mapping[str, Any]) -> Settings:
+        """These settings and ``other``'s (another :func:`resolve`'s, e.g. the common ones) in one."""
+        return Settings(self._owner, {**self._values, **other})
+
+
+def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> Settings:
     """Defaults + given values, converted and checked; unknown names are an error."""
     by_name = {p.name: p for p in specs}
     out = {p.name: p.default for p in specs}
@@ -92,10 +153,8 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
             continue
         spec = by_name.get(name)
         if spec is None:
-            close = difflib.get_close_matches(name, by_name, n=1)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
             raise ParameterError(
-                f"method '{method}' has no parameter '{name}'{hint}; "
+                f"method '{method}' has no parameter '{name}'{_did_you_mean(name, by_name)}; "
                 f"its parameters: {', '.join(sorted(by_name))}")
         try:
             if isinstance(value, (bool, np.bool_)) != (spec.type is bool) and not isinstance(value, str):
@@ -119,7 +178,7 @@ def resolve(method: str, specs: tuple[Param, ...], given: dict[str, Any]) -> dic
                 or (spec.type is float and not math.isfinite(value))):
             raise ParameterError(f"{spec.flag}: {shorten(value)} is out of range; allowed: {spec.describe_range()}")
         out[name] = value
-    return out
+    return Settings(method, out)
 
 
 #: Mitsuba volpath's treatment of a thindielectric (pt and the photon methods; a scene's volpath or volpathmis

@@ -79,7 +79,7 @@ class SceneDepths:
         photons (:func:`~caustica.photons.trace.trace_one`) and streams
         (:func:`~caustica.photons.streams.trace_stream`) cross it without a vertex and shadow rays pass it with
         1 - R: the light straight through it is direct light.  Else the scene itself."""
-        return scene.with_null_thin_dielectric() if settings["null_thin_dielectric"] else scene
+        return scene.with_null_thin_dielectric() if settings.null_thin_dielectric else scene
 
 
 #: What a stream does at a scattering event in a medium (spm and pspm; docs/media.md).
@@ -121,27 +121,27 @@ def check_media_settings(scene, settings) -> None:
     samples), and the memory of its segments."""
     if not scene.has_media:
         return
-    if settings["fixed_light_grid"]:
+    if settings.fixed_light_grid:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
-    check_segment_memory(settings["width"] * settings["height"])
+    check_segment_memory(settings.width * settings.height)
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):
     """Render the image from the maps; returns (image, timings, number of k-nearest searches)."""
-    cam = scene.camera(settings["width"], settings["height"])
+    cam = scene.camera(settings.width, settings.height)
     image = np.zeros((cam.height, cam.width, 3), np.float32)
-    filt = FILTERS[settings["filter"]]
+    filt = FILTERS[settings.filter]
 
     n = cam.width * cam.height
     knn_queries = np.zeros(n, np.int32)
     bar = progress(total=n, desc="camera pass", unit="px")
     t0 = time.perf_counter()
-    estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
-    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"],
-              max_depth_of(settings), settings["hide_emitters"])
-    compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings["seed"], settings["spp"]),
+    estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
+    params = (settings.light_samples, settings.fixed_light_grid, settings.max_specular_depth,
+              max_depth_of(settings), settings.hide_emitters)
+    compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings.seed, settings.spp),
                                                 (global_map, caustic_map), estimate, params, (image, knn_queries)),
-                             threads=settings["threads"], progress=bar)
+                             threads=settings.threads, progress=bar)
     bar.close()
     return image, {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}, \
         int(knn_queries.sum())
@@ -150,16 +150,16 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
 def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_caustic, volume, progress):
     """:func:`camera_pass` in a scene with media: (image, timings, k-nearest searches, stats of the volume estimate).
 
-    ``settings["spp"]`` samples per pixel, each the progressive camera pass in media
+    ``settings.spp`` samples per pixel, each the progressive camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`, sample s keyed as pass s): a
     visible point with its direct light, the direct light scattered along the path's medium
     segments, then the maps' k-nearest estimates at the visible point and the beam radiance
     estimate of ``volume`` (position, direction, power, depth of the volume photons) along the segments,
     within :func:`one_shot_volume_radius`.
     """
-    w, h, spp = settings["width"], settings["height"], settings["spp"]
+    w, h, spp = settings.width, settings.height, settings.spp
     n = w * h
-    filt = FILTERS[settings["filter"]]
+    filt = FILTERS[settings.filter]
     max_depth = max_depth_of(settings)
     r_v = one_shot_volume_radius(scene, settings)
     first_build = not volume_grid_compiled()
@@ -176,15 +176,15 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     for s in range(spp):
         vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
         vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
-        estimate = (settings["k"], settings["radius"], k_caustic, r_caustic, filt)
+        estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
         # rows: BSDF-evaluating points; a max_depth limits the records by each point's segments
         points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials, vps.segments, max_depth)
         c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate, points,
-                                                        (radiance, knn_queries)), threads=settings["threads"])
+                                                        (radiance, knn_queries)), threads=settings.threads)
         vol = np.empty((n, 3))
         found = np.empty(n, np.int64)
         c += parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth), (vol, found)),
-                          threads=settings["threads"])
+                          threads=settings.threads)
         gathered += int(found.sum())
         acc += radiance
         acc += vol

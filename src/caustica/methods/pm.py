@@ -62,19 +62,19 @@ class PhotonMapping(OneShot):
     @staticmethod
     def build_maps(scene, settings, progress):
         """Photon pass(es) and kd-trees: (global map, caustic map, volume photons or None, stats with timings)."""
-        n = settings["photons"]
-        n_c = settings["caustic_photons"]
-        mr = settings["max_bounces"]
-        terminate = TERMINATIONS[settings["termination"]]
+        n = settings.photons
+        n_c = settings.caustic_photons
+        mr = settings.max_bounces
+        terminate = TERMINATIONS[settings.termination]
         planned = planned_records(n, mr, terminate)
         check_budget((planned + n_c) * SLOT_BYTES, f"{n:,} photons x {planned // max(n, 1)} record slots",
                      "lower --photons or --max-bounces")
         spheres = scene.specular_bounding_spheres()
         use_caustic = n_c > 0 and spheres.shape[0] > 0
-        seed = settings["seed"]
+        seed = settings.seed
         timings = {}
 
-        threads = settings["threads"]
+        threads = settings.threads
         t0 = time.perf_counter()
         bar = progress(total=n, desc="photon tracing", unit="photon")
         buf, _, compile_s = trace_photon_pass(scene, (seed, STREAM_PHOTON, n), (mr, terminate), threads=threads,
@@ -124,8 +124,8 @@ class PhotonMapping(OneShot):
     def render_once(cls, scene, settings, progress):
         check_media_settings(scene, settings)
         global_map, caustic_map, volume, stats = cls.build_maps(scene, settings, progress)
-        k_c = settings["caustic_k"] or settings["k"]
-        r_c = settings["caustic_radius"] or settings["radius"]
+        k_c = settings.caustic_k or settings.k
+        r_c = settings.caustic_radius or settings.radius
         if volume is None:
             image, cam_t, queries = camera_pass(scene, settings, global_map, caustic_map, k_c, r_c, progress)
         else:

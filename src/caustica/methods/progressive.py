@@ -112,8 +112,8 @@ def trace_caustic_pass(scene, settings, pass_index, n_caustic, out: TraceBuffers
     Returns the compile seconds.
     """
     check_budget(n_caustic * SLOT_BYTES, f"{n_caustic:,} caustic photons per pass", "lower --caustic-photons")
-    return trace_caustic_photon_pass(scene, out, settings["seed"], pass_stream(STREAM_CAUSTIC_PHOTON, pass_index),
-                                     n_caustic, threads=settings["threads"])
+    return trace_caustic_photon_pass(scene, out, settings.seed, pass_stream(STREAM_CAUSTIC_PHOTON, pass_index),
+                                     n_caustic, threads=settings.threads)
 
 
 def caustic_event_kind(kind: np.ndarray, out: np.ndarray) -> None:
@@ -243,13 +243,13 @@ def initial_radius(scene, settings) -> float:
 
 def initial_volume_radius(scene, settings) -> float:
     """R_0 of the volume estimate: ``volume_radius`` when set, else VOLUME_RADIUS_SCALE R_0 (docs/media.md)."""
-    r = settings.get("volume_radius")
+    r = settings.volume_radius
     return VOLUME_RADIUS_SCALE * initial_radius(scene, settings) if r is None else r
 
 
 def initial_caustic_radius(scene, settings) -> float:
     """R_0 of the separate caustic statistics: ``caustic_radius`` when set, else CAUSTIC_RADIUS_SCALE R_0."""
-    r = settings.get("caustic_radius")
+    r = settings.caustic_radius
     return CAUSTIC_RADIUS_SCALE * initial_radius(scene, settings) if r is None else r
 
 
@@ -303,7 +303,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
 
     @classmethod
     def independent(cls, settings) -> bool:
-        return settings["schedule"] == "global"
+        return settings.schedule == "global"
 
     #: What to lower when a pass's photon events would not fit in memory.
     pass_memory_hint = "lower --photons or --max-bounces"
@@ -311,10 +311,10 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     @classmethod
     def check(cls, scene, settings):
         """Settings the parameters' own ranges cannot refuse; and a pass's memory, before the first is traced."""
-        if settings["spp"] != 1:
+        if settings.spp != 1:
             raise ParameterError(f"--spp: {cls.name} takes one camera sample per pixel per pass "
-                                 f"(got {settings['spp']}); more passes give more samples")
-        if scene.has_media and settings["fixed_light_grid"]:
+                                 f"(got {settings.spp}); more passes give more samples")
+        if scene.has_media and settings.fixed_light_grid:
             raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
         check_budget(cls.pass_buffer_bytes(scene, settings),
                      f"one {cls.name} pass of {cls.emitted_per_pass(scene, settings):,} paths (their records and "
@@ -333,7 +333,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         cls.check(scene, settings)
         if cls.independent(settings):
             return super().new_state(scene, settings)
-        n = settings["width"] * settings["height"]
+        n = settings.width * settings.height
         r0 = initial_radius(scene, settings)
         return PixelStatistics(0, np.zeros(n), np.full(n, r0), np.zeros((n, 3)), np.zeros((n, 3)),
                                np.zeros(n), 0, np.zeros(n), np.full(n, initial_caustic_radius(scene, settings)),
@@ -345,7 +345,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         cls.check(scene, settings)
         if cls.independent(settings):
             return super().state_from_arrays(scene, settings, arrays)
-        n = settings["width"] * settings["height"]
+        n = settings.width * settings.height
         radii = dict(above=0.0, high=RADIUS_MAX)
         spec = {"passes": ((), dict(low=0)), "emitted": ((), dict(low=0)), "n_photons": ((n,), dict(low=0)),
                 "radius": ((n,), radii), "tau": ((n, 3), {}), "direct": ((n, 3), {}), "gathered": ((n,), dict(low=0)),
@@ -362,12 +362,12 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     @staticmethod
     def camera_segment_bytes(scene, settings) -> int:
         """The camera pass's medium segments (scenes with media; photons/segments.py), else 0."""
-        return settings["width"] * settings["height"] * SEGMENT_BYTES if scene.has_media else 0
+        return settings.width * settings.height * SEGMENT_BYTES if scene.has_media else 0
 
     @classmethod
     def separate_caustics(cls, scene, settings) -> bool:
         """Whether events of kind 2 are caustic events with their own statistics (the aimed caustic photons)."""
-        return (settings.get("caustic_statistics") == "separate"
+        return (settings.caustic_statistics == "separate"
                 and cls.caustic_photons_per_pass(scene, settings) > 0)
 
     @classmethod
@@ -379,8 +379,8 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         """
         scene = cls.path_scene(scene, settings)
         timings = {}
-        n = settings["width"] * settings["height"]
-        threads = settings["threads"]
+        n = settings.width * settings.height
+        threads = settings.threads
         # 1. camera pass: visible points and direct light
         # every entry is written by the kernels (the camera pass for every pixel, the gather too)
         bar = progress(total=n, desc="visible points", unit="px")
@@ -442,7 +442,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         got, stats = cls.measure_pass(scene, settings, state.passes, state.radius, progress,
                                       state.radius_caustic if separate else None)
         # 4. the update, into new arrays: the old state stays whole until the pass is done
-        alpha = float(settings["alpha"])
+        alpha = float(settings.alpha)
         first = not update_statistics.compiled_for_python()
         t0 = time.perf_counter()
         n_new, r_new, tau_new = cls.updated(alpha, state.n_photons, state.radius, state.tau, got, got.flux, got.count)
@@ -469,11 +469,11 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     @classmethod
     def pass_output(cls, scene, settings, pass_index, progress):
         """The ``global`` schedule's pass p: L = direct + W Σ Φ / (π R_p²) within the pass's own R_p."""
-        n = settings["width"] * settings["height"]
-        r = global_radius(initial_radius(scene, settings), settings["alpha"], pass_index)
+        n = settings.width * settings.height
+        r = global_radius(initial_radius(scene, settings), settings.alpha, pass_index)
         got, stats = cls.measure_pass(scene, settings, pass_index, np.full(n, r), progress)
         radiance = got.direct + got.vp_weight * got.flux / (math.pi * r * r)
-        image = radiance.reshape(settings["height"], settings["width"], 3).astype(np.float32)
+        image = radiance.reshape(settings.height, settings.width, 3).astype(np.float32)
         return image, got.count, stats
 
     @staticmethod
@@ -489,7 +489,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     def image(cls, scene, settings, state):
         if cls.independent(settings):
             return super().image(scene, settings, state)
-        img = cls.radiance(state).reshape(settings["height"], settings["width"], 3)
+        img = cls.radiance(state).reshape(settings.height, settings.width, 3)
         return img.astype(np.float32)
 
     @classmethod
@@ -497,12 +497,12 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         """The radius each pixel gathers within next (float64[n])."""
         if not cls.independent(settings):
             return state.radius
-        r = global_radius(initial_radius(scene, settings), settings["alpha"], state.passes)
-        return np.full(settings["width"] * settings["height"], r)
+        r = global_radius(initial_radius(scene, settings), settings.alpha, state.passes)
+        return np.full(settings.width * settings.height, r)
 
     @classmethod
     def aov(cls, scene, settings, state, name):
-        shape = (settings["height"], settings["width"])
+        shape = (settings.height, settings.width)
         if name == "radius":
             return cls.final_radius(scene, settings, state).reshape(shape).astype(np.float32)
         gathered = state.counts if cls.independent(settings) else state.gathered
@@ -514,11 +514,11 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
     def final_stats(cls, scene, settings, state):
         r = cls.final_radius(scene, settings, state)
         out = {"samples_per_pixel": state.passes, "emitted_all_passes": state.passes * cls.emitted_per_pass(scene, settings),
-               "initial_radius": initial_radius(scene, settings), "schedule": settings["schedule"],
+               "initial_radius": initial_radius(scene, settings), "schedule": settings.schedule,
                "radius_final": {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())}}
         if scene.has_media:
             out["initial_volume_radius"] = initial_volume_radius(scene, settings)
-            out["volume_radius_final"] = global_radius(out["initial_volume_radius"], settings["alpha"], state.passes)
+            out["volume_radius_final"] = global_radius(out["initial_volume_radius"], settings.alpha, state.passes)
         if not cls.independent(settings):
             out["photons_kept_mean"] = float(state.n_photons.mean())
             if cls.separate_caustics(scene, settings):
@@ -557,8 +557,8 @@ def _event_grids(scene, events, radius_caustic, vp_found, typical, keep):
 def _volume_estimate(scene, settings, pass_index, volume, segments, timings, stats):
     """The beam radiance estimate of a pass's volume photons along the camera segments, within the
     pass's volume radius (docs/media.md): (radiance float64[n, 3], compile seconds)."""
-    n = settings["width"] * settings["height"]
-    r_v = global_radius(initial_volume_radius(scene, settings), settings["alpha"], pass_index)
+    n = settings.width * settings.height
+    r_v = global_radius(initial_volume_radius(scene, settings), settings.alpha, pass_index)
     compile_s = 0.0
     t1 = time.perf_counter()
     first_build = not volume_grid_compiled()
@@ -572,7 +572,7 @@ def _volume_estimate(scene, settings, pass_index, volume, segments, timings, sta
     vfound = np.empty(n, np.int64)
     t1 = time.perf_counter()
     c = parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth_of(settings)),
-                                      (vol, vfound)), threads=settings["threads"])
+                                      (vol, vfound)), threads=settings.threads)
     timings["volume_gather_s"] = time.perf_counter() - t1 - c
     stats["volume_photons"] = vgrid.count
     stats["volume_grid_entries"] = vgrid.entries

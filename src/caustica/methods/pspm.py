@@ -48,7 +48,7 @@ SPECULAR = ("merge", "split")
 
 def streams_per_pass(settings) -> int:
     """Default: as many photons per pass as pixels, as sppm (n_fs (n_fa + 1) = pixels)."""
-    return settings["streams"] or max(1, settings["width"] * settings["height"] // (settings["assoc"] + 1))
+    return settings.streams or max(1, settings.width * settings.height // (settings.assoc + 1))
 
 
 def stream_radius(scene, settings, radius) -> float:
@@ -65,7 +65,7 @@ def stream_radius(scene, settings, radius) -> float:
     """
     r0 = initial_radius(scene, settings)
     shrunk = radius[radius < r0]
-    return settings["stream_radius"] * (float(np.median(shrunk)) / r0 if shrunk.size else 1.0)
+    return settings.stream_radius * (float(np.median(shrunk)) / r0 if shrunk.size else 1.0)
 
 
 @register
@@ -95,10 +95,10 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
 
     @classmethod
     def check(cls, scene, settings):
-        if settings["caustic_photons"] > 0 and settings["specular"] == "split":
+        if settings.caustic_photons > 0 and settings.specular == "split":
             raise ParameterError("--caustic-photons: pspm's aimed caustic photons need --specular merge "
                                  "(with split, the streams carry their own caustic photons)")
-        if scene.has_media and settings["specular"] == "split":
+        if scene.has_media and settings.specular == "split":
             raise ParameterError("--specular split: not supported in a scene with media (docs/media.md)")
         super().check(scene, settings)
 
@@ -118,32 +118,32 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
         """A pass's stream buffers and caustic photons' records, the grid's sorted copy of the events, and in a
         scene with media the camera's medium segments."""
         n = streams_per_pass(settings)
-        streams = StreamBuffers.bytes_needed(n, settings["assoc"], settings["max_bounces"],
-                                             settings["specular"] == "split")
+        streams = StreamBuffers.bytes_needed(n, settings.assoc, settings.max_bounces,
+                                             settings.specular == "split")
         return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES) + \
             cls.camera_segment_bytes(scene, settings)
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:
         specular = scene.specular_bounding_spheres().shape[0] > 0
-        return settings["caustic_photons"] if specular else 0
+        return settings.caustic_photons if specular else 0
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
         n = streams_per_pass(settings)
         r_s = stream_radius(scene, settings, radius)
-        n_fa, mr = settings["assoc"], settings["max_bounces"]
-        split = settings["specular"] == "split"
+        n_fa, mr = settings.assoc, settings.max_bounces
+        split = settings.specular == "split"
         check_budget(StreamBuffers.bytes_needed(n, n_fa, mr, split),
                      f"{n:,} streams x {n_fa} associated photons per pass",
                      "lower --streams, --assoc or --max-bounces")
         t0 = time.perf_counter()
         buf = StreamBuffers(n, n_fa, mr, split)
         bar = progress(total=n, desc="stream tracing", unit="stream")
-        terminate = TERMINATIONS[settings["termination"]]
-        compile_s = trace_stream_pass(scene, buf, settings["seed"], pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s,
-                                      mr, terminate, split=split, spread=settings["medium_scattering"] == "spread",
-                                      threads=settings["threads"], progress=bar)
+        terminate = TERMINATIONS[settings.termination]
+        compile_s = trace_stream_pass(scene, buf, settings.seed, pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s,
+                                      mr, terminate, split=split, spread=settings.medium_scattering == "spread",
+                                      threads=settings.threads, progress=bar)
         bar.close()
         n_c = cls.caustic_photons_per_pass(scene, settings)
         if n_c > 0:   # the aimed caustic photons carry the light -> specular+ -> diffuse (or medium) paths
@@ -152,7 +152,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
         t1 = time.perf_counter()
         limited = max_depth_of(settings) is not None
         # depth: [each event's depth] under a finite max_depth, which the gather holds them against; else []
-        pos, direction, power, normal, *depth = buf.events(settings["estimator"], leave_caustics=n_c > 0,
+        pos, direction, power, normal, *depth = buf.events(settings.estimator, leave_caustics=n_c > 0,
                                                            depths=limited)
         valid = np.ones(pos.shape[0], np.int8)
         if n_c > 0:   # kind 2: the caustic photons' events
@@ -166,7 +166,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
         if scene.has_media:
             # volume photons: the streams' volume records (without light -> specular+ -> medium ones when the
             # aimed caustic photons carry those), and the caustic photons' (docs/media.md)
-            volume = buf.volume_events(settings["estimator"], leave_caustics=n_c > 0)
+            volume = buf.volume_events(settings.estimator, leave_caustics=n_c > 0)
             if n_c > 0:
                 in_medium = cbuf.kind == VOLUME_CAUSTIC
                 volume = tuple(np.concatenate([a, b[in_medium]])

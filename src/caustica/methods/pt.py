@@ -277,27 +277,27 @@ class PathTracer(IndependentPasses):
     @staticmethod
     def pass_output(scene, settings, pass_index, progress):
         """One pass: ``spp`` new samples per pixel, keyed by (seed, camera, pass, sample)."""
-        cam = scene.camera(settings["width"], settings["height"])
+        cam = scene.camera(settings.width, settings.height)
         image = np.zeros((cam.height, cam.width, 3), np.float32)
-        max_depth = DEPTH_CAP if settings["max_depth"] < 0 else settings["max_depth"]
+        max_depth = DEPTH_CAP if settings.max_depth < 0 else settings.max_depth
         stream = pass_stream(STREAM_CAMERA, pass_index)
 
         n = cam.width * cam.height
         rays = np.zeros((n, 2), np.int64)
         bar = progress(total=n, desc="camera pass", unit="px")
         t0 = time.perf_counter()
-        params = (settings["spp"], max_depth, settings["rr_depth"], settings["hide_emitters"])
-        tables = (scene.with_null_thin_dielectric() if settings["null_thin_dielectric"] else scene).tables
-        compile_s = parallel_for(render_pixels, n, (tables, cam, (settings["seed"], stream), params, (image, rays)),
-                                 threads=settings["threads"], progress=bar)
+        params = (settings.spp, max_depth, settings.rr_depth, settings.hide_emitters)
+        tables = (scene.with_null_thin_dielectric() if settings.null_thin_dielectric else scene).tables
+        compile_s = parallel_for(render_pixels, n, (tables, cam, (settings.seed, stream), params, (image, rays)),
+                                 threads=settings.threads, progress=bar)
         bar.close()
         timings = {"compile_s": compile_s, "camera_pass_s": time.perf_counter() - t0 - compile_s}
         return image, None, {
-            "timings": timings, "camera_rays": n * settings["spp"],
+            "timings": timings, "camera_rays": n * settings.spp,
             "extension_rays": int(rays[:, 0].sum()), "shadow_rays": int(rays[:, 1].sum())}
 
     @staticmethod
     def final_stats(scene, settings, state):
         # a path tracer stores no photons: reported so every sidecar has the same fields
-        return {"samples_per_pixel": state.passes * settings["spp"],
+        return {"samples_per_pixel": state.passes * settings.spp,
                 "photons_emitted": 0, "photons_stored": 0, "map_bytes": 0, "map_mb": 0.0}

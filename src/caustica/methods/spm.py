@@ -47,23 +47,23 @@ class StreamedPhotonMapping(StreamedBSDFs, OneShot):
     @staticmethod
     def build_stream_map(scene, settings, progress):
         """Stream tracing and the kd-tree over leading photons: (StreamMap, stats with timings)."""
-        n, n_fa, mr = settings["streams"], settings["assoc"], settings["max_bounces"]
+        n, n_fa, mr = settings.streams, settings.assoc, settings.max_bounces
         check_budget(StreamBuffers.bytes_needed(n, n_fa, mr), f"{n:,} streams x {n_fa} associated photons",
                      "lower --streams, --assoc or --max-bounces")
         timings = {}
         t0 = time.perf_counter()
         buf = StreamBuffers(n, n_fa, mr)
         bar = progress(total=n, desc="stream tracing", unit="stream")
-        terminate = TERMINATIONS[settings["termination"]]
-        compile_s = trace_stream_pass(scene, buf, settings["seed"], STREAM_SPM, n, n_fa, settings["stream_radius"], mr,
-                                      terminate, spread=settings["medium_scattering"] == "spread",
-                                      threads=settings["threads"], progress=bar)
+        terminate = TERMINATIONS[settings.termination]
+        compile_s = trace_stream_pass(scene, buf, settings.seed, STREAM_SPM, n, n_fa, settings.stream_radius, mr,
+                                      terminate, spread=settings.medium_scattering == "spread",
+                                      threads=settings.threads, progress=bar)
         bar.close()
         t1 = time.perf_counter()
         timings["compile_s"] = compile_s
         timings["photon_trace_s"] = t1 - t0 - compile_s
         smap = StreamMap(buf)
-        smap.volume = buf.volume_events(settings["estimator"]) if scene.has_media else None
+        smap.volume = buf.volume_events(settings.estimator) if scene.has_media else None
         timings["map_build_s"] = time.perf_counter() - t1
         stats = {"timings": timings,
                  "streams_emitted": n,
@@ -80,7 +80,7 @@ class StreamedPhotonMapping(StreamedBSDFs, OneShot):
         check_media_settings(scene, settings)
         smap, stats = cls.build_stream_map(scene, settings, progress)
         t0 = time.perf_counter()
-        pmap = smap.records if settings["estimator"] == "stream" else smap.photon_map()
+        pmap = smap.records if settings.estimator == "stream" else smap.photon_map()
         stats["timings"]["map_build_s"] += time.perf_counter() - t0
         if smap.volume is None:
             image, cam_t, queries = camera_pass(scene, settings, pmap, empty_photon_map(), 0, 1.0, progress)

@@ -33,14 +33,14 @@ def photon_counts(scene, settings) -> tuple[int, int]:
     pbrt-v4, half of them aimed at those objects (docs/progressive.md has the measurements).  Otherwise
     ``--photons`` (default one per pixel) and ``--caustic-photons`` (default 0) as given.
     """
-    pixels = settings["width"] * settings["height"]
+    pixels = settings.width * settings.height
     specular = scene.specular_bounding_spheres().shape[0] > 0
-    n_c = settings["caustic_photons"]
+    n_c = settings.caustic_photons
     if n_c is None:
-        if specular and settings["photons"] is None:
+        if specular and settings.photons is None:
             return pixels - pixels // 2, pixels // 2
         n_c = 0
-    return settings["photons"] or pixels, (n_c if specular else 0)
+    return settings.photons or pixels, (n_c if specular else 0)
 
 
 @register
@@ -87,13 +87,13 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         """A pass's photon records (:func:`~caustica.photons.trace.planned_records`, one a caustic photon), the
         grid's sorted copy, and in a scene with media the camera's medium segments."""
         n, n_c = photon_counts(scene, settings)
-        records = planned_records(n, settings["max_bounces"], TERMINATIONS[settings["termination"]])
+        records = planned_records(n, settings.max_bounces, TERMINATIONS[settings.termination])
         return 2 * (records + n_c) * SLOT_BYTES + cls.camera_segment_bytes(scene, settings)
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):
         n, n_c = photon_counts(scene, settings)
-        rules = (settings["max_bounces"], TERMINATIONS[settings["termination"]])
+        rules = (settings.max_bounces, TERMINATIONS[settings.termination])
         planned = planned_records(n, *rules)
         check_budget(planned * SLOT_BYTES, f"{n:,} photons x {planned // max(n, 1)} record slots per pass",
                      "lower --photons or --max-bounces")
@@ -102,8 +102,8 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
         # one buffer: the photons' records, then the caustic photons' one slot each (the caustic photons write
         # into a view of its tail, so no copy joins the two)
         bar = progress(total=n, desc="photon tracing", unit="photon")
-        buf, slots, compile_s = trace_photon_pass(scene, (settings["seed"], pass_stream(STREAM_PHOTON, pass_index), n),
-                                                  rules, reserve=n_c if aimed else 0, threads=settings["threads"],
+        buf, slots, compile_s = trace_photon_pass(scene, (settings.seed, pass_stream(STREAM_PHOTON, pass_index), n),
+                                                  rules, reserve=n_c if aimed else 0, threads=settings.threads,
                                                   progress=bar)
         bar.close()
         head = TraceBuffers(*(a[:slots] for a in buf))

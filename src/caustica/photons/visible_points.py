@@ -97,7 +97,7 @@ UNLIMITED_DEPTH = 1 << 30
 
 def max_depth_of(settings) -> int | None:
     """The render's max_depth (Mitsuba's: segments of a whole path); None for -1 or none (no limit)."""
-    m = settings.get("max_depth", -1)
+    m = settings.max_depth
     return None if m is None or m < 0 else int(m)
 
 
@@ -603,7 +603,7 @@ def camera_pass(scene, settings, pass_index, bar=None):
     Returns (:class:`VisiblePoints`, :class:`~caustica.photons.segments.CameraSegments` or None without media,
     compile seconds).  The camera keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
     """
-    n = settings["width"] * settings["height"]
+    n = settings.width * settings.height
     if scene.has_media:
         check_segment_memory(n)
     flags, kinds = scene.materials.flags, scene.materials.kind
@@ -613,11 +613,11 @@ def camera_pass(scene, settings, pass_index, bar=None):
                            np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)),
                            np.empty(n, np.int32))   # 148 B a pixel
     segments = allocate_segments(n, scene.has_media)
-    cam = scene.camera(settings["width"], settings["height"])
-    keys = (settings["seed"], pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
+    cam = scene.camera(settings.width, settings.height)
+    keys = (settings.seed, pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
             pass_index)
-    params = (settings["light_samples"], settings["fixed_light_grid"], settings["max_specular_depth"],
-              depth_limit(settings), bool(settings.get("hide_emitters", False)))
+    params = (settings.light_samples, settings.fixed_light_grid, settings.max_specular_depth,
+              depth_limit(settings), settings.hide_emitters)
     compile_s = parallel_for(visible_points, n, (scene.tables, cam, keys, params, (points, segments)),
-                             threads=settings["threads"], progress=bar)
+                             threads=settings.threads, progress=bar)
     return points, (segments if scene.has_media else None), compile_s
