@@ -24,7 +24,7 @@ from caustica.tables import compile_scene
 # kernel is loaded and its callees are never compiled.  So these checks run in a fresh interpreter
 # with caching off (CAUSTICA_NO_CACHE=1, read when caustica.jit is imported).
 _SPECIALISATION_CHECKS = """
-from caustica.jit import BorrowedTuple, borrowed, kernel
+from caustica.jit import BorrowedTuple, LinkOnlyLibrary, borrowed, kernel
 from caustica.scene import load_scene_description
 from caustica.tables import compile_scene
 
@@ -69,10 +69,13 @@ assert _prim_count(scene.geometry) == n               # a kernel called from Pyt
 assert isinstance(sig[0], BorrowedTuple)
 cres = _prim_count.overloads[sig]
 assert cres.library.get_pointer_to_function(cres.fndesc.llvm_cpython_wrapper_name) == 0
+# ... and is kept as IR for its callers to link: no machine code of its own
+assert isinstance(cres.library, LinkOnlyLibrary) and "define" in cres.library.get_llvm_str()
 twin = _prim_count.from_python
 (tsig,) = twin.signatures
 tres = twin.overloads[tsig]
 assert tres.library.get_pointer_to_function(tres.fndesc.llvm_cpython_wrapper_name) != 0
+assert not isinstance(tres.library, LinkOnlyLibrary)
 print("ok")
 """
 
@@ -275,12 +278,14 @@ def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
                CAUSTICA_NO_CACHE="0")
     env.pop("NUMBA_CACHE_DIR", None)
     script = ("import pickle, sys, kernel_argument_module as m\n"
+              "from caustica.jit import LinkOnlyLibrary\n"
               "assert pickle.loads(pickle.dumps(m.twice)) is m.twice\n"
               "print(getattr(m, sys.argv[1])(3.0), sum(m.apply.stats.cache_hits.values()),"
-              " sum(m.apply.stats.cache_misses.values()))")
+              " sum(m.apply.stats.cache_misses.values()),"
+              " all(isinstance(c.library, LinkOnlyLibrary) for c in m.apply.overloads.values()))")
     runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
                            timeout=300) for name in ("first", "second")]
     for run in runs:
         assert run.returncode == 0, run.stderr
-    assert runs[0].stdout.split() == ["6.0", "0", "1"]   # compiled and written to the cache
-    assert runs[1].stdout.split() == ["7.0", "1", "0"]   # read back for a new caller
+    assert runs[0].stdout.split() == ["6.0", "0", "1", "True"]   # compiled and written to the cache
+    assert runs[1].stdout.split() == ["7.0", "1", "0", "True"]   # read back (as IR to link) for a new caller

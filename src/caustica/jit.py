@@ -30,6 +30,8 @@ Caching policy
 --------------
 * Serial kernels are cached on disk (``cache=True``) unless the environment
   variable ``CAUSTICA_NO_CACHE=1`` is set: they are the bulk of the compile time.
+  A :class:`Kernel` is cached as the LLVM bitcode its callers link (it has no machine
+  code), its Python twin as Numba caches any function (machine code and bitcode).
 * Numba invalidates a cached function only when *its own* file changes, not when
   a kernel it calls changes in another file (numba #1833): a stale cache would
   silently run old code.  So the cache lives in a folder named after a hash of
@@ -49,7 +51,8 @@ Compile time
 ------------
 A fresh install compiles every kernel of its first render (``make render``: about
 260, see ``benchmarks/bench_compile.py`` for the table per kernel).  What keeps
-that short: kernels called from kernels get no Python wrappers (:class:`Kernel`);
+that short: kernels called from kernels get no Python wrappers (:class:`Kernel`) and no
+machine code of their own, only the IR their callers link (:class:`LinkOnlyLibrary`);
 calls are typed with plain, never literal, argument types (one specialisation per
 kernel); scene tables reach per-ray code *borrowed* (:func:`borrowed`): held by reference, with no
 reference counts, so binding or passing one generates one pointer, not the ~600 scalars Numba passes
@@ -71,18 +74,22 @@ from pathlib import Path
 
 import llvmlite.ir as llvm_ir
 import numba
-from numba import njit, types
+from llvmlite import binding as ll
+from numba import _dynfunc, njit, types
 from numba.core import cgutils, errors, ir
 from numba.core.analysis import compute_cfg_from_blocks
 from numba.core.boxing import unbox_unsupported
 from numba.core.callconv import CPUCallConv
-from numba.core.compiler import Compiler, DefaultPassBuilder
-from numba.core.compiler_machinery import FunctionPass, register_pass
-from numba.core.ir_utils import GuardException, find_const, get_definition
-from numba.core.untyped_passes import WithLifting
+from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary
+from numba.core.compiler import CompileResult, Compiler, DefaultPassBuilder
+from numba.core.compiler_machinery import AnalysisPass, FunctionPass, register_pass
+from numba.core.cpu import CPUContext
 from numba.core.datamodel.models import PrimitiveModel
 from numba.core.imputils import lower_builtin, lower_getattr_generic
+from numba.core.ir_utils import GuardException, find_const, get_definition
 from numba.core.registry import CPUDispatcher
+from numba.core.typed_passes import NativeLowering
+from numba.core.untyped_passes import WithLifting
 from numba.extending import intrinsic, register_model, unbox
 
 from .features import features_of, has
@@ -215,14 +222,90 @@ class BorrowOutsideLoops(FunctionPass):
         return False
 
 
+class LinkOnlyLibrary(JITCodeLibrary):
+    """The code library of a :class:`Kernel` (not of its twin): kept as optimised LLVM IR, never made machine code.
+
+    A kernel has no wrapper to be called by (:class:`Kernel`): its code runs only where other kernels link its IR
+    into theirs, which they optimise and compile as their own.  Numba still compiled every library to machine
+    code on its own, and cached that: 6.8 of the 50 CPU s of ``make render``'s cold start (2026-12-05), for code
+    nothing ever ran.  This library skips the execution engine and is cached as the bitcode its callers link.
+    """
+
+    def _finalize_final_module(self):
+        self._finalize_dynamic_globals()
+        self._verify_declare_only_symbols()
+        self._finalized = True
+
+    def get_pointer_to_function(self, name):
+        self._ensure_finalized()
+        return 0   # nothing of it is in the execution engine (a Kernel's own entry point was 0 before too: no wrapper)
+
+    def serialize_using_object_code(self):
+        return self.name, _LINK_ONLY, self._get_module_for_linking().as_bitcode()
+
+
+#: The kind of a cached :class:`LinkOnlyLibrary` (beside Numba's ``object`` and ``bitcode``).
+_LINK_ONLY = "caustica-link-only"
+_unserialize_library = CPUCodeLibrary._unserialize.__func__
+
+
+def _unserialize(cls, codegen, state):
+    name, kind, data = state
+    if kind != _LINK_ONLY:
+        return _unserialize_library(cls, codegen, state)
+    library = LinkOnlyLibrary(codegen, name)
+    library._final_module = library._shared_module = ll.parse_bitcode(data)
+    library._finalized = True
+    return library
+
+
+CPUCodeLibrary._unserialize = classmethod(_unserialize)
+_get_executable = CPUContext.get_executable
+_find_referenced_environments = CompileResult._find_referenced_environments
+
+
+def _executable(self, library, fndesc, env):
+    """Numba's entry point and environment for a compiled function; for a :class:`LinkOnlyLibrary`, an entry point
+    of 0 (as Numba gives a function without a Python wrapper) and no environment: its code never runs on its own
+    and the kernels that link it reach Python objects through none (no object mode in a nogil kernel)."""
+    if isinstance(library, LinkOnlyLibrary):
+        return _dynfunc.make_function(fndesc.lookup_module(), fndesc.qualname.split(".")[-1],
+                                      f"kernel {fndesc.qualname} (linked into its callers)", 0, env, (library,))
+    return _get_executable(self, library, fndesc, env)
+
+
+def _referenced_environments(self):
+    return [] if isinstance(self.library, LinkOnlyLibrary) else _find_referenced_environments(self)
+
+
+CPUContext.get_executable = _executable
+CompileResult._find_referenced_environments = _referenced_environments
+
+
+@register_pass(mutates_CFG=False, analysis_only=True)
+class KernelLibrary(AnalysisPass):
+    """Gives a :class:`Kernel`'s compilation (no Python or C wrapper) a :class:`LinkOnlyLibrary` to lower into."""
+    _name = "caustica_kernel_library"
+
+    def __init__(self):
+        AnalysisPass.__init__(self)
+
+    def run_pass(self, state):
+        if state.library is None and state.flags.no_cpython_wrapper and state.flags.no_cfunc_wrapper:
+            state.library = LinkOnlyLibrary(state.targetctx.codegen(), state.func_id.func_qualname)
+        return False
+
+
 class KernelCompiler(Compiler):
-    """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning, and
-    :class:`BorrowOutsideLoops`."""
+    """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning,
+    :class:`BorrowOutsideLoops`, and :class:`KernelLibrary` before lowering."""
 
     def define_pipelines(self):
         pm = DefaultPassBuilder.define_nopython_pipeline(self.state)
         pm.add_pass_after(FoldFeatureTests, WithLifting)
         pm.add_pass_after(BorrowOutsideLoops, FoldFeatureTests)
+        order = [cls for cls, _ in pm.passes]
+        pm.add_pass_after(KernelLibrary, order[order.index(NativeLowering) - 1])
         pm.finalize()
         return [pm]
 
