@@ -274,8 +274,8 @@ def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
     process compiling a new caller must read that index back (kernels pickle by reference) and load the callee from
     it, not crash (as it did when a kernel pickled as a new dispatcher) or compile it again."""
     (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
-    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(tmp_path),
-               CAUSTICA_NO_CACHE="0")
+    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
+               PYTHONPATH=os.pathsep.join([str(tmp_path)] + [p for p in sys.path if p]))
     env.pop("NUMBA_CACHE_DIR", None)
     script = ("import pickle, sys, kernel_argument_module as m\n"
               "from caustica.jit import LinkOnlyLibrary\n"
@@ -289,3 +289,90 @@ def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
         assert run.returncode == 0, run.stderr
     assert runs[0].stdout.split() == ["6.0", "0", "1", "True"]   # compiled and written to the cache
     assert runs[1].stdout.split() == ["7.0", "1", "0", "True"]   # read back (as IR to link) for a new caller
+
+
+_PYTHON_OBJECTS_MODULE = '''
+import numba
+from caustica.jit import kernel
+
+
+@kernel
+def leaf_raise(x):
+    if x < 0:
+        raise ValueError("negative value", x, 7)   # arguments known only at run time
+    return 2.0 * x
+
+
+@kernel
+def raise_through(x):
+    return leaf_raise(x) + 1.0
+
+
+@kernel
+def leaf_print(x):
+    print("leaf", x)
+    return x
+
+
+@kernel
+def print_through(x):
+    return leaf_print(x) + 1.0
+
+
+def _plus_100(x):
+    return x + 100.0
+
+
+@kernel
+def leaf_objmode(x):
+    with numba.objmode(y="float64"):
+        y = _plus_100(x)
+    return y
+
+
+@kernel
+def objmode_through(x):
+    return leaf_objmode(x) + 1.0
+
+
+@kernel
+def is_even(n):
+    return True if n == 0 else is_odd(n - 1)
+
+
+@kernel
+def is_odd(n):
+    return False if n == 0 else is_even(n - 1)
+
+
+@kernel
+def even_through(n):
+    return is_even(n)
+'''
+
+_PYTHON_OBJECTS_SCRIPT = """
+import faulthandler, sys
+faulthandler.dump_traceback_later(240, exit=True)
+import python_objects_module as m
+try:
+    m.raise_through(-1.0)
+except ValueError as e:
+    print("raised", e.args)
+print("printed", m.print_through(2.0))
+print("objmode", m.objmode_through(1.0))
+print("even", m.even_through(7), m.even_through(10))
+"""
+
+
+def test_kernels_linked_into_callers_reach_python_objects_and_each_other(tmp_path):
+    """A kernel linked into its caller (jit.LinkOnlyLibrary: no machine code of its own) still reaches Python
+    objects through its environment -- an exception with run-time arguments, print, object mode -- and kernels
+    that call each other still resolve (the review of 2026-12-06 found each broken, fresh compiles only)."""
+    (tmp_path / "python_objects_module.py").write_text(_PYTHON_OBJECTS_MODULE)
+    env = dict(os.environ, CAUSTICA_NO_CACHE="1",
+               PYTHONPATH=os.pathsep.join([str(tmp_path)] + [p for p in sys.path if p]))
+    run = subprocess.run([sys.executable, "-c", _PYTHON_OBJECTS_SCRIPT], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.splitlines() == ["raised ('negative value', -1.0, 7)", "leaf 2.0", "printed 3.0",
+                                       "objmode 102.0", "even False True"], run.stdout

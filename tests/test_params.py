@@ -205,3 +205,6 @@ def test_settings_survive_pickling_and_json(scene):
     back = pickle.loads(pickle.dumps(settings))
     assert back == settings and back.streams == 100 and type(back) is type(settings)
     assert json.loads(json.dumps(dict(settings))) == dict(settings)
+    from caustica.imageio import to_jsonable
+    assert to_jsonable({"settings": settings}) == {"settings": json.loads(json.dumps(dict(settings)))}
+    assert "streams" in dir(settings)

@@ -16,6 +16,7 @@ import shutil
 import socket
 import sys
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Callable
 
@@ -556,11 +557,12 @@ def read_png_mask(path: str | os.PathLike[str]) -> np.ndarray:
 
 
 def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays, paths, tuples and sets to plain JSON values (recursively).
+    """Convert numpy scalars/arrays, paths, mappings (a render's Settings too), tuples and sets to plain JSON values
+    (recursively).
 
     Non-finite floats (NaN, ±inf) become null, since strict JSON has no spelling for them.
     """
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):
         return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple, set, frozenset)):
         return [to_jsonable(v) for v in obj]

@@ -80,11 +80,12 @@ from numba.core import cgutils, errors, ir
 from numba.core.analysis import compute_cfg_from_blocks
 from numba.core.boxing import unbox_unsupported
 from numba.core.callconv import CPUCallConv
-from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary
+from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary, RuntimeLinker
 from numba.core.compiler import CompileResult, Compiler, DefaultPassBuilder
 from numba.core.compiler_machinery import AnalysisPass, FunctionPass, register_pass
 from numba.core.cpu import CPUContext
 from numba.core.datamodel.models import PrimitiveModel
+from numba.core.environment import lookup_environment
 from numba.core.imputils import lower_builtin, lower_getattr_generic
 from numba.core.ir_utils import GuardException, find_const, get_definition
 from numba.core.registry import CPUDispatcher
@@ -229,19 +230,35 @@ class LinkOnlyLibrary(JITCodeLibrary):
     into theirs, which they optimise and compile as their own.  Numba still compiled every library to machine
     code on its own, and cached that: 6.8 of the 50 CPU s of ``make render``'s cold start (2026-12-05), for code
     nothing ever ran.  This library skips the execution engine and is cached as the bitcode its callers link.
+    One that calls a kernel still being compiled (mutual recursion: a ``.numba.unresolved$`` symbol, which only
+    the engine resolves) is finalised, and cached, as Numba finalises any library (``link_only`` False).
     """
 
+    link_only = True
+
     def _finalize_final_module(self):
+        if any(gv.name.startswith(RuntimeLinker.PREFIX) for gv in self._final_module.global_variables):
+            self.link_only = False
+            return super()._finalize_final_module()
         self._finalize_dynamic_globals()
         self._verify_declare_only_symbols()
         self._finalized = True
 
     def get_pointer_to_function(self, name):
         self._ensure_finalized()
+        if not self.link_only:
+            return super().get_pointer_to_function(name)
         return 0   # nothing of it is in the execution engine (a Kernel's own entry point was 0 before too: no wrapper)
 
     def serialize_using_object_code(self):
+        self._ensure_finalized()
+        if not self.link_only:
+            return super().serialize_using_object_code()
         return self.name, _LINK_ONLY, self._get_module_for_linking().as_bitcode()
+
+
+def _link_only(library) -> bool:
+    return isinstance(library, LinkOnlyLibrary) and library.link_only
 
 
 #: The kind of a cached :class:`LinkOnlyLibrary` (beside Numba's ``object`` and ``bitcode``).
@@ -265,17 +282,28 @@ _find_referenced_environments = CompileResult._find_referenced_environments
 
 
 def _executable(self, library, fndesc, env):
-    """Numba's entry point and environment for a compiled function; for a :class:`LinkOnlyLibrary`, an entry point
-    of 0 (as Numba gives a function without a Python wrapper) and no environment: its code never runs on its own
-    and the kernels that link it reach Python objects through none (no object mode in a nogil kernel)."""
-    if isinstance(library, LinkOnlyLibrary):
+    """Numba's entry point and environment for a compiled function.
+
+    A :class:`LinkOnlyLibrary` gets an entry point of 0 (as Numba gives a function without a Python wrapper) and
+    no environment: its code never runs on its own.  Any other library also gets the environments of the kernels
+    it linked set in its own copies of them: a kernel's code reaches Python objects through its environment
+    (``print``, an exception with arguments known only at run time, object mode), and where Numba's linked copy
+    used to resolve to the kernel's own, in the engine, a link-only kernel has none there.  (Numba sets them so
+    when it loads a function from its cache.)"""
+    if _link_only(library):
         return _dynfunc.make_function(fndesc.lookup_module(), fndesc.qualname.split(".")[-1],
                                       f"kernel {fndesc.qualname} (linked into its callers)", 0, env, (library,))
-    return _get_executable(self, library, fndesc, env)
+    cfunc = _get_executable(self, library, fndesc, env)
+    for gv in library._final_module.global_variables:
+        if gv.name.startswith("_ZN08NumbaEnv") and gv.name != fndesc.env_name and not gv.is_declaration:
+            linked = lookup_environment(gv.name)
+            if linked is not None:
+                library.codegen.set_env(gv.name, linked)
+    return cfunc
 
 
 def _referenced_environments(self):
-    return [] if isinstance(self.library, LinkOnlyLibrary) else _find_referenced_environments(self)
+    return [] if _link_only(self.library) else _find_referenced_environments(self)
 
 
 CPUContext.get_executable = _executable
@@ -293,6 +321,7 @@ class KernelLibrary(AnalysisPass):
     def run_pass(self, state):
         if state.library is None and state.flags.no_cpython_wrapper and state.flags.no_cfunc_wrapper:
             state.library = LinkOnlyLibrary(state.targetctx.codegen(), state.func_id.func_qualname)
+            state.library.enable_object_caching()   # (serialised as Numba's own if it has to be: link_only False)
         return False
 
 

@@ -94,8 +94,9 @@ class Settings(Mapping):
     """A render's settings after :func:`resolve`: each value has its parameter's type and passed its checks.
 
     Read by attribute (``settings.radius``); a name only some methods have is read with ``settings.get(name)``.
-    Immutable: :meth:`replace` gives a changed copy.  A mapping too (``dict(settings)``, JSON, ``**settings``),
-    and picklable, so Dask tasks and checkpoints take it as they took a dict.
+    Immutable: :meth:`replace` gives a changed copy.  A mapping too (``dict(settings)``, ``**settings``; JSON
+    through ``dict(settings)`` or :func:`caustica.imageio.to_jsonable`), and picklable, so Dask tasks and
+    checkpoints take it as they took a dict.  It equals a dict (or another Settings) with the same values.
     """
 
     __slots__ = ("_owner", "_values")
@@ -127,6 +128,9 @@ class Settings(Mapping):
 
     def __reduce__(self):
         return Settings, (self._owner, self._values)
+
+    def __dir__(self):
+        return sorted(set(super().__dir__()) | set(self._values))   # completion offers the settings
 
     def __repr__(self) -> str:
         return f"Settings({self._owner!r}, {self._values!r})"
