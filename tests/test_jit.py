@@ -269,13 +269,18 @@ def second(x):
 '''
 
 
+def _path_with(folder) -> str:
+    """A subprocess's PYTHONPATH: ``folder`` (a test's module) before this interpreter's path (the tree under test)."""
+    return os.pathsep.join([str(folder)] + [p for p in sys.path if p])
+
+
 def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
     """A kernel passed to a kernel is part of the callee's signature, which Numba's cache index pickles: another
     process compiling a new caller must read that index back (kernels pickle by reference) and load the callee from
     it, not crash (as it did when a kernel pickled as a new dispatcher) or compile it again."""
     (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
     env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
-               PYTHONPATH=os.pathsep.join([str(tmp_path)] + [p for p in sys.path if p]))
+               PYTHONPATH=_path_with(tmp_path))
     env.pop("NUMBA_CACHE_DIR", None)
     script = ("import pickle, sys, kernel_argument_module as m\n"
               "from caustica.jit import LinkOnlyLibrary\n"
@@ -370,7 +375,7 @@ def test_kernels_linked_into_callers_reach_python_objects_and_each_other(tmp_pat
     that call each other still resolve (the review of 2026-12-06 found each broken, fresh compiles only)."""
     (tmp_path / "python_objects_module.py").write_text(_PYTHON_OBJECTS_MODULE)
     env = dict(os.environ, CAUSTICA_NO_CACHE="1",
-               PYTHONPATH=os.pathsep.join([str(tmp_path)] + [p for p in sys.path if p]))
+               PYTHONPATH=_path_with(tmp_path))
     run = subprocess.run([sys.executable, "-c", _PYTHON_OBJECTS_SCRIPT], env=env, capture_output=True, text=True,
                          timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]

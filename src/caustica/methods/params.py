@@ -111,8 +111,10 @@ class Settings(Mapping):
         try:
             return self._values[name]
         except KeyError:
-            raise AttributeError(f"method '{self._owner}' has no setting '{name}'"
-                                 f"{_did_you_mean(name, self._values)}") from None
+            raise self._unknown(name) from None
+
+    def _unknown(self, name: str) -> AttributeError:
+        return AttributeError(f"method '{self._owner}' has no setting '{name}'{_did_you_mean(name, self._values)}")
 
     def __setattr__(self, name, value):
         raise AttributeError(f"settings are read-only; use settings.replace({name}=...)")
@@ -139,8 +141,7 @@ class Settings(Mapping):
         """A copy with ``changes``, which must name settings this one has (values not checked again)."""
         for name in changes:
             if name not in self._values:
-                raise AttributeError(f"method '{self._owner}' has no setting '{name}'"
-                                     f"{_did_you_mean(name, self._values)}")
+                raise self._unknown(name)
         return Settings(self._owner, {**self._values, **changes})
 
     def merged(self, other: Mapping[str, Any]) -> Settings:
