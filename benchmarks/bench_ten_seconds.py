@@ -28,10 +28,11 @@ from caustica.imageio import read_exr, read_png_mask
 
 SCENES = ("cornell-diacaustic", "cornell-catacaustic")
 #: (label, method, parameters).  sppm's defaults in these scenes: 32,768 + 32,768 aimed photons per
-#: pass; with caustic photons it keeps separate caustic statistics (R_c = 0.6 R_0) unless told
+#: pass; with caustic photons it keeps separate caustic statistics (R_c = 0.6 R_0, the Epanechnikov filter) unless told
 #: "shared" -- the README's best configuration of 2026-12-01 (now with this branch's camera pass).
 CONFIGS = (
     ("sppm defaults", "sppm", {}),
+    ("sppm, uniform caustic disc", "sppm", {"caustic_filter": "none"}),
     ("sppm 20k + 20k caustic, shared", "sppm", {"photons": 20_000, "caustic_photons": 20_000,
                                                 "caustic_statistics": "shared"}),
     ("sppm 20k + 20k caustic", "sppm", {"photons": 20_000, "caustic_photons": 20_000}),

@@ -47,6 +47,7 @@ CASES = {
     "spm-photons": (CATA, "spm", dict(res=24, streams=600, assoc=5, k=20, estimator="photons",
                                       termination="roulette")),
     "sppm": (DIA, "sppm", dict(res=24, passes=3)),
+    "sppm-caustic-disc": (DIA, "sppm", dict(res=24, passes=3, caustic_filter="none")),
     "sppm-plain-shared": (CATA, "sppm", dict(res=24, passes=3, caustic_photons=0)),
     "sppm-global": (DIA, "sppm", dict(res=24, passes=3, schedule="global", caustic_statistics="shared")),
     "pspm-merge": (DIA, "pspm", dict(res=24, passes=3)),

@@ -28,7 +28,8 @@ import math
 import numpy as np
 import pytest
 
-from caustica.photons.estimate import FILTERS, filter_weight, flux_density
+from caustica.photons.density_filters import FILTERS, filter_weight
+from caustica.photons.estimate import flux_density
 from caustica.photons.records import CAUSTIC, EMPTY, INDIRECT, build_photon_map, \
     map_from_buffers
 from caustica.photons.trace import TERMINATION_CAP, trace_photon_pass

@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..jit import parallel_for
 from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
-from ..photons.estimate import FILTERS
+from ..photons.density_filters import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams import MEDIUM_SCATTERING

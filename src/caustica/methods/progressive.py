@@ -33,6 +33,7 @@ from ..arrays import require_array
 from ..errors import ParameterError
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
+from ..photons.density_filters import FILTER_NONE, FILTERS
 from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
@@ -101,6 +102,12 @@ CAUSTIC_STATISTICS_PARAMS = (
     Param("caustic_radius", float, None, "initial radius of the separate caustic statistics "
                                          f"(default: {CAUSTIC_RADIUS_SCALE} x the initial --radius)",
           in_radius_range, RADIUS_ALLOWED),
+    Param("caustic_filter", str, "epanechnikov",
+          "the filter that weighs each caustic photon of the separate caustic statistics by its distance d from "
+          "the visible point: epanechnikov 2 (1 - d^2/r^2), cone 3 (1 - d/r), gaussian (Jensen's), or none (the "
+          "uniform disc of Hachisuka's PPM); at one radius the first three blur the caustic less and add noise "
+          "(docs/progressive.md)",
+          choices=tuple(FILTERS)),
 )
 
 
@@ -146,13 +153,13 @@ CELL_PER_RADIUS = 2.0
 
 
 @kernel(inline=True)
-def _gather_at(grid, points, radius, out, i, depth):
+def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE):
     """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (the pass's
     :class:`~caustica.photons.visible_points.VisiblePoints`, the material table), both borrowed, into ``out`` =
     (flux, count) at i.  Where the point's material is >= 0 each event's power is weighted by that BSDF at the
     event's direction (Σ f Φ; the visible point's weight is then β).  Under a finite max_depth, ``depth`` =
     (max_depth, the grid's events' depths), the point takes those of depth max_depth - its segments at most; None:
-    every one."""
+    every one.  ``filt``: the filter that weighs each event (:func:`~caustica.photons.grid.grid_range_sum`)."""
     vps, mats = points
     vp_pos, vp_nrm, vp_found, rows = vps.position, vps.normal, vps.found, vps.bsdf
     flux, count = out
@@ -165,15 +172,15 @@ def _gather_at(grid, points, radius, out, i, depth):
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
     if depth is None:   # Numba compiles the two cases apart (the None one as before depths were kept)
         if rows[i, BSDF_MATERIAL] < 0.0:
-            m, s = grid_range_sum(grid, p, n, radius[i], None, None)
+            m, s = grid_range_sum(grid, p, n, radius[i], None, None, filt)
         else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None)
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None, filt)
     else:
         limit = (depth[0] - vps.segments[i], depth[1])
         if rows[i, BSDF_MATERIAL] < 0.0:
-            m, s = grid_range_sum(grid, p, n, radius[i], None, limit)
+            m, s = grid_range_sum(grid, p, n, radius[i], None, limit, filt)
         else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit)
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit, filt)
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
@@ -190,10 +197,10 @@ def gather_flux(grid, points, radius, out, depth, i0, i1):
 
 
 @kernel
-def gather_flux_two(grids, points, radii, outs, depths, i0, i1):
+def gather_flux_two(grids, points, radii, outs, depths, filt_c, i0, i1):
     """:func:`gather_flux` over two grids at once: ``grids`` = (grid, grid_c) within ``radii`` = (radius[i],
     radius_c[i]) into ``outs`` = ((flux, count), (flux_c, count_c)); ``depths``: None, or each grid's ``depth``
-    as :func:`_gather_at` takes it."""
+    as :func:`_gather_at` takes it; grid_c's events weighted by the filter ``filt_c``."""
     grid, grid_c = grids
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
@@ -201,11 +208,11 @@ def gather_flux_two(grids, points, radii, outs, depths, i0, i1):
     if depths is None:
         for i in range(i0, i1):
             _gather_at(grid, points, radii[0], outs[0], i, None)
-            _gather_at(grid_c, points, radii[1], outs[1], i, None)
+            _gather_at(grid_c, points, radii[1], outs[1], i, None, filt_c)
     else:
         for i in range(i0, i1):
             _gather_at(grid, points, radii[0], outs[0], i, depths[0])
-            _gather_at(grid_c, points, radii[1], outs[1], i, depths[1])
+            _gather_at(grid_c, points, radii[1], outs[1], i, depths[1], filt_c)
 
 
 @kernel
@@ -422,7 +429,8 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
             count_c = np.empty(n, np.int64)
             c2 = parallel_for(gather_flux_two, n, ((grid, grid_c), points, (radius, radius_caustic),
                                                    ((flux, count), (flux_c, count_c)),
-                                                   ((max_depth, depth), (max_depth, depth_c)) if limited else None),
+                                                   ((max_depth, depth), (max_depth, depth_c)) if limited else None,
+                                                   FILTERS[settings.caustic_filter]),
                               threads=threads)
         timings["gather_s"] = time.perf_counter() - t1 - c2
         c3 = 0.0

@@ -6,13 +6,8 @@ farthest one used, or R when fewer than k are found, and
 
     L(x) = f_r · Σ_p W(d_p, r) Φ_p,    f_r = ρ / π,
 
-where W is the filter kernel normalised to integrate to 1 over the disc of radius r:
-none W = 1 / (π r²); cone (Jensen, k = 1) W = (1 - d/r) · 3 / (π r²);
-Gaussian (Jensen's profile, β = 1.953) W = α [1 - (1 - e^{-β d²/(2r²)}) / (1 - e^{-β})] / (π r²)
-with α computed so that W integrates to exactly 1 (Jensen's quoted α = 0.918 does
-not: it integrates to 0.53 with this normalisation);
-Epanechnikov W = 2 (1 - d²/r²) / (π r²).
-This function returns Σ W Φ (irradiance-like, W/m²); the caller applies f_r.
+where W is the filter kernel normalised to integrate to 1 over the disc of radius r
+(:mod:`caustica.photons.density_filters`).  This function returns Σ W Φ (irradiance-like, W/m²); the caller applies f_r.
 
 At a BSDF with a glossy lobe beside the diffuse one (pplastic, an opaque principled) nothing is Lambertian to
 take out of the sum: there each record is weighted by the BSDF's value at its own direction,
@@ -23,38 +18,11 @@ and the sum is the radiance itself (``bsdf``; pbrt-v4's SPPM weights its photons
 """
 from __future__ import annotations
 
-import math
-
 from ..bsdfs import eval_photon
 from ..jit import kernel
+from .density_filters import filter_weight
 from .kdtree import KdTree, knn
 from .records import MIN_RECORD_DEPTH
-
-FILTER_NONE = 0
-FILTER_CONE = 1
-FILTER_GAUSSIAN = 2
-FILTER_EPANECHNIKOV = 3
-FILTERS = {"none": FILTER_NONE, "cone": FILTER_CONE, "gaussian": FILTER_GAUSSIAN,
-           "epanechnikov": FILTER_EPANECHNIKOV}
-
-_GAUSS_BETA = 1.953
-# ∫_0^1 [1 - (1 - e^{-β s²/2}) / (1 - e^{-β})] 2 s ds, in closed form.
-_GAUSS_ALPHA = 1.0 / (1.0 - (1.0 - (2.0 / _GAUSS_BETA) * (1.0 - math.exp(-_GAUSS_BETA / 2.0)))
-                      / (1.0 - math.exp(-_GAUSS_BETA)))
-
-
-@kernel
-def filter_weight(filt, d2, r2):
-    """W(d, r) of the filter, normalised over the disc of radius r (see module doc)."""
-    inv_area = 1.0 / (math.pi * r2)
-    if filt == FILTER_NONE:
-        return inv_area
-    if filt == FILTER_CONE:
-        return 3.0 * (1.0 - math.sqrt(d2 / r2)) * inv_area
-    if filt == FILTER_GAUSSIAN:
-        return _GAUSS_ALPHA * (1.0 - (1.0 - math.exp(-_GAUSS_BETA * d2 / (2.0 * r2)))
-                               / (1.0 - math.exp(-_GAUSS_BETA))) * inv_area
-    return 2.0 * (1.0 - d2 / r2) * inv_area
 
 
 @kernel(inline=True)

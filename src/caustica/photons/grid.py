@@ -33,6 +33,7 @@ import numpy as np
 
 from ..bsdfs import eval_photon
 from ..jit import kernel
+from .density_filters import FILTER_NONE, filter_shape
 from .kdtree import FACING_COS
 
 #: Most cells along one axis (keys stay far inside int64).
@@ -164,13 +165,15 @@ def build_grid(position, power, normal, valid, box, cell, direction=None, depth=
 
 
 @kernel
-def grid_range_sum(grid, qp, qn, r, bsdf, limit):
+def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE):
     """Σ power over the events within r of qp whose normal faces qn (dot > FACING_COS), and their count.
     With ``limit`` = (deepest, the events' depths in the grid's order, :func:`build_grid`'s) only events of depth <=
     deepest count (a scene's max_depth: the segments the camera path took to qp leave the photon's path the rest);
     with None, every one (a separate compilation, as ``bsdf``'s).
 
     The same sidedness rule as the kd-tree's searches.  Returns (count, (Σ_0, Σ_1, Σ_2)), float64 sums.
+    With a filter ``filt`` other than none (:mod:`~caustica.photons.density_filters`) each term is also weighted by
+    its shape π r² W(d, r) (mean 1 over the disc), so the sums stay on the uniform disc's scale.
     With ``bsdf`` = (mats, m, d, ng, ns, uv) each event's power is weighted by material m's BSDF value
     f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_photon`: the visible point's own,
     the camera path arriving along d); with ``bsdf`` None, plain sums (a separate compilation: Numba prunes the
@@ -190,7 +193,6 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit):
     x1, y1, z1 = _cell_of(qp[0] + r, qp[1] + r, qp[2] + r, lo, inv, dims)
     r2 = r * r
     pos = grid.position
-    pw = grid.power
     nrm = grid.normal
     keys = grid.key
     for ix in range(x0, x1 + 1):
@@ -219,20 +221,31 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit):
                     dx = pos[j, 0] - qp[0]
                     dy = pos[j, 1] - qp[1]
                     dz = pos[j, 2] - qp[2]
-                    if dx * dx + dy * dy + dz * dz <= r2:
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 <= r2:
                         if limit is not None and limit[1][j] > limit[0]:
                             continue
                         if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
                             count += 1
-                            if bsdf is not None:
-                                wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]),
-                                      -float(grid.direction[j, 2]))
-                                f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
-                                s0 += pw[j, 0] * f[0] * f_scale
-                                s1 += pw[j, 1] * f[1] * f_scale
-                                s2 += pw[j, 2] * f[2] * f_scale
-                            else:
-                                s0 += pw[j, 0]
-                                s1 += pw[j, 1]
-                                s2 += pw[j, 2]
+                            e0, e1, e2 = _gathered_power(grid, j, bsdf, filt, d2, r2)
+                            s0 += e0
+                            s1 += e1
+                            s2 += e2
     return count, (s0, s1, s2)
+
+
+@kernel(inline=True)
+def _gathered_power(grid, j, bsdf, filt, d2, r2):
+    """Event j's power as :func:`grid_range_sum` adds it, d² from the query within r²: times the BSDF's value at
+    its direction (``bsdf`` not None) and the filter's shape (``filt`` not none); the plain power otherwise."""
+    pw = grid.power
+    if bsdf is not None:
+        wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]), -float(grid.direction[j, 2]))
+        f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+        if filt != FILTER_NONE:
+            f_scale *= filter_shape(filt, d2, r2)
+        return pw[j, 0] * f[0] * f_scale, pw[j, 1] * f[1] * f_scale, pw[j, 2] * f[2] * f_scale
+    if filt != FILTER_NONE:
+        w = filter_shape(filt, d2, r2)
+        return pw[j, 0] * w, pw[j, 1] * w, pw[j, 2] * w
+    return float(pw[j, 0]), float(pw[j, 1]), float(pw[j, 2])
