@@ -6,7 +6,9 @@
 
 For each ``--caustic-filter``: the method at a fixed pass count (so the machine's load does not change an image) for
 each seed, and the caustic-region relative RMSE (bench_caustic_goals.py's region and Mitsuba 3 references, cached in
-out/refs/ by that script: run it with ``--reference-only`` first) of each seed's image and of the seeds' mean image.
+out/refs/ by that script: run it first with ``--scene S --ref-spp 32768 --ptracer-spp 16384 --reference-only``, or
+this script renders them itself) of each seed's image and of the seeds' mean image.  ``pspm`` keeps separate caustic
+statistics only with caustic photons: give ``--set caustic_photons=N``.
 Averaging S seeds divides the variance by S and leaves the bias, so with e the mean squared per-seed error and m the
 mean image's squared error (each with the reference's own noise taken out):
 
@@ -68,6 +70,11 @@ def main() -> None:
                 extra[key] = value
     seeds = [int(s) for s in args.seeds.split(",")]
     s = len(seeds)
+    if s < 2:
+        ap.error("--seeds: at least two seeds (the bias and the spread are told apart by averaging them)")
+    if args.method == "pspm" and not extra.get("caustic_photons"):
+        ap.error("--method pspm: give --set caustic_photons=N (without caustic photons pspm keeps no caustic "
+                 "statistics to filter)")
     scene = caustica.load_scene(path, **params)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {args.scene}, {args.method}, {args.passes} passes, seeds {seeds}, "
           f"{args.res}x{args.res}, caustic region {int(region.sum())} pixels, reference's own caustic error "
@@ -75,6 +82,7 @@ def main() -> None:
     print("| filter | per-seed caustic relRMSE (noise out) | mean image's | bias | spread per seed | s / pass |")
     print("| --- | --- | ---: | ---: | ---: | ---: |")
     for name in args.filters.split(","):
+        caustica.render(scene, args.method, res=args.res, passes=2, caustic_filter=name, **extra)   # compile
         images, errors, seconds = [], [], 0.0
         for seed in seeds:
             t0 = time.perf_counter()

@@ -73,6 +73,7 @@ CASES = {
     "sppm-normalmap": (NORMALMAP, "sppm", dict(res=16, passes=2)),
     "sppm-pplastic": (PPLASTIC, "sppm", dict(res=16, passes=2)),
     "sppm-glossy": (GLOSSY, "sppm", dict(res=16, passes=2)),
+    "sppm-glossy-depth": (GLOSSY, "sppm", dict(res=16, passes=2, max_depth=5)),
     "sppm-mask": (MASK, "sppm", dict(res=16, passes=2)),
     "sppm-blend": (BLEND, "sppm", dict(res=16, passes=2)),
     "sppm-media-glass": (MEDIA_GLASS, "sppm", dict(res=16, passes=2)),
