@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 import caustica
+from caustica.experiments.config import method_setting
 from caustica.experiments.convergence import rel_rmse
 from caustica.experiments.mitsuba import mitsuba_module
 
@@ -46,9 +47,17 @@ def main() -> None:
     ap.add_argument("--ptracer-spp", type=int, default=16384)
     ap.add_argument("--dist", default="ggx")
     ap.add_argument("--alpha", default="0.1")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+    ap.add_argument("--set", type=method_setting, action="append", default=[], metavar="KEY=VALUE",
                     help="another parameter of the method (a number or a string), e.g. caustic_photons=4608")
     args = ap.parse_args()
+    extra = dict(args.set)
+    seeds = [int(s) for s in args.seeds.split(",")]
+    s = len(seeds)
+    if s < 2:
+        ap.error("--seeds: at least two seeds (the bias and the spread are told apart by averaging them)")
+    if args.method == "pspm" and not extra.get("caustic_photons"):
+        ap.error("--method pspm: give --set caustic_photons=N (without caustic photons pspm keeps no caustic "
+                 "statistics to filter)")
     mi = mitsuba_module()
     if mi is None:
         raise SystemExit("Mitsuba 3 (scalar_rgb) is needed: pip install mitsuba")
@@ -58,23 +67,6 @@ def main() -> None:
     ref_p, a_p, b_p = goals.particle_reference(mi, args, path, params)
     region = goals.caustic_region(ref_p, direct, goals.floor_pixels(mi, args, path, params))
     noise2 = (rel_rmse(a_p, b_p, region) / 2) ** 2
-    extra = {}
-    for item in args.set:
-        key, value = item.split("=", 1)
-        try:
-            extra[key] = int(value)
-        except ValueError:
-            try:
-                extra[key] = float(value)
-            except ValueError:
-                extra[key] = value
-    seeds = [int(s) for s in args.seeds.split(",")]
-    s = len(seeds)
-    if s < 2:
-        ap.error("--seeds: at least two seeds (the bias and the spread are told apart by averaging them)")
-    if args.method == "pspm" and not extra.get("caustic_photons"):
-        ap.error("--method pspm: give --set caustic_photons=N (without caustic photons pspm keeps no caustic "
-                 "statistics to filter)")
     scene = caustica.load_scene(path, **params)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {args.scene}, {args.method}, {args.passes} passes, seeds {seeds}, "
           f"{args.res}x{args.res}, caustic region {int(region.sum())} pixels, reference's own caustic error "

@@ -51,6 +51,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 from imagestats import N_SIGMA, block_means, block_se  # noqa: E402  (the tests' statistics, reused)
 
+from caustica.experiments.config import method_setting  # noqa: E402  (--set KEY=VALUE)
+
 SEEDS = (1, 2, 3, 4)
 PILOT_SPP = 4
 
@@ -119,19 +121,6 @@ def render_caustica(scene, method, res, cap, max_spp, settings):
 
 
 DEFAULT = re.compile(r"""<default\s+name\s*=\s*["']([^"']+)["']\s+value\s*=\s*["']([^"']*)["']""")
-
-
-def method_setting(text: str) -> tuple[str, object]:
-    """--set KEY=VALUE: a method setting, its value an int, a float or else a string."""
-    key, sep, value = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"--set {text!r}: expected KEY=VALUE, e.g. termination=roulette")
-    for convert in (int, float):
-        try:
-            return key.replace("-", "_"), convert(value)
-        except ValueError:
-            pass
-    return key.replace("-", "_"), value
 
 
 def file_defaults(path: Path, seen=None) -> dict:

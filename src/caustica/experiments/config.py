@@ -2,6 +2,7 @@
 and :class:`Config`, the user's settings checked once before anything is written."""
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -214,3 +215,16 @@ def check_references(references, measured) -> None:
             raise ParameterError(f"--reference {quoted(item)}: {scene} has a reference already ({seen[scene]}); "
                                  f"give one per scene")
         seen[scene] = item
+
+
+def method_setting(text: str) -> tuple[str, object]:
+    """--set KEY=VALUE: a method setting, its value an int, a float or else a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"--set {text!r}: expected KEY=VALUE, e.g. termination=roulette")
+    for convert in (int, float):
+        try:
+            return key.replace("-", "_"), convert(value)
+        except ValueError:
+            pass
+    return key.replace("-", "_"), value

@@ -37,15 +37,13 @@ _GAUSS_ALPHA = 1.0 / (1.0 - (1.0 - (2.0 / _GAUSS_BETA) * (1.0 - math.exp(-_GAUSS
 @kernel
 def filter_weight(filt, d2, r2):
     """W(d, r) of the filter, normalised over the disc of radius r (see module doc)."""
-    inv_area = 1.0 / (math.pi * r2)
-    if filt == FILTER_NONE:
-        return inv_area
-    return filter_shape(filt, d2, r2) * inv_area
+    return filter_shape(filt, d2, r2) * (1.0 / (math.pi * r2))
 
 
 @kernel(inline=True)
 def filter_shape(filt, d2, r2):
-    """π r² W(d, r): the filter's weight relative to the uniform disc's (mean 1 over the disc; 1 for ``none``)."""
+    """π r² W(d, r): the filter's weight relative to the uniform disc's (mean 1 over the disc; exactly 1 for
+    ``none``, so a weight of none leaves a sum's bits as they were)."""
     if filt == FILTER_NONE:
         return 1.0
     if filt == FILTER_CONE:

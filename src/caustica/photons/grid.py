@@ -236,16 +236,13 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE):
 
 @kernel(inline=True)
 def _gathered_power(grid, j, bsdf, filt, d2, r2):
-    """Event j's power as :func:`grid_range_sum` adds it, d² from the query within r²: times the BSDF's value at
-    its direction (``bsdf`` not None) and the filter's shape (``filt`` not none); the plain power otherwise."""
+    """Event j's power as :func:`grid_range_sum` adds it, d² from the query within r²: times the filter's shape
+    (exactly 1 for none, so the plain power's bits) and, with ``bsdf``, the BSDF's value at its direction."""
     pw = grid.power
+    w = filter_shape(filt, d2, r2)
     if bsdf is not None:
         wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]), -float(grid.direction[j, 2]))
         f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
-        if filt != FILTER_NONE:
-            f_scale *= filter_shape(filt, d2, r2)
+        f_scale *= w
         return pw[j, 0] * f[0] * f_scale, pw[j, 1] * f[1] * f_scale, pw[j, 2] * f[2] * f_scale
-    if filt != FILTER_NONE:
-        w = filter_shape(filt, d2, r2)
-        return pw[j, 0] * w, pw[j, 1] * w, pw[j, 2] * w
-    return float(pw[j, 0]), float(pw[j, 1]), float(pw[j, 2])
+    return pw[j, 0] * w, pw[j, 1] * w, pw[j, 2] * w
