@@ -610,7 +610,7 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
 
 
 class BorrowedTuple(types.NamedTuple):
-    """The Numba type of a named tuple of arrays whose reference counts are detached, held by reference.
+    """The Numba type of a named tuple of arrays (and numbers) whose reference counts are detached, held by reference.
 
     Its value is a pointer to the tuple, stored once in the frame of the kernel that
     made it (:func:`borrowed`): binding or passing one generates no reference-count
@@ -696,12 +696,13 @@ CPUCallConv.decorate_function = _decorate_borrowed
 
 
 def _borrowed_field(context, builder, tup_ty, ptr, index):
-    """Field ``index`` of a :class:`BorrowedTuple`: the array loaded from the tuple's storage, with its meminfo and
-    parent the constant null they are there (so that LLVM drops the reference counting of the array wherever it
-    is used, as it does where the tuple was borrowed)."""
-    field = builder.load(cgutils.gep_inbounds(builder, ptr, 0, index))
-    arr_ty = tup_ty[index]
-    return _unowned(context, builder, arr_ty, context.data_model_manager[arr_ty].from_data(builder, field))
+    """Field ``index`` of a :class:`BorrowedTuple`, loaded from the tuple's storage: a number as it is, an array with
+    its meminfo and parent the constant null they are there (so that LLVM drops the reference counting of the array
+    wherever it is used, as it does where the tuple was borrowed)."""
+    field_ty = tup_ty[index]
+    field = context.data_model_manager[field_ty].from_data(
+        builder, builder.load(cgutils.gep_inbounds(builder, ptr, 0, index)))
+    return _unowned(context, builder, field_ty, field) if isinstance(field_ty, types.Array) else field
 
 
 @lower_getattr_generic(BorrowedTuple)
@@ -721,8 +722,8 @@ def _borrowed_static_getitem(context, builder, sig, args):
 
 @intrinsic
 def borrowed(typingctx, tup):
-    """The same named tuple with every array's reference count detached, held by reference (:class:`BorrowedTuple`);
-    of a plain tuple of arrays, the same tuple with detached views; of a plain tuple of named tuples (the scene
+    """The same named tuple (of arrays, and numbers beside them) with every array's reference count detached, held by
+    reference (:class:`BorrowedTuple`); of a plain tuple of arrays, the same tuple with detached views; of a plain tuple of named tuples (the scene
     tables), each borrowed.
 
     Numba increments and decrements the reference count of every array in a tuple
@@ -755,10 +756,11 @@ def _borrowed_type(ty):
         return ty
     if not isinstance(ty, types.BaseTuple) or len(ty) == 0:
         return None
-    if all(isinstance(t, types.Array) for t in ty):
-        return BorrowedTuple(ty) if isinstance(ty, types.BaseNamedTuple) else ty
     if isinstance(ty, types.BaseNamedTuple):
-        return None
+        plain = all(isinstance(t, (types.Array, types.Number, types.Boolean)) for t in ty)
+        return BorrowedTuple(ty) if plain and any(isinstance(t, types.Array) for t in ty) else None
+    if all(isinstance(t, types.Array) for t in ty):
+        return ty
     inner = [_borrowed_type(t) for t in ty]
     return None if any(t is None for t in inner) else types.Tuple(inner)
 
@@ -767,13 +769,13 @@ def _borrow(context, builder, ty, value):
     out = _borrowed_type(ty)
     if isinstance(ty, BorrowedTuple):
         return value
-    if all(isinstance(t, types.Array) for t in ty):
+    if isinstance(out, BorrowedTuple) or all(isinstance(t, types.Array) for t in ty):
         value = _detached(context, builder, ty, value)
         if not isinstance(out, BorrowedTuple):
             return value
         storage = cgutils.alloca_once(builder, context.get_value_type(out).pointee)
-        for i, arr_ty in enumerate(ty):
-            builder.store(context.data_model_manager[arr_ty].as_data(builder, builder.extract_value(value, i)),
+        for i, field_ty in enumerate(ty):
+            builder.store(context.data_model_manager[field_ty].as_data(builder, builder.extract_value(value, i)),
                           cgutils.gep_inbounds(builder, storage, 0, i))
         return storage
     # A plain tuple of tuples (the scene tables): each borrowed.
@@ -798,10 +800,13 @@ def _borrows(py_func) -> bool:
 
 
 def _detached(context, builder, tup_ty, value):
-    """The tuple ``value`` with every array's meminfo and parent cleared (no reference counts)."""
+    """The tuple ``value`` with every array's meminfo and parent cleared (no reference counts); numbers as they are."""
     result = cgutils.get_null_value(context.get_value_type(tup_ty))
-    for i, arr_ty in enumerate(tup_ty):
-        result = builder.insert_value(result, _unowned(context, builder, arr_ty, builder.extract_value(value, i)), i)
+    for i, field_ty in enumerate(tup_ty):
+        field = builder.extract_value(value, i)
+        if isinstance(field_ty, types.Array):
+            field = _unowned(context, builder, field_ty, field)
+        result = builder.insert_value(result, field, i)
     return result
 
 

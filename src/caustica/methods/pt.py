@@ -221,7 +221,7 @@ def render_pixels(tables, cam, keys, params, out, i0, i1):
     Sample s of pixel i is random path (i * spp + s) of ``keys`` = (seed, the pass's camera stream);
     ``params`` = (spp, max_depth, rr_depth, hide_emitters).  rays[i] receives pixel i's (extension, shadow) ray counts.
     """
-    tables = borrowed(tables)
+    tables, cam = borrowed(tables), borrowed(cam)
     seed, stream = keys
     spp, max_depth, rr_depth, hide_emitters = params
     image, rays = out

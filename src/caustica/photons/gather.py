@@ -335,6 +335,7 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
     gmap, cmap = maps
     maps = (borrowed(gmap), borrowed(cmap))
     cam, seed, spp = camera
+    cam = borrowed(cam)
     k_g, _, k_c, _, _ = estimate
     image, knn_queries = out
     kmax = max(k_g, k_c, 1)

@@ -557,7 +557,7 @@ def visible_points(tables, cam, keys, params, out, i0, i1):
     """The visible points of pixels [i0, i1) (row-major) into ``out`` = (points: :class:`VisiblePoints`, segments):
     the radiance each pixel saw directly, and each pixel's medium segments.  ``keys`` = (seed, camera
     stream, media stream, pass index); ``params`` as :func:`visible_point` takes them."""
-    tables = borrowed(tables)
+    tables, cam = borrowed(tables), borrowed(cam)
     seed, stream, vstream, pass_index = keys
     points, segments = out
     points, segments = borrowed(points), borrowed(segments)   # no reference counts where the path passes them
