@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 import caustica
+from caustica.experiments.config import method_setting
 from caustica.experiments.convergence import rel_rmse
 from caustica.experiments.mitsuba import mitsuba_equal_time, mitsuba_module
 from caustica.imageio import write_exr
@@ -160,17 +161,8 @@ def caustic_region(ref, direct, floor):
 def parse_config(text: str) -> tuple[str, dict]:
     """``LABEL=KEY:VALUE,KEY:VALUE`` -> (label, sppm parameters); numbers are read as int or float."""
     label, _, rest = text.partition("=")
-    config = {}
-    for item in filter(None, rest.split(",")):
-        key, _, value = item.partition(":")
-        for kind in (int, float):
-            try:
-                value = kind(value)
-                break
-            except ValueError:
-                pass
-        config[key.strip().replace("-", "_")] = value
-    return label.strip(), config
+    return label.strip(), dict(method_setting(item.strip().replace(":", "=", 1))
+                               for item in filter(None, rest.split(",")))
 
 
 def main() -> None:

@@ -450,7 +450,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         got, stats = cls.measure_pass(scene, settings, state.passes, state.radius, progress,
                                       state.radius_caustic if separate else None)
         # 4. the update, into new arrays: the old state stays whole until the pass is done
-        alpha = float(settings.alpha)
+        alpha = settings.alpha
         first = not update_statistics.compiled_for_python()
         t0 = time.perf_counter()
         n_new, r_new, tau_new = cls.updated(alpha, state.n_photons, state.radius, state.tau, got, got.flux, got.count)
