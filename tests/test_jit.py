@@ -250,6 +250,21 @@ def _read_borrowed_mixed(m):
     return (_mixed_fields(b), b[1], b[2], b[3], b[-1][0, 1], origin[2] * scale + count, flag, basis.shape[0])
 
 
+class _Numbers(NamedTuple):
+    scale: float
+    count: int
+
+
+class _Nested(NamedTuple):
+    origin: np.ndarray
+    pair: tuple
+
+
+@kernel
+def _borrow_any(t):
+    return borrowed(t)[0]
+
+
 def _rebind_mixed(m):
     g = m
     h = g
@@ -262,6 +277,9 @@ def test_a_named_tuple_of_arrays_and_numbers_is_borrowed_too(monkeypatch):
     m = _Mixed(np.array([1.0, 2.0, 3.0]), 0.5, 7, True, np.arange(9.0).reshape(3, 3))
     assert _read_borrowed_mixed(m) == (0.5 * 2.0 + 7 + 100.0 + 3.0, 0.5, 7, True, 1.0, 3.0 * 0.5 + 7, True, 3)
     assert _read_borrowed_mixed(m._replace(flag=False))[0] == 0.5 * 2.0 + 7 + 3.0
+    for refused in (_Numbers(0.5, 7), _Nested(np.zeros(3), (1.0, 2.0))):   # nothing to detach; not flat
+        with pytest.raises(Exception, match="borrowed"):
+            _borrow_any(refused)
     from numba.core import codegen
 
     generated = []

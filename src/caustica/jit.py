@@ -610,7 +610,8 @@ def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None
 
 
 class BorrowedTuple(types.NamedTuple):
-    """The Numba type of a named tuple of arrays (and numbers) whose reference counts are detached, held by reference.
+    """The Numba type of a named tuple of arrays (and numbers, booleans) whose reference counts are detached, held by
+    reference.
 
     Its value is a pointer to the tuple, stored once in the frame of the kernel that
     made it (:func:`borrowed`): binding or passing one generates no reference-count
@@ -636,7 +637,8 @@ class BorrowedTuple(types.NamedTuple):
 
 @register_model(BorrowedTuple)
 class _BorrowedTupleModel(PrimitiveModel):
-    """A pointer to the tuple's struct (each array's data model, in order): nothing to reference-count."""
+    """A pointer to the tuple's struct (each field's data model, in order: an array's struct, a number as it is, a
+    boolean as a byte): nothing to reference-count."""
 
     def __init__(self, dmm, fe_type):
         struct = llvm_ir.LiteralStructType([dmm.lookup(t).get_data_type() for t in fe_type])
@@ -722,9 +724,10 @@ def _borrowed_static_getitem(context, builder, sig, args):
 
 @intrinsic
 def borrowed(typingctx, tup):
-    """The same named tuple (of arrays, and numbers beside them) with every array's reference count detached, held by
-    reference (:class:`BorrowedTuple`); of a plain tuple of arrays, the same tuple with detached views; of a plain tuple of named tuples (the scene
-    tables), each borrowed.
+    """The same named tuple (of arrays, with numbers and booleans beside them, as the camera's parameters) with every
+    array's reference count detached, held by reference (:class:`BorrowedTuple`); of a plain tuple of arrays, the
+    same tuple with detached views; of a plain tuple of named tuples (the scene tables), each borrowed.  A named
+    tuple of numbers alone, or one holding tuples, is refused (there is nothing to detach, or it is not flat).
 
     Numba increments and decrements the reference count of every array in a tuple
     each time the tuple is bound to a variable or a function's argument: with the
