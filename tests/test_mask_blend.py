@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import math
+import os
 import types
 from pathlib import Path
 
@@ -373,7 +374,9 @@ def test_bad_mixture_exits_2_one_line(cli, tmp_path, case):
     assert_refused_in_one_line(cli, tmp_path, *BAD[case])
 
 
-CORPUS = Path("/tmp/corpus/mitsuba-renderer+mitsuba-data")
+#: Mitsuba's data repository inside the corpus of tests/test_mitsuba_corpus.py (scripts/fetch_mitsuba_scenes.py)
+_CORPUS = os.environ.get("CAUSTICA_MITSUBA_CORPUS", Path(__file__).resolve().parents[1] / "out" / "mitsuba-corpus")
+CORPUS = Path(_CORPUS) / "mitsuba-renderer+mitsuba-data"
 
 
 @pytest.mark.parametrize("name", ["docs/scenes/bsdf_mask_after.xml", "docs/scenes/bsdf_blendbsdf.xml",

@@ -17,6 +17,7 @@ a perturbed shading normal.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -369,7 +370,9 @@ def test_bad_wrapper_exits_2_one_line(cli, images, case):
     assert_refused_in_one_line(cli, images, *BAD[case])
 
 
-CORPUS = Path("/tmp/corpus/mitsuba-renderer+mitsuba-data")
+#: Mitsuba's data repository inside the corpus of tests/test_mitsuba_corpus.py (scripts/fetch_mitsuba_scenes.py)
+_CORPUS = os.environ.get("CAUSTICA_MITSUBA_CORPUS", Path(__file__).resolve().parents[1] / "out" / "mitsuba-corpus")
+CORPUS = Path(_CORPUS) / "mitsuba-renderer+mitsuba-data"
 
 
 @pytest.mark.parametrize("name", ["tests/scenes/bsdf_spheres/test_normalmap_path.xml",
