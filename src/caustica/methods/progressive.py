@@ -31,6 +31,7 @@ import numpy as np
 
 from ..arrays import require_array
 from ..errors import ParameterError
+from ..geometry.primitives import borrow
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..photons.density_filters import FILTER_NONE, FILTERS
@@ -192,6 +193,7 @@ def gather_flux(grid, points, radius, out, depth, i0, i1):
     one): :func:`_gather_at` (``depth`` as it takes it)."""
     grid = borrowed(grid)
     points = (borrowed(points[0]), borrowed(points[1]))
+    radius, out = borrow(radius), borrowed(out)   # no reference counts per pixel around the grid's sum
     for i in range(i0, i1):
         _gather_at(grid, points, radius, out, i, depth)
 
@@ -205,6 +207,7 @@ def gather_flux_two(grids, points, radii, outs, depths, filt_c, i0, i1):
     grid = borrowed(grid)
     grid_c = borrowed(grid_c)
     points = (borrowed(points[0]), borrowed(points[1]))
+    radii, outs = borrowed(radii), borrowed(outs)   # no reference counts per pixel around the grids' sums
     if depths is None:
         for i in range(i0, i1):
             _gather_at(grid, points, radii[0], outs[0], i, None)

@@ -339,14 +339,15 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
     k_g, _, k_c, _, _ = estimate
     image, knn_queries = out
     kmax = max(k_g, k_c, 1)
+    # scratch for every path of these pixels (each path writes what it reads): allocated once, not per pixel
+    st_o = np.empty((SPLIT_STACK, 3))
+    st_d = np.empty((SPLIT_STACK, 3))
+    st_beta = np.empty((SPLIT_STACK, 3))
+    st_depth = np.empty(SPLIT_STACK, np.int64)
+    idx = np.empty(kmax, np.int64)
+    d2 = np.empty(kmax)
     for i in range(i0, i1):
         x, y = pixel_of(cam, i)
-        st_o = np.empty((SPLIT_STACK, 3))
-        st_d = np.empty((SPLIT_STACK, 3))
-        st_beta = np.empty((SPLIT_STACK, 3))
-        st_depth = np.empty(SPLIT_STACK, np.int64)
-        idx = np.empty(kmax, np.int64)
-        d2 = np.empty(kmax)
         acc = (0.0, 0.0, 0.0)
         nq = 0
         for s in range(spp):

@@ -351,7 +351,7 @@ def leaves_by(geom, mats, o, d, n_from, check_side):
 def trace_streams(tables, light_medium, source, rules, buf, i0, i1):
     """Emit and trace streams [i0, i1) of ``source`` = (seed, stream, n_streams) (:func:`trace_stream`) into
     ``buf`` = (records, associated photons, split photons, the records' depths)."""
-    tables = borrowed(tables)
+    tables, light_medium = borrowed(tables), borrow(light_medium)
     geom, _, lights, _ = tables
     seed, stream, n_streams = source
     rec, assoc, split_buf, depth = buf

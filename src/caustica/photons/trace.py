@@ -47,6 +47,7 @@ from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, has_null_lobe, o
 from ..bsdfs.perturb import flip_side
 from ..bsdfs.mixtures import weight
 from ..geometry import vec
+from ..geometry.primitives import borrow
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..media import free_flight, medium_after, photon_scatter
@@ -433,7 +434,7 @@ def trace_photons(tables, light_medium, source, rules, out, i0, i1):
     """Photons [i0, i1) of ``source`` under ``rules`` = (max_bounces mr, termination), into ``out`` = (buf, slots,
     counts): photon i keeps its first ``slots`` records in slots [i * slots, (i + 1) * slots) of buf, and counts[i]
     = the records its path made."""
-    tables = borrowed(tables)
+    tables, light_medium = borrowed(tables), borrow(light_medium)
     buf, slots, counts = out
     buf = borrowed(buf)   # no reference counts on the records' arrays, wherever trace_one passes them
     for i in range(i0, i1):
@@ -446,7 +447,7 @@ def trace_photon_tails(tables, light_medium, source, rules, tails, i0, i1):
     """The photons whose paths made more records than their fixed slots, again: ``tails`` = (ids, offsets, skip,
     buf), photon ids[j] for j in [i0, i1), its records from number ``skip`` on into slots [offsets[j],
     offsets[j + 1]) of buf."""
-    tables = borrowed(tables)
+    tables, light_medium = borrowed(tables), borrow(light_medium)
     ids, offsets, skip, buf = tails
     buf = borrowed(buf)
     for j in range(i0, i1):
@@ -461,7 +462,7 @@ def trace_caustic_photons(tables, light_medium, spheres, source, buf, i0, i1):
     glass, glossy objects): the first event after a chain of them only (one slot each).  A photon that scatters in
     a medium or meets a diffuse surface before any of them stores nothing (that light is the other photons' and
     the direct light's)."""
-    tables = borrowed(tables)
+    tables, light_medium, spheres = borrowed(tables), borrow(light_medium), borrow(spheres)
     geom, _, lights, _ = tables
     seed, stream, n_paths = source
     buf = borrowed(buf)
