@@ -221,7 +221,8 @@ def test_borrowed_tuples_read_the_same_values_and_are_never_returned():
     pair = _Pair(np.arange(3.0), np.arange(10.0, 13.0))
     assert _read_borrowed(geom, scene.tables, pair) == (n, geom[0].shape[0], geom[-1].shape[0], n, n,
                                                         mats.kind.shape[0], 1.0 + 12.0)
-    for use in (_use_returned, _use_optional, _use_list, _use_alias):   # in an optional, a list, by an alias too
+    for use in (_use_returned, _use_optional, _use_list, _use_alias,   # in an optional, a list, by an alias too
+                _borrow_and_return):                                  # and called from Python (its twin)
         with pytest.raises(Exception, match="borrows and returns a borrowed tuple"):
             use(geom)
     with pytest.raises(Exception, match=r"borrowed\(\) inside a loop"):

@@ -89,7 +89,7 @@ from numba.core.environment import lookup_environment
 from numba.core.imputils import lower_builtin, lower_getattr_generic
 from numba.core.ir_utils import GuardException, find_const, get_definition
 from numba.core.registry import CPUDispatcher
-from numba.core.typed_passes import NativeLowering
+from numba.core.typed_passes import NativeLowering, NopythonTypeInference
 from numba.core.untyped_passes import WithLifting
 from numba.extending import intrinsic, register_model, unbox
 
@@ -325,14 +325,33 @@ class KernelLibrary(AnalysisPass):
         return False
 
 
+@register_pass(mutates_CFG=False, analysis_only=True)
+class RefuseReturnedBorrow(AnalysisPass):
+    """Refuses a kernel that borrows and returns a borrowed tuple (in any container): the tuple lives in that kernel's
+    frame (:func:`borrowed`), which has ended when the caller reads it.  Passing on a borrowed tuple it was given is
+    fine.  Checked after typing, for kernels and their Python-called twins alike."""
+    _name = "caustica_refuse_returned_borrow"
+
+    def __init__(self):
+        AnalysisPass.__init__(self)
+
+    def run_pass(self, state):
+        if _borrows(state.func_id.func) and holds_borrowed(state.return_type):
+            raise TypeError(f"kernel {state.func_id.func_qualname} borrows and returns a borrowed tuple "
+                            f"({state.return_type}), which would point into its own frame: borrow in the caller")
+        return False
+
+
 class KernelCompiler(Compiler):
     """Numba's nopython pipeline with :class:`FoldFeatureTests` before its dead-branch pruning,
-    :class:`BorrowOutsideLoops`, and :class:`KernelLibrary` before lowering."""
+    :class:`BorrowOutsideLoops`, :class:`RefuseReturnedBorrow` after typing, and :class:`KernelLibrary` before
+    lowering."""
 
     def define_pipelines(self):
         pm = DefaultPassBuilder.define_nopython_pipeline(self.state)
         pm.add_pass_after(FoldFeatureTests, WithLifting)
         pm.add_pass_after(BorrowOutsideLoops, FoldFeatureTests)
+        pm.add_pass_after(RefuseReturnedBorrow, NopythonTypeInference)
         order = [cls for cls, _ in pm.passes]
         pm.add_pass_after(KernelLibrary, order[order.index(NativeLowering) - 1])
         pm.finalize()
@@ -397,15 +416,6 @@ class Kernel(CPUDispatcher):
     def compiled_for_python(self) -> bool:
         """Whether a call from Python has compiled (or loaded) this kernel in this process."""
         return self._from_python is not None and len(self._from_python.signatures) > 0
-
-    def add_overload(self, cres):
-        # A borrowed tuple points into the frame of the kernel that borrowed it: one that borrows and returns a
-        # borrowed tuple (not only passes on one it was given) would return a pointer into its own, ended, frame.
-        if _borrows(self.py_func) and holds_borrowed(cres.signature.return_type):
-            raise TypeError(f"kernel {self.py_func.__qualname__} borrows and returns a borrowed tuple "
-                            f"({cres.signature.return_type}), which would point into its own frame: borrow in "
-                            "the caller")
-        super().add_overload(cres)
 
     def get_call_template(self, args, kws):
         return super().get_call_template(tuple(types.unliteral(a) for a in args),
