@@ -159,10 +159,14 @@ def caustic_region(ref, direct, floor):
 
 
 def parse_config(text: str) -> tuple[str, dict]:
-    """``LABEL=KEY:VALUE,KEY:VALUE`` -> (label, sppm parameters); numbers are read as int or float."""
+    """``LABEL=KEY:VALUE,KEY:VALUE`` -> (label, sppm parameters); numbers are read as int or float (argparse type of
+    ``--sppm``: an item without its colon is a usage error, not a traceback)."""
     label, _, rest = text.partition("=")
-    return label.strip(), dict(method_setting(item.strip().replace(":", "=", 1))
-                               for item in filter(None, rest.split(",")))
+    items = [item.strip() for item in rest.split(",") if item.strip()]
+    for item in items:
+        if ":" not in item:
+            raise argparse.ArgumentTypeError(f"{text!r}: {item!r} is not KEY:VALUE, e.g. 'alpha 0.5=alpha:0.5'")
+    return label.strip(), dict(method_setting(item.replace(":", "=", 1)) for item in items)
 
 
 def main() -> None:
@@ -178,11 +182,11 @@ def main() -> None:
     ap.add_argument("--ptracer-spp", type=int, default=16384,
                     help="the particle tracer's reference, samples per pixel (default 16384)")
     ap.add_argument("--reference-only", action="store_true", help="make (or check) the cached reference and stop")
-    ap.add_argument("--sppm", action="append", metavar="LABEL=KEY:VALUE,...",
+    ap.add_argument("--sppm", type=parse_config, action="append", metavar="LABEL=KEY:VALUE,...",
                     help="an sppm configuration to time instead of the built-in ones (repeatable), e.g. "
                          "'alpha 0.5=alpha:0.5' or 'defaults='")
     args = ap.parse_args()
-    configs = CONFIGS if not args.sppm else tuple(parse_config(c) for c in args.sppm)
+    configs = CONFIGS if not args.sppm else tuple(args.sppm)
     mi = mitsuba_module()
     if mi is None:
         raise SystemExit("Mitsuba 3 (scalar_rgb) is needed: pip install mitsuba")

@@ -21,7 +21,6 @@
 from __future__ import annotations
 
 import math
-import os
 import types
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.description import BLEND, DIFFUSE, MASK, ROUGHCONDUCTOR, Material, Texture, CHECKERBOARD
 from imagestats import assert_images_agree
+from test_mitsuba_corpus import CORPUS as MITSUBA_CORPUS
 from test_glossy import assert_refused_in_one_line, incident
 
 HERE = Path(__file__).parent / "scenes"
@@ -375,8 +375,7 @@ def test_bad_mixture_exits_2_one_line(cli, tmp_path, case):
 
 
 #: Mitsuba's data repository inside the corpus of tests/test_mitsuba_corpus.py (scripts/fetch_mitsuba_scenes.py)
-_CORPUS = os.environ.get("CAUSTICA_MITSUBA_CORPUS", Path(__file__).resolve().parents[1] / "out" / "mitsuba-corpus")
-CORPUS = Path(_CORPUS) / "mitsuba-renderer+mitsuba-data"
+CORPUS = MITSUBA_CORPUS / "mitsuba-renderer+mitsuba-data"
 
 
 @pytest.mark.parametrize("name", ["docs/scenes/bsdf_mask_after.xml", "docs/scenes/bsdf_blendbsdf.xml",

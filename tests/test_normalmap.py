@@ -17,7 +17,6 @@ a perturbed shading normal.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +31,7 @@ from caustica.sampling.rng import path_key
 from caustica.scene.description import BUMPMAP, NORMALMAP
 from caustica.transport import surface_interaction
 from imagestats import assert_images_agree
+from test_mitsuba_corpus import CORPUS as MITSUBA_CORPUS
 from test_glossy import assert_refused_in_one_line
 
 HERE = Path(__file__).parent / "scenes"
@@ -371,8 +371,7 @@ def test_bad_wrapper_exits_2_one_line(cli, images, case):
 
 
 #: Mitsuba's data repository inside the corpus of tests/test_mitsuba_corpus.py (scripts/fetch_mitsuba_scenes.py)
-_CORPUS = os.environ.get("CAUSTICA_MITSUBA_CORPUS", Path(__file__).resolve().parents[1] / "out" / "mitsuba-corpus")
-CORPUS = Path(_CORPUS) / "mitsuba-renderer+mitsuba-data"
+CORPUS = MITSUBA_CORPUS / "mitsuba-renderer+mitsuba-data"
 
 
 @pytest.mark.parametrize("name", ["tests/scenes/bsdf_spheres/test_normalmap_path.xml",
