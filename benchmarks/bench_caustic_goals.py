@@ -12,7 +12,7 @@ Scenes (``--scene``):
 * ``envmap``: benchmarks/scenes/envmap-caustic.xml, a glass ball on a diffuse floor under a sky with a small sun
   (:func:`sun_sky_map`, written with a copy of the scene to out/envmap-caustic/).  Goal: sppm within 3 % of the
   reference, its caustic error at 30 s at least 5x below Mitsuba's.
-* ``plastic``: benchmarks/scenes/plastic-caustic.xml, a glass ball on a rough plastic floor (GGX, alpha 0.15) under a
+* ``plastic``: tests/scenes/plastic-caustic.xml, a glass ball on a rough plastic floor (GGX, alpha 0.15) under a
   small square light: the caustic lands on a BSDF with a glossy lobe beside its diffuse one (no goal of its own).
 
 * References, Mitsuba 3 (``scalar_rgb``), each in two halves of independent seeds, cached in out/refs/: for the
@@ -52,7 +52,7 @@ from caustica.imageio import write_exr
 REPO = Path(__file__).resolve().parents[1]
 SCENES = {"glossy": REPO / "tests" / "scenes" / "glossy-caustic.xml",
           "envmap": REPO / "benchmarks" / "scenes" / "envmap-caustic.xml",
-          "plastic": REPO / "benchmarks" / "scenes" / "plastic-caustic.xml"}
+          "plastic": REPO / "tests" / "scenes" / "plastic-caustic.xml"}
 REF_SPP_PER_CALL = 256
 #: sppm configurations: (label, parameters).  Its defaults: one photon per pixel per pass, half of them aimed at the
 #: caustic casters (the ball and the ring; the glass ball), with the caustic events' own statistics.
@@ -138,17 +138,26 @@ def particle_reference(mi, args, path, params):
     return (a + b) / 2, a, b
 
 
-def floor_pixels(mi, args, path, params):
-    """bool[H, W]: the pixels whose centre ray first meets the shape with id "floor"."""
+def floor_pixels(mi, args, path, params, grid=4):
+    """bool[H, W]: the pixels whose rays through each of a ``grid`` x ``grid`` set of positions over the pixel (its box
+    filter's footprint) all first meet the shape with id "floor".  A pixel the casters' silhouette crosses is left
+    out: the particle tracer's reference cannot see a glass ball or a mirror ring, so it lacks their share there."""
     scene = mi.load_file(str(path), res=args.res, **params)
     sensor = scene.sensors()[0]
     w, h = sensor.film().crop_size()
-    out = np.zeros((h, w), bool)
+    out = np.ones((h, w), bool)
+    offsets = (np.arange(grid) + 0.5) / grid
     for y in range(h):
         for x in range(w):
-            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + 0.5) / w, (y + 0.5) / h), mi.Point2f(0.5, 0.5))
-            si = scene.ray_intersect(ray)
-            out[y, x] = bool(si.is_valid()) and si.shape.id() == "floor"
+            for oy in offsets:
+                for ox in offsets:
+                    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + ox) / w, (y + oy) / h), mi.Point2f(0.5, 0.5))
+                    si = scene.ray_intersect(ray)
+                    if not (bool(si.is_valid()) and si.shape.id() == "floor"):
+                        out[y, x] = False
+                        break
+                if not out[y, x]:
+                    break
     return out
 
 
