@@ -243,3 +243,17 @@ def eval_coating(mats, m, d, ng, ns, wi):
     F, _ = fresnel_dielectric(vec.dot(wo, h), mats.eta[m])
     f = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     return vec.mul(specular(mats, m), f), dh * g1o / (4.0 * wo[2])
+
+
+@kernel
+def split_record_weight(mats, m, d, ng, ns, uv, wi):
+    """What a caustic photon's record (its power times :func:`entry` B(wi), arriving from wi) is weighted by at a
+    visible point that takes the diffuse lobe of the split (:func:`coat`) but claims the glossy lobe's share of the
+    caustic too (sppm's separate caustic statistics): A + f_glossy(d, wi) / B(wi), so the record gives the whole f
+    times the photon's power.  A alone where B is 0 (the record then carries nothing)."""
+    _, A = coat(mats, m, d, ns, uv)
+    b = entry(mats, m, vec.dot(wi, ns))
+    if b <= 0.0:
+        return A
+    f, _ = eval_coating(mats, m, d, ng, ns, wi)
+    return vec.madd(A, f, 1.0 / b)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..arrays import require_array
 from ..errors import ParameterError
+from ..geometry import vec
 from ..geometry.primitives import borrow
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
@@ -40,7 +41,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass, max_depth_of
+from ..photons.visible_points import BSDF_MATERIAL, SPLIT_ROW, bsdf_point, camera_pass, max_depth_of, split_diffuse
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -154,13 +155,16 @@ CELL_PER_RADIUS = 2.0
 
 
 @kernel(inline=True)
-def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE):
+def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE, caustic=False):
     """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (the pass's
     :class:`~caustica.photons.visible_points.VisiblePoints`, the material table), both borrowed, into ``out`` =
     (flux, count) at i.  Where the point's material is >= 0 each event's power is weighted by that BSDF at the
-    event's direction (Σ f Φ; the visible point's weight is then β).  Under a finite max_depth, ``depth`` =
-    (max_depth, the grid's events' depths), the point takes those of depth max_depth - its segments at most; None:
-    every one.  ``filt``: the filter that weighs each event (:func:`~caustica.photons.grid.grid_range_sum`)."""
+    event's direction (Σ f Φ; the visible point's weight is then β).  At a roughplastic's split point
+    (:func:`~caustica.photons.visible_points.split_visible_point`) the sum is weighted by the diffuse lobe's A, or, for
+    the ``caustic`` grid, each record by A + f_glossy / B (:func:`caustica.bsdfs.split_record_weight`).  Under a
+    finite max_depth, ``depth`` = (max_depth, the grid's events' depths), the point takes those of depth max_depth -
+    its segments at most; None: every one.  ``filt``: the filter that weighs each event
+    (:func:`~caustica.photons.grid.grid_range_sum`)."""
     vps, mats = points
     vp_pos, vp_nrm, vp_found, rows = vps.position, vps.normal, vps.found, vps.bsdf
     flux, count = out
@@ -171,17 +175,21 @@ def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE):
         return
     p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
+    code = rows[i, BSDF_MATERIAL]
+    split = code <= SPLIT_ROW
     if depth is None:   # Numba compiles the two cases apart (the None one as before depths were kept)
-        if rows[i, BSDF_MATERIAL] < 0.0:
+        if code < 0.0 and not (split and caustic):
             m, s = grid_range_sum(grid, p, n, radius[i], None, None, filt)
         else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None, filt)
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None, filt, split)
     else:
         limit = (depth[0] - vps.segments[i], depth[1])
-        if rows[i, BSDF_MATERIAL] < 0.0:
+        if code < 0.0 and not (split and caustic):
             m, s = grid_range_sum(grid, p, n, radius[i], None, limit, filt)
         else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit, filt)
+            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit, filt, split)
+    if split and not caustic:
+        s = vec.hadamard(s, split_diffuse(mats, rows, i))
     count[i] = m
     for c in range(3):
         flux[i, c] = s[c]
@@ -211,11 +219,11 @@ def gather_flux_two(grids, points, radii, outs, depths, filt_c, i0, i1):
     if depths is None:
         for i in range(i0, i1):
             _gather_at(grid, points, radii[0], outs[0], i, None)
-            _gather_at(grid_c, points, radii[1], outs[1], i, None, filt_c)
+            _gather_at(grid_c, points, radii[1], outs[1], i, None, filt_c, True)
     else:
         for i in range(i0, i1):
             _gather_at(grid, points, radii[0], outs[0], i, depths[0])
-            _gather_at(grid_c, points, radii[1], outs[1], i, depths[1], filt_c)
+            _gather_at(grid_c, points, radii[1], outs[1], i, depths[1], filt_c, True)
 
 
 @kernel
@@ -396,7 +404,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         bar = progress(total=n, desc="visible points", unit="px")
         t0 = time.perf_counter()
         # in a scene with media, also the camera path's medium segments, for the volume estimate (docs/media.md)
-        vps, segments, c0 = camera_pass(scene, settings, pass_index, bar)
+        vps, segments, c0 = camera_pass(scene, settings, pass_index, bar, claim=radius_caustic is not None)
         vp_weight, vp_found, direct = vps.weight, vps.found, vps.direct
         max_depth = max_depth_of(settings)
         limited = max_depth is not None
@@ -413,7 +421,7 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         volume = stats.pop("volume_photons", None)
         (grid, depth), (grid_c, depth_c) = _event_grids(
             scene, events, radius_caustic, vp_found, typical,
-            (bool(np.any(vps.bsdf[vp_found, BSDF_MATERIAL] >= 0.0)), limited))
+            (bool(np.any(vps.bsdf[vp_found, BSDF_MATERIAL] != -1.0)), limited))
         if first_build:  # the grid's sort compiled (or loaded) just now: compile time, not work
             c1 += time.perf_counter() - t1
         else:

@@ -36,6 +36,19 @@ the lobe's sampling (:func:`caustica.bsdfs.eval_coating`), then the lobe's sampl
 (:func:`caustica.bsdfs.sample_coating`), both divided by P.  (Without the light sample, the coating's reflection of
 a small light was a scatter of fireflies over a rough plastic floor at 100 passes.)
 
+**The coating's reflection of a caustic** (``claim``: when the caustic photons keep statistics of their own).  A
+camera path that takes the glossy lobe finds light that reached the floor through glass only by meeting the light
+through that glass: on tests/scenes/plastic-caustic.xml that share was a quarter of the caustic and most of its
+noise.  So, as pbrt-v4's visible points weigh each photon by the whole BSDF, the point on the diffuse lobe becomes a
+*split point* (:func:`split_visible_point`): weight β / (1 − P), the global records (power times B) weighted by A,
+each caustic record by A + f_glossy(d, wi) / B(wi) (:func:`caustica.bsdfs.split_record_weight`), which is the whole
+f times the photon's power; and a path that took the coating leaves out what it gathers through caustic casters
+alone after it (:func:`claimed`: the photons' own rule for a caustic path, light → casters → here), so nothing
+counts twice.  The glossy lobe still carries the rest by the camera path (the direct highlight with its light
+sample, what it sees of lit walls), where a photon estimate through a narrow lobe would be the noisier: in a
+Cornell box with a rough plastic floor and back wall (GGX, α 0.1) weighting every photon by the whole BSDF doubled
+the image's noise, and the split points leave it as it was (docs/results.md, 2026-12-06).
+
 **Glossy surfaces** (rough metal and glass: smooth lobes, none diffuse) hold no visible point, as in pbrt-v4's
 SPPM: the path takes one light sample there, MIS-weighted against the BSDF's sampling (the path tracer's
 :func:`caustica.lighting.next_event`), and goes on by the BSDF's sample; an emitter or the environment it meets
@@ -110,6 +123,9 @@ def depth_limit(settings) -> int:
 #: Columns of :attr:`VisiblePoints.bsdf`: the material (as a float), d, the geometric normal, the surface coordinates,
 #: the shading normal (perturbed under a normal or bump map).
 BSDF_MATERIAL, BSDF_INCOMING, BSDF_NG, BSDF_UV, BSDF_NS, BSDF_COLUMNS = 0, 1, 4, 7, 15, 18
+#: The material column of a roughplastic's split point (:func:`split_visible_point`): SPLIT_ROW - m for material m
+#: (-1: no row; m >= 0: a point that evaluates its BSDF).
+SPLIT_ROW = -2.0
 
 
 @kernel(inline=True)
@@ -263,14 +279,7 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
     goes to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
     key, dim = numbers
-    i, rows = pixel
-    rows[i, BSDF_MATERIAL] = m
-    for k in range(3):
-        rows[i, BSDF_INCOMING + k] = d[k]
-        rows[i, BSDF_NG + k] = at.ng[k]
-        rows[i, BSDF_NS + k] = at.ns[k]
-    for k in range(8):
-        rows[i, BSDF_UV + k] = at.uv[k]
+    write_bsdf_row(at, m, d, pixel)
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
                                                             uniform(key, dim + 2)), False)
     if not ok:
@@ -280,14 +289,46 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
 
 
 @kernel
+def write_bsdf_row(at, code, d, pixel):
+    """Row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`): the material column ``code``, then d, the normals and uv
+    of ``at``."""
+    i, rows = pixel
+    rows[i, BSDF_MATERIAL] = code
+    for k in range(3):
+        rows[i, BSDF_INCOMING + k] = d[k]
+        rows[i, BSDF_NG + k] = at.ng[k]
+        rows[i, BSDF_NS + k] = at.ns[k]
+    for k in range(8):
+        rows[i, BSDF_UV + k] = at.uv[k]
+
+
+@kernel
+def split_visible_point(at, m, d, pixel):
+    """The row of a visible point on roughplastic m's diffuse lobe that also claims the glossy lobe's share of the
+    caustic (``claim``, :func:`visible_point`): its material column SPLIT_ROW - m (:func:`write_bsdf_row`)."""
+    write_bsdf_row(at, SPLIT_ROW - m, d, pixel)
+
+
+@kernel
 def bsdf_point(mats, rows, i):
     """(mats, m, d, ng, ns, uv): visible point i's BSDF as :func:`caustica.photons.grid.grid_range_sum` weighs with it,
-    from its row of :attr:`VisiblePoints.bsdf` (:func:`bsdf_visible_point` writes it)."""
+    from its row of :attr:`VisiblePoints.bsdf` (:func:`bsdf_visible_point` or :func:`split_visible_point` writes
+    it)."""
     r = rows[i]
-    return (mats, int(r[BSDF_MATERIAL]), (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
+    code = r[BSDF_MATERIAL]
+    m = int(code) if code >= 0.0 else int(SPLIT_ROW - code)
+    return (mats, m, (r[BSDF_INCOMING], r[BSDF_INCOMING + 1], r[BSDF_INCOMING + 2]),
             (r[BSDF_NG], r[BSDF_NG + 1], r[BSDF_NG + 2]), (r[BSDF_NS], r[BSDF_NS + 1], r[BSDF_NS + 2]),
             (r[BSDF_UV], r[BSDF_UV + 1], r[BSDF_UV + 2], r[BSDF_UV + 3], r[BSDF_UV + 4], r[BSDF_UV + 5], r[BSDF_UV + 6],
              r[BSDF_UV + 7]))
+
+
+@kernel
+def split_diffuse(mats, rows, i):
+    """The diffuse lobe's factor A (:func:`caustica.bsdfs.rough_coat`) of split point i, from its row: what the
+    records of the global photons (power times B) are weighted by there."""
+    _, m, d, _, ns, uv = bsdf_point(mats, rows, i)
+    return rough_coat(mats, m, d, ns, uv)[1]
 
 
 @kernel(inline=True)
@@ -392,6 +433,11 @@ def diffuse_vertex(tables, at, m, d, path, branch, rules):
         return True, at.ns, beta, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
     if flags & SMOOTH and not take_coat:
         w, Ld = visible_point_here(tables, at, m, beta, (coating[1], coating[3]), numbers, params, dim)
+        if has(mats, ROUGHPLASTIC) and params[5] and mats.kind[m] == ROUGHPLASTIC and coating[1] >= 0.0:
+            # the caustic photons claim the glossy lobe's share of the caustic here (visible_point's ``claim``):
+            # weight β / (1 - P), the gather weighs by A (and the caustic records by A + f_glossy / B)
+            split_visible_point(at, m, d, pixel)
+            w = vec.mul(beta, 1.0 / (1.0 - coating[1]))
         return True, at.ns, w, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
     return False, zero, zero, L, take_coat, coating, pdf_coat, first_glass, dim
 
@@ -481,6 +527,39 @@ def camera_flight(tables, flight, medium, path, n_seg, numbers, out):
     return True, vec.add(L, Ls), beta, n_seg + 1
 
 
+@kernel(inline=True)
+def claimed(mats, L, claim):
+    """L as the camera path keeps it (:func:`visible_point`'s ``claim`` = (took a roughplastic's coating last, casters
+    only since, L before them)): what it gathered through caustic casters alone after a coating it took is the caustic
+    photons' (light -> casters -> the coating, gathered at the coating's split points), so left out."""
+    if has(mats, ROUGHPLASTIC) and claim[1]:
+        return claim[2]
+    return L
+
+
+@kernel(inline=True)
+def claim_at(tables, hit, L, claim):
+    """The camera path's ``claim`` state (:func:`claimed`) at a surface ``hit`` = (prim, its material there) before it
+    scatters there: a caustic caster (a primitive whose material has no diffuse lobe: the photons' rule,
+    :func:`caustica.photons.trace.beside_diffuse`) right after a coating starts leaving out what follows, L kept; any
+    other surface ends it, L back to what was kept (its emission seen through the casters was the photons' too).  A
+    surface with a null lobe (volpath's thin dielectric) changes nothing, crossed or reflected (not told apart: a
+    reflection there is a caster's event to the photons).  Returns (L, claim)."""
+    geom, mats = tables[0], tables[1]
+    prim, m = hit
+    after_coat, dropping, kept = claim
+    if has_null_lobe(mats, m):
+        return L, claim
+    caster = mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION == 0
+    if caster:
+        if after_coat:
+            return L, (False, True, L)
+        return L, claim
+    if dropping:
+        return kept, (False, False, kept)
+    return L, (False, False, kept)
+
+
 @kernel
 def visible_point(tables, o, d, numbers, params, out):
     """Follow a camera ray to its visible point: (found, position, normal, weight W, radiance L_direct, the medium
@@ -488,9 +567,12 @@ def visible_point(tables, o, d, numbers, params, out):
 
     ``numbers`` = (key, qkey, vkey, pass_index): the path's own key, the key that scrambles the pass-indexed
     sequences, the medium segments' key, and the pass.  ``params`` = (n_strata, fixed_grid, max_specular,
-    max_depth, hide_emitters): Mitsuba's max_depth (segments of a whole path; :data:`UNLIMITED_DEPTH` for none) ends
-    the path at a surface reached in max_depth segments once its emission is added, as Mitsuba's path integrator
-    does, and hide_emitters leaves out the emitters the camera sees first.
+    max_depth, hide_emitters, claim): Mitsuba's max_depth (segments of a whole path; :data:`UNLIMITED_DEPTH` for
+    none) ends the path at a surface reached in max_depth segments once its emission is added, as Mitsuba's path
+    integrator does, and hide_emitters leaves out the emitters the camera sees first.  With ``claim`` (the caustic
+    photons have statistics of their own) a roughplastic's split point gathers the caustic through both lobes
+    (:func:`split_visible_point`), so a path that took the coating leaves out what it gathers through caustic
+    casters alone after it (light -> casters -> the coating: :func:`claimed`).
     The path's medium segments are written to ``out`` = (slot0, segments, pixel): slots slot0, slot0 + 1, ...;
     a visible point that evaluates its BSDF writes it to ``pixel`` (:func:`bsdf_visible_point`).
     k, the last of what it returns, is the path's segments from the camera to the visible point (the photons
@@ -509,18 +591,22 @@ def visible_point(tables, o, d, numbers, params, out):
     mis = (True, 0.0, o)   # (no glossy scattering yet, or a delta one since; after one, its sample's density, where)
     medium = media.camera[0]
     wall = zero   # the wall the path leaves (none at the camera), where a medium segment starting here starts
+    claim = (False, False, zero)   # (took a roughplastic's coating last, casters only since, L before them)
     while True:
         prim, t, b1, b2 = intersect(geom, o, d, np.inf)
         in_segment = medium >= 0
-        free, L, beta, n_seg = camera_flight(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth, wall), medium,
-                                             (L, beta), n_seg, numbers, (out[0], out[1]))
+        free, L_flight, beta, n_seg = camera_flight(tables, (o, d, t if prim >= 0 else np.inf, k, max_depth, wall),
+                                                    medium, (L, beta), n_seg, numbers, (out[0], out[1]))
+        if has(mats, ROUGHPLASTIC) and claim[1]:   # a medium's light is no caustic photon's: kept
+            claim = (claim[0], True, vec.add(claim[2], vec.sub(L_flight, L)))
+        L = L_flight
         if not free:
-            return False, zero, zero, zero, L, n_seg, k
+            return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
         if prim < 0:
             if has(lights, ENV) and lights.env[0] >= 0 and not counted and (k > 0 or not hide_emitters):
                 L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
                              escape_weight(lights, d, mis))
-            return False, zero, zero, zero, L, n_seg, k
+            return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
         crossed = crossings
         ray = (o, d, t, b1, b2)
         before = medium
@@ -539,16 +625,20 @@ def visible_point(tables, o, d, numbers, params, out):
             continue
         # at max_depth no light scattered here can count (volpath's thin dielectric may still be crossed)
         if nxt == TRAPPED or k >= max_depth and not has_null_lobe(mats, m):
-            return False, zero, zero, zero, L, n_seg, k
+            return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
         scatters, ng_seen, ns_seen = oriented(mats, m, front, ng, ns)
         if not scatters:
-            return False, zero, zero, zero, L, n_seg, k
+            return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
+        if has(mats, ROUGHPLASTIC) and params[5]:
+            L, claim = claim_at(tables, (prim, m), L, claim)
         at = ShadingPoint(p, ng_seen, ns_seen, ng, shape, medium, uv)
         status, n, w, (L, beta, counted, mis), wi, (crossings, k, depth), first_glass, dim = camera_vertex(
             tables, at, m, d, (L, beta, counted, mis), (crossed, k, depth), (first_glass, numbers, dim),
             (params, out[2]))
         if status != ONWARD:
-            return status == VISIBLE, p if status == VISIBLE else zero, n, w, L, n_seg, k
+            return status == VISIBLE, p if status == VISIBLE else zero, n, w, claimed(mats, L, claim), n_seg, k
+        if has(mats, ROUGHPLASTIC) and params[5] and mats.kind[m] == ROUGHPLASTIC and not wrapped(mats, m):
+            claim = (True, False, zero)   # it took the coating
         o, d, medium = vec.offset_origin(p, ng_seen, wi), wi, medium_after(media, shape, ng, wi, medium)
 
 
@@ -597,8 +687,10 @@ class VisiblePoints(NamedTuple):
     segments: np.ndarray   # int32[n]: the camera path's segments to the visible point (Mitsuba's depth there)
 
 
-def camera_pass(scene, settings, pass_index, bar=None):
-    """Run :func:`visible_points` over every pixel for pass (or sample) ``pass_index``.
+def camera_pass(scene, settings, pass_index, bar=None, claim=False):
+    """Run :func:`visible_points` over every pixel for pass (or sample) ``pass_index``; ``claim``: the caustic
+    photons have statistics of their own, gathered at roughplastic's split points through both lobes
+    (:func:`visible_point`).
 
     Returns (:class:`VisiblePoints`, :class:`~caustica.photons.segments.CameraSegments` or None without media,
     compile seconds).  The camera keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
@@ -607,7 +699,7 @@ def camera_pass(scene, settings, pass_index, bar=None):
     if scene.has_media:
         check_segment_memory(n)
     flags, kinds = scene.materials.flags, scene.materials.kind
-    evaluating = np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & (kinds != ROUGHPLASTIC)
+    evaluating = np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & ((kinds != ROUGHPLASTIC) | claim)
                                                             | (scene.materials.wrapped != 0)))
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
                            np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)),
@@ -617,7 +709,7 @@ def camera_pass(scene, settings, pass_index, bar=None):
     keys = (settings.seed, pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
             pass_index)
     params = (settings.light_samples, settings.fixed_light_grid, settings.max_specular_depth,
-              depth_limit(settings), settings.hide_emitters)
+              depth_limit(settings), settings.hide_emitters, bool(claim))
     compile_s = parallel_for(visible_points, n, (scene.tables, cam, keys, params, (points, segments)),
                              threads=settings.threads, progress=bar)
     return points, (segments if scene.has_media else None), compile_s
