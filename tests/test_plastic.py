@@ -419,6 +419,20 @@ def test_sppm_renders_a_caustic_on_roughplastic_as_mitsuba(mi, test_scenes_dir):
     assert_images_agree(ours, theirs, label="a caustic on roughplastic, sppm")
 
 
+def test_sppm_counts_a_light_mirrored_in_a_thin_pane_once(mi, test_scenes_dir):
+    """tests/scenes/coated-pane.xml: a rough plastic floor's coating reflects a small light mirrored in a thin glass
+    pane (volpath: the pane's straight-on lobe a null event, its reflection a caustic caster's event).  The caustic
+    photons carry light -> pane -> floor to the floor's split points; a camera path that took the coating and then
+    reflected off the pane leaves it out.  Until 2026-12-06 it counted it again: the image mean was 7.5 % above
+    Mitsuba's (volpath); the excess spreads over the coating's lobe, so no single 4 x 4 block shows it."""
+    path = test_scenes_dir / "coated-pane.xml"
+    scene = caustica.load_scene(path)
+    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=200).image for s in range(4)]
+    theirs_scene = mi.load_file(str(path))
+    theirs = [np.array(mi.render(theirs_scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    assert_images_agree(ours, theirs, label="a light mirrored in a thin pane, off rough plastic, sppm")
+
+
 @pytest.mark.parametrize("case", TEXTURED, ids=[f"{'plastic' if k == PLASTIC else 'rough'}-{t}{'-nl' if n else ''}"
                                                 for k, t, n in TEXTURED])
 def test_textured_plastic_values_match_mitsuba(mi, tmp_path, case):

@@ -543,8 +543,9 @@ def claim_at(tables, hit, L, claim):
     scatters there: a caustic caster (a primitive whose material has no diffuse lobe: the photons' rule,
     :func:`caustica.photons.trace.beside_diffuse`) right after a coating starts leaving out what follows, L kept; any
     other surface ends it, L back to what was kept (its emission seen through the casters was the photons' too).  A
-    surface with a null lobe (volpath's thin dielectric) changes nothing, crossed or reflected (not told apart: a
-    reflection there is a caster's event to the photons).  Returns (L, claim)."""
+    surface with a null lobe (volpath's thin dielectric) changes nothing here: crossed straight on it is no event,
+    and a reflection off it right after a coating starts the leaving-out once the path has taken it
+    (:func:`claim_onward`).  Returns (L, claim)."""
     geom, mats = tables[0], tables[1]
     prim, m = hit
     after_coat, dropping, kept = claim
@@ -558,6 +559,19 @@ def claim_at(tables, hit, L, claim):
     if dropping:
         return kept, (False, False, kept)
     return L, (False, False, kept)
+
+
+@kernel(inline=True)
+def claim_onward(mats, m, turn, L, claim):
+    """The ``claim`` state (:func:`claimed`) once the camera path goes on from material m, ``turn`` = (arriving,
+    leaving direction): it took a roughplastic's coating, or, right after one, reflected off volpath's thin
+    dielectric (a caster's event to the photons, where crossing it straight on is none: :func:`claim_at`)."""
+    d, wi = turn
+    if mats.kind[m] == ROUGHPLASTIC and not wrapped(mats, m):
+        return (True, False, (0.0, 0.0, 0.0))
+    if claim[0] and has_null_lobe(mats, m) and (wi[0] != d[0] or wi[1] != d[1] or wi[2] != d[2]):
+        return (False, True, L)
+    return claim
 
 
 @kernel
@@ -637,8 +651,8 @@ def visible_point(tables, o, d, numbers, params, out):
             (params, out[2]))
         if status != ONWARD:
             return status == VISIBLE, p if status == VISIBLE else zero, n, w, claimed(mats, L, claim), n_seg, k
-        if has(mats, ROUGHPLASTIC) and params[5] and mats.kind[m] == ROUGHPLASTIC and not wrapped(mats, m):
-            claim = (True, False, zero)   # it took the coating
+        if has(mats, ROUGHPLASTIC) and params[5]:
+            claim = claim_onward(mats, m, (d, wi), L, claim)
         o, d, medium = vec.offset_origin(p, ng_seen, wi), wi, medium_after(media, shape, ng, wi, medium)
 
 
@@ -676,12 +690,13 @@ class VisiblePoints(NamedTuple):
     """One pass's visible point of each pixel (every entry written by the camera pass)."""
     position: np.ndarray   # float64[n, 3]
     normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side (ng under a normal or bump map)
-    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0)
+    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0, β / (1 - P) at a split point)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
     bsdf: np.ndarray       # float64[n, BSDF_COLUMNS] (or [n, 1] in a scene without such a BSDF: its first column
     #                        only, -1 everywhere): a visible point whose BSDF the gather evaluates
-    #                        (:func:`bsdf_visible_point`): its material (-1: none, the others), the camera path's
+    #                        (:func:`bsdf_visible_point`): its material (-1: none; SPLIT_ROW - m at a roughplastic's
+    #                        split point, :func:`split_visible_point`; m >= 0 the others), the camera path's
     #                        direction arriving there, the geometric normal on the viewed side, the surface coordinates,
     #                        the shading normal
     segments: np.ndarray   # int32[n]: the camera path's segments to the visible point (Mitsuba's depth there)
