@@ -352,12 +352,12 @@ def eval_coating(mats, m, d, ng, ns, wi):
 
 
 @kernel(inline=True)
-def split_record_weight(mats, m, d, ng, ns, uv, wi):
-    """:func:`rough_coat`'s split point weighing a caustic record (power times B) arriving from wi: the diffuse
-    lobe's A plus the glossy lobe's f / B (:func:`caustica.bsdfs.roughplastic.split_record_weight`).  No code in a
-    scene without roughplastic."""
+def split_record_weight(mats, m, d, ng, ns, wi, A):
+    """:func:`rough_coat`'s split point (its diffuse lobe's factor A) weighing a caustic record (power times B)
+    arriving from wi: A plus the glossy lobe's f / B (:func:`caustica.bsdfs.roughplastic.split_record_weight`).  No
+    code in a scene without roughplastic."""
     if has(mats, ROUGHPLASTIC):
-        return roughplastic.split_record_weight(mats, m, d, ng, ns, uv, wi)
+        return roughplastic.split_record_weight(mats, m, d, ng, ns, wi, A)
     return (0.0, 0.0, 0.0)
 
 

@@ -246,12 +246,11 @@ def eval_coating(mats, m, d, ng, ns, wi):
 
 
 @kernel
-def split_record_weight(mats, m, d, ng, ns, uv, wi):
+def split_record_weight(mats, m, d, ng, ns, wi, A):
     """What a caustic photon's record (its power times :func:`entry` B(wi), arriving from wi) is weighted by at a
-    visible point that takes the diffuse lobe of the split (:func:`coat`) but claims the glossy lobe's share of the
-    caustic too (sppm's separate caustic statistics): A + f_glossy(d, wi) / B(wi), so the record gives the whole f
-    times the photon's power.  A alone where B is 0 (the record then carries nothing)."""
-    _, A = coat(mats, m, d, ns, uv)
+    visible point that takes the diffuse lobe of the split (:func:`coat`: its factor A) but claims the glossy lobe's
+    share of the caustic too (sppm's separate caustic statistics): A + f_glossy(d, wi) / B(wi), so the record gives
+    the whole f times the photon's power.  A alone where B is 0 (the record then carries nothing)."""
     b = entry(mats, m, vec.dot(wi, ns))
     if b <= 0.0:
         return A

@@ -41,7 +41,7 @@ from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
 from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_MATERIAL, SPLIT_ROW, bsdf_point, camera_pass, max_depth_of, split_diffuse
+from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass, max_depth_of, split_diffuse, split_point
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -155,6 +155,22 @@ CELL_PER_RADIUS = 2.0
 
 
 @kernel(inline=True)
+def _point_sum(grid, query, limit, filt, row):
+    """:func:`~caustica.photons.grid.grid_range_sum` at a visible point, ``query`` = (p, n, r), of ``row`` = (the
+    material table, :attr:`VisiblePoints.bsdf`, i, the caustic grid or not): a plain sum without a BSDF row, or at a
+    split point outside the caustic grid; weighted by the point's BSDF; at a split point in the caustic grid, each
+    record by A + f_glossy / B."""
+    p, n, r = query
+    mats, rows, i, caustic = row
+    split = split_point(mats, rows, i)
+    if rows[i, BSDF_MATERIAL] < 0.0 and not (split and caustic):
+        return grid_range_sum(grid, p, n, r, None, limit, filt)
+    if not split:
+        return grid_range_sum(grid, p, n, r, bsdf_point(mats, rows, i), limit, filt)
+    return grid_range_sum(grid, p, n, r, bsdf_point(mats, rows, i), limit, filt, split_diffuse(mats, rows, i))
+
+
+@kernel(inline=True)
 def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE, caustic=False):
     """Σ Φ and the number of the grid's events within radius[i] of visible point i of ``points`` = (the pass's
     :class:`~caustica.photons.visible_points.VisiblePoints`, the material table), both borrowed, into ``out`` =
@@ -175,20 +191,12 @@ def _gather_at(grid, points, radius, out, i, depth, filt=FILTER_NONE, caustic=Fa
         return
     p = (vp_pos[i, 0], vp_pos[i, 1], vp_pos[i, 2])
     n = (vp_nrm[i, 0], vp_nrm[i, 1], vp_nrm[i, 2])
-    code = rows[i, BSDF_MATERIAL]
-    split = code <= SPLIT_ROW
+    row = (mats, rows, i, caustic)
     if depth is None:   # Numba compiles the two cases apart (the None one as before depths were kept)
-        if code < 0.0 and not (split and caustic):
-            m, s = grid_range_sum(grid, p, n, radius[i], None, None, filt)
-        else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), None, filt, split)
+        m, s = _point_sum(grid, (p, n, radius[i]), None, filt, row)
     else:
-        limit = (depth[0] - vps.segments[i], depth[1])
-        if code < 0.0 and not (split and caustic):
-            m, s = grid_range_sum(grid, p, n, radius[i], None, limit, filt)
-        else:
-            m, s = grid_range_sum(grid, p, n, radius[i], bsdf_point(mats, rows, i), limit, filt, split)
-    if split and not caustic:
+        m, s = _point_sum(grid, (p, n, radius[i]), (depth[0] - vps.segments[i], depth[1]), filt, row)
+    if split_point(mats, rows, i) and not caustic:
         s = vec.hadamard(s, split_diffuse(mats, rows, i))
     count[i] = m
     for c in range(3):

@@ -165,7 +165,7 @@ def build_grid(position, power, normal, valid, box, cell, direction=None, depth=
 
 
 @kernel
-def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE, split=False):
+def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE, split=None):
     """Σ power over the events within r of qp whose normal faces qn (dot > FACING_COS), and their count.
     With ``limit`` = (deepest, the events' depths in the grid's order, :func:`build_grid`'s) only events of depth <=
     deepest count (a scene's max_depth: the segments the camera path took to qp leave the photon's path the rest);
@@ -178,8 +178,8 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE, split=False):
     f(d, -event direction) at a point of normals ng, ns (:func:`caustica.bsdfs.eval_photon`: the visible point's own,
     the camera path arriving along d); with ``bsdf`` None, plain sums (a separate compilation: Numba prunes the
     ``bsdf is not None`` branch, so the plain sum's code is what it was before BSDFs were weighed here).  With
-    ``split`` true, m is a roughplastic's split point and the events are caustic records carrying its factor B: each
-    is weighted by :func:`caustica.bsdfs.split_record_weight` instead.
+    ``split`` = the diffuse lobe's factor A of a roughplastic's split point (m's), the events are caustic records
+    carrying its factor B: each is weighted by :func:`caustica.bsdfs.split_record_weight` instead.
     """
     s0 = 0.0
     s1 = 0.0
@@ -229,7 +229,7 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE, split=False):
                             continue
                         if nrm[j, 0] * qn[0] + nrm[j, 1] * qn[1] + nrm[j, 2] * qn[2] > FACING_COS:
                             count += 1
-                            e0, e1, e2 = _gathered_power(grid, j, bsdf, filt, (d2, r2), split)
+                            e0, e1, e2 = _gathered_power(grid, j, bsdf, filt, d2, r2, split)
                             s0 += e0
                             s1 += e1
                             s2 += e2
@@ -237,17 +237,16 @@ def grid_range_sum(grid, qp, qn, r, bsdf, limit, filt=FILTER_NONE, split=False):
 
 
 @kernel(inline=True)
-def _gathered_power(grid, j, bsdf, filt, dist, split):
-    """Event j's power as :func:`grid_range_sum` adds it, ``dist`` = (d², r²) from the query: times the filter's
-    shape (exactly 1 for none, so the plain power's bits) and, with ``bsdf``, the BSDF's value at its direction (at a
-    ``split`` point, :func:`caustica.bsdfs.split_record_weight`)."""
-    d2, r2 = dist
+def _gathered_power(grid, j, bsdf, filt, d2, r2, split):
+    """Event j's power as :func:`grid_range_sum` adds it, d² from the query within r²: times the filter's shape
+    (exactly 1 for none, so the plain power's bits) and, with ``bsdf``, the BSDF's value at its direction (at a split
+    point, ``split`` its factor A: :func:`caustica.bsdfs.split_record_weight`)."""
     pw = grid.power
     w = filter_shape(filt, d2, r2)
     if bsdf is not None:
         wi = (-float(grid.direction[j, 0]), -float(grid.direction[j, 1]), -float(grid.direction[j, 2]))
-        if split:
-            f, f_scale = split_record_weight(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi), 1.0
+        if split is not None:
+            f, f_scale = split_record_weight(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], wi, split), 1.0
         else:
             f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
         f_scale *= w

@@ -100,6 +100,7 @@ from ..media import attenuation, light_sample, medium_after, power_heuristic
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
+from .trace import beside_diffuse
 from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, end_segment_at_wall, \
     escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
@@ -323,6 +324,13 @@ def bsdf_point(mats, rows, i):
              r[BSDF_UV + 7]))
 
 
+@kernel(inline=True)
+def split_point(mats, rows, i):
+    """Whether visible point i's row is a roughplastic's split point (:func:`split_visible_point`); never in a scene
+    without roughplastic."""
+    return has(mats, ROUGHPLASTIC) and rows[i, BSDF_MATERIAL] <= SPLIT_ROW
+
+
 @kernel
 def split_diffuse(mats, rows, i):
     """The diffuse lobe's factor A (:func:`caustica.bsdfs.rough_coat`) of split point i, from its row: what the
@@ -541,7 +549,7 @@ def claimed(mats, L, claim):
 def claim_at(tables, hit, L, claim):
     """The camera path's ``claim`` state (:func:`claimed`) at a surface ``hit`` = (prim, its material there) before it
     scatters there: a caustic caster (a primitive whose material has no diffuse lobe: the photons' rule,
-    :func:`caustica.photons.trace.beside_diffuse`) right after a coating starts leaving out what follows, L kept; any
+    :func:`~caustica.photons.trace.beside_diffuse`) right after a coating starts leaving out what follows, L kept; any
     other surface ends it, L back to what was kept (its emission seen through the casters was the photons' too).  A
     surface with a null lobe (volpath's thin dielectric) changes nothing here: crossed straight on it is no event,
     and a reflection off it right after a coating starts the leaving-out once the path has taken it
@@ -551,8 +559,7 @@ def claim_at(tables, hit, L, claim):
     after_coat, dropping, kept = claim
     if has_null_lobe(mats, m):
         return L, claim
-    caster = mats.flags[geom.prim_material[prim]] & DIFFUSE_REFLECTION == 0
-    if caster:
+    if not beside_diffuse(geom, mats, prim):   # a caustic caster
         if after_coat:
             return L, (False, True, L)
         return L, claim
