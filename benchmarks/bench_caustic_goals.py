@@ -145,19 +145,17 @@ def floor_pixels(mi, args, path, params, grid=4):
     scene = mi.load_file(str(path), res=args.res, **params)
     sensor = scene.sensors()[0]
     w, h = sensor.film().crop_size()
-    out = np.ones((h, w), bool)
     offsets = (np.arange(grid) + 0.5) / grid
+
+    def on_floor(u, v):
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(u / w, v / h), mi.Point2f(0.5, 0.5))
+        si = scene.ray_intersect(ray)
+        return bool(si.is_valid()) and si.shape.id() == "floor"
+
+    out = np.zeros((h, w), bool)
     for y in range(h):
         for x in range(w):
-            for oy in offsets:
-                for ox in offsets:
-                    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((x + ox) / w, (y + oy) / h), mi.Point2f(0.5, 0.5))
-                    si = scene.ray_intersect(ray)
-                    if not (bool(si.is_valid()) and si.shape.id() == "floor"):
-                        out[y, x] = False
-                        break
-                if not out[y, x]:
-                    break
+            out[y, x] = all(on_floor(x + ox, y + oy) for oy in offsets for ox in offsets)
     return out
 
 

@@ -35,6 +35,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_caustic_goals as goals  # noqa: E402  (the references and the caustic region)
 
 
+def bias_and_spread(errors, m):
+    """(bias, spread per seed) from the seeds' squared errors ``errors`` and the squared error m of their mean image,
+    both with the reference's noise taken out (the module's formulas)."""
+    s, e = len(errors), float(np.mean(errors))
+    return max((s * m - e) / (s - 1), 0.0) ** 0.5, max(s * (e - m) / (s - 1), 0.0) ** 0.5
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="glossy", choices=sorted(goals.SCENES))
@@ -83,10 +90,8 @@ def main() -> None:
             seconds += time.perf_counter() - t0
             images.append(r.image.astype(np.float64))
             errors.append(max(rel_rmse(images[-1], ref_p, region) ** 2 - noise2, 0.0))
-        e = float(np.mean(errors))
         m = max(rel_rmse(np.mean(images, axis=0), ref_p, region) ** 2 - noise2, 0.0)
-        bias = max((s * m - e) / (s - 1), 0.0) ** 0.5
-        spread = max(s * (e - m) / (s - 1), 0.0) ** 0.5
+        bias, spread = bias_and_spread(errors, m)
         per_seed = " ".join(f"{v ** 0.5:.4f}" for v in errors)
         print(f"| {name} | {per_seed} | {m ** 0.5:.4f} | {bias:.4f} | {spread:.4f} | "
               f"{seconds / (s * args.passes):.4f} |", flush=True)

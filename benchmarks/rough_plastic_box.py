@@ -8,12 +8,13 @@ What it is for: a coating that reflects lit walls (indirect light) through a nar
 weighted by the whole BSDF is noisier than a camera path that samples the lobe (docs/results.md, 2026-12-06).  The
 scene is ../shared/scenes/cornell-diacaustic.xml with its floor and back wall made ``roughplastic`` (GGX,
 ``--alpha``), written to out/rough-plastic-box/; the reference (two halves of independent seeds) is cached there.
-Spread and bias as benchmarks/caustic_filter_ablation.py solves them.  No asserts: numbers to read.
+Spread and bias as benchmarks/caustic_filter_ablation.py solves them (:func:`bias_and_spread`).  No asserts: numbers to read.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -23,6 +24,10 @@ import caustica
 from caustica.experiments.config import method_setting
 from caustica.experiments.convergence import rel_rmse
 from caustica.experiments.mitsuba import mitsuba_module
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_caustic_goals import mitsuba_render  # noqa: E402  (Mitsuba's mean image in calls of 256 spp)
+from caustic_filter_ablation import bias_and_spread  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_SCENE = REPO.parent / "shared" / "scenes" / "cornell-diacaustic.xml"
@@ -71,14 +76,7 @@ def main() -> None:
     else:
         scene_mi = mi.load_file(str(path), res=args.res, alpha=args.alpha)
         t0 = time.perf_counter()
-        halves = []
-        for seed0 in (0, 100_000):
-            acc = 0.0
-            calls = max(1, args.ref_spp // 2 // 256)
-            for i in range(calls):
-                acc = acc + np.array(mi.render(scene_mi, spp=256, seed=seed0 + i), np.float64)[..., :3]
-            halves.append(acc / calls)
-        a, b = halves
+        a, b = (mitsuba_render(mi, scene_mi, args.ref_spp // 2, seed0) for seed0 in (0, 100_000))
         tmp = cache.with_suffix(".tmp.npz")
         np.savez(tmp, a=a, b=b)
         os.replace(tmp, cache)
@@ -95,14 +93,12 @@ def main() -> None:
         img = caustica.render(scene, args.method, res=args.res, seed=seed, passes=args.passes, **extra).image
         images.append(img.astype(np.float64))
         errors.append(max(rel_rmse(images[-1], ref, every) ** 2 - noise2, 0.0))
-    s = len(seeds)
-    e = float(np.mean(errors))
     m = max(rel_rmse(np.mean(images, axis=0), ref, every) ** 2 - noise2, 0.0)
+    bias, spread = bias_and_spread(errors, m)
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, alpha {args.alpha:g}, {args.method} {extra or 'defaults'}, "
           f"{args.res}², {args.passes} passes, seeds {seeds}, reference's own error {noise2 ** 0.5:.4f}")
     print(f"whole-image relRMSE per seed (noise out): {' '.join(f'{v ** 0.5:.4f}' for v in errors)}; "
-          f"bias {max((s * m - e) / (s - 1), 0.0) ** 0.5:.4f}, spread per seed "
-          f"{max(s * (e - m) / (s - 1), 0.0) ** 0.5:.4f}; mean / reference {np.mean(images) / ref.mean():.4f}; "
+          f"bias {bias:.4f}, spread per seed {spread:.4f}; mean / reference {np.mean(images) / ref.mean():.4f}; "
           f"{time.perf_counter() - t0:.0f} s")
 
 

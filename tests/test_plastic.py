@@ -405,17 +405,22 @@ TEXTURED = [(PLASTIC, "checkerboard", False), (PLASTIC, "bitmap", True), (ROUGHP
             (ROUGHPLASTIC, "bitmap", False)]
 
 
+def sppm_and_mitsuba(mi, path):
+    """4 seeds of sppm at its defaults (200 passes) and 4 of Mitsuba's own integrator (1024 spp), 32 x 32."""
+    scene = caustica.load_scene(path, res=32)
+    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=200).image for s in range(4)]
+    theirs_scene = mi.load_file(str(path), res=32)
+    theirs = [np.array(mi.render(theirs_scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    return ours, theirs
+
+
 def test_sppm_renders_a_caustic_on_roughplastic_as_mitsuba(mi, test_scenes_dir):
     """tests/scenes/plastic-caustic.xml: a glass ball's caustic on a rough plastic floor, which the floor's coating also
     reflects.  With its caustic photons' own statistics (the default) sppm gathers that reflection at the floor's
     split points (each caustic record weighted by A + f_glossy / B) and its camera paths that take the coating leave
     out what they meet through the ball: neither counted twice nor lost, against Mitsuba's path tracer, mean within
     2 % and 4x4 blocks within 5 sigmas of both sides' seeds (the caustic's blocks included)."""
-    path = test_scenes_dir / "plastic-caustic.xml"
-    scene = caustica.load_scene(path)
-    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=200).image for s in range(4)]
-    theirs_scene = mi.load_file(str(path), res=32, spp=1024)
-    theirs = [np.array(mi.render(theirs_scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    ours, theirs = sppm_and_mitsuba(mi, test_scenes_dir / "plastic-caustic.xml")
     assert_images_agree(ours, theirs, label="a caustic on roughplastic, sppm")
 
 
@@ -425,11 +430,7 @@ def test_sppm_counts_a_light_mirrored_in_a_thin_pane_once(mi, test_scenes_dir):
     photons carry light -> pane -> floor to the floor's split points; a camera path that took the coating and then
     reflected off the pane leaves it out.  Until 2026-12-06 it counted it again: the image mean was 7.5 % above
     Mitsuba's (volpath); the excess spreads over the coating's lobe, so no single 4 x 4 block shows it."""
-    path = test_scenes_dir / "coated-pane.xml"
-    scene = caustica.load_scene(path)
-    ours = [caustica.render(scene, "sppm", res=32, seed=s, passes=200).image for s in range(4)]
-    theirs_scene = mi.load_file(str(path))
-    theirs = [np.array(mi.render(theirs_scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    ours, theirs = sppm_and_mitsuba(mi, test_scenes_dir / "coated-pane.xml")
     assert_images_agree(ours, theirs, label="a light mirrored in a thin pane, off rough plastic, sppm")
 
 
