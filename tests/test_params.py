@@ -178,6 +178,24 @@ def test_the_image_memory_check_counts_each_method_s_own_arrays(scene, monkeypat
         resolve_settings(scene, "sppm", res=2000)                          # 2000^2 x 340 bytes = 1.36 GB
 
 
+@pytest.mark.parametrize("scene_name, claim", [("cornell-diacaustic", True), ("plastic-caustic.xml", False),
+                                               ("plastic-caustic.xml", True), ("cornell-diacaustic-fog", False)])
+def test_the_camera_pass_holds_what_its_memory_estimate_counts(scene_name, claim):
+    """camera_pass_bytes, which the memory checks add per pixel, is exactly what a camera pass allocates: the whole
+    BSDF rows where roughplastic's split points need them (the caustic photons' own statistics), the medium segments
+    in a scene with media."""
+    from pathlib import Path
+    from caustica.photons.visible_points import VISIBLE_POINT_BYTES, camera_pass, camera_pass_bytes
+    path = Path(__file__).parent / "scenes" / scene_name
+    scene_ = caustica.load_scene(str(path) if path.exists() else scene_name)
+    _, _, settings = resolve_settings(scene_, "sppm", res=6, multi_pass=True, threads=1)
+    points, segments, _ = camera_pass(scene_, settings, 0, claim=claim)
+    held = sum(a.nbytes for a in points) + (sum(a.nbytes for a in segments) if segments is not None else 0)
+    assert held == 36 * camera_pass_bytes(scene_, claim)
+    rows = scene_name == "plastic-caustic.xml" and claim
+    assert (camera_pass_bytes(scene_, claim) > VISIBLE_POINT_BYTES) == (rows or scene_.has_media)
+
+
 def test_resolved_settings_are_read_by_attribute_and_cannot_change(scene):
     """What resolve_settings returns is a typed, read-only structure: a misspelt name is an error that names
     the nearest setting, not a KeyError or a silent None."""

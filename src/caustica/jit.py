@@ -540,6 +540,9 @@ class _WorkerThreads:
                 task()
             except BaseException:   # a task reports its own errors; the thread serves on
                 pass
+            # an idle thread holds no task: its closure's arguments (a pass's visible points, say) are freed now,
+            # not when this thread's next task replaces them
+            task = None
             with self.lock:
                 self.idle += 1
 

@@ -7,14 +7,15 @@ import time
 import numpy as np
 
 from ..errors import ParameterError
+from ..memory import check_budget
 from ..jit import parallel_for
 from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.density_filters import FILTERS
 from ..photons.gather import gather_at_visible_points, gather_pixels
 from ..photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE
 from ..photons.streams import MEDIUM_SCATTERING
-from ..photons.segments import MEDIUM_SEGMENTS, check_segment_memory
-from ..photons.visible_points import max_depth_of
+from ..photons.segments import MEDIUM_SEGMENTS
+from ..photons.visible_points import camera_pass_bytes, max_depth_of
 from ..photons.visible_points import camera_pass as progressive_camera_pass
 from ..scene.description import NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
 from .params import NULL_THIN_PARAM, RADIUS_ALLOWED, Param, in_radius_range, non_negative, positive
@@ -116,14 +117,23 @@ def one_shot_volume_radius(scene, settings) -> float:
     return radius_setting(scene, settings, "volume_radius", VOLUME_RADIUS_FRACTION)
 
 
+#: Bytes a pixel of :func:`camera_pass_in_media` holds besides a sample's camera pass: the sum over the samples,
+#: the sample's volume estimate and count (float64[3] + float64[3] + int64), its k-nearest searches (int64).
+MEDIA_PASS_BYTES = 24 + 24 + 8 + 8
+
+
 def check_media_settings(scene, settings) -> None:
     """Before any photon is traced: what the camera pass in media does not do (the fixed grid of light
-    samples), and the memory of its segments."""
+    samples), and the memory of a sample's camera pass (:func:`camera_pass_in_media`: the visible points with their
+    medium segments, and MEDIA_PASS_BYTES)."""
     if not scene.has_media:
         return
     if settings.fixed_light_grid:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
-    check_segment_memory(settings.width * settings.height)
+    n = settings.width * settings.height
+    check_budget(n * (camera_pass_bytes(scene, False) + MEDIA_PASS_BYTES),
+                 f"the camera pass of {n:,} pixels in media (visible points and {MEDIUM_SEGMENTS} medium segments "
+                 f"each)", "lower the resolution")
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):

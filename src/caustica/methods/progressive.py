@@ -40,8 +40,10 @@ from ..photons.grid import build_grid, grid_compiled, grid_range_sum
 from ..photons.beams import beam_gather, build_volume_grid, volume_grid_compiled
 from ..photons.records import CAUSTIC, SLOT_BYTES, TraceBuffers
 from ..photons.trace import trace_caustic_photon_pass
-from ..photons.segments import MEDIUM_SEGMENTS, SEGMENT_BYTES
-from ..photons.visible_points import BSDF_MATERIAL, bsdf_point, camera_pass, max_depth_of, split_diffuse, split_point
+from ..photons.segments import MEDIUM_SEGMENTS
+from ..photons.visible_points import BSDF_MATERIAL, VISIBLE_POINT_BYTES, bsdf_point, camera_pass, max_depth_of, \
+    split_diffuse, split_point
+from ..photons.visible_points import camera_pass_bytes as visible_camera_pass_bytes
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
@@ -342,9 +344,10 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
                                  f"(got {settings.spp}); more passes give more samples")
         if scene.has_media and settings.fixed_light_grid:
             raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
+        camera = " and the camera pass's BSDF rows or medium segments" if cls.camera_pass_bytes(scene, settings) else ""
         check_budget(cls.pass_buffer_bytes(scene, settings),
                      f"one {cls.name} pass of {cls.emitted_per_pass(scene, settings):,} paths (their records and "
-                     f"the grid's copy)", cls.pass_memory_hint)
+                     f"the grid's copy{camera})", cls.pass_memory_hint + (" or --res" if camera else ""))
 
     @classmethod
     def auto_settings(cls, scene, settings) -> dict:
@@ -385,10 +388,12 @@ class ProgressivePhotonMethod(SceneDepths, IndependentPasses):
         """Photons aimed at the mirrors and glass per pass (0: none, or no mirror or glass to aim at)."""
         return 0
 
-    @staticmethod
-    def camera_segment_bytes(scene, settings) -> int:
-        """The camera pass's medium segments (scenes with media; photons/segments.py), else 0."""
-        return settings.width * settings.height * SEGMENT_BYTES if scene.has_media else 0
+    @classmethod
+    def camera_pass_bytes(cls, scene, settings) -> int:
+        """What a pass's camera pass holds beyond the one-column visible points :attr:`bytes_per_pixel` counts: the
+        rest of each BSDF row where the gather evaluates BSDFs, and the medium segments in a scene with media."""
+        claim = cls.separate_caustics(scene, settings) and not cls.independent(settings)
+        return settings.width * settings.height * (visible_camera_pass_bytes(scene, claim) - VISIBLE_POINT_BYTES)
 
     @classmethod
     def separate_caustics(cls, scene, settings) -> bool:

@@ -121,7 +121,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
         streams = StreamBuffers.bytes_needed(n, settings.assoc, settings.max_bounces,
                                              settings.specular == "split")
         return 2 * (streams + cls.caustic_photons_per_pass(scene, settings) * SLOT_BYTES) + \
-            cls.camera_segment_bytes(scene, settings)
+            cls.camera_pass_bytes(scene, settings)
 
     @classmethod
     def caustic_photons_per_pass(cls, scene, settings) -> int:

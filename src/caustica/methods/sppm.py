@@ -85,10 +85,10 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     @classmethod
     def pass_buffer_bytes(cls, scene, settings) -> int:
         """A pass's photon records (:func:`~caustica.photons.trace.planned_records`, one a caustic photon), the
-        grid's sorted copy, and in a scene with media the camera's medium segments."""
+        grid's sorted copy, and what the camera pass holds beyond the visible points (BSDF rows, medium segments)."""
         n, n_c = photon_counts(scene, settings)
         records = planned_records(n, settings.max_bounces, TERMINATIONS[settings.termination])
-        return 2 * (records + n_c) * SLOT_BYTES + cls.camera_segment_bytes(scene, settings)
+        return 2 * (records + n_c) * SLOT_BYTES + cls.camera_pass_bytes(scene, settings)
 
     @classmethod
     def photon_events(cls, scene, settings, pass_index, radius, progress):

@@ -101,8 +101,8 @@ from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, 
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
 from .trace import beside_diffuse
-from .segments import MEDIUM_SEGMENTS, allocate_segments, check_segment_memory, emitted_along, end_segment_at_wall, \
-    escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
+from .segments import MEDIUM_SEGMENTS, SEGMENT_BYTES, allocate_segments, check_segment_memory, emitted_along, \
+    end_segment_at_wall, escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
 INV_PI = 1.0 / math.pi
 #: A camera path's max_depth where a render sets none (-1): more segments than any path takes.
@@ -709,6 +709,28 @@ class VisiblePoints(NamedTuple):
     segments: np.ndarray   # int32[n]: the camera path's segments to the visible point (Mitsuba's depth there)
 
 
+#: Bytes a pixel's :class:`VisiblePoints` take with a one-column ``bsdf``: position, normal, weight and direct
+#: (float64[3] each), found, the first BSDF column, segments.
+VISIBLE_POINT_BYTES = 4 * 24 + 1 + 8 + 4
+
+
+def evaluates_bsdf(materials, claim: bool) -> bool:
+    """Whether the camera pass keeps a whole BSDF row per visible point (:data:`BSDF_COLUMNS`, not one): the scene
+    has a material the gather evaluates, a glossy one with a diffuse lobe (roughplastic only under ``claim``, as its
+    split point) or a wrapped one."""
+    flags, kinds = materials.flags, materials.kind
+    return bool(np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & ((kinds != ROUGHPLASTIC) | claim)
+                                                            | (materials.wrapped != 0))))
+
+
+def camera_pass_bytes(scene, claim: bool) -> int:
+    """Bytes a pixel of :func:`camera_pass` holds: its visible point, the rest of its BSDF row where the gather
+    evaluates BSDFs (:func:`evaluates_bsdf`), and its medium segments in a scene with media.  Checked against the
+    measured peak by ``benchmarks/pixel_memory.py``."""
+    rows = (BSDF_COLUMNS - 1) * 8 if evaluates_bsdf(scene.materials, claim) else 0
+    return VISIBLE_POINT_BYTES + rows + (SEGMENT_BYTES if scene.has_media else 0)
+
+
 def camera_pass(scene, settings, pass_index, bar=None, claim=False):
     """Run :func:`visible_points` over every pixel for pass (or sample) ``pass_index``; ``claim``: the caustic
     photons have statistics of their own, gathered at roughplastic's split points through both lobes
@@ -720,12 +742,9 @@ def camera_pass(scene, settings, pass_index, bar=None, claim=False):
     n = settings.width * settings.height
     if scene.has_media:
         check_segment_memory(n)
-    flags, kinds = scene.materials.flags, scene.materials.kind
-    evaluating = np.any((flags & DIFFUSE_REFLECTION != 0) & ((flags & GLOSSY != 0) & ((kinds != ROUGHPLASTIC) | claim)
-                                                            | (scene.materials.wrapped != 0)))
+    columns = BSDF_COLUMNS if evaluates_bsdf(scene.materials, claim) else 1
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
-                           np.empty((n, 3)), np.empty((n, BSDF_COLUMNS if evaluating else 1)),
-                           np.empty(n, np.int32))   # 148 B a pixel
+                           np.empty((n, 3)), np.empty((n, columns)), np.empty(n, np.int32))   # camera_pass_bytes
     segments = allocate_segments(n, scene.has_media)
     cam = scene.camera(settings.width, settings.height)
     keys = (settings.seed, pass_stream(STREAM_CAMERA, pass_index), pass_stream(STREAM_CAMERA_MEDIA, pass_index),
