@@ -21,7 +21,8 @@ Scenes (``--scene``):
   sooner (envmap scene, 96 px: its halves' caustic error at 512 spp was 0.027, the path tracer's at 32,768 spp
   0.069).  A reference's own error is half the relative RMSE between its halves; each error is printed as
   measured and with that noise taken out in quadrature.
-* Caustic region: the pixels whose centre ray first meets the floor (Mitsuba's ``ray_intersect``) and where the
+* Caustic region: the pixels whose rays through a 4 x 4 grid over the pixel all first meet the floor (Mitsuba's
+  ``ray_intersect``: a pixel the casters' silhouette crosses is left out, :func:`floor_pixels`) and where the
   particle tracer's reference exceeds a direct-light-only render (Mitsuba, ``max_depth`` 2) by at least 0.1 of that
   excess's 99.9th percentile over the floor: the light that reached the floor through the ball or off the ring.
 * Timed: ``sppm`` (:data:`CONFIGS`) with ``--time BUDGET`` after an untimed warm-up (kernels compiled or loaded), and

@@ -50,7 +50,7 @@ def estimate_per_pixel(method, scene_name, kw) -> float:
     if hasattr(cls, "camera_pass_bytes"):
         per += cls.camera_pass_bytes(scene, settings) / n
     elif scene.has_media:
-        per += camera_pass_bytes(scene, False) + MEDIA_PASS_BYTES
+        per += camera_pass_bytes(scene, bool(settings.get("caustic_photons"))) + MEDIA_PASS_BYTES
     return per
 
 

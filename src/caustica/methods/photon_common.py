@@ -131,9 +131,17 @@ def check_media_settings(scene, settings) -> None:
     if settings.fixed_light_grid:
         raise ParameterError("--fixed-light-grid: not supported in a scene with media (docs/media.md)")
     n = settings.width * settings.height
-    check_budget(n * (camera_pass_bytes(scene, False) + MEDIA_PASS_BYTES),
+    claim = bool(settings.get("caustic_photons"))   # a caustic map (PM+C): split points keep whole BSDF rows
+    check_budget(n * (camera_pass_bytes(scene, claim) + MEDIA_PASS_BYTES),
                  f"the camera pass of {n:,} pixels in media (visible points and {MEDIUM_SEGMENTS} medium segments "
                  f"each)", "lower the resolution")
+
+
+def claims_caustics(caustic_map) -> bool:
+    """Whether the camera pass gathers a caustic map of its own (PM+C), whose records then claim a roughplastic's
+    glossy share of the caustic at its split points, as sppm's separate caustic statistics do
+    (:func:`~caustica.photons.gather.gather_radiance`'s ``claim``)."""
+    return caustic_map.count > 0
 
 
 def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, progress):
@@ -148,7 +156,7 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
     t0 = time.perf_counter()
     estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
     params = (settings.light_samples, settings.fixed_light_grid, settings.max_specular_depth,
-              max_depth_of(settings), settings.hide_emitters)
+              max_depth_of(settings), settings.hide_emitters, claims_caustics(caustic_map))
     compile_s = parallel_for(gather_pixels, n, (scene.tables, (cam, settings.seed, settings.spp),
                                                 (global_map, caustic_map), estimate, params, (image, knn_queries)),
                              threads=settings.threads, progress=bar)
@@ -184,7 +192,7 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     bar = progress(total=n * spp, desc="camera pass", unit="px")
     t0 = time.perf_counter()
     for s in range(spp):
-        vps, segments, c = progressive_camera_pass(scene, settings, s, bar)
+        vps, segments, c = progressive_camera_pass(scene, settings, s, bar, claim=claims_caustics(caustic_map))
         vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
         estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
         # rows: BSDF-evaluating points; a max_depth limits the records by each point's segments

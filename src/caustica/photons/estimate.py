@@ -18,7 +18,7 @@ and the sum is the radiance itself (``bsdf``; pbrt-v4's SPPM weights its photons
 """
 from __future__ import annotations
 
-from ..bsdfs import eval_photon
+from ..bsdfs import eval_photon, split_record_weight
 from ..jit import kernel
 from .density_filters import filter_weight
 from .kdtree import KdTree, knn
@@ -35,7 +35,7 @@ def none_admitted(max_depth, k_camera):
 
 
 @kernel
-def flux_density(pmap, at, estimate, scratch, bsdf):
+def flux_density(pmap, at, estimate, scratch, bsdf, split=None):
     """Σ_p W(d_p, r) Φ_p over the k nearest same-side records (RGB, W/m²), and the number of them.
 
     ``at`` = (p, n, (max_depth, k)): the point, its normal for the same-side test, and the records it may take:
@@ -45,7 +45,9 @@ def flux_density(pmap, at, estimate, scratch, bsdf):
     With ``bsdf`` = (mats, m, d, ng, ns, uv) (a point that evaluates its BSDF, as
     :func:`caustica.photons.grid.grid_range_sum` takes it) each term is weighted by material m's f(d, -record
     direction): Σ_p W f Φ_p, the radiance towards -d.  With ``bsdf`` None, the plain sum: a separate compilation in
-    which Numba prunes the other branch, so the Lambertian points' loop is what it was."""
+    which Numba prunes the other branch, so the Lambertian points' loop is what it was.  With ``split`` = the diffuse
+    lobe's factor A of a roughplastic's split point (m's) too, the records are caustic records carrying its factor
+    B, each weighted by :func:`caustica.bsdfs.split_record_weight` (A + f_glossy / B) instead."""
     p, n, (max_depth, k_camera) = at
     k, r_max, filt = estimate
     scratch_idx, scratch_d2 = scratch
@@ -63,7 +65,10 @@ def flux_density(pmap, at, estimate, scratch, bsdf):
         for j in range(count):
             i = scratch_idx[j]
             wi = (-float(pmap.direction[i, 0]), -float(pmap.direction[i, 1]), -float(pmap.direction[i, 2]))
-            f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+            if split is not None:
+                f, f_scale = split_record_weight(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], wi, split), 1.0
+            else:
+                f, f_scale = eval_photon(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
             w = filter_weight(filt, scratch_d2[j], r2) * f_scale
             s0 += w * f[0] * pmap.power[i, 0]
             s1 += w * f[1] * pmap.power[i, 1]

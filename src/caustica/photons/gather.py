@@ -22,8 +22,11 @@ as a glass's reflection is (at the first SPLIT_DEPTH bounces; deeper, one of the
 sampling probability).  A glossy coating (roughplastic, :func:`caustica.bsdfs.rough_coat`) is taken as SPPM's
 camera pass takes it (:func:`caustica.photons.visible_points.rough_coating_step`): its glossy lobe with its sampling
 probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A / (1 - P), B on photons and shadow
-rays.  A glossy lobe beside a diffuse one (pplastic, an opaque principled) has no lobe to split off: the path ends there
-and its estimate weights every photon of both maps and every shadow ray by the BSDF's f(d, wi), both lobes
+rays; with a caustic map (PM+C) that estimate is a split point, as sppm's with its caustic photons' own statistics:
+the caustic map's records weighted by A + f_glossy / B (:func:`split_estimate`), and a path that took the coating
+leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  A glossy
+lobe beside a diffuse one (pplastic, an opaque principled) has no lobe to split off: the path ends there and its
+estimate weights every photon of both maps and every shadow ray by the BSDF's f(d, wi), both lobes
 (:func:`diffuse_estimate`'s ``bsdf``), as sppm's visible points weight their photons: L = β (Σ_shadow f L cos / p +
 Σ_p W f Φ_p).
 """
@@ -47,7 +50,8 @@ from ..sampling.rng import STREAM_CAMERA, path_key, uniform
 from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
 from ..transport import ShadingPoint, unwrap, with_tangent
 from .estimate import flux_density, none_admitted
-from .visible_points import BSDF_MATERIAL, bsdf_point, escape_weight, glossy_step, rough_coating_step, seen_weight
+from .visible_points import BSDF_MATERIAL, bsdf_point, claim_at, claim_onward, claimed, escape_weight, glossy_step, \
+    rough_coating_step, seen_weight, split_diffuse, split_point
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
@@ -61,11 +65,10 @@ INV_PI = 1.0 / math.pi
 def push_branch(scratch, top, o, d, beta, depth):
     """Put a camera-path branch (origin, direction, throughput, specular depth) on the split stack at ``top``;
     the stack's new top."""
-    st_o, st_d, st_beta, st_depth, _, _ = scratch
-    vec.set_row(st_o, top, o)
-    vec.set_row(st_d, top, d)
-    vec.set_row(st_beta, top, beta)
-    st_depth[top] = depth
+    vec.set_row(scratch[0], top, o)
+    vec.set_row(scratch[1], top, d)
+    vec.set_row(scratch[2], top, beta)
+    scratch[3][top] = depth
     return top + 1
 
 
@@ -97,6 +100,23 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     Ec, _ = flux_density(cmap, (at.p, facing, limit), (k_c, r_c, filt), scratch, bsdf)
     queries = 0 if none_admitted(limit[0], limit[1]) else (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
     return vec.add(E, vec.add(Eg, Ec)), dim + 2 * n_strata * n_strata, queries
+
+
+@kernel(inline=True)
+def split_estimate(tables, lookup, params, at, m, d, A, key, dim):
+    """At roughplastic m's split point, where the caustic map's records claim the glossy lobe's share of the caustic
+    too (``claim``, :func:`gather_radiance`): A (E_direct + E_global) + Σ_caustic W (A + f_glossy / B) Φ, the shadow
+    rays and the global map's records carrying the lobe's B as :func:`diffuse_estimate`'s, the caustic map's weighted
+    by :func:`caustica.bsdfs.split_record_weight` (the caller scales it by β / (1 - P)).  Returns (that sum, the
+    dimension past the shadow rays' numbers, k-nearest searches made)."""
+    (gmap, cmap), (k_g, r_g, k_c, r_c, filt), scratch, limit = lookup
+    n_strata, fixed_grid = params[0], params[1]
+    E = direct_stratified(tables, at, key, dim, (n_strata, fixed_grid, -1), m, None)
+    Eg, _ = flux_density(gmap, (at.p, at.ns, limit), (k_g, r_g, filt), scratch, None)
+    Ec, _ = flux_density(cmap, (at.p, at.ns, limit), (k_c, r_c, filt), scratch, (tables[1], m, d, at.ng, at.ns, at.uv),
+                         A)
+    queries = 0 if none_admitted(limit[0], limit[1]) else (gmap.position.shape[0] > 0) + (cmap.position.shape[0] > 0)
+    return vec.add(vec.hadamard(A, vec.add(E, Eg)), Ec), dim + 2 * n_strata * n_strata, queries
 
 
 @kernel(inline=True)
@@ -232,6 +252,10 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
             if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:
                 return False, L, beta, d, depth + 1, last, crossed, 0, top, dim   # the sample fell below the surface
             return True, L, vec.hadamard(beta, w_coat), wc, depth + 1, (False, pdf, p), 0, 0, top, dim
+        if params[5]:   # the caustic map claims the glossy lobe's share of the caustic: a split point
+            S, dim, q = split_estimate(tables, lookup, params, at, m, d, A, key, dim)
+            L = vec.add(L, vec.hadamard(beta, vec.mul(S, 1.0 / (1.0 - P))))
+            return False, L, beta, d, depth, last, crossed, q, top, dim
         E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
         L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
         return False, L, beta, d, depth, last, crossed, q, top, dim
@@ -267,26 +291,31 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
     """Radiance arriving at o from -d: the camera path through mirrors and glass to diffuse points, where the
     direct light and the maps' estimates are gathered (:func:`diffuse_estimate`).  Returns (L, k-nearest searches
     made).  ``maps`` = (global map, caustic map); ``estimate`` = (k_g, r_g, k_c, r_c, filter) their k-nearest
-    estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular, max_depth, hide_emitters):
+    estimates' parameters; ``params`` = (n_strata, fixed_grid, max_specular, max_depth, hide_emitters, claim):
     Mitsuba's max_depth (segments of a whole path, None for none) ends a path at the surface it reaches in
     max_depth segments once its emission is added, and a diffuse point k segments from the camera gathers the
     records of at most max_depth - k segments; hide_emitters leaves out what the camera
     sees first.  A path's segments to a surface are its specular depth + 1 (blends' null parts and, under
-    ``null_thin_dielectric``, a thindielectric crossed straight on are not vertices).
-    ``scratch`` = the split stack (origins, directions, throughputs, depths) and the k-nearest buffers (indices,
-    squared distances).
+    ``null_thin_dielectric``, a thindielectric crossed straight on are not vertices).  With ``claim`` (a caustic map
+    is gathered) a roughplastic's diffuse lobe is a split point (:func:`split_estimate`) and a path that took its
+    coating leaves out what it then meets through caustic casters alone, as sppm's visible points do
+    (:func:`~caustica.photons.visible_points.claimed`); each branch on the split stack carries that state.
+    ``scratch`` = the split stack (origins, directions, throughputs, depths), the k-nearest buffers (indices,
+    squared distances) and the stack's claim states (0 none, 1 after a coating, 2 casters only since).
     """
     geom, mats, lights, media = tables
     max_depth, hide_emitters = params[3], params[4]
     knn_scratch = (scratch[4], scratch[5])
-    st_o, st_d, st_beta, st_depth = scratch[0], scratch[1], scratch[2], scratch[3]
+    st_o, st_d, st_beta, st_depth, st_claim = scratch[0], scratch[1], scratch[2], scratch[3], scratch[6]
     L = (0.0, 0.0, 0.0)
     queries = 0
     top = push_branch(scratch, 0, o, d, (1.0, 1.0, 1.0), 0)
+    st_claim[0] = 0
     dim = 2
     while top > 0:
         top -= 1
         o, d, beta, depth = vec.row(st_o, top), vec.row(st_d, top), vec.row(st_beta, top), st_depth[top]
+        claim = (st_claim[top] == 1, st_claim[top] == 2, L)   # (after a coating, casters only since, L before them)
         last = (True, 0.0, o)   # (specular, pdf_last, p_last): a split branch starts after a delta bounce
         crossed = 0   # surfaces passed since the last vertex (MIS's distance to an emitter: seen_weight)
         while True:
@@ -314,14 +343,28 @@ def gather_radiance(tables, maps, estimate, params, o, d, key, scratch):
             scatters, ng, ns = oriented(mats, m, front, ng, ns)
             if not scatters:
                 break
+            if has(mats, ROUGHPLASTIC) and params[5]:
+                L, claim = claim_at(tables, (prim, m), L, claim)
             at = ShadingPoint(p, ng, ns, ng_front, geom.prim_shape[prim], media.camera[0], uv)
+            pushed = top
+            d_in = d
             go, L, beta, d, depth, last, crossed, q, top, dim = camera_vertex(
                 tables, (lookup, params), at, m, (L, beta, d, depth, last, crossed, null_lobe), (scratch, top), key,
                 dim)
             queries += q
+            if has(mats, ROUGHPLASTIC) and params[5]:
+                # the branches pushed here: glass's (after claim_at), a plastic's coating (none), volpath's thin
+                # dielectric's reflection (right after a coating, a caster's event: casters only from there)
+                state = 2 if claim[1] or (claim[0] and null_lobe) else (1 if claim[0] else 0)
+                for j in range(pushed, top):
+                    st_claim[j] = state
+                if go:
+                    claim = claim_onward(mats, m, (d_in, d), L, claim)
             if not go:
                 break
             o = vec.offset_origin(p, ng, d)
+        if has(mats, ROUGHPLASTIC) and params[5]:
+            L = claimed(mats, L, claim)
     return L, queries
 
 
@@ -344,6 +387,7 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
     st_d = np.empty((SPLIT_STACK, 3))
     st_beta = np.empty((SPLIT_STACK, 3))
     st_depth = np.empty(SPLIT_STACK, np.int64)
+    st_claim = np.zeros(SPLIT_STACK, np.int8)
     idx = np.empty(kmax, np.int64)
     d2 = np.empty(kmax)
     for i in range(i0, i1):
@@ -353,7 +397,8 @@ def gather_pixels(tables, camera, maps, estimate, params, out, i0, i1):
         for s in range(spp):
             key = path_key(seed, STREAM_CAMERA, i * spp + s)
             o, d = generate_ray(cam, x, y, uniform(key, 0), uniform(key, 1), key)
-            L, q = gather_radiance(tables, maps, estimate, params, o, d, key, (st_o, st_d, st_beta, st_depth, idx, d2))
+            L, q = gather_radiance(tables, maps, estimate, params, o, d, key,
+                                   (st_o, st_d, st_beta, st_depth, idx, d2, st_claim))
             nq += q
             if math.isfinite(L[0] + L[1] + L[2]):
                 acc = vec.add(acc, L)
@@ -375,7 +420,8 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
     W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
     point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (a glossy
     lobe beside a diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s
-    ``bsdf``).
+    ``bsdf``); at a roughplastic's split point (the camera pass's ``claim``; its weight β / (1 - P)) the global map's
+    records are weighted by the diffuse lobe's A and the caustic map's by A + f_glossy / B.
     """
     gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)
@@ -391,7 +437,13 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
             continue
         p = vec.row(vp_pos, i)
         n = vec.row(vp_nrm, i)
-        if rows[i, BSDF_MATERIAL] < 0.0:
+        if split_point(mats, rows, i):   # roughplastic's split point: the caustic map claims the glossy lobe's share
+            A = split_diffuse(mats, rows, i)
+            Eg, _ = flux_density(gmap, (p, n, (max_depth, segments[i])), (k_g, r_g, filt), (idx, d2), None)
+            Eg = vec.hadamard(A, Eg)
+            Ec, _ = flux_density(cmap, (p, n, (max_depth, segments[i])), (k_c, r_c, filt), (idx, d2),
+                                 bsdf_point(mats, rows, i), A)
+        elif rows[i, BSDF_MATERIAL] < 0.0:
             Eg, _ = flux_density(gmap, (p, n, (max_depth, segments[i])), (k_g, r_g, filt), (idx, d2), None)
             Ec, _ = flux_density(cmap, (p, n, (max_depth, segments[i])), (k_c, r_c, filt), (idx, d2), None)
         else:
