@@ -37,7 +37,8 @@ class Source:
 
 SOURCES = (
     Source("mitsuba-renderer/mitsuba-data", "01100fa9b0b154492061a92404f26dcd7b784dbb",
-           ("docs/scenes", "tests/scenes", "scenes", "common", "ior", "README.md"),
+           ("docs/scenes", "tests/scenes", "tests/obj", "tests/ply", "tests/serialized", "scenes", "common", "ior",
+            "README.md"),
            "Mitsuba 3's own data repository (its resources/data submodule: documentation, test and example "
            "scenes). It states no licence of its own; Mitsuba 3, which ships it, is BSD-3-Clause "
            "(https://github.com/mitsuba-renderer/mitsuba3/blob/master/LICENSE)."),

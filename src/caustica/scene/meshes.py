@@ -409,7 +409,10 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
     """A world-space copy of an object-space mesh.
 
     Points go through to_world, normals through its inverse transpose (renormalised);
-    flip_normals reverses each triangle's winding and negates the normals.
+    flip_normals reverses each triangle's winding and negates the normals.  A triangle whose vertex normals lie
+    against its winding's normal (every triangle under a mirroring to_world, where the winding turns and the normals
+    do not) has its winding reversed: Mitsuba evaluates a BSDF and an emitter in the shading frame, so its front
+    side is the vertex normals' side, which is caustica's geometric front.
     """
     m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
     try:
@@ -428,5 +431,11 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
         triangles = triangles[:, ::-1].copy()
         if normals is not None:
             normals = -normals
+    if normals is not None and triangles.shape[0]:
+        corners = positions[triangles]
+        winding = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        against = np.einsum("ij,ij->i", winding, normals[triangles].sum(axis=1)) < 0.0
+        if against.any():
+            triangles[against] = triangles[against][:, ::-1]
     return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles),
                 None if normals is None else np.ascontiguousarray(normals), mesh.uvs, mesh.attributes)

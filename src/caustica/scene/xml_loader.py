@@ -1542,7 +1542,9 @@ class _Loader:
                     mesh = to_world_mesh(s.mesh, m)
                 except SceneError as exc:
                     self.fail(node, str(exc))
-                if np.linalg.det(m[:3, :3]) < 0:   # keep the front side where Mitsuba's instance keeps it
+                if np.linalg.det(m[:3, :3]) < 0 and mesh.normals is None:
+                    # keep the front side where Mitsuba's instance keeps it (with vertex normals to_world_mesh has
+                    # put it on their side already, where Mitsuba's shading frame keeps it)
                     mesh.triangles = np.ascontiguousarray(mesh.triangles[:, ::-1])
                 placed.mesh = mesh
                 placed.to_world = m @ s.to_world
