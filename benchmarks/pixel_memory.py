@@ -33,6 +33,7 @@ CASES = (
     ("sppm", FOG, dict(photons=2000)),
     ("pspm", FOG, dict(streams=500)),
     ("pm", FOG, dict(photons=2000)),
+    ("pm", FOG, dict(photons=2000, spp=4)),
     ("spm", FOG, dict(streams=500)),
     ("pm", PLASTIC, dict(photons=2000)),
 )

@@ -196,6 +196,27 @@ def test_the_camera_pass_holds_what_its_memory_estimate_counts(scene_name, claim
     assert (camera_pass_bytes(scene_, claim) > VISIBLE_POINT_BYTES) == (rows or scene_.has_media)
 
 
+def test_pm_in_media_frees_each_sample_s_camera_pass_before_the_next():
+    """pm's camera pass in media runs one progressive camera pass per sample; a sample's visible points and medium
+    segments (camera_pass_bytes a pixel, about 1.2 kB in the fog box) must be freed before the next sample allocates
+    its own, as the memory check counts one sample's.  Until 2026-12-06 two were alive at once: the peak of 4
+    samples was one sample's arrays above that of 1."""
+    import tracemalloc
+    from caustica.photons.visible_points import camera_pass_bytes
+    fog = caustica.load_scene("cornell-diacaustic-fog")
+    kw = dict(res=48, seed=0, threads=2, photons=2000)
+    caustica.render(fog, "pm", spp=1, **kw)   # compiles (or loads) the kernels
+    peaks = []
+    for spp in (1, 4):
+        tracemalloc.start()
+        try:
+            caustica.render(fog, "pm", spp=spp, **kw)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    assert peaks[1] - peaks[0] < 0.25 * 48 * 48 * camera_pass_bytes(fog, False), peaks
+
+
 def test_resolved_settings_are_read_by_attribute_and_cannot_change(scene):
     """What resolve_settings returns is a typed, read-only structure: a misspelt name is an error that names
     the nearest setting, not a KeyError or a silent None."""

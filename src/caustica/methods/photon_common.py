@@ -165,6 +165,30 @@ def camera_pass(scene, settings, global_map, caustic_map, k_caustic, r_caustic, 
         int(knn_queries.sum())
 
 
+def _sample_in_media(scene, settings, s, lookup, out, bar):
+    """Camera sample s of :func:`camera_pass_in_media`: its visible points' surface estimate and its segments' beam
+    estimate added to ``out`` = (the sum over the samples, the k-nearest searches); ``lookup`` = ((global map,
+    caustic map), their estimates' parameters, the volume grid).  Returns (volume photons gathered, compile seconds).
+    The sample's arrays are freed when it returns, before the next sample's camera pass allocates its own."""
+    maps, estimate, vgrid = lookup
+    acc, knn_queries = out
+    n = settings.width * settings.height
+    max_depth = max_depth_of(settings)
+    vps, segments, c = progressive_camera_pass(scene, settings, s, bar, claim=claims_caustics(maps[1]))
+    vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
+    # rows: BSDF-evaluating points; a max_depth limits the records by each point's segments
+    points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials, vps.segments, max_depth)
+    c += parallel_for(gather_at_visible_points, n, (maps, estimate, points, (radiance, knn_queries)),
+                      threads=settings.threads)
+    vol = np.empty((n, 3))
+    found = np.empty(n, np.int64)
+    c += parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth), (vol, found)),
+                      threads=settings.threads)
+    acc += radiance
+    acc += vol
+    return int(found.sum()), c
+
+
 def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_caustic, volume, progress):
     """:func:`camera_pass` in a scene with media: (image, timings, k-nearest searches, stats of the volume estimate).
 
@@ -178,7 +202,6 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     w, h, spp = settings.width, settings.height, settings.spp
     n = w * h
     filt = FILTERS[settings.filter]
-    max_depth = max_depth_of(settings)
     r_v = one_shot_volume_radius(scene, settings)
     first_build = not volume_grid_compiled()
     t0 = time.perf_counter()
@@ -191,21 +214,11 @@ def camera_pass_in_media(scene, settings, global_map, caustic_map, k_caustic, r_
     compile_s = 0.0
     bar = progress(total=n * spp, desc="camera pass", unit="px")
     t0 = time.perf_counter()
+    estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
     for s in range(spp):
-        vps, segments, c = progressive_camera_pass(scene, settings, s, bar, claim=claims_caustics(caustic_map))
-        vp_pos, vp_nrm, vp_weight, vp_found, radiance = vps[:5]
-        estimate = (settings.k, settings.radius, k_caustic, r_caustic, filt)
-        # rows: BSDF-evaluating points; a max_depth limits the records by each point's segments
-        points = (vp_pos, vp_nrm, vp_found, vp_weight, vps.bsdf, scene.materials, vps.segments, max_depth)
-        c += parallel_for(gather_at_visible_points, n, ((global_map, caustic_map), estimate, points,
-                                                        (radiance, knn_queries)), threads=settings.threads)
-        vol = np.empty((n, 3))
-        found = np.empty(n, np.int64)
-        c += parallel_for(beam_gather, n, (vgrid, scene.media, (segments, MEDIUM_SEGMENTS, max_depth), (vol, found)),
-                          threads=settings.threads)
-        gathered += int(found.sum())
-        acc += radiance
-        acc += vol
+        found, c = _sample_in_media(scene, settings, s, ((global_map, caustic_map), estimate, vgrid),
+                                    (acc, knn_queries), bar)
+        gathered += found
         compile_s += c
     bar.close()
     image = (acc / spp).reshape(h, w, 3).astype(np.float32)
