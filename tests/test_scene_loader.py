@@ -934,3 +934,26 @@ def test_emitted_power_beyond_float32_is_an_error(tmp_path):
         compile_scene(d)
     d = load_strict(tmp_path, RECT.format('<emitter type="area"><rgb name="radiance" value="1e30"/></emitter>'))
     assert compile_scene(d).lights.power.max() == pytest.approx(4e30 * math.pi)
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 1])
+def test_a_mirrored_mesh_with_vertex_normals_faces_the_normals_side(monkeypatch, chunk):
+    """A mirroring to_world turns a triangle's winding but not its (inverse-transposed) vertex normals; Mitsuba
+    evaluates the BSDF in the shading frame, so the lit side is the normals' (its various_shapes test scene: three
+    mirrored rectangle meshes, black in caustica before 2026-12-06).  to_world_mesh turns such triangles back, in
+    chunks of any size; a mesh without normals keeps its mirrored winding (the geometric normal is all Mitsuba has)."""
+    import numpy as np
+    from caustica.scene import meshes
+    monkeypatch.setattr(meshes, "_WINDING_CHUNK", chunk)
+    positions = np.array([[-1.0, 0.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0]])
+    triangles = np.array([[0, 1, 2], [0, 2, 3]])
+    mirror = np.diag([-0.5, -0.5, -0.5, 1.0])
+
+    def winding(mesh):
+        p = mesh.positions[mesh.triangles]
+        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 1]
+
+    lit = meshes.to_world_mesh(meshes.Mesh(positions, triangles, np.tile([0.0, 1.0, 0.0], (4, 1)), None, None), mirror)
+    assert np.all(lit.normals[:, 1] < 0) and np.all(winding(lit) < 0)
+    bare = meshes.to_world_mesh(meshes.Mesh(positions, triangles, None, None, None), mirror)
+    assert np.all(winding(bare) > 0)

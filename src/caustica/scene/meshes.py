@@ -405,6 +405,10 @@ def vertex_normals_by_angle(positions: np.ndarray, triangles: np.ndarray) -> np.
     return normals
 
 
+#: Triangles whose winding :func:`to_world_mesh` checks at a time (about 200 MB of temporaries at most).
+_WINDING_CHUNK = 1 << 20
+
+
 def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = False) -> Mesh:
     """A world-space copy of an object-space mesh.
 
@@ -431,11 +435,13 @@ def to_world_mesh(mesh: Mesh, to_world: np.ndarray | None, flip_normals: bool = 
         triangles = triangles[:, ::-1].copy()
         if normals is not None:
             normals = -normals
-    if normals is not None and triangles.shape[0]:
-        corners = positions[triangles]
-        winding = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        against = np.einsum("ij,ij->i", winding, normals[triangles].sum(axis=1)) < 0.0
-        if against.any():
-            triangles[against] = triangles[against][:, ::-1]
+    if normals is not None:
+        for start in range(0, triangles.shape[0], _WINDING_CHUNK):   # bounded temporaries on a large mesh
+            t = triangles[start:start + _WINDING_CHUNK]
+            p0 = positions[t[:, 0]]
+            winding = np.cross(positions[t[:, 1]] - p0, positions[t[:, 2]] - p0)
+            against = np.einsum("ij,ij->i", winding, normals[t[:, 0]] + normals[t[:, 1]] + normals[t[:, 2]]) < 0.0
+            if against.any():
+                t[against] = t[against][:, ::-1]
     return Mesh(np.ascontiguousarray(positions), np.ascontiguousarray(triangles),
                 None if normals is None else np.ascontiguousarray(normals), mesh.uvs, mesh.attributes)
