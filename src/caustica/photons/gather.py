@@ -103,12 +103,14 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
 
 
 @kernel(inline=True)
-def split_estimate(tables, lookup, params, at, m, d, A, key, dim):
-    """At roughplastic m's split point, where the caustic map's records claim the glossy lobe's share of the caustic
-    too (``claim``, :func:`gather_radiance`): A (E_direct + E_global) + Σ_caustic W (A + f_glossy / B) Φ, the shadow
-    rays and the global map's records carrying the lobe's B as :func:`diffuse_estimate`'s, the caustic map's weighted
-    by :func:`caustica.bsdfs.split_record_weight` (the caller scales it by β / (1 - P)).  Returns (that sum, the
-    dimension past the shadow rays' numbers, k-nearest searches made)."""
+def split_estimate(tables, lookup, params, at, coating, key, dim):
+    """At the split point of ``coating`` = (roughplastic m, the camera ray's direction d, the diffuse lobe's A), where
+    the caustic map's records claim the glossy lobe's share of the caustic too (``claim``, :func:`gather_radiance`):
+    A (E_direct + E_global) + Σ_caustic W (A + f_glossy / B) Φ, the shadow rays and the global map's records carrying
+    the lobe's B as :func:`diffuse_estimate`'s, the caustic map's weighted by :func:`caustica.bsdfs.split_record_weight`
+    (the caller scales it by β / (1 - P)).  Returns (that sum, the dimension past the shadow rays' numbers, k-nearest
+    searches made)."""
+    m, d, A = coating
     (gmap, cmap), (k_g, r_g, k_c, r_c, filt), scratch, limit = lookup
     n_strata, fixed_grid = params[0], params[1]
     E = direct_stratified(tables, at, key, dim, (n_strata, fixed_grid, -1), m, None)
@@ -253,7 +255,7 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
                 return False, L, beta, d, depth + 1, last, crossed, 0, top, dim   # the sample fell below the surface
             return True, L, vec.hadamard(beta, w_coat), wc, depth + 1, (False, pdf, p), 0, 0, top, dim
         if params[5]:   # the caustic map claims the glossy lobe's share of the caustic: a split point
-            S, dim, q = split_estimate(tables, lookup, params, at, m, d, A, key, dim)
+            S, dim, q = split_estimate(tables, lookup, params, at, (m, d, A), key, dim)
             L = vec.add(L, vec.hadamard(beta, vec.mul(S, 1.0 / (1.0 - P))))
             return False, L, beta, d, depth, last, crossed, q, top, dim
         E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
