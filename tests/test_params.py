@@ -196,6 +196,19 @@ def test_the_camera_pass_holds_what_its_memory_estimate_counts(scene_name, claim
     assert (camera_pass_bytes(scene_, claim) > VISIBLE_POINT_BYTES) == (rows or scene_.has_media)
 
 
+def test_a_camera_pass_checks_what_it_allocates_before_allocating(monkeypatch):
+    """The camera pass refuses, before allocating, visible points (and medium segments) that would not fit: the
+    estimate is camera_pass_bytes a pixel, the same the methods' checks count."""
+    from caustica.photons.visible_points import camera_pass, camera_pass_bytes
+    fog = caustica.load_scene("cornell-diacaustic-fog")
+    _, _, settings = resolve_settings(fog, "sppm", res=64, multi_pass=True, threads=1)
+    need = 64 * 64 * camera_pass_bytes(fog, False)
+    monkeypatch.setattr(memory, "physical_memory_bytes", lambda: int(0.9 * need / memory.BUDGET_FRACTION))
+    with pytest.raises(ParameterError, match=r"a camera pass of 4,096 pixels \(visible points and \d+ medium "
+                                             r"segments each\) would need about"):
+        camera_pass(fog, settings, 0)
+
+
 def test_pm_in_media_frees_each_sample_s_camera_pass_before_the_next():
     """pm's camera pass in media runs one progressive camera pass per sample; a sample's visible points and medium
     segments (camera_pass_bytes a pixel, about 1.2 kB in the fog box) must be freed before the next sample allocates

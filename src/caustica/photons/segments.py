@@ -28,7 +28,6 @@ from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import kernel
 from ..media import NULL_CROSSINGS_CAP, attenuation, crossing, escape_transmittance, light_sample, medium_after, \
     phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
-from ..memory import check_budget
 from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
 from ..scene.description import NULL
 from ..transport import in_medium
@@ -201,9 +200,3 @@ def first_segment_numbers(pass_index, qkey):
     return (kronecker(pass_index, KRONECKER_ALPHA[3], uniform(qkey, QMC_SEGMENT_DIM)),
             kronecker(pass_index, KRONECKER_ALPHA[4], uniform(qkey, QMC_SEGMENT_DIM + 1)),
             kronecker(pass_index, KRONECKER_ALPHA[5], uniform(qkey, QMC_SEGMENT_DIM + 2)))
-
-
-def check_segment_memory(pixels: int) -> None:
-    """Refuse, with the estimate, a camera pass whose medium segments (SEGMENT_BYTES a pixel) would not fit."""
-    check_budget(pixels * SEGMENT_BYTES, f"{pixels:,} pixels x {MEDIUM_SEGMENTS} camera segments in media",
-                 "lower the resolution")

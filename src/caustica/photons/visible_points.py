@@ -92,6 +92,7 @@ from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
 from ..jit import borrowed, kernel, parallel_for
+from ..memory import check_budget
 from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
@@ -101,7 +102,7 @@ from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, 
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
 from .trace import beside_diffuse
-from .segments import MEDIUM_SEGMENTS, SEGMENT_BYTES, allocate_segments, check_segment_memory, emitted_along, \
+from .segments import MEDIUM_SEGMENTS, SEGMENT_BYTES, allocate_segments, emitted_along, \
     end_segment_at_wall, escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
 INV_PI = 1.0 / math.pi
@@ -740,8 +741,9 @@ def camera_pass(scene, settings, pass_index, bar=None, claim=False):
     compile seconds).  The camera keys are ``pass_stream(STREAM_CAMERA, pass_index)`` and its media's own.
     """
     n = settings.width * settings.height
-    if scene.has_media:
-        check_segment_memory(n)
+    segments_note = f" and {MEDIUM_SEGMENTS} medium segments" if scene.has_media else ""
+    check_budget(n * camera_pass_bytes(scene, claim), f"a camera pass of {n:,} pixels (visible points{segments_note} "
+                 f"each)", "lower the resolution")
     columns = BSDF_COLUMNS if evaluates_bsdf(scene.materials, claim) else 1
     points = VisiblePoints(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.bool_),
                            np.empty((n, 3)), np.empty((n, columns)), np.empty(n, np.int32))   # camera_pass_bytes
