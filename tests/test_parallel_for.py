@@ -98,6 +98,18 @@ def test_no_chunk_but_the_last_is_below_the_floor():
     assert sizes[0] == 250   # a quarter of the work at first: the other thread's share is left to it
 
 
+@pytest.mark.parametrize("threads", [2, 3])
+def test_a_short_call_gives_every_thread_two_chunks(threads):
+    """A call worth less than the chunk floor (SPPM's passes at 96 x 96 take a few milliseconds) is still split so
+    that each thread gets at least two chunks: with the floor alone it ran as one chunk, the other threads idle."""
+    parallel_for(_mark, 20_000, (np.zeros(20_000), 1), threads=threads)   # the time per item: well under the floor
+    out = np.zeros(2_000)
+    bar = _Bar(after=-1)
+    parallel_for(_mark, out.size, (out, 1), threads=threads, progress=bar)
+    assert np.all(out == 1.0)
+    assert bar.updates >= 1 + 2 * threads   # item 0, then at least two chunks a thread
+
+
 @pytest.mark.parametrize("chunk", [1, 7, 100_000])
 def test_a_fixed_chunk_runs_every_item_once(chunk):
     out = np.zeros(1000)
