@@ -3,6 +3,7 @@
     python benchmarks/bench_caustic_goals.py [--scene glossy|envmap|plastic] [--budget 30] [--res 96] [--ref-spp 8192]
                                              [--ptracer-spp 16384] [--seeds 0] [--dist ggx] [--alpha 0.1]
                                              [--threads N] [--reference-only] [--sppm LABEL=KEY:VALUE,...]
+                                             [--region-grid N] [--also-region-grid N]
 
 Scenes (``--scene``):
 
@@ -21,14 +22,16 @@ Scenes (``--scene``):
   sooner (envmap scene, 96 px: its halves' caustic error at 512 spp was 0.027, the path tracer's at 32,768 spp
   0.069).  A reference's own error is half the relative RMSE between its halves; each error is printed as
   measured and with that noise taken out in quadrature.
-* Caustic region: the pixels whose rays through a 4 x 4 grid over the pixel all first meet the floor (Mitsuba's
-  ``ray_intersect``: a pixel the casters' silhouette crosses is left out, :func:`floor_pixels`) and where the
+* Caustic region: the pixels whose rays through a 4 x 4 grid (``--region-grid``) over the pixel all first meet the
+  floor (Mitsuba's ``ray_intersect``: a pixel the casters' silhouette crosses is left out, :func:`floor_pixels`; a
+  grid of 1 is the pixel's centre ray alone, the region before 2026-12-06) and where the
   particle tracer's reference exceeds a direct-light-only render (Mitsuba, ``max_depth`` 2) by at least 0.1 of that
   excess's 99.9th percentile over the floor: the light that reached the floor through the ball or off the ring.
 * Timed: ``sppm`` (:data:`CONFIGS`) with ``--time BUDGET`` after an untimed warm-up (kernels compiled or loaded), and
   Mitsuba's path tracer for the same budget in the same run
   (:func:`caustica.experiments.mitsuba.mitsuba_equal_time`).  Relative RMSE over the caustic region and the whole
-  image, image means against the reference's, and the ratio Mitsuba / sppm.
+  image, image means against the reference's, and the ratio Mitsuba / sppm.  ``--also-region-grid N`` adds the
+  caustic error over the region made with an N x N grid, from the same renders (two regions told apart in one run).
 
 The 1-minute load average is printed before each render: read a loaded machine's numbers as such.  No asserts:
 numbers to read.
@@ -190,6 +193,11 @@ def main() -> None:
     ap.add_argument("--ptracer-spp", type=int, default=16384,
                     help="the particle tracer's reference, samples per pixel (default 16384)")
     ap.add_argument("--reference-only", action="store_true", help="make (or check) the cached reference and stop")
+    ap.add_argument("--region-grid", type=int, default=4, choices=range(1, 9), metavar="N",
+                    help="the caustic region's pixels are wholly on the floor at N x N rays each (default 4; 1: the "
+                         "centre ray alone)")
+    ap.add_argument("--also-region-grid", type=int, choices=range(1, 9), metavar="N",
+                    help="also print the caustic error over the region an N x N grid makes, from the same renders")
     ap.add_argument("--sppm", type=parse_config, action="append", metavar="LABEL=KEY:VALUE,...",
                     help="an sppm configuration to time instead of the built-in ones (repeatable), e.g. "
                          "'alpha 0.5=alpha:0.5' or 'defaults='")
@@ -204,18 +212,31 @@ def main() -> None:
     ref_p, a_p, b_p = particle_reference(mi, args, path, params)
     if args.reference_only:
         return
-    region = caustic_region(ref_p, direct, floor_pixels(mi, args, path, params))
-    refs = {"caustic": ref_p, "whole": ref}
-    noise = {"caustic": rel_rmse(a_p, b_p, region) / 2, "whole": rel_rmse(a, b) / 2}
+    region = caustic_region(ref_p, direct, floor_pixels(mi, args, path, params, args.region_grid))
+    regions = {"caustic": region}
+    if args.also_region_grid:
+        regions["other"] = caustic_region(ref_p, direct, floor_pixels(mi, args, path, params, args.also_region_grid))
+    refs = {"caustic": ref_p, "whole": ref, "other": ref_p}
+    noise = {k: rel_rmse(a_p, b_p, r) / 2 for k, r in regions.items()}
+    noise["whole"] = rel_rmse(a, b) / 2
+    kinds = ("caustic", "whole") + (("other",) if args.also_region_grid else ())
     what = f"{args.dist} alpha {args.alpha}, " if args.scene == "glossy" else ""
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, {path.name} {what}"
-          f"{args.res}x{args.res}, budget {args.budget:g} s, caustic region {int(region.sum())} pixels, references "
+          f"{args.res}x{args.res}, budget {args.budget:g} s, caustic region {int(region.sum())} pixels "
+          f"({args.region_grid}x{args.region_grid} rays on the floor), references "
           f"{args.ptracer_spp} spp ptracer (own caustic error {noise['caustic']:.4f}), {args.ref_spp} spp path (own "
           f"whole-image error {noise['whole']:.4f}), mean {ref.mean():.5f}; the caustic region's mean: ptracer / "
           f"path {ref_p[region].mean() / ref[region].mean():.4f}")
-    print("| seed | renderer | passes / spp | wall s | mean / ref | caustic relRMSE (noise out) | "
-          "whole relRMSE (noise out) | load |")
-    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    other = ""
+    if args.also_region_grid:
+        g = args.also_region_grid
+        other = f" caustic relRMSE over the {g}x{g} region (noise out) |"
+        print(f"# the {g}x{g} region: {int(regions['other'].sum())} pixels, {int((regions['other'] & ~region).sum())} "
+              f"of them not in the caustic region, {int((region & ~regions['other']).sum())} of it not in them; the "
+              f"ptracer's own error there {noise['other']:.4f}")
+    print(f"| seed | renderer | passes / spp | wall s | mean / ref | caustic relRMSE (noise out) | "
+          f"whole relRMSE (noise out) |{other} load |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: |" + (" ---: |" if other else "") + " ---: |")
     scene = caustica.load_scene(path, **params)
     for _, config in configs:   # warm-up: compile or load the kernels
         caustica.render(scene, "sppm", res=args.res, passes=2, threads=args.threads, **config)
@@ -232,17 +253,18 @@ def main() -> None:
         rows.append(("Mitsuba 3 path (scalar_rgb)", spp, wall, image, load))
         errors = []
         for label, count, wall, image, load in rows:
-            e = {k: rel_rmse(image, refs[k], region if k == "caustic" else None) for k in ("caustic", "whole")}
+            e = {k: rel_rmse(image, refs[k], regions.get(k)) for k in kinds}
             out = {k: max(e[k] ** 2 - noise[k] ** 2, 0.0) ** 0.5 for k in e}
             errors.append(out)
-            print(f"| {seed} | {label} | {count} | {wall:.1f} | {image.mean() / ref.mean():.4f} | "
-                  f"{e['caustic']:.4f} ({out['caustic']:.4f}) | {e['whole']:.4f} ({out['whole']:.4f}) | {load:.2f} |",
-                  flush=True)
+            cells = " | ".join(f"{e[k]:.4f} ({out[k]:.4f})" for k in kinds)
+            print(f"| {seed} | {label} | {count} | {wall:.1f} | {image.mean() / ref.mean():.4f} | {cells} | "
+                  f"{load:.2f} |", flush=True)
         best = min(range(len(configs)), key=lambda i: errors[i]["caustic"])
         ratio = {k: f"{errors[-1][k] / errors[best][k]:.2f}x" if errors[best][k] > 0 else "n/a (below the "
-                 "reference's noise)" for k in ("caustic", "whole")}
+                 "reference's noise)" for k in kinds}
+        cells = " | ".join(ratio[k] for k in kinds[1:])
         print(f"| {seed} | **ratio Mitsuba / best ({rows[best][0]}), noise out** |  |  |  | **{ratio['caustic']}** | "
-              f"{ratio['whole']} |  |", flush=True)
+              f"{cells} |  |", flush=True)
 
 
 if __name__ == "__main__":
