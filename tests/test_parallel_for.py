@@ -5,6 +5,8 @@ per item, so chunks take measurable time.
 """
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -190,3 +192,40 @@ def test_idle_worker_threads_hold_no_arguments_of_the_last_call():
     assert not _wait_until_idle()
     gc.collect()
     assert ref() is None
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_real_sigint_reaches_the_waiting_thread_at_once(threads):
+    """A SIGINT (not a progress bar raising) while the calling thread waits for the workers (done.get())."""
+    out = np.zeros(20_000)
+    parallel_for(_mark, 2, (np.zeros(2), 1), threads=1)            # warm: item 0 runs on this thread
+    sent = []
+    timer = threading.Timer(0.2, lambda: (sent.append(time.perf_counter()), os.kill(os.getpid(), signal.SIGINT)))
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        parallel_for(_mark, out.size, (out, 20_000), threads=threads)
+    latency = time.perf_counter() - sent[0]
+    timer.join()
+    assert not _wait_until_idle()
+    # at once: well under the whole job (about a second), with room for a loaded machine
+    assert latency < 0.3 and out.sum() < out.size / 2, (latency, out.sum())
+
+
+def test_a_new_specialisation_compiles_on_a_worker_thread(monkeypatch):
+    """A warm kernel called with new argument types compiles them on a worker, not on the calling thread (which
+    would hold Ctrl-C back for as long as an LLVM pass runs: seconds on a render kernel)."""
+    parallel_for(_mark, 100, (np.zeros(100), 1), threads=2)          # warm with float64
+    twin = _mark.from_python
+    original = twin._compile_for_args
+    compiled_on = []
+
+    def spy(*args, **kws):
+        result = original(*args, **kws)
+        compiled_on.append(threading.current_thread())
+        return result
+
+    monkeypatch.setattr(twin, "_compile_for_args", spy)
+    out = np.zeros(100, np.float32)                                  # new argument types
+    parallel_for(_mark, out.size, (out, 1), threads=2)
+    assert np.all(out == 1.0)
+    assert compiled_on and threading.current_thread() not in compiled_on

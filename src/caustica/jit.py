@@ -9,8 +9,9 @@ pool of Python threads; the kernels release the GIL, so the threads run truly in
 parallel.  Each work item (pixel, photon, stream) draws its random numbers from
 its own index, so the result is the same for any thread count and any chunking.
 
-Interrupts: the calling thread only waits, so Ctrl-C (KeyboardInterrupt) reaches it
-at once, at any thread count.  It then hands out no more chunks and returns
+Interrupts: the calling thread only waits (but for item 0 of a kernel already compiled
+for the call's argument types: one work item), so Ctrl-C (KeyboardInterrupt) reaches
+it at once, at any thread count.  It then hands out no more chunks and returns
 without waiting for the ones running: a running chunk (a compiled kernel cannot
 be stopped) finishes on its daemon thread, which a process that exits does not
 wait for.  Chunks are sized to take about :data:`CHUNK_SECONDS` each, so an
@@ -360,6 +361,21 @@ class KernelCompiler(Compiler):
 
 _OPTIONS = dict(nogil=True, fastmath=False, error_model="numpy")
 _TWIN_LOCK = threading.Lock()
+_NO_COMPILE = threading.local()   # .on: this thread calls a twin only if it needs no compiling (parallel_for's item 0)
+
+
+class _WouldCompile(Exception):
+    """A twin was called, with :data:`_NO_COMPILE` on, with argument types it has no compiled code for."""
+
+
+class _Twin(CPUDispatcher):
+    """A kernel's Python-called twin (:attr:`Kernel.from_python`): compiles (or loads) a specialisation unless the
+    calling thread said it must not (:data:`_NO_COMPILE`)."""
+
+    def _compile_for_args(self, *args, **kws):
+        if getattr(_NO_COMPILE, "on", False):
+            raise _WouldCompile
+        return super()._compile_for_args(*args, **kws)
 
 
 class Kernel(CPUDispatcher):
@@ -401,7 +417,10 @@ class Kernel(CPUDispatcher):
                 twin.__qualname__ = f.__qualname__ + "_from_python"  # its own cache entry
                 twin.__doc__ = f.__doc__
                 twin.__module__ = f.__module__
-                self._from_python = njit(cache=CACHE_SERIAL, pipeline_class=KernelCompiler, **_OPTIONS)(twin)
+                self._from_python = _Twin(py_func=twin, locals={}, targetoptions=dict(_OPTIONS, nopython=True),
+                                          pipeline_class=KernelCompiler)
+                if CACHE_SERIAL:
+                    self._from_python.enable_caching()
         return self._from_python
 
     def __call__(self, *args, **kwargs):
@@ -555,9 +574,10 @@ def _run_chunks(range_kernel, args, start: int, stop: int, threads: int, chunk, 
     """Run [start, stop) on ``threads`` daemon threads (:class:`_WorkerThreads`); this thread waits and reports
     progress.  ``item_s``: the seconds one item took in this kernel's last call, if any, which sizes the first
     chunks and the smallest."""
-    # the floor, but never so high that the threads get fewer than two chunks each (a call of a few milliseconds, as
-    # SPPM's at 96 x 96, would otherwise run in one or three chunks: one thread idle, or one doing two)
-    floor = max(1, min(int(CHUNK_FLOOR_SECONDS / item_s), -(-(stop - start) // (2 * threads)))) if item_s else 1
+    # the floor, but never so high that there are fewer than two chunks a thread (a call of a few milliseconds, as
+    # SPPM's at 96 x 96, would otherwise run in one or three chunks: one thread idle, or one doing two); rounded
+    # down, as rounding up left 3 chunks for 2 threads at 9 items
+    floor = max(1, min(int(CHUNK_FLOOR_SECONDS / item_s), (stop - start) // (2 * threads))) if item_s else 1
     chunks = _Chunks(start, stop, threads, chunk, floor)
     done: queue.SimpleQueue = queue.SimpleQueue()
 
@@ -594,32 +614,44 @@ def _run_chunks(range_kernel, args, start: int, stop: int, threads: int, chunk, 
         raise
 
 
+def _item_0_here(range_kernel, args) -> bool:
+    """Run item 0 on this thread if that compiles nothing (the kernel has code for these argument types): True."""
+    _NO_COMPILE.on = True
+    try:
+        range_kernel(*args, 0, 1)
+    except _WouldCompile:
+        return False
+    finally:
+        _NO_COMPILE.on = False
+    return True
+
+
 def parallel_for(range_kernel, n_items: int, args: tuple, *, threads: int | None = None,
                  chunk: int | None = None, progress=None) -> float:
     """Run ``range_kernel(*args, i0, i1)`` over [0, n_items) in chunks on ``threads`` threads.
 
     The first single item runs alone, so Numba compiles (or loads from the cache)
     before the threads start; its duration is returned as the compile time in
-    seconds (it includes one work item, which is negligible).  On a kernel's first
-    call in this process it runs on a worker thread, like the rest, so Ctrl-C reaches
-    this thread at once during a long compile; later (when at most a new
-    specialisation compiles) it runs here: handing one item to a thread and back cost
-    some 0.2 ms a call, 7 % of SPPM's passes at 96 x 96.  ``chunk`` fixes the
+    seconds (it includes one work item, which is negligible).  It runs here when the
+    kernel has completed a call of more than one item in this process and has code for
+    these argument types (handing one item to a thread and back cost some 0.2 ms a
+    call, 7 % of SPPM's passes at 96 x 96); otherwise (the first call, or new argument
+    types: a new specialisation, as long to compile as the first) on a worker thread,
+    like the rest, so Ctrl-C reaches this thread at once during the compile.  ``chunk`` fixes the
     number of items per chunk (default: sized to take about CHUNK_SECONDS each, starting and ending, once the
     kernel has run here before, from its last call's time per item: see CHUNK_FLOOR_SECONDS).
     ``progress`` is a tqdm-like bar advanced by the number of items as chunks
-    finish.  The kernels run on worker threads even when ``threads`` is 1, so the
+    finish.  All but that item 0 run on worker threads even when ``threads`` is 1, so the
     calling thread receives Ctrl-C at once (see the module's docstring).
     """
     threads = threads or default_threads()
     if n_items <= 0:
         return 0.0
     t0 = time.perf_counter()
-    if range_kernel in _ITEM_SECONDS:   # it ran here before: item 0 here, without handing it to a thread and back
-        range_kernel(*args, 0, 1)
+    if range_kernel in _ITEM_SECONDS and _item_0_here(range_kernel, args):
         if progress is not None:
             progress.update(1)
-    else:
+    else:   # first call, or new argument types: item 0 (and the compile) on a worker, Ctrl-C reaches us at once
         _run_chunks(range_kernel, args, 0, 1, 1, 1, progress)
     compile_s = time.perf_counter() - t0
     if n_items > 1:
