@@ -47,11 +47,14 @@ def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None, alpha_v=Non
     flags = bsdfs.BSDFS[kind].FLAGS
     fresnel = 0 if ior is None else 1
     ce, ck = ior if ior is not None else ((1.0,) * 3, (0.0,) * 3)
+    coating = np.zeros((1, bsdfs.plastic.COATING_COLUMNS))
+    if kind == ROUGHDIELECTRIC:   # clear glass: specular_reflectance 1 (build_material_table's)
+        coating[0, bsdfs.plastic.SPEC:bsdfs.plastic.SPEC + 3] = 1.0
     return MaterialTable(np.array([kind], np.int32), np.array([flags], np.int32), np.array([rgb], np.float64),
                          np.array([eta]), np.zeros(1, np.int8), np.array([np.mean(rgb)]), np.array([dist], np.int32),
                          np.array([alpha]), np.array([alpha if alpha_v is None else alpha_v]),
                          np.array([fresnel], np.int8), np.array([ce], np.float64),
-                         np.array([ck], np.float64), np.zeros((1, bsdfs.plastic.COATING_COLUMNS)),
+                         np.array([ck], np.float64), coating,
                          *texture_columns([]), *mixture_columns([]), np.zeros(1, np.int8),
                          np.zeros(1, np.int8), np.zeros((1, 1, 9), np.float32))
 
@@ -284,8 +287,8 @@ BAD = {
     "eta and material": ('<bsdf type="conductor"><string name="material" value="Au"/><rgb name="eta" value="1"/>'
                          '</bsdf>', ["not both"]),
     "negative k": ('<bsdf type="conductor"><rgb name="k" value="-1"/></bsdf>', ["'k'", "negative"]),
-    "tinted rough glass": ('<bsdf type="roughdielectric"><rgb name="specular_transmittance" value="0.5"/></bsdf>',
-                           ["specular_transmittance"]),
+    "negative glass tint": ('<bsdf type="roughdielectric"><rgb name="specular_transmittance" value="0.5, -1, 0.5"/>'
+                            '</bsdf>', ["specular_transmittance", "negative"]),
     # Mitsuba refuses it too: refraction straight through has an unbounded density (NaN MIS weights before)
     "equal iors": ('<bsdf type="roughdielectric"><float name="int_ior" value="1.5"/><float name="ext_ior" '
                    'value="1.5"/></bsdf>', ["int_ior", "differ"]),

@@ -364,8 +364,8 @@ BAD = {
                                                                                   "repeat, mirror, clamp"]),
     "unknown filter": ('<texture name="reflectance" type="bitmap"><string name="filename" value="ok.png"/>'
                        '<string name="filter_type" value="cubic"/></texture>', 6, ["cubic", "nearest, bilinear"]),
-    "textured glass": ('<texture name="specular_transmittance" type="checkerboard"/>', 6,
-                       ["specular_transmittance", "not supported"]),
+    "textured glass reflectance": ('<texture name="specular_reflectance" type="checkerboard"/>', 6,
+                                   ["specular_reflectance", "not supported", "a texture for 'specular_transmittance'"]),
     "texture in a texture": ('<texture name="reflectance" type="checkerboard"><texture name="color0" '
                              'type="checkerboard"/></texture>', 6, ["texture inside a texture"]),
 }
@@ -377,7 +377,7 @@ def test_bad_textures_exit_2_one_line(cli, tmp_path, case):
     (tmp_path / "notes.png").write_text("these are not pixels\n")
     (tmp_path / "notes.exr").write_text("these are not pixels either\n")
     png(tmp_path / "ok.png", np.full((2, 2, 3), 100))
-    bsdf = "dielectric" if case == "textured glass" else "diffuse"
+    bsdf = "dielectric" if case == "textured glass reflectance" else "diffuse"
     path = tmp_path / "bad.xml"
     path.write_text(f'<?xml version="1.0"?>\n<scene version="3.0.0">\n{SENSOR}\n<shape type="sphere">\n'
                     f'<bsdf type="{bsdf}">\n{body}\n</bsdf>\n</shape>\n</scene>\n')

@@ -12,8 +12,8 @@
    At max_depth 3 the scene under ``volpath`` (the straight-on lobe is Mitsuba's ``Null`` event: no bounce, shadow rays
    pass with 1 - R) and under ``path`` (a bounce; shadow rays blocked): pt against Mitsuba's same integrator, and a
    shadow ray through the pane against Mitsuba's ``eval_null_transmission`` at several angles (pt's tables only).
-4. Input: the loader's defaults and named IORs; a negative IOR, a tint, a texture, a twosided wrapper -> one line
-   naming file and line.
+4. Input: the loader's defaults and named IORs; a negative IOR, a negative tint, a textured reflectance, a twosided
+   wrapper -> one line naming file and line.
 """
 from __future__ import annotations
 
@@ -44,8 +44,8 @@ def table(int_ior=1.5, ext_ior=1.0):
 
 @kernel
 def branches_kernel(mats, d, out):
-    """out = (reflected xyz, transmitted xyz, F, eta, colour rgb, eval's f·scale r, pdf) for a ray along d."""
-    wr, wt, F, eta, c = bsdfs.delta_branches(mats, 0, d, NG, NG, UV)
+    """out = (reflected xyz, transmitted xyz, F, eta, transmitted tint rgb, eval's f·scale r, pdf) for a ray along d."""
+    wr, wt, F, eta, (_, c) = bsdfs.delta_branches(mats, 0, d, NG, NG, UV)
     f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wr)
     out[0], out[1], out[2] = wr
     out[3], out[4], out[5] = wt
@@ -271,8 +271,8 @@ BAD = {
                      ["int_ior", "positive"]),
     "unknown ior name": ('<bsdf type="thindielectric"><string name="ext_ior" value="vacuumm"/></bsdf>',
                          ["vacuumm", "bk7"]),
-    "tinted": ('<bsdf type="thindielectric"><rgb name="specular_transmittance" value="0.5"/></bsdf>',
-               ["specular_transmittance", "clear glass"]),
+    "negative tint": ('<bsdf type="thindielectric"><float name="specular_reflectance" value="-0.5"/></bsdf>',
+                      ["specular_reflectance", "negative"]),
     "textured": ('<bsdf type="thindielectric"><texture type="checkerboard" name="specular_reflectance"/></bsdf>',
                  ["specular_reflectance", "thindielectric"]),
     "twosided": ('<bsdf type="twosided"><bsdf type="thindielectric"/></bsdf>', ["twosided", "thindielectric"]),

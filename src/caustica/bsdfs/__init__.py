@@ -61,7 +61,7 @@ class MaterialTable(NamedTuple):
     kind: np.ndarray       # int32[M]: the BSDF's KIND (or NULL)
     flags: np.ndarray      # int32[M]: its FLAGS (0 for NULL)
     rgb: np.ndarray        # float64[M, 3]: reflectance (diffuse, a plastic's base), specular reflectance
-    #                        (conductor), scale (glass)
+    #                        (conductor), specular transmittance (glass; its specular reflectance is in ``coating``)
     eta: np.ndarray        # float64[M]: int_ior / ext_ior (dielectric, thindielectric, roughdielectric, a plastic's
     #                        coating)
     twosided: np.ndarray   # int8[M]: 1 when both sides scatter
@@ -130,6 +130,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             if (coating[i, principled.SPEC_TRANS] != 0.0 or principled.SPEC_TRANS in textured) and \
                     (coating[i, principled.METALLIC] < 1.0 or principled.METALLIC in textured):
                 flags[i] |= GLOSSY_TRANSMISSION   # an interface: both sides scatter
+        if mat.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC):   # specular_reflectance (dielectric.tints)
+            coating[i, plastic.SPEC:plastic.SPEC + 3] = mat.specular
         if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
             row = coating[i]
             row[plastic.SPEC:plastic.SPEC + 3] = mat.specular
@@ -363,12 +365,13 @@ def split_record_weight(mats, m, d, ng, ns, wi, A):
 
 @kernel(inline=True)
 def delta_branches(mats, m, d, ng, ns, uv):
-    """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, colour).
+    """A delta BSDF's two branches: (reflected, transmitted direction, F, eta, (reflected tint, transmitted tint)).
 
     F is the probability :func:`sample` reflects (1 for a mirror, and under total internal reflection,
     when the transmitted direction repeats the reflected one); eta the relative IOR of the
-    transmission; the colour scales either branch.  ``u < F`` picks reflection as :func:`sample` does
-    with number u.
+    transmission; each tint scales its branch (glass's specular_reflectance and specular_transmittance,
+    :func:`caustica.bsdfs.dielectric.tints`; a mirror's reflectance twice).  ``u < F`` picks reflection as
+    :func:`sample` does with number u.
     """
     kind = mats.kind[m]
     if has(mats, CONDUCTOR) and kind == CONDUCTOR:

@@ -32,7 +32,8 @@ def reflectance(mats, m, uv, d, wr):
 def delta_branches(mats, m, d, ng, ns, uv):
     """The one reflected direction, as both branches with F = 1 (see :func:`caustica.bsdfs.delta_branches`)."""
     wr = mirror_reflect(d, ng, ns)
-    return wr, wr, 1.0, 1.0, reflectance(mats, m, uv, d, wr)
+    tint = reflectance(mats, m, uv, d, wr)
+    return wr, wr, 1.0, 1.0, (tint, tint)
 
 
 @kernel(inline=True)

@@ -12,7 +12,8 @@ with h the microfacet normal (above the surface) and F = F_dielectric(wo·h):
   :mod:`caustica.bsdfs`).
 
 Sampling draws a visible normal from wo (numbers dim, dim + 1), then reflection with probability F, else
-refraction (number dim + 2), so both weights f |cos θ_i| / pdf are G1(wi, h) (times the colour, 1).  Anisotropic
+refraction (number dim + 2), so both weights f |cos θ_i| / pdf are G1(wi, h), times the lobe's tint: Mitsuba's
+specular_reflectance or specular_transmittance (both 1 by default; :func:`caustica.bsdfs.dielectric.tints`).  Anisotropic
 roughness as :mod:`.roughconductor`'s (the frame's s from dp/du on either side: D and G1 are even in each slope).
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ from . import microfacet as mf
 from .roughconductor import roughness
 from .flags import GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric, refract
+from .plastic import specular
 from .textures import colour
 
 KIND = ROUGHDIELECTRIC
@@ -88,12 +90,13 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     g1 = mf.smith_g1_uv(dist, au, av, wl, h)
     wi = vec.from_local(s, t, n, wl)
     ok = ok and same_side(wi, n_geo, lobe == GLOSSY_REFLECTION)
-    return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(colour(mats, m, uv), g1), pdf, lobe, eta_out, dim + 3
+    tint = specular(mats, m) if lobe == GLOSSY_REFLECTION else colour(mats, m, uv)
+    return ok and pdf > 0.0 and g1 > 0.0, wi, vec.mul(tint, g1), pdf, lobe, eta_out, dim + 3
 
 
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
-    """f towards wi (the colour, and the scale above) and :func:`sample`'s density of wi."""
+    """f towards wi (the lobe's tint, and the scale above) and :func:`sample`'s density of wi."""
     dist, au, av = roughness(mats, m, uv)
     n, n_geo, eta = side(d, ng, ns, mats.eta[m])
     s, t, wo = mf.shading_frame(n, d, uv)
@@ -114,7 +117,7 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
     c = vec.dot(wo, h)
     F, _ = fresnel_dielectric(c, eta)
     if reflect:
-        return colour(mats, m, uv), F * dh * g / (4.0 * wo[2] * wl[2]), F * dh * g1o / (4.0 * wo[2])
+        return specular(mats, m), F * dh * g / (4.0 * wo[2] * wl[2]), F * dh * g1o / (4.0 * wo[2])
     ci = vec.dot(wl, h)
     den = c + eta * ci
     jac = eta * eta * abs(ci) / (den * den)

@@ -18,6 +18,8 @@ from ..sampling.rng import uniform
 from ..scene.description import THINDIELECTRIC
 from .flags import DELTA_REFLECTION, DELTA_TRANSMISSION
 from .optics import fresnel_dielectric, reflect
+from .dielectric import tints
+from .plastic import specular
 from .textures import colour
 
 KIND = THINDIELECTRIC
@@ -46,23 +48,24 @@ def delta_branches(mats, m, d, ng, ns, uv):
     eta 1.  Where R = 1 (int_ior < ext_ior at grazing angles) the transmitted direction repeats the reflected."""
     wr, R = slab(d, ng, ns, mats.eta[m])
     if R >= 1.0:
-        return wr, wr, 1.0, 1.0, colour(mats, m, uv)
-    return wr, d, R, 1.0, colour(mats, m, uv)
+        return wr, wr, 1.0, 1.0, tints(mats, m, uv)
+    return wr, d, R, 1.0, tints(mats, m, uv)
 
 
 @kernel(inline=True)
 def sample(mats, m, d, ng, ns, uv, key, dim):
-    """Reflection with probability R, else straight through (number dim); the weight is the colour (the choice's
+    """Reflection with probability R, else straight through (number dim); the weight is the branch's tint
+    (specular_reflectance or specular_transmittance, :func:`caustica.bsdfs.dielectric.tints`: the choice's
     probability cancels R or 1 - R), ``eta`` 1 on either lobe."""
     wr, R = slab(d, ng, ns, mats.eta[m])
     if uniform(key, dim) < R:
-        return True, wr, colour(mats, m, uv), 0.0, DELTA_REFLECTION, 1.0, dim + 1
+        return True, wr, specular(mats, m), 0.0, DELTA_REFLECTION, 1.0, dim + 1
     return True, d, colour(mats, m, uv), 0.0, DELTA_TRANSMISSION, 1.0, dim + 1
 
 
 @kernel(inline=True)
 def null_transmission(mats, m, d, ng, ns, uv):
-    """The share of a shadow ray along d that passes straight on, (1 - R) times the colour: Mitsuba's
+    """The share of a shadow ray along d that passes straight on, (1 - R) times specular_transmittance: Mitsuba's
     ``eval_null_transmission``, with the R :func:`sample` reflects with (0 where R = 1)."""
     _, R = slab(d, ng, ns, mats.eta[m])
     return vec.mul(colour(mats, m, uv), max(0.0, 1.0 - R))

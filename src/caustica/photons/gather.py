@@ -178,21 +178,17 @@ def delta_branch(mats, m, d, at, path, stack, key, dim):
     probability.  ``path`` = (β, specular depth).  Returns (direction, β, top, dim)."""
     beta, depth = path
     scratch, top = stack
-    d_r, d_t, F, eta, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
-    beta = vec.hadamard(beta, tint)
+    d_r, d_t, F, eta, tints = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta_r, beta_t = vec.hadamard(beta, tints[0]), vec.hadamard(beta, tints[1])
     if F >= 1.0:
-        d = d_r
-    elif depth <= SPLIT_DEPTH and top < scratch[0].shape[0]:
-        top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta, F), depth)
-        d = d_t
-        beta = vec.mul(beta, (1.0 - F) / (eta * eta))
-    else:
-        u = uniform(key, dim)
-        dim += 1
-        d = d_r if u < F else d_t
-        if u >= F:
-            beta = vec.mul(beta, 1.0 / (eta * eta))
-    return d, beta, top, dim
+        return d_r, beta_r, top, dim
+    if depth <= SPLIT_DEPTH and top < scratch[0].shape[0]:
+        top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta_r, F), depth)
+        return d_t, vec.mul(beta_t, (1.0 - F) / (eta * eta)), top, dim
+    u = uniform(key, dim)
+    if u < F:
+        return d_r, beta_r, top, dim + 1
+    return d_t, vec.mul(beta_t, 1.0 / (eta * eta)), top, dim + 1
 
 
 @kernel(inline=True)
@@ -206,21 +202,21 @@ def null_thin_branch(mats, m, d, at, path, stack, key, dim):
     is the reflection, β, top, dim)."""
     beta, depth, max_specular, max_depth = path
     scratch, top = stack
-    d_r, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
-    beta = vec.hadamard(beta, tint)
+    d_r, _, F, _, tints = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
+    beta_r, beta_t = vec.hadamard(beta, tints[0]), vec.hadamard(beta, tints[1])
     reflects = not ends_at(max_depth, depth + 1) and depth + 1 <= max_specular
     if F >= 1.0:   # nothing passes straight on
-        return reflects, d_r, True, beta, top, dim
+        return reflects, d_r, True, beta_r, top, dim
     if depth + 1 <= SPLIT_DEPTH and top < scratch[0].shape[0]:
         if reflects:
-            top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta, F), depth + 1)
-        return True, d, False, vec.mul(beta, 1.0 - F), top, dim
+            top = push_branch(scratch, top, vec.offset_origin(at.p, at.ng, d_r), d_r, vec.mul(beta_r, F), depth + 1)
+        return True, d, False, vec.mul(beta_t, 1.0 - F), top, dim
     if not reflects:   # no reflection may follow: straight on with (1 - F), no number drawn
-        return True, d, False, vec.mul(beta, 1.0 - F), top, dim
+        return True, d, False, vec.mul(beta_t, 1.0 - F), top, dim
     u = uniform(key, dim)
     if u >= F:
-        return True, d, False, beta, top, dim + 1
-    return True, d_r, True, beta, top, dim + 1
+        return True, d, False, beta_t, top, dim + 1
+    return True, d_r, True, beta_r, top, dim + 1
 
 
 @kernel(inline=True)

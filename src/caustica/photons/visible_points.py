@@ -143,24 +143,26 @@ def branch_number(first_glass, numbers, dim):
 
 
 @kernel(inline=True)
-def glass_step(L, beta, seen, branches, u):
+def glass_step(L, betas, seen, branches, u):
     """At glass: the emitters seen along both branches added with their expected weights, then the branch u picks.
 
-    ``seen`` = (Lr, Lt): the emission first met along the reflected and the refracted direction (Lt unused
-    when F = 1); ``branches`` = (wr, wt, F, eta) as :func:`caustica.bsdfs.delta_branches` gives them.  An emitter seen along either branch is added with weight F or (1 - F) / η² rather than
+    ``betas`` = (β times the reflected tint, β times the transmitted tint); ``seen`` = (Lr, Lt): the emission first
+    met along the reflected and the refracted direction (Lt unused when F = 1); ``branches`` = (wr, wt, F, eta) as
+    :func:`caustica.bsdfs.delta_branches` gives them.  An emitter seen along either branch is added with weight F or (1 - F) / η² rather than
     when the choice happens to take that branch: a light's reflection in the glass is a smooth term,
     not a rare spike; the branch taken must then leave its first hit's emission out.  Returns
     (L, the new direction, β for it).
     """
     Lr, Lt = seen
     wr, wt, F, eta = branches
-    L = vec.add(L, vec.mul(vec.hadamard(beta, Lr), F))
+    beta_r, beta_t = betas
+    L = vec.add(L, vec.mul(vec.hadamard(beta_r, Lr), F))
     inv_eta2 = 1.0 / (eta * eta)
     if F < 1.0:
-        L = vec.add(L, vec.mul(vec.hadamard(beta, Lt), (1.0 - F) * inv_eta2))
+        L = vec.add(L, vec.mul(vec.hadamard(beta_t, Lt), (1.0 - F) * inv_eta2))
     if u < F:
-        return L, wr, beta
-    return L, wt, vec.mul(beta, inv_eta2)
+        return L, wr, beta_r
+    return L, wt, vec.mul(beta_t, inv_eta2)
 
 
 @kernel
@@ -238,17 +240,17 @@ def delta_step(tables, at, m, d, path, u):
     whether the next hit's emission was already added)."""
     mats, media = tables[1], tables[3]
     L, beta = path
-    wr, wt, F, eta, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
-    beta = vec.hadamard(beta, tint)
+    wr, wt, F, eta, tints = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
     if not mats.flags[m] & TRANSMISSION:
-        return L, wr, beta, False
+        return L, wr, vec.hadamard(beta, tints[0]), False
     Lr = emitted_along(tables, vec.offset_origin(at.p, at.ng, wr), wr,
                        medium_after(media, at.shape, at.ng_front, wr, at.medium))
     Lt = (0.0, 0.0, 0.0)
     if F < 1.0:
         Lt = emitted_along(tables, vec.offset_origin(at.p, at.ng, wt), wt,
                            medium_after(media, at.shape, at.ng_front, wt, at.medium))
-    L, wi, beta = glass_step(L, beta, (Lr, Lt), (wr, wt, F, eta), u)
+    L, wi, beta = glass_step(L, (vec.hadamard(beta, tints[0]), vec.hadamard(beta, tints[1])), (Lr, Lt),
+                             (wr, wt, F, eta), u)
     return L, wi, beta, True
 
 
@@ -457,11 +459,10 @@ def null_thin_vertex(mats, at, m, d, beta, branch):
     branch number (:func:`branch_number`; ``branch`` as it takes it).  Returns (straight on, the direction, β for it,
     first_glass, dim)."""
     u, first_glass, dim = branch_number(branch[0], branch[1], branch[2])
-    wr, _, F, _, tint = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
-    beta = vec.hadamard(beta, tint)
+    wr, _, F, _, tints = delta_branches(mats, m, d, at.ng, at.ns, at.uv)
     if u >= F:
-        return True, d, beta, first_glass, dim
-    return False, wr, beta, first_glass, dim
+        return True, d, vec.hadamard(beta, tints[1]), first_glass, dim
+    return False, wr, vec.hadamard(beta, tints[0]), first_glass, dim
 
 
 #: What the camera path does at a surface (:func:`camera_vertex`): it ends, it makes its visible point, it goes on.

@@ -68,7 +68,7 @@ class Material:
 
     kind: DIFFUSE (``rgb`` = reflectance), CONDUCTOR (a perfect mirror, ``rgb`` =
     specular_reflectance), DIELECTRIC (smooth glass, ``int_ior`` / ``ext_ior``,
-    ``rgb`` = specular transmittance/reflectance scale, normally 1) or NULL (no surface:
+    ``rgb`` = specular_transmittance, ``specular`` = specular_reflectance, both 1 unless tinted) or NULL (no surface:
     rays cross it unchanged; the boundary of a medium, see :class:`Medium`).  THINDIELECTRIC: a thin glass
     slab (a pane as one sheet), ``int_ior`` / ``ext_ior`` and ``rgb`` as DIELECTRIC's, light reflected or
     passing straight on.
@@ -88,7 +88,8 @@ class Material:
     PPLASTIC: ``rgb`` = diffuse_reflectance, ``specular`` = specular_reflectance, ``distribution``, ``alpha`` and the
     relative IOR ``int_ior`` / ``ext_ior`` (Mitsuba's ``eta`` is read as int_ior = eta, ext_ior = 1).
     texture: a :class:`Texture` that gives ``rgb`` at each surface point instead (diffuse ``reflectance``,
-    a conductor's ``specular_reflectance``, a plastic's or pplastic's ``diffuse_reflectance``); ``rgb`` is then its mean.
+    a conductor's ``specular_reflectance``, a plastic's or pplastic's ``diffuse_reflectance``, glass's
+    ``specular_transmittance``); ``rgb`` is then its mean.
     MASK and BLEND (the mixtures, :data:`MIXTURES`): ``nested`` holds the indices of the nested materials (one for
     a mask, two for a blend, f0 then f1) in the scene's material list; ``mix`` is the opacity (mask) or the weight
     of f1 (blend), in [0, 1], or ``mix_texture`` gives it at each surface point (the texture's luminance, clipped to
@@ -111,7 +112,7 @@ class Material:
     alpha: float = 0.1                 # microfacet roughness (Mitsuba's default)
     conductor_eta: tuple[float, float, float] | None = None
     conductor_k: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    specular: tuple[float, float, float] = (1.0, 1.0, 1.0)   # a plastic's specular_reflectance
+    specular: tuple[float, float, float] = (1.0, 1.0, 1.0)   # a plastic's or glass's specular_reflectance
     nonlinear: bool = False            # a plastic's nonlinear colour shift (Mitsuba's ``nonlinear``)
     source: str = ""  # "file:line" for messages
     texture: "Texture | None" = None   # varies ``rgb`` over the surface (the diffuse or specular reflectance)

@@ -143,7 +143,9 @@ BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
 TEXTURED_PARAMS = {"diffuse": ("reflectance",), "conductor": ("specular_reflectance",),
                    "roughconductor": ("specular_reflectance", "alpha", "alpha_u", "alpha_v"),
-                   "roughdielectric": ("alpha", "alpha_u", "alpha_v"), "plastic": ("diffuse_reflectance",),
+                   "dielectric": ("specular_transmittance",), "thindielectric": ("specular_transmittance",),
+                   "roughdielectric": ("specular_transmittance", "alpha", "alpha_u", "alpha_v"),
+                   "plastic": ("diffuse_reflectance",),
                    "roughplastic": ("diffuse_reflectance",), "pplastic": ("diffuse_reflectance",),
                    # Mitsuba reads these with get_texture (eval_1 for the scalars); eta, specular and the sampling rates
                    # of principled, the sampling rates of principledthin, are plain numbers there
@@ -895,12 +897,11 @@ class _Loader:
         if kind == "polarizer":
             return self.polarizer(node, props, name)
         if kind in ("dielectric", "roughdielectric", "thindielectric"):
-            for p in ("specular_reflectance", "specular_transmittance"):
-                if props.has(p) and self.color(props, p, (1.0,) * 3) != (1.0, 1.0, 1.0):
-                    self.fail(props.node_of(p), f"'{p}' other than 1 is not supported (clear glass only)",
-                              supported=["1"])
             int_ior, ext_ior = self.dielectric_iors(props)
-            mat = Material(DIELECTRIC, (1.0, 1.0, 1.0), int_ior=int_ior, ext_ior=ext_ior, name=name)
+            tex = textures.get("specular_transmittance")    # tinted glass: bsdfs/dielectric.py's tints
+            mat = Material(DIELECTRIC, self.color(props, "specular_transmittance", (1.0, 1.0, 1.0)) if tex is None
+                           else texture_mean(tex), int_ior=int_ior, ext_ior=ext_ior, name=name, texture=tex,
+                           specular=self.color(props, "specular_reflectance", (1.0, 1.0, 1.0)))
             if kind == "thindielectric":
                 mat.kind, mat.source = THINDIELECTRIC, self.at(node)
             if kind == "roughdielectric":
@@ -1052,8 +1053,7 @@ class _Loader:
                 self.fail(obj, "a texture inside a BSDF needs name= (the parameter it gives)",
                           supported=[f"name=\"{p}\"" for p in allowed] or None)
             if name not in allowed:
-                what = " (clear glass only)" if kind in ("dielectric", "roughdielectric", "thindielectric") else ""
-                self.fail(obj, f"a texture for '{name}' of a {kind} BSDF is not supported{what}",
+                self.fail(obj, f"a texture for '{name}' of a {kind} BSDF is not supported",
                           supported=[f"a texture for '{p}'" for p in allowed] + [f"a constant '{name}'"])
             if name in props.props or name in out:
                 self.fail(obj, f"'{name}' is given twice")
