@@ -1602,10 +1602,13 @@ class _Loader:
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance, emitter_texture=emitter_texture,
                       id=node.attrs.get("id", ""), source=src,
                       interior=media.get("interior", -1), exterior=media.get("exterior", -1))
+        # Under a mirroring to_world Mitsuba 3 keeps a rectangle's and a cube's front where the inverse transpose takes
+        # their normals (the shading frame, by which they emit and scatter; their winding turns), and turns a sphere
+        # inside out (sphere.cpp flips its normals); a disk, a cylinder and a mesh file keep theirs.  Checked against
+        # Mitsuba 3.9.1 in tests/test_scene_loader.py.
+        mirrored = bool(np.linalg.det(to_world[:3, :3]) < 0)
         if kind in ("rectangle", "cube", "obj", "ply", "serialized"):
             if kind == "rectangle":
-                # Under a mirroring to_world the front side follows the winding, as in
-                # Mitsuba 3 (its rectangle's normal is dp/du x dp/dv; checked in the tests).
                 local = rectangle_mesh()
             elif kind == "cube":
                 local = cube_mesh()
@@ -1625,7 +1628,7 @@ class _Loader:
                 if props.get("face_normals", False):
                     local.normals = None
             try:
-                mesh = to_world_mesh(local, to_world, flip)
+                mesh = to_world_mesh(local, to_world, flip != (mirrored and kind in ("rectangle", "cube")))
             except SceneError as exc:
                 self.fail(node, str(exc))
             if kind in ("obj", "ply", "serialized") and mesh.normals is None and not props.get("face_normals", False):
@@ -1648,7 +1651,7 @@ class _Loader:
             if np.abs(gram - s2 * np.eye(3)).max() > 1e-6 * s2:
                 self.fail(props.node_of("to_world"), "a sphere's to_world must not shear or scale "
                                                      "non-uniformly (Mitsuba's sphere stays round)")
-            return Shape(SPHERE, to_world=m, **common)
+            return Shape(SPHERE, to_world=m, **{**common, "flip_normals": flip != mirrored})
         if self.materials[material].kind in WRAPPERS or self.needs_tangent(material):
             what = (MATERIAL_NAMES[self.materials[material].kind] if self.materials[material].kind in WRAPPERS
                     else f"BSDF with anisotropic roughness ({MATERIAL_NAMES[self.materials[material].kind]})")
