@@ -10,8 +10,9 @@ bsdfs/microfacet.py's ``*_uv`` kernels in Mitsuba's shading frame from dp/du).
 3. Scenes against Mitsuba (pt): a principled sphere and an anisotropic principled panel, an anisotropic rough metal
    sphere and panel (the frame on a sphere and on a mesh's uv); image mean within 2 %, every 4x4 block within 5 sigmas
    of both renderers' noise (tests/imagestats.py).  The isotropic microfacet keeps its bits (tests/test_bit_pins.py).
-4. sppm and pm render the opaque principled (their estimates weight each photon by the BSDF) as Mitsuba does; spm and
-   pspm refuse it in one line, every photon method the transmitting one and principledthin; bad values fail in one
+4. sppm and pm render the opaque principled (their estimates weight each photon by the BSDF) as Mitsuba does; every
+   photon method renders a principled glass (spec_trans 1) and metal (metallic 1), which have no diffuse lobe, as
+   Mitsuba does, and refuses the one that transmits beside a diffuse lobe and principledthin; bad values fail in one
    line.
 """
 from __future__ import annotations
@@ -348,6 +349,46 @@ def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, met
     path = tmp_path / "p.xml"
     path.write_text(SCENE.replace("{bsdf}", SCENE_BSDFS["principled"]))
     photon_method_matches_mitsuba(mi, path, method, params, f"principled {method}")
+
+
+def test_principled_glass_and_metal_have_no_diffuse_lobe():
+    """metallic or spec_trans the number 1 leaves brdf = (1 - metallic)(1 - spec_trans) = 0: no diffuse or sheen lobe,
+    so the material is glossy only (every photon method passes it by sampling); 0.99, or a textured parameter that
+    may be below 1 somewhere, keeps the diffuse lobe."""
+    def flags(**params):
+        return int(principled(**params).flags[0])
+    assert flags(spec_trans=1.0) == bsdfs.GLOSSY_REFLECTION | bsdfs.GLOSSY_TRANSMISSION
+    assert flags(metallic=1.0, sheen=0.5) == bsdfs.GLOSSY_REFLECTION
+    assert flags(metallic=1.0, spec_trans=1.0) == bsdfs.GLOSSY_REFLECTION
+    assert flags(spec_trans=0.99) & bsdfs.DIFFUSE_REFLECTION
+    assert flags(metallic=0.99) & bsdfs.DIFFUSE_REFLECTION
+    assert flags(spec_trans=1.0, textures=dict(metallic=(1, 0.2, 0.7))) & bsdfs.DIFFUSE_REFLECTION
+
+
+@pytest.fixture(scope="module")
+def principled_caustic_mitsuba(mi, test_scenes_dir):
+    """Mitsuba's path tracer on tests/scenes/principled-caustic.xml at 32 x 32: 4 seeds of 1024 spp."""
+    scene = mi.load_file(str(test_scenes_dir / "principled-caustic.xml"), res=32, spp=1024)
+    return [np.array(mi.render(scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+
+
+@pytest.mark.parametrize("method, params", [
+    ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.02}),
+    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05}),
+    ("spm", {"streams": 40_000, "assoc": 10, "stream_radius": 0.02, "radius": 0.05}),
+    ("pspm", {"passes": 48, "streams": 5_000, "radius": 0.02})])
+def test_photon_methods_render_principled_glass_and_metal_as_mitsuba(principled_caustic_mitsuba, test_scenes_dir,
+                                                                     method, params):
+    """A principled glass ball (spec_trans 1, the glass Blender's exporter writes) and a principled metal ring
+    (metallic 1) cast their glossy caustics on the floor in every photon method, as the rough dielectric and conductor
+    of tests/scenes/glossy-caustic.xml do (tests/test_glossy.py): roulette, mr = 64; mean within 2 % and 4x4 blocks
+    within 5 sigmas of Mitsuba's path tracer.  Before 2026-12-06 every photon method refused the ball (a glossy
+    transmission beside a diffuse lobe, whose weight is 0 here)."""
+    import caustica
+    scene = caustica.load_scene(test_scenes_dir / "principled-caustic.xml")
+    ours = [caustica.render(scene, method, res=32, seed=s, termination="roulette", max_bounces=64, **params).image
+            for s in range(4)]
+    assert_images_agree(ours, principled_caustic_mitsuba, label=f"{method} principled caustic")
 
 
 @pytest.mark.parametrize("method, bsdf", [(m, b) for m in ("sppm", "pm", "spm", "pspm")

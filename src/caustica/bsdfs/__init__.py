@@ -130,6 +130,9 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             if (coating[i, principled.SPEC_TRANS] != 0.0 or principled.SPEC_TRANS in textured) and \
                     (coating[i, principled.METALLIC] < 1.0 or principled.METALLIC in textured):
                 flags[i] |= GLOSSY_TRANSMISSION   # an interface: both sides scatter
+            if mat.kind == PRINCIPLED and not textured & {principled.METALLIC, principled.SPEC_TRANS} and \
+                    (1.0 - coating[i, principled.METALLIC]) * (1.0 - coating[i, principled.SPEC_TRANS]) == 0.0:
+                flags[i] &= ~DIFFUSE_REFLECTION   # metallic or spec_trans 1: no diffuse or sheen lobe (glossy only)
         if mat.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC):   # specular_reflectance (dielectric.tints)
             coating[i, plastic.SPEC:plastic.SPEC + 3] = mat.specular
         if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
