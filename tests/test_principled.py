@@ -25,8 +25,8 @@ from caustica.bsdfs import build_material_table
 from caustica.jit import kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR
-from caustica.scene.description import BECKMANN, CHECKERBOARD, GGX, PRINCIPLED, PRINCIPLEDTHIN, ROUGHCONDUCTOR, \
-    Material, Texture
+from caustica.scene.description import BECKMANN, BLEND, CHECKERBOARD, GGX, NORMALMAP, PRINCIPLED, PRINCIPLEDTHIN, \
+    ROUGHCONDUCTOR, Material, Texture
 from caustica.scene.xml_loader import principled_eta, principled_roughness
 from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
@@ -353,8 +353,10 @@ def test_photon_methods_render_an_opaque_principled_as_mitsuba(mi, tmp_path, met
 
 def test_principled_glass_and_metal_have_no_diffuse_lobe():
     """metallic or spec_trans the number 1 leaves brdf = (1 - metallic)(1 - spec_trans) = 0: no diffuse or sheen lobe,
-    so the material is glossy only (every photon method passes it by sampling); 0.99, or a textured parameter that
-    may be below 1 somewhere, keeps the diffuse lobe."""
+    so the material is glossy only (every photon method passes it by sampling), whatever the other parameter (a
+    texture too); 0.99, or a texture that may be below 1 somewhere with the other below 1, keeps the diffuse lobe.
+    A normal map or a blend holding such a material takes the row's flags (its caustic caster and its photons'
+    kinds follow them)."""
     def flags(**params):
         return int(principled(**params).flags[0])
     assert flags(spec_trans=1.0) == bsdfs.GLOSSY_REFLECTION | bsdfs.GLOSSY_TRANSMISSION
@@ -362,7 +364,19 @@ def test_principled_glass_and_metal_have_no_diffuse_lobe():
     assert flags(metallic=1.0, spec_trans=1.0) == bsdfs.GLOSSY_REFLECTION
     assert flags(spec_trans=0.99) & bsdfs.DIFFUSE_REFLECTION
     assert flags(metallic=0.99) & bsdfs.DIFFUSE_REFLECTION
-    assert flags(spec_trans=1.0, textures=dict(metallic=(1, 0.2, 0.7))) & bsdfs.DIFFUSE_REFLECTION
+    assert flags(spec_trans=1.0, textures=dict(metallic=(1, 0.2, 0.7))) == \
+        bsdfs.GLOSSY_REFLECTION | bsdfs.GLOSSY_TRANSMISSION
+    assert flags(metallic=0.5, textures=dict(spec_trans=(1, 0.2, 1.0))) & bsdfs.DIFFUSE_REFLECTION
+    metal = Material(PRINCIPLED, (0.9, 0.8, 0.7), distribution=GGX, alpha=0.1, principled={"metallic": 1.0})
+    mirror = Material(bsdfs.CONDUCTOR, (1.0, 1.0, 1.0))
+    mats = [metal, Material(NORMALMAP, (0.5, 0.5, 0.5), nested=(0,), mix_texture=checker(1, 0.5, 0.6)), mirror,
+            Material(BLEND, (0.5, 0.5, 0.5), nested=(0, 2), mix=0.3)]
+
+    class Desc:
+        materials = mats
+    got = build_material_table(Desc).flags
+    assert list(got) == [bsdfs.GLOSSY_REFLECTION, bsdfs.GLOSSY_REFLECTION, bsdfs.DELTA_REFLECTION,
+                         bsdfs.GLOSSY_REFLECTION | bsdfs.DELTA_REFLECTION]
 
 
 @pytest.fixture(scope="module")

@@ -109,11 +109,7 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
     params = [{} for _ in range(m)]   # per material: coating column -> the texture giving it (a principled's)
     for i, mat in enumerate(desc.materials):
         kind[i] = mat.kind
-        flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0
-        if mat.kind in MIXTURES + WRAPPERS:   # its parts' lobes (a mask's absence is no lobe: the loops never see it)
-            flags[i] = 0
-            for j in mat.nested:
-                flags[i] |= BSDFS[desc.materials[j].kind].FLAGS if desc.materials[j].kind in BSDFS else 0
+        flags[i] = BSDFS[mat.kind].FLAGS if mat.kind in BSDFS else 0   # a mixture's or wrapper's: below
         rgb[i] = mat.rgb
         eta[i] = mat.int_ior / mat.ext_ior
         twosided[i] = 1 if mat.twosided else 0
@@ -130,8 +126,8 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             if (coating[i, principled.SPEC_TRANS] != 0.0 or principled.SPEC_TRANS in textured) and \
                     (coating[i, principled.METALLIC] < 1.0 or principled.METALLIC in textured):
                 flags[i] |= GLOSSY_TRANSMISSION   # an interface: both sides scatter
-            if mat.kind == PRINCIPLED and not textured & {principled.METALLIC, principled.SPEC_TRANS} and \
-                    (1.0 - coating[i, principled.METALLIC]) * (1.0 - coating[i, principled.SPEC_TRANS]) == 0.0:
+            if mat.kind == PRINCIPLED and any(c not in textured and coating[i, c] == 1.0
+                                              for c in (principled.METALLIC, principled.SPEC_TRANS)):
                 flags[i] &= ~DIFFUSE_REFLECTION   # metallic or spec_trans 1: no diffuse or sheen lobe (glossy only)
         if mat.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC):   # specular_reflectance (dielectric.tints)
             coating[i, plastic.SPEC:plastic.SPEC + 3] = mat.specular
@@ -148,6 +144,11 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                 if c not in coatings:
                     coatings[c] = roughplastic.coating_tables(*c)
                 row[plastic.TABLE:], row[plastic.INTERNAL] = coatings[c]
+    for i, mat in enumerate(desc.materials):   # a mixture's or wrapper's lobes are its parts' own rows' (a principled's
+        if mat.kind in MIXTURES + WRAPPERS:    # set per row above; a mask's absence is no lobe: the loops never see it)
+            flags[i] = 0
+            for j in mat.nested:
+                flags[i] |= flags[j] if desc.materials[j].kind in BSDFS else 0
     return MaterialTable(kind, flags, rgb, eta, twosided, rgb.mean(axis=1), distribution, alpha, alpha_v, fresnel,
                          cond_eta,
                          cond_k, coating, *texture_columns(desc.materials, params), *mixture_columns(desc.materials),
