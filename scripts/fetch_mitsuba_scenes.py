@@ -4,6 +4,7 @@
     python scripts/fetch_mitsuba_scenes.py                  # into out/mitsuba-corpus (git over https)
     python scripts/fetch_mitsuba_scenes.py --dest DIR
     python scripts/fetch_mitsuba_scenes.py --mirror-root /work/.mirror   # from local clones, offline
+    python scripts/fetch_mitsuba_scenes.py --independent     # other repositories' scenes, into out/mitsuba-independent
 
 Each source is a public GitHub repository at a pinned commit, of which only the folders listed below are
 checked out (git's partial clone and sparse checkout: no history, no other blobs).  Nothing is committed
@@ -46,6 +47,45 @@ SOURCES = (
            ("scenes", "README.md"),
            "Mitsuba 3's tutorials. No licence file at the repository's root; scenes/lego/LICENSE.txt: the LEGO "
            "scene is by BlendSwap user Heinzelnisse under CC-BY-NC (https://www.blendswap.com/blend/11490)."),
+)
+
+
+#: Complete Mitsuba 3 scenes from repositories other than Mitsuba's own, which the loader was not built on
+#: (docs/scenes.md, "Scenes the loader was not built on"): ``--independent`` fetches these instead, into
+#: out/mitsuba-independent.  Only the scenes and the folders of files they read; folders of files over 4 MiB that a
+#: stored copy may lack are named so that their absence is listed, not hidden.
+INDEPENDENT = (
+    Source("PearCoding/Ignis", "c209e5b75a7095fd8fc27003cb066911db8159e3",
+           ("LICENSE.txt", "scenes/evaluation/meshes", "scenes/evaluation/mitsuba/point.xml"),
+           "MIT (LICENSE.txt)."),
+    Source("sapo17/BachelorThesis", "dee59d57befeff77f30127bea4eacbd3e3a748ec",
+           ("blender/cbox-multiple-lights.xml", "blender/meshes", "blender/textures",
+            "scenes/cbox-sch-modified/cbox-custom-light.xml", "scenes/cbox-sch-modified/cbox-multiple-lights-2.xml",
+            "scenes/cbox-sch-modified/simple-light.xml", "scenes/cbox-sch-modified/meshes",
+            *[f"scenes/material-preview/{d}/{f}" for d, files in (
+                ("blendbsdf", ("scene-test.xml", "envmap.exr", "matpreview.serialized")),
+                ("translucent-participating-media", ("scene-homogeneuous.xml", "envmap.exr", "matpreview.serialized")),
+                ("translucent-textured-principled-bsdf", ("scene.xml", "envmap.exr", "floor_tiles_bumpmap.png",
+                                                          "gradient.jpg", "matpreview.serialized"))) for f in files],
+            *[f"scenes/texture-scanner/{d}/{f}" for d in ("samples-231122/blueish-circular-obj",
+                                                          "simple-plane-homogeneous", "simple-plane-principled")
+              for f in ("scene-first-rgb.xml" if d.startswith("samples") else "scene.xml", "meshes")]),
+           "No licence file at the repository's root (checked 2026-12-06): fetched to test with, not to share."),
+    Source("ReaganCardoza/Physics-Based-Ray-Tracing", "e09569d7753c51fb8f704953758908168db98434",
+           ("scenes/cbox_pol.xml", "scenes/polarizers.xml", "scenes/shadow_art.xml", "scenes/simple.xml",
+            "scenes/meshes", "scenes/textures"),
+           "No licence file (checked 2026-12-06): fetched to test with, not to share."),
+    Source("lolgameboy/langevin-mc-rendering", "3ce6cdb494fd96aad6aff1d9b73c175e431a2c3f",
+           ("scenes/scene_all_emitters.xml", "scenes/scene_directional.xml", "scenes/veach-bidir"),
+           "No licence file at the root; scenes/veach-bidir is Benedikt Bitterli's scene, CC0 (its LICENSE.txt)."),
+    Source("niklassanden/ReSTIR_GI_DR", "4e71bd940e50f0e0f408206f1ea368cd9dfb6325",
+           ("LICENSE", "scenes/cornell_box_picture", "scenes/staircase2"),
+           "A Mitsuba 3 fork (BSD-3-Clause-style LICENSE); the scenes are Bitterli's: cornell_box_picture CC0, "
+           "staircase2 CC-BY (their LICENSE.txt files)."),
+    Source("takkasila/practical_path_guiding_lab", "c4b6605b3c78dccaa5721275d96ef6cd30c0630c",
+           ("LICENSE", "scenes/cornell-box/scene.xml", "scenes/cornell-box/LICENSE.txt", "scenes/torus/scene.xml",
+            "scenes/torus/meshes.serialized", "scenes/veach-mis/scene.xml", "scenes/veach-mis/LICENSE.txt"),
+           "GPL-3.0 (LICENSE); cornell-box and veach-mis are Bitterli's scenes, CC0 (their LICENSE.txt)."),
 )
 
 
@@ -144,13 +184,18 @@ def write_sources(dest: Path, fetched: dict[Source, Path]) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--dest", type=Path, default=Path("out/mitsuba-corpus"), help="where to put the scenes")
+    ap.add_argument("--dest", type=Path, default=None,
+                    help="where to put the scenes (out/mitsuba-corpus; with --independent out/mitsuba-independent)")
+    ap.add_argument("--independent", action="store_true",
+                    help="the scenes of other repositories, which the loader was not built on (INDEPENDENT)")
     ap.add_argument("--mirror-root", type=Path, default=None,
                     help="take <DIR>/<owner>+<name>/repo instead of github.com (offline)")
     args = ap.parse_args(argv)
+    if args.dest is None:
+        args.dest = Path("out/mitsuba-independent" if args.independent else "out/mitsuba-corpus")
     args.dest.mkdir(parents=True, exist_ok=True)
     fetched = {}
-    for src in SOURCES:
+    for src in INDEPENDENT if args.independent else SOURCES:
         try:
             fetched[src] = fetch(src, args.dest, args.mirror_root)
         except subprocess.CalledProcessError as exc:
