@@ -39,8 +39,8 @@ Directions on the wrong side of the geometric surface for their lobe are refused
 Flags ``DIFFUSE_REFLECTION | GLOSSY_REFLECTION`` (and ``GLOSSY_TRANSMISSION`` for a material with spec_trans > 0
 and metallic < 1, set per row by the material table; a material whose metallic or spec_trans is the number 1 has no
 diffuse or sheen lobe, brdf = 0, and loses ``DIFFUSE_REFLECTION``: a principled glass or metal, which every photon
-method passes by sampling as it passes roughdielectric and roughconductor).  Which photon methods render one beside a diffuse
-lobe: api.check_bsdfs.
+method passes by sampling as it passes roughdielectric and roughconductor).  Which photon methods render one beside
+a diffuse lobe: api.check_bsdfs.
 """
 from __future__ import annotations
 

@@ -13,8 +13,9 @@ with h the microfacet normal (above the surface) and F = F_dielectric(wo·h):
 
 Sampling draws a visible normal from wo (numbers dim, dim + 1), then reflection with probability F, else
 refraction (number dim + 2), so both weights f |cos θ_i| / pdf are G1(wi, h), times the lobe's tint: Mitsuba's
-specular_reflectance or specular_transmittance (both 1 by default; :func:`caustica.bsdfs.dielectric.tints`).  Anisotropic
-roughness as :mod:`.roughconductor`'s (the frame's s from dp/du on either side: D and G1 are even in each slope).
+specular_reflectance or specular_transmittance (both 1 by default; :func:`caustica.bsdfs.dielectric.tints`).
+Anisotropic roughness as :mod:`.roughconductor`'s (the frame's s from dp/du on either side: D and G1 are even in each
+slope).
 """
 from __future__ import annotations
 
