@@ -419,6 +419,15 @@ def test_photon_roulette_survival_is_a_probability(tmp_path):
     assert inv_q == {1.0}, inv_q
 
 
+#: The photon methods' settings for a 32 px caustic scene against Mitsuba's path tracer, with --termination roulette
+#: and mr = 64 (tests/test_tinted_glass.py, test_principled.py): radii small beside the caustics' size.
+CAUSTIC_PHOTON_METHODS = [
+    ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.02}),
+    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05}),
+    ("spm", {"streams": 40_000, "assoc": 10, "stream_radius": 0.02, "radius": 0.05}),
+    ("pspm", {"passes": 48, "streams": 5_000, "radius": 0.02})]
+
+
 @pytest.fixture(scope="module")
 def glossy_caustic_mitsuba(mi, test_scenes_dir):
     """Mitsuba's path tracer on tests/scenes/glossy-caustic.xml (ggx, alpha 0.1) at 32 x 32: 4 seeds of 512 spp."""

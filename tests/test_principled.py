@@ -30,8 +30,8 @@ from caustica.scene.description import BECKMANN, BLEND, CHECKERBOARD, GGX, NORMA
 from caustica.scene.xml_loader import principled_eta, principled_roughness
 from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
-from test_glossy import CMP_MI_SPP, CMP_SEEDS, CMP_SPP, assert_refused_in_one_line, assert_sampled_density_is_the_pdf, \
-    incident, render_both, write_scene
+from test_glossy import CAUSTIC_PHOTON_METHODS, CMP_MI_SPP, CMP_SEEDS, CMP_SPP, assert_refused_in_one_line, \
+    assert_sampled_density_is_the_pdf, incident, render_both, write_scene
 from test_pplastic import PM, photon_method_matches_mitsuba
 
 NG = (0.0, 0.0, 1.0)
@@ -386,11 +386,7 @@ def principled_caustic_mitsuba(mi, test_scenes_dir):
     return [np.array(mi.render(scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
 
 
-@pytest.mark.parametrize("method, params", [
-    ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.02}),
-    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05}),
-    ("spm", {"streams": 40_000, "assoc": 10, "stream_radius": 0.02, "radius": 0.05}),
-    ("pspm", {"passes": 48, "streams": 5_000, "radius": 0.02})])
+@pytest.mark.parametrize("method, params", CAUSTIC_PHOTON_METHODS)
 def test_photon_methods_render_principled_glass_and_metal_as_mitsuba(principled_caustic_mitsuba, test_scenes_dir,
                                                                      method, params):
     """A principled glass ball (spec_trans 1, the glass Blender's exporter writes) and a principled metal ring

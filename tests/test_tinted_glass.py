@@ -25,7 +25,7 @@ from caustica import bsdfs
 from caustica.scene.description import DIELECTRIC, GGX, ROUGHDIELECTRIC, THINDIELECTRIC, Material
 from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
-from test_glossy import bsdfs_camera_scale, draw, eval_many, incident
+from test_glossy import CAUSTIC_PHOTON_METHODS, bsdfs_camera_scale, draw, eval_many, incident
 
 REFLECTANCE = (0.5, 0.8, 1.0)
 TRANSMITTANCE = (0.95, 0.6, 0.2)
@@ -136,12 +136,7 @@ def mitsuba_images(mi):
     return [np.array(mi.render(scene, spp=1024, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
 
 
-@pytest.mark.parametrize("method, params", [
-    ("pt", {"spp": 512}),
-    ("sppm", {"passes": 48, "photons": 50_000, "caustic_photons": 50_000, "radius": 0.02}),
-    ("pm", {"photons": 200_000, "caustic_photons": 400_000, "spp": 16, "radius": 0.05}),
-    ("spm", {"streams": 40_000, "assoc": 10, "stream_radius": 0.02, "radius": 0.05}),
-    ("pspm", {"passes": 48, "streams": 5_000, "radius": 0.02})])
+@pytest.mark.parametrize("method, params", [("pt", {"spp": 512})] + CAUSTIC_PHOTON_METHODS)
 def test_tinted_glass_scene_matches_mitsuba(mitsuba_images, method, params):
     """Each method's tinted caustics and reflections against Mitsuba's path tracer (roulette and mr = 64 for the
     photon methods: no depth truncation)."""
