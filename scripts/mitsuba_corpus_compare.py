@@ -220,9 +220,12 @@ def compare(ours, theirs):
     mb = np.array([x.mean() for x in theirs])
     a, b = ma.mean(), mb.mean()
     se_a, se_b = ma.std(ddof=1) / math.sqrt(len(ma)), mb.std(ddof=1) / math.sqrt(len(mb))
-    black = a == 0 and b == 0 and not any(x.any() for x in ours) and not any(x.any() for x in theirs)
-    rel = a / b - 1 if b != 0 else 0.0 if black else float("inf")
-    se_rel = math.sqrt(se_a ** 2 + (a / b) ** 2 * se_b ** 2) / abs(b) if b != 0 else 0.0 if black else float("inf")
+    if b != 0:
+        rel, se_rel = a / b - 1, math.sqrt(se_a ** 2 + (a / b) ** 2 * se_b ** 2) / abs(b)
+    elif not any(x.any() for x in ours + theirs):   # both black in every pixel: nothing differs
+        rel, se_rel = 0.0, 0.0
+    else:
+        rel, se_rel = float("inf"), float("inf")
     out4, n4, worst = blocks_beyond(ours, theirs, 4)
     out16, n16, _ = blocks_beyond(ours, theirs, 16) if min(ours[0].shape[:2]) >= 16 else (0, 0, "")
     ch_a = np.mean(ours, axis=(0, 1, 2))
