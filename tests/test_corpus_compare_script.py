@@ -3,6 +3,7 @@ renders the corpus itself when it is there)."""
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,23 @@ def test_a_scene_without_an_integrator_gets_mitsubas_path_tracer(mi, tmp_path):
     assert len(images) == 4 and spp >= 4
     assert all(abs(float(img.mean()) - 0.5) < 1e-3 for img in images)     # the sky seen directly
     assert notes and "path tracer" in notes[0]
+
+
+def test_fetch_independent_selects_the_other_repositories(tmp_path, monkeypatch):
+    """scripts/fetch_mitsuba_scenes.py --independent fetches INDEPENDENT (into out/mitsuba-independent unless --dest),
+    without it SOURCES; the fetching itself is replaced here (it needs the network or local mirrors)."""
+    path = SCRIPT.parent / "fetch_mitsuba_scenes.py"
+    spec = importlib.util.spec_from_file_location("fetch_mitsuba_scenes", path)
+    fetch = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "fetch_mitsuba_scenes", fetch)   # its dataclass looks its module up there
+    spec.loader.exec_module(fetch)
+    got = []
+    monkeypatch.setattr(fetch, "fetch", lambda src, dest, mirror: got.append((src.repo, dest)) or dest)
+    monkeypatch.setattr(fetch, "write_sources", lambda dest, fetched: None)
+    monkeypatch.chdir(tmp_path)
+    assert fetch.main(["--independent"]) == 0
+    assert [r for r, _ in got] == [s.repo for s in fetch.INDEPENDENT] and got[0][1] == Path("out/mitsuba-independent")
+    assert not {s.repo for s in fetch.INDEPENDENT} & {s.repo for s in fetch.SOURCES}
+    got.clear()
+    assert fetch.main(["--dest", str(tmp_path / "c")]) == 0
+    assert [r for r, _ in got] == [s.repo for s in fetch.SOURCES] and got[0][1] == tmp_path / "c"
