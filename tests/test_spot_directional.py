@@ -110,6 +110,38 @@ def test_bad_spot_or_directional_is_one_line_exit_2(tmp_path, cli, body, words):
         assert w in err, (w, err)
 
 
+NESTED_EMITTERS = {"spot": SPOT_XML.format(cutoff=30, beam=10), "directional": SUN_XML,
+                   "point": '<emitter type="point"><point name="position" x="0.2" y="1.5" z="0.3"/></emitter>'}
+
+
+@pytest.mark.parametrize("kind", list(NESTED_EMITTERS))
+def test_an_emitter_nested_in_a_shape_is_placed_by_its_own_parameters(tmp_path, mi, kind):
+    """Mitsuba 3 takes a point, spot, projector or directional emitter as a shape's one emitter child; the shape
+    neither moves nor emits it (3.9.1 renders the same image, bit for bit, as with the emitter at the top level:
+    a spot inside the light rectangle of a published Cornell box).  A shape holding one and no BSDF is black, as
+    any emitter's shape.  caustica reads it as the same light and the shape's material as Mitsuba's."""
+    em = NESTED_EMITTERS[kind]
+    shape = '<shape type="disk" id="holder"><transform name="to_world"><translate y="1"/></transform>{}</shape>'
+    nested = load_scene_description(str(write_scene(tmp_path, shape.format(em), "nested.xml")))
+    top = load_scene_description(str(write_scene(tmp_path, shape.format("") + em, "nested.xml")))   # same source
+    assert nested.point_lights == top.point_lights and nested.directional_lights == top.directional_lights
+    assert len(nested.point_lights) + len(nested.directional_lights) == 1
+    holder = next(s for s in nested.shapes if s.id == "holder")
+    assert holder.emitter_radiance is None
+    theirs = {s.id(): mi.traverse(s)["bsdf.reflectance.value"]
+              for s in mi.load_file(str(write_scene(tmp_path, shape.format(em), "nested.xml"))).shapes()}
+    assert nested.materials[holder.material].rgb == pytest.approx((theirs["holder"],) * 3) == (0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("kind", ["constant", "envmap"])
+def test_an_environment_nested_in_a_shape_is_refused(tmp_path, cli, kind):
+    """Mitsuba 3 loads it, samples it and never sees it (escaped rays find no environment): refused, in one line."""
+    path = write_scene(tmp_path, f'<shape type="sphere"><emitter type="{kind}"/></shape>')
+    code, _, err = cli("render", path, "--method", "pt", "-q", "-o", tmp_path / "x.exr")
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{path}:7: <emitter type=\"{kind}\">: a {kind} emitter belongs at the top level of the scene" in err, err
+
+
 def test_spot_falloff_and_directional_match_mitsuba(tmp_path, mi):
     """Mitsuba's own emitters' sample_direction at random points (I f / r² for the spot, E for the directional
     light, with their directions) equal caustica's light_sample of a scene with that one light (float32
