@@ -335,6 +335,14 @@ def first(x):
 @kernel
 def second(x):
     return apply(twice, x) + 1.0
+
+@kernel
+def via_first(x):
+    return first(x)
+
+@kernel
+def via_first_again(x):
+    return first(x) + 2.0
 '''
 
 
@@ -363,6 +371,42 @@ def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
         assert run.returncode == 0, run.stderr
     assert runs[0].stdout.split() == ["6.0", "0", "1", "True"]   # compiled and written to the cache
     assert runs[1].stdout.split() == ["7.0", "1", "0", "True"]   # read back (as IR to link) for a new caller
+
+
+def test_a_kernel_passing_a_kernel_is_cached_too(tmp_path):
+    """``first`` passes the kernel ``twice`` as a value.  Its IR is kept unoptimised for its callers to link
+    (:class:`~caustica.jit.LinkOnlyLibrary`), so the value's lowering stays in it: as Numba lowers a dispatcher (the
+    address of its Python object, different in each process) Numba refused to cache ``first`` and every kernel
+    linking it.  A kernel's value is a null pointer (:class:`~caustica.jit.KernelType`): ``first`` is written once
+    and read back for a new caller."""
+    (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
+    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
+               PYTHONPATH=_path_with(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+    script = ("import sys, warnings, kernel_argument_module as m\n"
+              "warnings.simplefilter('error')\n"
+              "print(getattr(m, sys.argv[1])(3.0), sum(m.first.stats.cache_hits.values()),"
+              " sum(m.first.stats.cache_misses.values()))")
+    runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
+                           timeout=300) for name in ("via_first", "via_first_again")]
+    for run in runs:
+        assert run.returncode == 0, run.stderr
+    assert runs[0].stdout.split() == ["6.0", "0", "1"]
+    assert runs[1].stdout.split() == ["8.0", "1", "0"]
+
+
+@kernel
+def _double(x):
+    return 2.0 * x
+
+
+@kernel
+def _the_kernel(x):
+    return _double
+
+
+def test_a_kernel_returned_to_python_is_the_kernel():
+    assert _the_kernel(1.0) is _double
 
 
 _PYTHON_OBJECTS_MODULE = '''

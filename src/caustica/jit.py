@@ -85,14 +85,14 @@ from numba.core.codegen import CPUCodeLibrary, JITCodeLibrary, RuntimeLinker
 from numba.core.compiler import CompileResult, Compiler, DefaultPassBuilder
 from numba.core.compiler_machinery import AnalysisPass, FunctionPass, register_pass
 from numba.core.cpu import CPUContext
-from numba.core.datamodel.models import PrimitiveModel
+from numba.core.datamodel.models import OpaqueModel, PrimitiveModel
 from numba.core.environment import lookup_environment
-from numba.core.imputils import lower_builtin, lower_getattr_generic
+from numba.core.imputils import lower_builtin, lower_constant, lower_getattr_generic
 from numba.core.ir_utils import GuardException, find_const, get_definition
 from numba.core.registry import CPUDispatcher
 from numba.core.typed_passes import NativeLowering, NopythonTypeInference
 from numba.core.untyped_passes import WithLifting
-from numba.extending import intrinsic, register_model, unbox
+from numba.extending import box, intrinsic, register_model, unbox
 
 from .features import features_of, has
 
@@ -225,21 +225,31 @@ class BorrowOutsideLoops(FunctionPass):
 
 
 class LinkOnlyLibrary(JITCodeLibrary):
-    """The code library of a :class:`Kernel` (not of its twin): kept as optimised LLVM IR, never made machine code.
+    """The code library of a :class:`Kernel` (not of its twin): kept as LLVM IR, never made machine code, and
+    optimised function by function only.
 
     A kernel has no wrapper to be called by (:class:`Kernel`): its code runs only where other kernels link its IR
     into theirs, which they optimise and compile as their own.  Numba still compiled every library to machine
     code on its own, and cached that: 6.8 of the 50 CPU s of ``make render``'s cold start (2026-12-05), for code
     nothing ever ran.  This library skips the execution engine and is cached as the bitcode its callers link.
+    Nor does it run Numba's module passes (two O3 pipelines over the kernel and every kernel it linked): the
+    Python-called twin that finally links it runs them over the whole call tree, so each level of that tree was
+    optimised again at every level above it.  Skipping them took 9-21 % off the compile time of ``spm``'s kernels,
+    with the same speed and the same bits (docs/results.md, 2026-12-06).
     One that calls a kernel still being compiled (mutual recursion: a ``.numba.unresolved$`` symbol, which only
-    the engine resolves) is finalised, and cached, as Numba finalises any library (``link_only`` False).
+    the engine resolves) is optimised, finalised and cached as Numba does any library (``link_only`` False).
     """
 
     link_only = True
 
-    def _finalize_final_module(self):
+    def _optimize_final_module(self):
         if any(gv.name.startswith(RuntimeLinker.PREFIX) for gv in self._final_module.global_variables):
             self.link_only = False
+        if not self.link_only:
+            return super()._optimize_final_module()
+
+    def _finalize_final_module(self):
+        if not self.link_only:
             return super()._finalize_final_module()
         self._finalize_dynamic_globals()
         self._verify_declare_only_symbols()
@@ -432,6 +442,10 @@ class Kernel(CPUDispatcher):
         the same kernel object there, or the index cannot be read back (and would never match)."""
         return _kernel_named, (self.py_func.__module__, self.py_func.__qualname__)
 
+    @property
+    def _numba_type_(self):
+        return KernelType(self)
+
     def compiled_for_python(self) -> bool:
         """Whether a call from Python has compiled (or loaded) this kernel in this process."""
         return self._from_python is not None and len(self._from_python.signatures) > 0
@@ -439,6 +453,28 @@ class Kernel(CPUDispatcher):
     def get_call_template(self, args, kws):
         return super().get_call_template(tuple(types.unliteral(a) for a in args),
                                          {k: types.unliteral(v) for k, v in kws.items()})
+
+
+class KernelType(types.Dispatcher):
+    """Numba's type of a :class:`Kernel`.  A kernel passed to another as an argument (``local_eval`` in
+    ``roughplastic.two_lobe_sample``) is a value of this type, and a call through it is resolved from the type, at
+    compile time: the value is never read.  Numba lowers a dispatcher's value as the address of its Python object,
+    a global that differs in each process; left in a kernel's unoptimised IR (:class:`LinkOnlyLibrary`), it would
+    stop Numba caching that kernel and every kernel that links it.  A kernel's value lowers to a null pointer
+    instead; boxed (returned to Python) it is the kernel itself, found by its name."""
+
+
+register_model(KernelType)(OpaqueModel)
+
+
+@lower_constant(KernelType)
+def _kernel_value(context, builder, ty, pyval):
+    return context.get_constant_null(ty)
+
+
+@box(KernelType)
+def _box_kernel(typ, val, c):
+    return c.pyapi.unserialize(c.pyapi.serialize_object(typ.dispatcher))
 
 
 def _kernel_named(module: str, qualname: str) -> Kernel:
