@@ -327,3 +327,12 @@ def test_photon_methods_mean_matches_mitsubas_ptracer(mitsuba_renders, method, p
     ours = caustica.render(str(path), method, threads=2, seed=1, **params).image.mean(axis=(0, 1))
     ref = np.mean(theirs, axis=0).mean(axis=(0, 1))
     assert np.all(np.abs(ours / ref - 1) < tol), (method, params, ours, ref)
+
+
+def test_a_shape_referring_to_a_spot_is_one_clear_error(tmp_path, cli):
+    """A spot declared at the top level is read there; a shape's <ref> to it would place it twice: refused."""
+    path = write_scene(tmp_path, '<emitter type="spot" id="lamp"/>\n<shape type="sphere"><ref id="lamp"/></shape>')
+    code, _, err = cli("render", path, "--method", "pt", "-q", "-o", tmp_path / "x.exr")
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{path}:8:" in err, err
+    assert "a shape can refer only to an area emitter; 'lamp' (line 7) is a spot emitter" in err, err

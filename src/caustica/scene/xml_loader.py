@@ -1575,6 +1575,9 @@ class _Loader:
         for obj in props.objects:
             target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else None
             if target is not None and target.tag == "emitter":   # an area emitter declared at the top level
+                if target.attrs.get("type") != "area":   # (any other is read where it is declared)
+                    self.fail(obj, f"a shape can refer only to an area emitter; '{obj.attrs.get('id')}' (line "
+                                   f"{target.line}) is a {target.attrs.get('type')} emitter, read at the top level")
                 self.referenced_emitters.add(id(target))
                 obj = target
             if self.is_medium(obj):
