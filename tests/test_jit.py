@@ -409,6 +409,22 @@ def test_a_kernel_returned_to_python_is_the_kernel():
     assert _the_kernel(1.0) is _double
 
 
+def test_a_kernel_not_found_by_name_is_returned_to_python_too():
+    """A kernel defined in a function is not found by its module and name: it keeps Numba's lowering (its object's
+    address; such a caller is not cached)."""
+    @kernel
+    def local(x):
+        return x
+
+    @kernel
+    def give(x):
+        return local
+
+    from numba.core.errors import NumbaWarning
+    with pytest.warns(NumbaWarning, match="Cannot cache compiled function \"give_from_python\""):
+        assert give(1.0) is local
+
+
 _PYTHON_OBJECTS_MODULE = '''
 import numba
 from caustica.jit import kernel

@@ -233,8 +233,8 @@ class LinkOnlyLibrary(JITCodeLibrary):
     code on its own, and cached that: 6.8 of the 50 CPU s of ``make render``'s cold start (2026-12-05), for code
     nothing ever ran.  This library skips the execution engine and is cached as the bitcode its callers link.
     Nor does it run Numba's module passes (two O3 pipelines over the kernel and every kernel it linked): the
-    Python-called twin that finally links it runs them over the whole call tree, so each level of that tree was
-    optimised again at every level above it.  Skipping them took 9-21 % off the compile time of ``spm``'s kernels,
+    Python-called twin that finally links it runs them once over the whole call tree (when every library ran them,
+    each level of the tree was optimised again at every level above it).  Skipping them took 8-22 % off the compile time of ``spm``'s kernels,
     with the same speed and the same bits (docs/results.md, 2026-12-06).
     One that calls a kernel still being compiled (mutual recursion: a ``.numba.unresolved$`` symbol, which only
     the engine resolves) is optimised, finalised and cached as Numba does any library (``link_only`` False).
@@ -458,10 +458,19 @@ class Kernel(CPUDispatcher):
 class KernelType(types.Dispatcher):
     """Numba's type of a :class:`Kernel`.  A kernel passed to another as an argument (``local_eval`` in
     ``roughplastic.two_lobe_sample``) is a value of this type, and a call through it is resolved from the type, at
-    compile time: the value is never read.  Numba lowers a dispatcher's value as the address of its Python object,
+    compile time, without reading the value.  Numba lowers a dispatcher's value as the address of its Python object,
     a global that differs in each process; left in a kernel's unoptimised IR (:class:`LinkOnlyLibrary`), it would
-    stop Numba caching that kernel and every kernel that links it.  A kernel's value lowers to a null pointer
-    instead; boxed (returned to Python) it is the kernel itself, found by its name."""
+    stop Numba caching that kernel and every kernel that links it.  A kernel found by its module and name (as it
+    pickles) lowers to a null pointer instead, and boxes (returned to Python) as the kernel found by its name; any
+    other keeps Numba's lowering.  (The value would also be read where kernels meet as first-class functions, a
+    tuple or branch joining two of them, which Numba cannot type for kernels: they have no C wrapper.)"""
+
+
+def _found_by_name(k: Kernel) -> bool:
+    try:
+        return _kernel_named(k.py_func.__module__, k.py_func.__qualname__) is k
+    except (ImportError, AttributeError):
+        return False
 
 
 register_model(KernelType)(OpaqueModel)
@@ -469,12 +478,17 @@ register_model(KernelType)(OpaqueModel)
 
 @lower_constant(KernelType)
 def _kernel_value(context, builder, ty, pyval):
-    return context.get_constant_null(ty)
+    if _found_by_name(pyval):
+        return context.get_constant_null(ty)
+    return context.add_dynamic_addr(builder, id(pyval), info=type(pyval).__name__)
 
 
 @box(KernelType)
 def _box_kernel(typ, val, c):
-    return c.pyapi.unserialize(c.pyapi.serialize_object(typ.dispatcher))
+    if _found_by_name(typ.dispatcher):
+        return c.pyapi.unserialize(c.pyapi.serialize_object(typ.dispatcher))
+    c.pyapi.incref(val)
+    return val
 
 
 def _kernel_named(module: str, qualname: str) -> Kernel:
