@@ -234,8 +234,8 @@ class LinkOnlyLibrary(JITCodeLibrary):
     nothing ever ran.  This library skips the execution engine and is cached as the bitcode its callers link.
     Nor does it run Numba's module passes (two O3 pipelines over the kernel and every kernel it linked): the
     Python-called twin that finally links it runs them once over the whole call tree (when every library ran them,
-    each level of the tree was optimised again at every level above it).  Skipping them took 8-22 % off the compile time of ``spm``'s kernels,
-    with the same speed and the same bits (docs/results.md, 2026-12-06).
+    each level of the tree was optimised again at every level above it).  Skipping them took 8-22 % off the
+    compile time of ``spm``'s kernels, with the same speed and the same bits (docs/results.md, 2026-12-06).
     One that calls a kernel still being compiled (mutual recursion: a ``.numba.unresolved$`` symbol, which only
     the engine resolves) is optimised, finalised and cached as Numba does any library (``link_only`` False).
     """
@@ -462,8 +462,9 @@ class KernelType(types.Dispatcher):
     a global that differs in each process; left in a kernel's unoptimised IR (:class:`LinkOnlyLibrary`), it would
     stop Numba caching that kernel and every kernel that links it.  A kernel found by its module and name (as it
     pickles) lowers to a null pointer instead, and boxes (returned to Python) as the kernel found by its name; any
-    other keeps Numba's lowering.  (The value would also be read where kernels meet as first-class functions, a
-    tuple or branch joining two of them, which Numba cannot type for kernels: they have no C wrapper.)"""
+    other keeps Numba's lowering.  (The value would also be read where two kernels meet as one first-class
+    function value, which would then fail; a tuple of two kernels indexed at run time does not type in Numba, with
+    or without this type, and other such joins were not tried.)"""
 
 
 def _found_by_name(k: Kernel) -> bool:
