@@ -351,26 +351,33 @@ def _path_with(folder) -> str:
     return os.pathsep.join([str(folder)] + [p for p in sys.path if p])
 
 
-def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
-    """A kernel passed to a kernel is part of the callee's signature, which Numba's cache index pickles: another
-    process compiling a new caller must read that index back (kernels pickle by reference) and load the callee from
-    it, not crash (as it did when a kernel pickled as a new dispatcher) or compile it again."""
+def _outputs_of_two_processes(tmp_path, script: str, names: tuple[str, str]) -> list[list[str]]:
+    """Run ``script`` with each of ``names`` in its own fresh process, both sharing one kernel cache in ``tmp_path``,
+    with the kernels of ``_KERNEL_ARGUMENT_MODULE`` importable: the words each printed."""
     (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
     env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
                PYTHONPATH=_path_with(tmp_path))
     env.pop("NUMBA_CACHE_DIR", None)
+    runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
+                           timeout=300) for name in names]
+    for run in runs:
+        assert run.returncode == 0, run.stderr
+    return [run.stdout.split() for run in runs]
+
+
+def test_a_kernel_taking_a_kernel_is_read_back_from_the_disk_cache(tmp_path):
+    """A kernel passed to a kernel is part of the callee's signature, which Numba's cache index pickles: another
+    process compiling a new caller must read that index back (kernels pickle by reference) and load the callee from
+    it, not crash (as it did when a kernel pickled as a new dispatcher) or compile it again."""
     script = ("import pickle, sys, kernel_argument_module as m\n"
               "from caustica.jit import LinkOnlyLibrary\n"
               "assert pickle.loads(pickle.dumps(m.twice)) is m.twice\n"
               "print(getattr(m, sys.argv[1])(3.0), sum(m.apply.stats.cache_hits.values()),"
               " sum(m.apply.stats.cache_misses.values()),"
               " all(isinstance(c.library, LinkOnlyLibrary) for c in m.apply.overloads.values()))")
-    runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
-                           timeout=300) for name in ("first", "second")]
-    for run in runs:
-        assert run.returncode == 0, run.stderr
-    assert runs[0].stdout.split() == ["6.0", "0", "1", "True"]   # compiled and written to the cache
-    assert runs[1].stdout.split() == ["7.0", "1", "0", "True"]   # read back (as IR to link) for a new caller
+    runs = _outputs_of_two_processes(tmp_path, script, ("first", "second"))
+    assert runs[0] == ["6.0", "0", "1", "True"]   # compiled and written to the cache
+    assert runs[1] == ["7.0", "1", "0", "True"]   # read back (as IR to link) for a new caller
 
 
 def test_a_kernel_passing_a_kernel_is_cached_too(tmp_path):
@@ -379,20 +386,13 @@ def test_a_kernel_passing_a_kernel_is_cached_too(tmp_path):
     address of its Python object, different in each process) Numba refused to cache ``first`` and every kernel
     linking it.  A kernel's value is a null pointer (:class:`~caustica.jit.KernelType`): ``first`` is written once
     and read back for a new caller."""
-    (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
-    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
-               PYTHONPATH=_path_with(tmp_path))
-    env.pop("NUMBA_CACHE_DIR", None)
     script = ("import sys, warnings, kernel_argument_module as m\n"
               "warnings.simplefilter('error')\n"
               "print(getattr(m, sys.argv[1])(3.0), sum(m.first.stats.cache_hits.values()),"
               " sum(m.first.stats.cache_misses.values()))")
-    runs = [subprocess.run([sys.executable, "-c", script, name], env=env, capture_output=True, text=True,
-                           timeout=300) for name in ("via_first", "via_first_again")]
-    for run in runs:
-        assert run.returncode == 0, run.stderr
-    assert runs[0].stdout.split() == ["6.0", "0", "1"]
-    assert runs[1].stdout.split() == ["8.0", "1", "0"]
+    runs = _outputs_of_two_processes(tmp_path, script, ("via_first", "via_first_again"))
+    assert runs[0] == ["6.0", "0", "1"]
+    assert runs[1] == ["8.0", "1", "0"]
 
 
 @kernel
