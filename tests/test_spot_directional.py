@@ -2,6 +2,7 @@
 against the analytic irradiance, photons' power, and renders against Mitsuba 3."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -111,7 +112,9 @@ def test_bad_spot_or_directional_is_one_line_exit_2(tmp_path, cli, body, words):
 
 
 NESTED_EMITTERS = {"spot": SPOT_XML.format(cutoff=30, beam=10), "directional": SUN_XML,
-                   "point": '<emitter type="point"><point name="position" x="0.2" y="1.5" z="0.3"/></emitter>'}
+                   "point": '<emitter type="point"><point name="position" x="0.2" y="1.5" z="0.3"/></emitter>',
+                   "projector": '<emitter type="projector"><transform name="to_world"><lookat origin="0, 1.5, 0" '
+                                'target="0, 0, 0" up="0, 0, 1"/></transform><float name="scale" value="5"/></emitter>'}
 
 
 @pytest.mark.parametrize("kind", list(NESTED_EMITTERS))
@@ -124,8 +127,13 @@ def test_an_emitter_nested_in_a_shape_is_placed_by_its_own_parameters(tmp_path, 
     shape = '<shape type="disk" id="holder"><transform name="to_world"><translate y="1"/></transform>{}</shape>'
     nested = load_scene_description(str(write_scene(tmp_path, shape.format(em), "nested.xml")))
     top = load_scene_description(str(write_scene(tmp_path, shape.format("") + em, "nested.xml")))   # same source
-    assert nested.point_lights == top.point_lights and nested.directional_lights == top.directional_lights
-    assert len(nested.point_lights) + len(nested.directional_lights) == 1
+    lights = ("point_lights", "directional_lights", "projectors")
+    for k in lights:   # field by field: a projector's frame is an array
+        mine, theirs_top = getattr(nested, k), getattr(top, k)
+        assert len(mine) == len(theirs_top), k
+        for a, b in zip(mine, theirs_top):
+            assert all(np.array_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a)), k
+    assert sum(len(getattr(nested, k)) for k in lights) == 1
     holder = next(s for s in nested.shapes if s.id == "holder")
     assert holder.emitter_radiance is None
     theirs = {s.id(): mi.traverse(s)["bsdf.reflectance.value"]

@@ -1570,7 +1570,7 @@ class _Loader:
         to_world = np.eye(4) if to_world is None else to_world
         flip = bool(props.get("flip_normals", False))
 
-        material, radiance, emitter_texture, placed_emitter = None, None, None, None
+        material, radiance, emitter_texture, held_light = None, None, None, None
         media = {}
         for obj in props.objects:
             target = self.ids.get(obj.attrs.get("id", "")) if obj.tag == "ref" else None
@@ -1593,21 +1593,21 @@ class _Loader:
                     self.fail(obj, "a shape takes only one BSDF")
                 material = self.material_index(obj)
             else:  # emitter
-                if radiance is not None or placed_emitter is not None:
+                if radiance is not None or held_light is not None:
                     self.fail(obj, "a shape takes only one emitter")
                 if obj.attrs.get("type") in ENVIRONMENT_TYPES:   # Mitsuba would sample it but not see it: refused
                     self.fail(obj, f"a {obj.attrs['type']} emitter belongs at the top level of the scene")
                 if obj.attrs.get("type") != "area":
-                    placed_emitter = obj   # read after the shape, which has no part in it (see placed_emitter)
+                    held_light = obj   # read after the shape, which has no part in it (see placed_emitter)
                     continue
                 eprops = self.plugin(obj, {"area": EMITTER_PROPS["area"]}, ("texture", "ref"))
                 emitter_texture = self.emitter_textures(eprops, "radiance", "area").get("radiance")
                 radiance = ((1.0, 1.0, 1.0) if emitter_texture is not None
                             else self.color(eprops, "radiance", (1.0, 1.0, 1.0), emitter=True))
         if material is None:
-            material = self.default_material_index(emitter=radiance is not None or placed_emitter is not None)
-        if placed_emitter is not None:
-            self.placed_emitter(placed_emitter)
+            material = self.default_material_index(emitter=radiance is not None or held_light is not None)
+        if held_light is not None:
+            self.placed_emitter(held_light)
 
         src = self.at(node)
         common = dict(material=material, flip_normals=flip, emitter_radiance=radiance, emitter_texture=emitter_texture,
@@ -2172,7 +2172,7 @@ class _Loader:
         else:
             self.fail(node, f"unknown emitter type {quoted(node.attrs['type'])}",
                       supported=["point", "spot", "projector", "directional", "area (inside a <shape>)",
-                                 "constant", "envmap (top level)"])
+                                 "constant (top level)", "envmap (top level)"])
 
     def top_level(self, node: Node, camera, spp, settings, integrator_node, shapes):
         """Read one element at the top of the scene (what it defines goes into the arguments)."""
