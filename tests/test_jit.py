@@ -5,6 +5,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 import types as pytypes
 from typing import NamedTuple
 
@@ -394,6 +395,68 @@ def test_a_kernel_passing_a_kernel_is_cached_too(tmp_path):
     assert runs[0] == ["6.0", "0", "1"]
     assert runs[1] == ["8.0", "1", "0"]
 
+
+_SAVE_AT_ONCE_SCRIPT = """
+import os, sys, time
+from numba.core import caching
+import kernel_argument_module as m
+
+name, folder, index_delay, code_delay = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
+save_index, save_code = caching.IndexDataCacheFile._save_index, caching.IndexDataCacheFile._save_data
+
+
+def slow_save_index(self, overloads):  # after reading the index, before writing it back
+    time.sleep(index_delay)
+    save_index(self, overloads)
+
+
+def slow_save_code(self, name, code):  # after writing the index, before writing the code
+    time.sleep(code_delay)
+    save_code(self, name, code)
+
+
+caching.IndexDataCacheFile._save_index = slow_save_index
+caching.IndexDataCacheFile._save_data = slow_save_code
+open(os.path.join(folder, "ready-" + name), "w").close()
+while not os.path.exists(os.path.join(folder, "go")):
+    time.sleep(0.01)
+print(m.twice(3) if name == "integer" else m.twice(3.5))
+"""
+
+
+@pytest.mark.parametrize("delays", [
+    # both read the index before either writes it: unlocked, the real entry's write drops the integer one
+    {"integer": (1.0, 0.0), "real": (1.0, 0.0)},
+    # as above, and the integer code is written last, to the one file name both chose: unlocked, the index pairs
+    # the real key with the integer code, and a third process's twice(3.5) returned 6.0
+    {"integer": (0.5, 2.0), "real": (1.0, 0.0)}], ids=["entry-lost", "code-swapped"])
+def test_processes_saving_to_the_cache_at_once_keep_every_entry(tmp_path, delays):
+    """Two processes compile different specialisations of one kernel at once and save them to one cache.  Each reads
+    the kernel's index, adds its entry, writes the index back, then the code, to a file named by the first number
+    free in the index it read (slowed here to force the interleavings Numba alone leaves to chance).  Saving holds
+    the cache's lock (:func:`~caustica.jit._cache_lock`), so a third process loads both, right, from the cache."""
+    (tmp_path / "kernel_argument_module.py").write_text(_KERNEL_ARGUMENT_MODULE)
+    env = dict(os.environ, CAUSTICA_CACHE_DIR=str(tmp_path / "cache"), CAUSTICA_NO_CACHE="0",
+               PYTHONPATH=_path_with(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+    children = {name: subprocess.Popen([sys.executable, "-c", _SAVE_AT_ONCE_SCRIPT, name, str(tmp_path),
+                                        *map(str, delay)], env=env, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, text=True)
+                for name, delay in delays.items()}
+    deadline = time.monotonic() + 120
+    while not all((tmp_path / f"ready-{name}").exists() for name in children) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    (tmp_path / "go").touch()
+    outputs = {name: child.communicate(timeout=300) for name, child in children.items()}
+    for name, child in children.items():
+        assert child.returncode == 0, outputs[name][1]
+    assert (outputs["integer"][0].split(), outputs["real"][0].split()) == (["6.0"], ["7.0"])
+    check = subprocess.run([sys.executable, "-c", "import kernel_argument_module as m\n"
+                            "print(m.twice(3.5), m.twice(3), sum(m.twice.from_python.stats.cache_hits.values()),"
+                            " sum(m.twice.from_python.stats.cache_misses.values()))"],
+                           env=env, capture_output=True, text=True, timeout=300)
+    assert check.returncode == 0, check.stderr
+    assert check.stdout.split() == ["7.0", "6.0", "2", "0"]   # both read back, none compiled again
 
 @kernel
 def _double(x):

@@ -40,6 +40,10 @@ Caching policy
   kernel imports) (``~/.cache/caustica/numba/<hash>``, or under
   ``$CAUSTICA_CACHE_DIR``): any edit, upgrade or checkout starts a fresh cache.
   A ``NUMBA_CACHE_DIR`` set by the user is respected as it is.
+* Processes share the cache safely (:func:`_cache_lock`): Dask workers on one
+  machine, renders of a sweep, test workers.  Numba itself does not lock it, and two
+  processes saving specialisations of one function at once each rewrite its index
+  from the copy they read: one entry is lost, or paired with the other's code.
 * Parallel kernels are never cached: caching ``parallel=True`` functions has
   crashed other projects (numba issues #7518 and #8578) and they compile
   quickly once their serial callees are cached.
@@ -64,6 +68,7 @@ only it calls are never compiled.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import os
@@ -77,7 +82,7 @@ import llvmlite.ir as llvm_ir
 import numba
 from llvmlite import binding as ll
 from numba import _dynfunc, njit, types
-from numba.core import cgutils, errors, ir
+from numba.core import caching, cgutils, errors, ir
 from numba.core.analysis import compute_cfg_from_blocks
 from numba.core.boxing import unbox_unsupported
 from numba.core.callconv import CPUCallConv
@@ -126,6 +131,45 @@ def _configure_cache_dir() -> None:
 
 
 _configure_cache_dir()
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks here, the cache is unlocked as in Numba
+    fcntl = None
+
+
+@contextlib.contextmanager
+def _cache_lock(index_path: str, exclusive: bool):
+    """Hold the lock of the cache folder holding ``index_path`` (the file ``.lock`` in it).
+
+    Saving a specialisation reads a function's index, adds the entry and writes the
+    index and the code: done exclusively, or processes saving at once lose entries or
+    pair one's key with the other's code.  Loading (index, then code) shares the lock.
+    A folder that does not exist yet (nothing to load) or cannot be written is not locked.
+    """
+    try:
+        fd = os.open(os.path.join(os.path.dirname(index_path), ".lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        fd = None
+    try:
+        if fd is not None and fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
+def _locked(method, exclusive: bool):
+    def locked(self, *args):
+        with _cache_lock(self._index_path, exclusive):
+            return method(self, *args)
+    locked.__doc__ = method.__doc__
+    return locked
+
+
+caching.IndexDataCacheFile.save = _locked(caching.IndexDataCacheFile.save, exclusive=True)
+caching.IndexDataCacheFile.load = _locked(caching.IndexDataCacheFile.load, exclusive=False)
 
 
 def _static_type(func_ir, arg_types, var, depth=0):
