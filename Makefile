@@ -17,9 +17,11 @@ $(STAMP): pyproject.toml
 render: $(STAMP)
 	$(VENV)/bin/caustica render cornell-diacaustic --method spm -o out/cornell-diacaustic.exr
 
-## Run the tests (pytest's exit code 5, "no tests collected", is not a failure).
+## Run the tests (pytest's exit code 5, "no tests collected", is not a failure).  Test files are spread over up to
+## 4 processes (pytest-xdist, a file's tests in one process, so its module fixtures run once); they share the kernel
+## cache, which jit.py locks.  Compiling uses one core per process (docs/results.md: 28.2 -> 17.9 min on 2 cores).
 test: $(STAMP)
-	$(PY) -m pytest -q -p no:cacheprovider tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 0; fi; exit $$rc
+	$(PY) -m pytest -q -p no:cacheprovider -n auto --maxprocesses 4 --dist loadfile tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 0; fi; exit $$rc
 
 ## Print the performance numbers quoted in the README (the path tracer against Mitsuba 3 included).
 bench: $(STAMP)
