@@ -26,7 +26,7 @@ from .memory import check_budget
 from .methods.params import COMMON, COMMON_PARAMS, Settings
 from .result import RenderResult, peak_memory_bytes
 from .scene import load_scene_description
-from .scene.description import HETEROGENEOUS, MATERIAL_NAMES, MIXTURES, ROUGHPLASTIC, WRAPPERS
+from .scene.description import MATERIAL_NAMES, MIXTURES, ROUGHPLASTIC, WRAPPERS
 from .tables import Scene, compile_scene
 
 
@@ -177,25 +177,6 @@ def check_bsdfs(cls, scene) -> None:
                              f"reflection); use --method pt, pm or sppm")
 
 
-def check_media(cls, scene) -> None:
-    """Refuse a scene whose shapes or camera hold a heterogeneous medium (or a homogeneous one with a <volume> albedo,
-    tracked as one) under a method that does not render one:
-    only ``renders_heterogeneous = True`` (``pt``) tracks free flights by null collisions; the photon methods'
-    media estimates (their segments' closed-form transmittance and distance sampling) assume homogeneous media."""
-    if getattr(cls, "renders_heterogeneous", False):
-        return
-    desc = scene.description
-    used = {desc.camera.medium} | {s.interior for s in desc.shapes} | {s.exterior for s in desc.shapes}
-    for i, medium in enumerate(desc.media):
-        if i in used and medium.kind == HETEROGENEOUS:
-            name = f" {quoted(medium.id)}" if medium.id else ""
-            what = "<medium type=\"heterogeneous\">" if medium.bounded else "<medium type=\"homogeneous\"> with a " \
-                                                                          "<volume> albedo"
-            raise SceneError(f"{medium.source}: {what}{name}: method {cls.name} does not render media whose "
-                             f"coefficients vary in space yet (its media estimates assume constant ones); use "
-                             f"--method pt")
-
-
 def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, threads=None,
                      multi_pass: bool = False, **params):
     """(scene, method class, settings): every render setting checked and defaulted in one place.
@@ -207,7 +188,6 @@ def resolve_settings(scene, method: str, *, spp=None, res=None, seed: int = 0, t
         scene = load_scene(scene)
     cls = methods.get(method)
     check_bsdfs(cls, scene)
-    check_media(cls, scene)
     width, height = _parse_res(res)
     width = scene.width if width is None else width
     height = scene.height if height is None else height

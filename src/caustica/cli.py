@@ -218,10 +218,9 @@ def _note_integrator(scene, method: str, params: dict) -> None:
     """One line on stderr when the scene's <integrator> is not what this render does -- after the method's checks
     of the scene, so that a scene the method refuses gets its one-line error alone."""
     from . import methods
-    from .api import check_bsdfs, check_media
+    from .api import check_bsdfs
     cls = methods.get(method)
     check_bsdfs(cls, scene)
-    check_media(cls, scene)
     note = scene.description.integrator_note(
         method, methods.params.resolve(method, cls.params, methods.scene_params(cls, scene.description, params)))
     if note:

@@ -47,7 +47,8 @@ from .features import ALL, bits, has, specialisable, specialised
 from .jit import kernel
 from .sampling.rng import uniform
 from .scene.description import BLEND, HENYEY_GREENSTEIN, HETEROGENEOUS, HOMOGENEOUS, MASK, NULL, SceneDescription
-from .volumes import delta_tracking, grid_columns, ratio_tracking, ray_key
+from .volumes import clip, coefficients, delta_tracking, grid_columns, ratio_tracking, ray_key, volume_at, \
+    walk_start
 
 INV_4PI = 1.0 / (4.0 * math.pi)
 
@@ -345,18 +346,29 @@ def phase_sample(media, m, d, u1, u2):
 
 
 @kernel(inline=True)
-def photon_scatter(media, m, d, key, dim, roulette):
-    """A photon (or stream) scattering in medium m: (alive, 1 / q, wo, phase weight, dim + 3); numbers dim .. dim + 2.
+def albedo_at(media, m, p):
+    """Medium m's single-scattering albedo per channel at point p: its row's, or a heterogeneous medium's albedo
+    volume there (its row holds none)."""
+    if has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS:
+        return volume_at(media, media.volumes[m, 1], p)
+    return (media.albedo[m, 0], media.albedo[m, 1], media.albedo[m, 2])
 
-    With ``roulette`` it survives with q = the medium's largest albedo, to be scaled by 1 / q (else 1 / q
-    is 1; the flight's weight already holds the albedo); then wo from the phase function, with its
+
+@kernel(inline=True)
+def photon_scatter(media, m, p, d, key, dim, roulette):
+    """A photon (or stream) scattering at p in medium m: (alive, 1 / q, wo, phase weight, dim + 3); numbers
+    dim .. dim + 2.
+
+    With ``roulette`` it survives with q = the largest albedo there (:func:`albedo_at`), to be scaled by 1 / q
+    (else 1 / q is 1; the flight's weight already holds the albedo); then wo from the phase function, with its
     value / pdf.  Not alive when roulette ends it or the pdf is 0.  The largest, not the mean: with the mean a
     channel of albedo a above it gains a / q a scattering, and its power's second moment a² / q a scattering
     grows without bound along the long paths of a bright medium (docs/media.md).
     """
     inv_q = 1.0
     if roulette:
-        q = max(media.albedo[m, 0], max(media.albedo[m, 1], media.albedo[m, 2]))
+        a = albedo_at(media, m, p)
+        q = max(a[0], max(a[1], a[2]))
         if uniform(key, dim) >= q:
             return False, 1.0, d, 0.0, dim + 3
         inv_q = 1.0 / q
@@ -556,7 +568,71 @@ def escape_transmittance(media, medium):
             1.0 if media.sigma_t[medium, 2] <= 0.0 else 0.0)
 
 
+@kernel(inline=True)
+def escape_attenuation(media, medium, ray):
+    """Per channel, the transmittance of a ray = (o, d) that meets nothing, from o on, in ``medium``: in a
+    heterogeneous medium (which ends at its box) ratio tracked through the box (numbers keyed by the ray, as
+    :func:`segment_attenuation`'s), else :func:`escape_transmittance`."""
+    if has(media, HETEROGENEOUS) and medium >= 0 and media.kind[medium] == HETEROGENEOUS:
+        return ratio_tracking(media, medium, ray, np.inf, ray_key(ray[0], ray[1]))
+    return escape_transmittance(media, medium)
+
+
 # ----------------------------------------------------------------------------- distances within a segment
+
+@kernel(inline=True)
+def _within_rate(sigma, mu, span):
+    """The rate of a channel's exponential over a span (:func:`tracked_within`): sigma, or where sigma is 0 over an
+    unbounded span the majorant mu; 0 means uniform over a bounded span, -1 nothing to sample."""
+    if sigma * span > 1e-12:
+        return sigma
+    if span < np.inf:
+        return 0.0
+    return mu if mu > 0.0 else -1.0
+
+
+@kernel(inline=True)
+def _within_pdf(rate, span, x):
+    """The density at x of the exponential of ``rate`` truncated to [0, span] (uniform for rate 0)."""
+    if rate == 0.0:
+        return 1.0 / span
+    return rate * math.exp(-rate * x) / -math.expm1(-rate * span)
+
+
+@kernel
+def tracked_within(media, m, ray, s, u_channel, u):
+    """A distance t in [0, s] along ``ray`` = (o, d) in heterogeneous medium m, and per channel
+    T(t) sigma_s(t) / pdf(t): the photon methods' in-scatter distance (:func:`sample_distance_within`'s twin).
+
+    As that one samples, with sigma_t read where the ray enters the medium's box: a channel chosen by u_channel, t
+    from its exponential truncated to the part of [0, s] inside the box, the density the mean of the three channels'
+    (uniform for a channel of sigma_t 0 there; over an unbounded span the majorant instead).  For a constant sigma_t
+    (an albedo grid) the homogeneous medium's density; any positive density is unbiased.  T is ratio tracked with the
+    numbers of :func:`segment_attenuation` for this ray, a prefix of the segment's.  (0, zero) when the segment
+    misses the box."""
+    zero = (0.0, 0.0, 0.0)
+    t0, t1 = clip(media, m, ray[0], ray[1], s)
+    if not t0 < t1:
+        return 0.0, zero
+    span = t1 - t0
+    sigma, _ = coefficients(media, m, vec.madd(ray[0], ray[1], t0))
+    _, state = walk_start(media, m, ray, t0)
+    cx, cy = media.cells[m, 0], media.cells[m, 1]
+    mu = media.cell_majorant[media.cells[m, 3] + (state[3] * cy + state[2]) * cx + state[1]]
+    r0, r1, r2 = _within_rate(sigma[0], mu, span), _within_rate(sigma[1], mu, span), _within_rate(sigma[2], mu, span)
+    if r0 < 0.0 or r1 < 0.0 or r2 < 0.0:
+        return 0.0, zero
+    c = min(int(u_channel * 3.0), 2)
+    rate = r0 if c == 0 else r1 if c == 1 else r2
+    x = u * span if rate == 0.0 else min(-math.log1p(u * math.expm1(-rate * span)) / rate, span)
+    pdf = (_within_pdf(r0, span, x) + _within_pdf(r1, span, x) + _within_pdf(r2, span, x)) / 3.0
+    if not pdf > 0.0:
+        return 0.0, zero
+    t = t0 + x
+    _, ss = coefficients(media, m, vec.madd(ray[0], ray[1], t))
+    T = ratio_tracking(media, m, ray, t, ray_key(ray[0], ray[1]))
+    return t, vec.mul(vec.hadamard(T, ss), 1.0 / pdf)
+
 
 @kernel(inline=True)
 def sample_distance_within(media, m, s, u_channel, u):

@@ -250,7 +250,6 @@ class PathTracer(IndependentPasses):
     renders_glossy = True    # the BSDFs' glossy lobes through eval_pdf and sample (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: resolved at each hit to the nested BSDF, ns perturbed
-    renders_heterogeneous = True  # heterogeneous media: delta and ratio tracking (caustica.volumes; api.check_media)
     params = (
         Param("max_depth", int, -1, "longest path in vertices (Mitsuba's convention); -1 = unlimited; a scene's "
               "path/volpath integrator sets the default",

@@ -35,10 +35,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..features import has
 from ..geometry import vec
 from ..jit import borrowed, kernel
 from ..media import phase_value
 from ..memory import check_budget
+from ..scene.description import HETEROGENEOUS
+from ..volumes import ratio_tracking, ray_key
 from .grid import MAX_DIM, bucket_count
 from .kdtree import depth_left
 
@@ -301,10 +304,13 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
     ``limit`` are left out, unless it is None (Numba prunes the test then: a compilation of its own).  At a wall
     (:func:`_wall`) the disc across the segment is cut: photons beyond it are left out and the others weighted by
     1 / the fraction of the disc left (:func:`_walls_weight`), so a disc that reaches past the medium does not
-    count the empty part as a density of zero."""
+    count the empty part as a density of zero.  In a heterogeneous medium each photon's T(t) is ratio tracked, with
+    the numbers of the segment's own transmittance (:func:`caustica.media.segment_attenuation`: one estimate of T
+    along the segment, read at each photon)."""
     o, d, m, r2, walls = seg
     t_enter, t_exit = span
     a0, a1, a2, found = acc
+    tracked = has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS
     st0 = media.sigma_t[m, 0]
     st1 = media.sigma_t[m, 1]
     st2 = media.sigma_t[m, 2]
@@ -332,7 +338,12 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
             continue
         wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
         ph = phase_value(media, m, wi, wo) * cut
-        if grey:
+        if tracked:
+            T = ratio_tracking(media, m, (o, d), ti, ray_key(o, d))
+            a0 += T[0] * ph * vg.power[i, 0]
+            a1 += T[1] * ph * vg.power[i, 1]
+            a2 += T[2] * ph * vg.power[i, 2]
+        elif grey:
             w = math.exp(-st0 * ti) * ph
             a0 += w * vg.power[i, 0]
             a1 += w * vg.power[i, 1]

@@ -26,10 +26,11 @@ from ..features import has
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect, surface_at
 from ..jit import kernel
-from ..media import NULL_CROSSINGS_CAP, attenuation, crossing, escape_transmittance, light_sample, medium_after, \
-    phase_pdf, phase_sample, phase_value, power_heuristic, sample_distance_within, within_weight
+from ..media import NULL_CROSSINGS_CAP, crossing, escape_attenuation, light_sample, medium_after, phase_pdf, \
+    phase_sample, phase_value, power_heuristic, sample_distance_within, segment_attenuation, tracked_within, \
+    within_weight
 from ..sampling.rng import KRONECKER_ALPHA, kronecker, uniform
-from ..scene.description import NULL
+from ..scene.description import HETEROGENEOUS, NULL
 from ..transport import in_medium
 
 #: Medium segments a camera path may have (room for them is allocated per pixel); a path that
@@ -124,10 +125,10 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
                 w = 1.0
                 if pdf_dir >= 0.0:
                     w = power_heuristic(pdf_dir, lights.select_pdf[lights.env[0]] * env_pdf(lights, d))
-                L = vec.madd(L, vec.hadamard(T, escaped_radiance(lights, media, d, medium)), w)
+                L = vec.madd(L, vec.hadamard(T, escaped_radiance(lights, media, (o, d), medium)), w)
             return L
         if medium >= 0:
-            T = vec.hadamard(T, attenuation(media, medium, t))
+            T = vec.hadamard(T, segment_attenuation(media, medium, (o, d), t))
         dist += t
         p, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
         e = geom.prim_emitter[prim]
@@ -149,10 +150,11 @@ def emission_weighted(tables, o, d, medium, pdf_dir):
 
 
 @kernel
-def escaped_radiance(lights, media, d, medium):
-    """The environment's radiance along a ray d that meets nothing, attenuated by the unbounded ``medium`` it
-    is in (:func:`caustica.media.escape_transmittance`: nothing, except in channels that do not attenuate)."""
-    return vec.hadamard(env_radiance(lights, d), escape_transmittance(media, medium))
+def escaped_radiance(lights, media, ray, medium):
+    """The environment's radiance along a ray = (o, d) that meets nothing, attenuated by the ``medium`` it is in
+    from o on (:func:`caustica.media.escape_attenuation`: an unbounded homogeneous medium leaves nothing, except in
+    channels that do not attenuate; a heterogeneous one ends at its box)."""
+    return vec.hadamard(env_radiance(lights, ray[1]), escape_attenuation(media, medium, ray))
 
 
 @kernel(inline=True)
@@ -166,7 +168,8 @@ def segment_inscatter(tables, o, d, s, m, beta, u):
     """β times one estimate of the direct light scattered towards o along the segment (o, d, s) in m.
 
     ``u`` = (u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2): one distance (u_channel, u_dist:
-    :func:`caustica.media.sample_distance_within`); from there one light sample (u_light chooses the
+    :func:`caustica.media.sample_distance_within`, or in a heterogeneous medium
+    :func:`caustica.media.tracked_within`); from there one light sample (u_light chooses the
     light, (u1, u2) the point on it) and one phase-function sample (u_ph1, u_ph2) that counts the
     emitter it sees, combined by MIS (power heuristic) for area lights.  Light sampling alone has unbounded variance where a segment passes close to an area
     light (its value grows as 1 / distance²); the phase sample takes over there.
@@ -174,8 +177,11 @@ def segment_inscatter(tables, o, d, s, m, beta, u):
     media = tables[3]
     u_channel, u_dist, u_light, u1, u2, u_ph1, u_ph2 = u
     zero = (0.0, 0.0, 0.0)
-    t = sample_distance_within(media, m, s, u_channel, u_dist)
-    w = within_weight(media, m, s, t)
+    if has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS:
+        t, w = tracked_within(media, m, (o, d), s, u_channel, u_dist)
+    else:
+        t = sample_distance_within(media, m, s, u_channel, u_dist)
+        w = within_weight(media, m, s, t)
     if w[0] == 0.0 and w[1] == 0.0 and w[2] == 0.0:
         return zero
     p = vec.madd(o, d, t)

@@ -406,7 +406,7 @@ def stream_medium_event(tables, medium, beam, key, dim, stream, rules, out):
     if last:
         return False, beam[3], stream, dim
     lead, p_assoc, n_alive = stream
-    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, beam[3], key, dim,
+    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, beam[2], beam[3], key, dim,
                                                    termination == TERMINATION_ROULETTE)
     if alive:
         lead = vec.mul(vec.mul(lead, inv_q), weight)

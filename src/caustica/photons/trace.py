@@ -209,10 +209,11 @@ def storing_probability(mats, own, uv, side):
 
 
 @kernel(inline=True)
-def scatter_photon(media, medium, d, key, dim, power, roulette):
-    """A photon at a scattering event in ``medium`` samples the phase function (Russian roulette if ``roulette``).
-    Returns (alive, the new direction, its power times the roulette's 1 / p and the phase weight, dim)."""
-    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, d, key, dim, roulette)
+def scatter_photon(media, medium, ray, key, dim, power, roulette):
+    """A photon at a scattering event in ``medium``, ``ray`` = (its point, its direction), samples the phase function
+    (Russian roulette if ``roulette``).  Returns (alive, the new direction, its power times the roulette's 1 / p
+    and the phase weight, dim)."""
+    alive, inv_q, wo, weight, dim = photon_scatter(media, medium, ray[0], ray[1], key, dim, roulette)
     if alive:
         power = vec.mul(vec.mul(power, inv_q), weight)
     return alive, wo, power, dim
@@ -376,7 +377,8 @@ def trace_one(tables, key, photon, rules, out):
                                       (VOLUME_INDIRECT if diffuse_like else VOLUME_CAUSTIC, events))
             if caustic_only or diffuse_bounces >= max_bounces:
                 break
-            alive, wo, power, dim = scatter_photon(media, medium, d, key, dim, power, termination != TERMINATION_CAP)
+            alive, wo, power, dim = scatter_photon(media, medium, (p, d), key, dim, power,
+                                                   termination != TERMINATION_CAP)
             if not alive:
                 break
             o, d, crossings = p, wo, 0

@@ -97,7 +97,7 @@ from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
-from ..media import attenuation, light_sample, medium_after, power_heuristic
+from ..media import light_sample, medium_after, power_heuristic, segment_attenuation
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
@@ -180,7 +180,7 @@ def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
     store_segment(slot0 + n_seg, (o, d, s), (beta, medium, k), start_wall, segments)
     if k + 2 > max_depth:   # camera -> k surfaces -> the scattering point -> the light
         if s < np.inf:
-            beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
+            beta = vec.hadamard(beta, segment_attenuation(tables[3], medium, (o, d), s))
         return (0.0, 0.0, 0.0), beta
     vd = 7 * n_seg
     u_dist = uniform(vkey, vd + 1)
@@ -192,7 +192,7 @@ def medium_segment(tables, segment, medium, beta, n_seg, numbers, out):
                            (uniform(vkey, vd), u_dist, uniform(vkey, vd + 2), u1, u2, uniform(vkey, vd + 5),
                             uniform(vkey, vd + 6)))
     if s < np.inf:
-        beta = vec.hadamard(beta, attenuation(tables[3], medium, s))
+        beta = vec.hadamard(beta, segment_attenuation(tables[3], medium, (o, d), s))
     return Ls, beta
 
 
@@ -627,7 +627,7 @@ def visible_point(tables, o, d, numbers, params, out):
             return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
         if prim < 0:
             if has(lights, ENV) and lights.env[0] >= 0 and not counted and (k > 0 or not hide_emitters):
-                L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, d, medium)),
+                L = vec.madd(L, vec.hadamard(beta, escaped_radiance(lights, media, (o, d), medium)),
                              escape_weight(lights, d, mis))
             return False, zero, zero, zero, claimed(mats, L, claim), n_seg, k
         crossed = crossings
