@@ -458,6 +458,32 @@ def test_processes_saving_to_the_cache_at_once_keep_every_entry(tmp_path, delays
     assert check.returncode == 0, check.stderr
     assert check.stdout.split() == ["7.0", "6.0", "2", "0"]   # both read back, none compiled again
 
+def test_a_thread_holding_the_cache_lock_can_save_under_it(tmp_path):
+    """A save nested in a load (reading an index imports modules; one that compiled as it was imported would save)
+    goes on under the shared lock its thread holds, where a second flock of the file would wait on itself; another
+    process's exclusive lock still waits for it."""
+    from caustica.jit import _cache_lock
+    index = str(tmp_path / "f.nbi")
+    done = []
+
+    def nested():
+        with _cache_lock(index, exclusive=False):
+            with _cache_lock(index, exclusive=True):
+                done.append("saved")
+            other = subprocess.run([sys.executable, "-c", "import fcntl, os, sys\n"
+                                    "fd = os.open(sys.argv[1], os.O_RDWR)\n"
+                                    "try:\n    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
+                                    "except BlockingIOError:\n    print('waits')", str(tmp_path / ".lock")],
+                                   capture_output=True, text=True, timeout=60)
+            done.append(other.stdout.strip())
+
+    import threading
+    thread = threading.Thread(target=nested, daemon=True)
+    thread.start()
+    thread.join(60)
+    assert not thread.is_alive() and done == ["saved", "waits"]
+
+
 @kernel
 def _double(x):
     return 2.0 * x

@@ -138,6 +138,10 @@ except ImportError:  # Windows: no advisory locks here, the cache is unlocked as
     fcntl = None
 
 
+#: Per thread, the cache folders whose lock it holds, and how deep.
+_held_locks = threading.local()
+
+
 @contextlib.contextmanager
 def _cache_lock(index_path: str, exclusive: bool):
     """Hold the lock of the cache folder holding ``index_path`` (the file ``.lock`` in it).
@@ -146,16 +150,30 @@ def _cache_lock(index_path: str, exclusive: bool):
     index and the code: done exclusively, or processes saving at once lose entries or
     pair one's key with the other's code.  Loading (index, then code) shares the lock.
     A folder that does not exist yet (nothing to load) or cannot be written is not locked.
+    A thread that holds it already goes on under the lock it holds: reading an index imports
+    the modules of the kernels its keys name, and a module that compiled a kernel as it was
+    imported would otherwise wait on its own thread's shared lock to save.
     """
+    folder = os.path.dirname(index_path)
+    held = _held_locks.__dict__.setdefault("folders", {})
+    if held.get(folder, 0) > 0:
+        held[folder] += 1
+        try:
+            yield
+        finally:
+            held[folder] -= 1
+        return
     try:
-        fd = os.open(os.path.join(os.path.dirname(index_path), ".lock"), os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(os.path.join(folder, ".lock"), os.O_RDWR | os.O_CREAT, 0o644)
     except OSError:
         fd = None
     try:
         if fd is not None and fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        held[folder] = 1
         yield
     finally:
+        held[folder] = 0
         if fd is not None:
             os.close(fd)  # releases the lock
 
