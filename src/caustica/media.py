@@ -616,9 +616,11 @@ def tracked_within(media, m, ray, s, u_channel, u):
         return 0.0, zero
     span = t1 - t0
     sigma, _ = coefficients(media, m, vec.madd(ray[0], ray[1], t0))
-    _, state = walk_start(media, m, ray, t0)
-    cx, cy = media.cells[m, 0], media.cells[m, 1]
-    mu = media.cell_majorant[media.cells[m, 3] + (state[3] * cy + state[2]) * cx + state[1]]
+    mu = 0.0
+    if span == np.inf:   # only an unbounded span reads the majorant (for a channel of sigma_t 0)
+        _, state = walk_start(media, m, ray, t0)
+        cx, cy = media.cells[m, 0], media.cells[m, 1]
+        mu = media.cell_majorant[media.cells[m, 3] + (state[3] * cy + state[2]) * cx + state[1]]
     r0, r1, r2 = _within_rate(sigma[0], mu, span), _within_rate(sigma[1], mu, span), _within_rate(sigma[2], mu, span)
     if r0 < 0.0 or r1 < 0.0 or r2 < 0.0:
         return 0.0, zero

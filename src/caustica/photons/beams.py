@@ -311,6 +311,7 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
     t_enter, t_exit = span
     a0, a1, a2, found = acc
     tracked = has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS
+    key = ray_key(o, d) if tracked else np.uint64(0)   # the segment's ratio-tracking numbers, the same for each photon
     st0 = media.sigma_t[m, 0]
     st1 = media.sigma_t[m, 1]
     st2 = media.sigma_t[m, 2]
@@ -339,7 +340,7 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
         wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
         ph = phase_value(media, m, wi, wo) * cut
         if tracked:
-            T = ratio_tracking(media, m, (o, d), ti, ray_key(o, d))
+            T = ratio_tracking(media, m, (o, d), ti, key)
             a0 += T[0] * ph * vg.power[i, 0]
             a1 += T[1] * ph * vg.power[i, 1]
             a2 += T[2] * ph * vg.power[i, 2]
