@@ -209,7 +209,7 @@ def caustica_load(path):
 
 # ----------------------------------------------------------------------------- photons from the environment
 
-from caustica.jit import kernel  # noqa: E402
+from caustica.jit import borrowed, kernel  # noqa: E402
 from caustica.photons.emission import emit_caustic_photon, emit_photon  # noqa: E402
 from caustica.sampling.rng import path_key  # noqa: E402
 
@@ -217,6 +217,7 @@ from caustica.sampling.rng import path_key  # noqa: E402
 @kernel
 def emit_many(geom, lights, spheres, n, seed, out):
     """n photons of ``seed`` (global when spheres is empty, else aimed at them): origins, directions, powers, ok."""
+    geom, lights = borrowed(geom), borrowed(lights)
     o_out, d_out, p_out, ok_out = out
     for i in range(n):
         key = path_key(seed, 3, i)
@@ -235,6 +236,7 @@ def emit_many(geom, lights, spheres, n, seed, out):
 @kernel
 def _radiance_integral(lights, nu, nv):
     """∫ L dω over the sphere by the midpoint rule on an nu x nv grid of (φ, cos θ)."""
+    lights = borrowed(lights)
     acc = np.zeros(3)
     for i in range(nv):
         z = -1.0 + 2.0 * (i + 0.5) / nv

@@ -21,7 +21,7 @@ from caustica.geometry.scene_geometry import (
     sample_on_emitter, sample_on_primitive, surface_at,
 )
 from caustica.geometry.vec import offset_origin
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.scene import description as sd
 
 
@@ -115,6 +115,7 @@ def _tri_batch(p0, e1, e2, o, d):
 
 @kernel
 def _brute_batch(geom, o, d, tmax):
+    geom = borrowed(geom)
     n = o.shape[0]
     prim = np.empty(n, dtype=np.int64)
     tt = np.empty(n)
@@ -127,6 +128,7 @@ def _brute_batch(geom, o, d, tmax):
 
 @kernel
 def _occluded_batch(geom, o, d, tmax):
+    geom = borrowed(geom)
     n = o.shape[0]
     out = np.empty(n, dtype=np.bool_)
     for i in range(n):
@@ -137,6 +139,7 @@ def _occluded_batch(geom, o, d, tmax):
 @kernel
 def _surface_batch(geom, o, d):
     """Closest hit, then (prim, t, p, ng, ns) for each ray; rows of misses are left NaN."""
+    geom = borrowed(geom)
     n = o.shape[0]
     prim = np.full(n, -1, dtype=np.int64)
     tt = np.full(n, np.nan)
@@ -160,6 +163,7 @@ def _surface_batch(geom, o, d):
 @kernel
 def _rehit_batch(geom, p, ng, d):
     """Closest hit of rays leaving p (offset with vec.offset_origin) along d: prim, t, origin."""
+    geom = borrowed(geom)
     n = p.shape[0]
     prim = np.empty(n, dtype=np.int64)
     tt = np.empty(n)
@@ -177,6 +181,7 @@ def _rehit_batch(geom, p, ng, d):
 
 @kernel
 def _sample_batch(geom, prim, u):
+    geom = borrowed(geom)
     n = u.shape[0]
     out = np.empty((n, 6))
     for i in range(n):
@@ -189,6 +194,7 @@ def _sample_batch(geom, prim, u):
 
 @kernel
 def _emitter_batch(geom, e, u):
+    geom = borrowed(geom)
     n = u.shape[0]
     prim = np.empty(n, dtype=np.int64)
     for i in range(n):

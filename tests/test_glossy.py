@@ -31,7 +31,7 @@ from caustica import bsdfs
 from caustica.bsdfs import MaterialTable
 from caustica.bsdfs.mixtures import mixture_columns
 from caustica.bsdfs.textures import texture_columns
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR
 from caustica.scene.description import BECKMANN, GGX, ROUGHCONDUCTOR, ROUGHDIELECTRIC
@@ -63,6 +63,7 @@ def table(kind, dist, alpha, eta=1.5, rgb=(1.0, 1.0, 1.0), ior=None, alpha_v=Non
 def sample_many(mats, d, n, seed, out):
     """n samples for a ray along d onto the z = 0 plane (normals +z): out[i] = (ok, wi xyz, weight rgb, pdf,
     eval's pdf, eval's f·|cos|/pdf rgb, lobe, eta)."""
+    mats = borrowed(mats)
     for i in range(n):
         key = path_key(seed, 7, i)
         ok, wi, w, pdf, lobe, eta, _ = bsdfs.sample(mats, 0, d, NG, NG, UV, key, 3)
@@ -82,6 +83,7 @@ def sample_many(mats, d, n, seed, out):
 @kernel
 def eval_many(mats, d, dirs, out):
     """out[i] = (f·|cos| rgb, pdf) towards dirs[i]."""
+    mats = borrowed(mats)
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
         f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wi)
@@ -187,6 +189,7 @@ def assert_sampled_density_is_the_pdf(mats, d, counted=None, n=400_000):
 @kernel
 def sides_many(mats, d, ng, ns, n, seed, out):
     """n samples with a shading normal ns tilted from the geometric ng: out[i] = (ok, wi·ng, lobe, eval's pdf)."""
+    mats = borrowed(mats)
     for i in range(n):
         key = path_key(seed, 11, i)
         ok, wi, _, _, lobe, _, _ = bsdfs.sample(mats, 0, d, ng, ns, UV, key, 3)
@@ -524,6 +527,7 @@ def bsdfs_camera_scale(mats, d, wi):
 
 @kernel
 def camera_scale_kernel(mats, d, wi):
+    mats = borrowed(mats)
     return bsdfs.camera_scale(mats, 0, d, NG, NG, wi)
 
 

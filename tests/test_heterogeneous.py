@@ -27,7 +27,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 import caustica
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.media import MediumTable
 from caustica.scene import parse_scene_string
 from caustica.scene.volume_files import write_grid
@@ -135,6 +135,7 @@ def optical_depth(data, o, d, s, mode, n=20001):
 def _track_many(media, ray, s, n, delta):
     """n estimates of the transmittance over [0, s]: ratio tracking's, or delta tracking's weight of a flight
     that passes s (0 for one that scatters first)."""
+    media = borrowed(media)
     out = np.zeros((n, 3))
     for i in range(n):
         if delta:

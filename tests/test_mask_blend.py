@@ -30,7 +30,7 @@ import pytest
 import caustica
 from caustica import bsdfs
 from caustica.geometry.scene_geometry import NO_UV
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.description import BLEND, DIFFUSE, MASK, ROUGHCONDUCTOR, Material, Texture, CHECKERBOARD
 from imagestats import assert_images_agree
@@ -50,6 +50,7 @@ def table(materials):
 
 @kernel
 def pass_and_weight(mats, m, uv, out):
+    mats = borrowed(mats)
     out[0] = bsdfs.pass_probability(mats, m, uv)
     out[1] = bsdfs.mixtures.weight(mats, m, uv)
 
@@ -57,6 +58,7 @@ def pass_and_weight(mats, m, uv, out):
 @kernel
 def resolved_frequency(mats, m, uv, n, out):
     """out[k]: how often material k is chosen for (u, v) over n keys; out[-1] how often no surface."""
+    mats = borrowed(mats)
     for i in range(n):
         r, _ = bsdfs.resolve(mats, m, uv, path_key(7, 3, i), 5)
         out[r] += 1.0 / n
@@ -64,6 +66,7 @@ def resolved_frequency(mats, m, uv, n, out):
 
 @kernel
 def eval_part(mats, m, d, wi):
+    mats = borrowed(mats)
     f, s, _ = bsdfs.eval_pdf(mats, m, d, NG, NG, NO_UV, wi)
     return f[0] * s, f[1] * s, f[2] * s
 

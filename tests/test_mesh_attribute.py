@@ -21,7 +21,7 @@ from imagestats import assert_images_agree
 import caustica
 from caustica.bsdfs import textures
 from caustica.geometry.scene_geometry import intersect, surface_uv
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.scene.meshes import load_mesh_file
 
 
@@ -72,6 +72,7 @@ def test_ply_properties_become_mitsubas_attributes(tmp_path):
 @kernel
 def colours_at(geom, mats, origins, dirs, out):
     """out[i] = (hit?, RGB of the hit's material colour) for ray i."""
+    geom, mats = borrowed(geom), borrowed(mats)
     for i in range(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])

@@ -26,7 +26,7 @@ import caustica
 from caustica import bsdfs
 from caustica.geometry import vec
 from caustica.geometry.scene_geometry import intersect
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.description import BUMPMAP, NORMALMAP
 from caustica.transport import surface_interaction
@@ -43,6 +43,7 @@ SEEDS = (1, 2, 3, 4)
 def shade(tables, origins, dirs, lights_dirs, out, shapes):
     """out[i, k]: f · |cos θ| (RGB) at ray i's hit towards lights_dirs[k] (0 where the side does not scatter);
     shapes[i]: the shape hit (-1: none)."""
+    tables = borrowed(tables)
     geom, mats, _, _ = tables
     for i in range(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])

@@ -33,7 +33,7 @@ import caustica
 from caustica import bsdfs
 from caustica.bsdfs.optics import fresnel_dielectric
 from caustica.bsdfs.plastic import INTERNAL, SPEC_WEIGHT, TABLE, fresnel_diffuse_reflectance
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.scene.description import BECKMANN, GGX, PLASTIC, ROUGHPLASTIC, Material
 from bsdfcompare import direction_pairs, mitsuba_f_pdf
 from imagestats import assert_images_agree
@@ -376,6 +376,7 @@ def test_methods_that_render_plastic_accept_it(tmp_path):
 @kernel
 def eval_at(mats, d, uvs, dirs, out):
     """out[i] = (f·|cos| rgb, pdf, A·B·|cos| rgb (coat's A times entry's B)) towards dirs[i] at surface point uvs[i]."""
+    mats = borrowed(mats)
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
         uv = (uvs[i, 0], uvs[i, 1], -1.0, 0.0, 0.0, 0.0, 0.0, 0.0)   # (u, v, triangle, b1, b2, dp/du), off any mesh

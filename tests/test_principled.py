@@ -22,7 +22,7 @@ import pytest
 
 from caustica import bsdfs
 from caustica.bsdfs import build_material_table
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.sampling.rng import path_key
 from caustica.scene.conductors import CONDUCTOR_IOR
 from caustica.scene.description import BECKMANN, BLEND, CHECKERBOARD, GGX, NORMALMAP, PRINCIPLED, PRINCIPLEDTHIN, \
@@ -86,6 +86,7 @@ def principled_props(base=(0.6, 0.3, 0.1), anisotropic=0.0, eta=None, textures=N
 @kernel
 def eval_tangent(mats, d, dirs, uvt, out):
     """out[i] = (f·|cos| rgb, pdf) towards dirs[i] at surface coordinates uvt, the frame's s along +x."""
+    mats = borrowed(mats)
     for i in range(dirs.shape[0]):
         wi = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
         f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, uvt, wi)
@@ -98,6 +99,7 @@ def eval_tangent(mats, d, dirs, uvt, out):
 def sample_tangent(mats, d, n, out, uvt=UVT):
     """out[i] = (ok, weight rgb, pdf, eval's pdf, eval's f·|cos|/pdf rgb) of n samples at surface coordinates uvt, the
     frame's s along +x."""
+    mats = borrowed(mats)
     for i in range(n):
         ok, wi, w, pdf, _, _, _ = bsdfs.sample(mats, 0, d, NG, NG, uvt, path_key(5, 7, i), 3)
         f, s, pdf_e = bsdfs.eval_pdf(mats, 0, d, NG, NG, uvt, wi)

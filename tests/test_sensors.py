@@ -15,13 +15,14 @@ import pytest
 
 import caustica
 from caustica.camera import generate_ray
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from imagestats import assert_images_agree
 
 
 @kernel
 def rays_of(cam, n, out):
     """Rays at n x n film positions of pixel-centred uniforms: out[i] = (origin xyz, direction xyz)."""
+    cam = borrowed(cam)
     k = 0
     for j in range(n):
         for i in range(n):
@@ -80,6 +81,7 @@ def test_thin_lens_rays_of_one_film_position_meet_in_the_plane_in_focus(test_sce
 @kernel
 def lens_rays(cam, n, out):
     """n rays of pixel (10, 20)'s centre, with n sample keys: out[i] = (origin xyz, direction xyz)."""
+    cam = borrowed(cam)
     for k in range(n):
         o, d = generate_ray(cam, 10, 20, 0.5, 0.5, np.uint64(1000 + k))
         out[k, 0], out[k, 1], out[k, 2] = o

@@ -10,7 +10,7 @@ import pytest
 
 from caustica.geometry.scene_geometry import NO_UV
 from caustica.emitters import DIRECTIONAL, SPOT, spot_power_factor
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.lighting import direct_stratified
 from caustica.media import light_sample
 from caustica.sampling.rng import path_key
@@ -178,6 +178,7 @@ def test_spot_falloff_and_directional_match_mitsuba(tmp_path, mi):
 
 @kernel
 def _light_samples_kernel(tables, points, contrib, wi, direct):
+    tables = borrowed(tables)
     up = (0.0, 1.0, 0.0)
     for i in range(points.shape[0]):
         at = ShadingPoint((points[i, 0], points[i, 1], points[i, 2]), up, up, up, 0, -1, NO_UV)

@@ -24,7 +24,7 @@ import pytest
 import caustica
 from caustica.bsdfs import build_material_table, textures
 from caustica.geometry.scene_geometry import intersect, surface_uv
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.scene.description import BITMAP, CHECKERBOARD, FILTER_TYPES, WRAP_MODES, SceneDescription, Texture
 from caustica.scene.textures import read_texels, srgb_to_linear
 from imagestats import assert_images_agree
@@ -35,6 +35,7 @@ from imagestats import assert_images_agree
 @kernel
 def lookup_many(mats, t, uvs, out):
     """out[i] = texture t's RGB at uvs[i]."""
+    mats = borrowed(mats)
     for i in range(uvs.shape[0]):
         c = textures.colour(mats, 0, (uvs[i, 0], uvs[i, 1], -1.0, 0.0, 0.0))
         out[i, 0], out[i, 1], out[i, 2] = c
@@ -236,6 +237,7 @@ def write_plain_ply(path):
 @kernel
 def uv_many(geom, origins, dirs, out):
     """out[i] = (hit?, u, v) of ray i."""
+    geom = borrowed(geom)
     for i in range(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])

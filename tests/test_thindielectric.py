@@ -27,7 +27,7 @@ import caustica
 from caustica.geometry.scene_geometry import NO_UV
 from caustica import bsdfs
 from caustica.bsdfs.optics import fresnel_dielectric
-from caustica.jit import kernel
+from caustica.jit import borrowed, kernel
 from caustica.scene.description import THINDIELECTRIC, Material
 from imagestats import assert_images_agree
 from test_glossy import assert_refused_in_one_line, draw, incident, write_scene
@@ -45,6 +45,7 @@ def table(int_ior=1.5, ext_ior=1.0):
 @kernel
 def branches_kernel(mats, d, out):
     """out = (reflected xyz, transmitted xyz, F, eta, transmitted tint rgb, eval's f·scale r, pdf) for a ray along d."""
+    mats = borrowed(mats)
     wr, wt, F, eta, (_, c) = bsdfs.delta_branches(mats, 0, d, NG, NG, UV)
     f, s, pdf = bsdfs.eval_pdf(mats, 0, d, NG, NG, UV, wr)
     out[0], out[1], out[2] = wr
