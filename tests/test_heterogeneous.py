@@ -14,6 +14,8 @@
 6. The photon methods: pm renders the constant grid as the homogeneous medium (the same estimator in expectation,
    its kernel's bias included); the progressive ones (sppm, pspm), consistent, render the box of smoke and the
    homogeneous medium with an albedo grid as ``pt`` does.
+7. The default volume radius in a scene with grid media: at most half the grids' finest voxel, not below a quarter of
+   the default it replaces; a radius the user sets is taken as it is.
 
 Tolerances come from the estimators' own statistics (standard errors over seeds or samples), 5 sigma.
 """
@@ -352,3 +354,52 @@ def test_the_progressive_photon_methods_render_heterogeneous_media_as_pt(smoke_s
     scene, pt = smoke_scenes[kind]
     ours = [caustica.render(scene, method, passes=128, seed=s, threads=2, **params).image for s in SEEDS]
     assert_images_agree(ours, pt, label=f"{method} vs pt, {kind}")
+
+
+# --------------------------------------------------------------------------- 7. the default volume radius
+
+def _layered_scene(tmp_path, shape, to_world=BOX_TO_WORLD, albedo_shape=None):
+    """The box holding a grid of ``shape`` (nz, ny, nx) voxels placed by ``to_world``, with an albedo grid of
+    ``albedo_shape`` voxels (on the box) or a constant albedo."""
+    write_grid(tmp_path / "layers.vol", np.ones(shape, np.float32))
+    albedo = '<rgb name="albedo" value="0.9"/>'
+    if albedo_shape is not None:
+        write_grid(tmp_path / "albedo.vol", np.full(albedo_shape, 0.9, np.float32))
+        albedo = f'<volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>' \
+                 f'{BOX_TO_WORLD}</volume>'
+    medium = f"""<medium type="heterogeneous" name="interior"><volume type="gridvolume" name="sigma_t">
+        <string name="filename" value="layers.vol"/>{to_world}</volume>{albedo}</medium>"""
+    return load(box_scene(medium), tmp_path)
+
+
+def test_the_finest_voxel_is_read_from_every_grid_of_every_medium(tmp_path):
+    """Along each axis with more than one voxel, the grid's to_world column over the voxel count; the albedo grid's
+    voxels count too; a constant grid, or a homogeneous medium, has none."""
+    from caustica.methods.photon_common import finest_voxel
+    assert finest_voxel(_layered_scene(tmp_path, (4, 16, 1)).description) == pytest.approx(2.0 / 16)
+    assert finest_voxel(_layered_scene(tmp_path, (4, 2, 1), albedo_shape=(1, 1, 40)).description) \
+        == pytest.approx(2.0 / 40)
+    rotated = '<transform name="to_world"><scale x="3" y="1" z="2"/><rotate y="1" angle="30"/></transform>'
+    assert finest_voxel(_layered_scene(tmp_path, (8, 1, 10), to_world=rotated).description) \
+        == pytest.approx(min(3.0 / 10, 2.0 / 8))
+    assert finest_voxel(_layered_scene(tmp_path, (1, 1, 1)).description) == math.inf
+    homogeneous = load(box_scene('<medium type="homogeneous" name="interior"/>'), tmp_path)
+    assert finest_voxel(homogeneous.description) == math.inf
+
+
+@pytest.mark.parametrize("shape, expected", [((1, 16, 1), 0.5 * 2.0 / 16),   # half a voxel: below the default
+                                             ((1, 4, 1), None),               # coarse voxels: the default
+                                             ((1, 160, 1), "floor")])         # fine voxels: a quarter of the default
+def test_the_default_volume_radius_is_limited_by_the_voxels(tmp_path, shape, expected):
+    """The beam estimate takes the photons within its radius of a camera ray, so across a voxel boundary it counts
+    photons scattered where the grid is denser than along the ray (docs/media.md: a layered grid and the corpus's
+    16³ grids)."""
+    scene = _layered_scene(tmp_path, shape)
+    box = scene.geometry.scene_box
+    default = 0.01 * float(np.linalg.norm(box[3:] - box[:3]))   # RADIUS_FRACTION and VOLUME_RADIUS_FRACTION of it
+    want = default if expected is None else (0.25 * default if expected == "floor" else expected)
+    sppm = caustica.render(scene, "sppm", passes=1, res=4, photons=100, caustic_photons=0).stats
+    pm = caustica.render(scene, "pm", res=4, photons=100, caustic_photons=0, spp=1).stats
+    assert sppm["initial_volume_radius"] == pytest.approx(want) and pm["volume_radius"] == pytest.approx(want)
+    set_radius = caustica.render(scene, "sppm", passes=1, res=4, photons=100, caustic_photons=0, volume_radius=0.3)
+    assert set_radius.stats["initial_volume_radius"] == 0.3

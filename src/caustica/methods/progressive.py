@@ -47,7 +47,7 @@ from ..photons.visible_points import camera_pass_bytes as visible_camera_pass_by
 from ..sampling.rng import STREAM_CAUSTIC_PHOTON, pass_stream
 from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
-from .photon_common import ESTIMATE_PARAMS, SceneDepths, radius_setting
+from .photon_common import ESTIMATE_PARAMS, GRID_LIMIT_HELP, SceneDepths, grid_limited, radius_setting
 
 #: The default initial radius, as a fraction of the scene's bounding-box diagonal.
 RADIUS_FRACTION = 0.01
@@ -93,8 +93,8 @@ PROGRESSIVE_PARAMS = (
 VOLUME_RADIUS_PARAM = Param("volume_radius", float, None,
                             "scenes with media: initial radius of the volume photons' spheres in the beam radiance "
                             "estimate; pass p uses it times sqrt(prod_{i=1..p} (i + alpha) / (i + 1)) "
-                            f"(default: {VOLUME_RADIUS_SCALE} x the initial --radius)", in_radius_range,
-                            RADIUS_ALLOWED)
+                            f"(default: {VOLUME_RADIUS_SCALE} x the initial --radius{GRID_LIMIT_HELP})",
+                            in_radius_range, RADIUS_ALLOWED)
 
 #: How aimed caustic photons are gathered (sppm and pspm with --caustic-photons).
 CAUSTIC_STATISTICS_PARAMS = (
@@ -270,9 +270,10 @@ def initial_radius(scene, settings) -> float:
 
 
 def initial_volume_radius(scene, settings) -> float:
-    """R_0 of the volume estimate: ``volume_radius`` when set, else VOLUME_RADIUS_SCALE R_0 (docs/media.md)."""
+    """R_0 of the volume estimate: ``volume_radius`` when set, else VOLUME_RADIUS_SCALE R_0 limited by the scene's
+    medium grids (:func:`~caustica.methods.photon_common.grid_limited`; docs/media.md)."""
     r = settings.volume_radius
-    return VOLUME_RADIUS_SCALE * initial_radius(scene, settings) if r is None else r
+    return grid_limited(scene.description, VOLUME_RADIUS_SCALE * initial_radius(scene, settings)) if r is None else r
 
 
 def initial_caustic_radius(scene, settings) -> float:
