@@ -358,23 +358,30 @@ def test_the_progressive_photon_methods_render_heterogeneous_media_as_pt(smoke_s
 
 # --------------------------------------------------------------------------- 7. the default volume radius
 
-def _layered_scene(tmp_path, shape, to_world=BOX_TO_WORLD, albedo_shape=None):
-    """The box holding a grid of ``shape`` (nz, ny, nx) voxels placed by ``to_world``, with an albedo grid of
-    ``albedo_shape`` voxels (on the box) or a constant albedo."""
-    write_grid(tmp_path / "layers.vol", np.ones(shape, np.float32))
+def _varying(shape):
+    """A grid of ``shape`` whose values change along every axis of more than one voxel."""
+    return (1.0 + np.arange(math.prod(shape)) % 7).reshape(shape).astype(np.float32)
+
+
+def _layered_scene(tmp_path, shape, to_world=BOX_TO_WORLD, albedo_shape=None, data=None, unused=""):
+    """The box holding a grid of ``shape`` (nz, ny, nx) voxels (``data``, else :func:`_varying`) placed by
+    ``to_world``, with an albedo grid of ``albedo_shape`` voxels (on the box) or a constant albedo; ``unused``: a
+    <medium> declared beside it that nothing refers to."""
+    write_grid(tmp_path / "layers.vol", _varying(shape) if data is None else data)
     albedo = '<rgb name="albedo" value="0.9"/>'
     if albedo_shape is not None:
-        write_grid(tmp_path / "albedo.vol", np.full(albedo_shape, 0.9, np.float32))
+        write_grid(tmp_path / "albedo.vol", _varying(albedo_shape) / 8.0)
         albedo = f'<volume type="gridvolume" name="albedo"><string name="filename" value="albedo.vol"/>' \
                  f'{BOX_TO_WORLD}</volume>'
     medium = f"""<medium type="heterogeneous" name="interior"><volume type="gridvolume" name="sigma_t">
         <string name="filename" value="layers.vol"/>{to_world}</volume>{albedo}</medium>"""
-    return load(box_scene(medium), tmp_path)
+    return load(box_scene(medium).replace("<integrator", unused + "<integrator", 1), tmp_path)
 
 
-def test_the_finest_voxel_is_read_from_every_grid_of_every_medium(tmp_path):
-    """Along each axis with more than one voxel, the grid's to_world column over the voxel count; the albedo grid's
-    voxels count too; a constant grid, or a homogeneous medium, has none."""
+def test_the_finest_voxel_is_read_from_every_grid_of_every_medium_in_use(tmp_path):
+    """Along each axis on which a grid's values change, its to_world column over the voxel count; the albedo grid's
+    voxels count too; a grid constant along an axis has no voxels there, a constant grid or a homogeneous medium none
+    at all, and a medium nothing refers to does not count."""
     from caustica.methods.photon_common import finest_voxel
     assert finest_voxel(_layered_scene(tmp_path, (4, 16, 1)).description) == pytest.approx(2.0 / 16)
     assert finest_voxel(_layered_scene(tmp_path, (4, 2, 1), albedo_shape=(1, 1, 40)).description) \
@@ -382,9 +389,18 @@ def test_the_finest_voxel_is_read_from_every_grid_of_every_medium(tmp_path):
     rotated = '<transform name="to_world"><scale x="3" y="1" z="2"/><rotate y="1" angle="30"/></transform>'
     assert finest_voxel(_layered_scene(tmp_path, (8, 1, 10), to_world=rotated).description) \
         == pytest.approx(min(3.0 / 10, 2.0 / 8))
+    along_y = np.broadcast_to(_varying((1, 4, 1)), (30, 4, 20)).copy()   # changes along y only
+    assert finest_voxel(_layered_scene(tmp_path, (30, 4, 20), data=along_y).description) == pytest.approx(2.0 / 4)
     assert finest_voxel(_layered_scene(tmp_path, (1, 1, 1)).description) == math.inf
+    assert finest_voxel(_layered_scene(tmp_path, (3, 4, 5), data=np.ones((3, 4, 5), np.float32)).description) \
+        == math.inf
     homogeneous = load(box_scene('<medium type="homogeneous" name="interior"/>'), tmp_path)
     assert finest_voxel(homogeneous.description) == math.inf
+    write_grid(tmp_path / "fine.vol", _varying((1, 1, 200)))
+    unused = f"""<medium type="heterogeneous" id="spare"><volume type="gridvolume" name="sigma_t">
+        <string name="filename" value="fine.vol"/>{BOX_TO_WORLD}</volume></medium>"""
+    scene = _layered_scene(tmp_path, (4, 16, 1), unused=unused)
+    assert len(scene.description.media) == 2 and finest_voxel(scene.description) == pytest.approx(2.0 / 16)
 
 
 @pytest.mark.parametrize("shape, expected", [((1, 16, 1), 0.5 * 2.0 / 16),   # half a voxel: below the default
@@ -401,5 +417,6 @@ def test_the_default_volume_radius_is_limited_by_the_voxels(tmp_path, shape, exp
     sppm = caustica.render(scene, "sppm", passes=1, res=4, photons=100, caustic_photons=0).stats
     pm = caustica.render(scene, "pm", res=4, photons=100, caustic_photons=0, spp=1).stats
     assert sppm["initial_volume_radius"] == pytest.approx(want) and pm["volume_radius"] == pytest.approx(want)
-    set_radius = caustica.render(scene, "sppm", passes=1, res=4, photons=100, caustic_photons=0, volume_radius=0.3)
-    assert set_radius.stats["initial_volume_radius"] == 0.3
+    set_sppm = caustica.render(scene, "sppm", passes=1, res=4, photons=100, caustic_photons=0, volume_radius=0.3)
+    set_pm = caustica.render(scene, "pm", res=4, photons=100, caustic_photons=0, spp=1, volume_radius=0.3)
+    assert set_sppm.stats["initial_volume_radius"] == 0.3 and set_pm.stats["volume_radius"] == 0.3

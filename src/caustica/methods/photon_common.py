@@ -123,27 +123,25 @@ def radius_setting(scene, settings, name: str, fraction: float) -> float:
 
 
 def finest_voxel(description) -> float:
-    """The shortest voxel edge (scene units) of the scene's medium grids: each sigma_t and albedo volume's, along
-    the axes on which it has more than one voxel; inf without such a grid."""
-    edge = np.inf
-    for medium in description.media:
+    """The shortest voxel edge (scene units) of the grids of the media the scene uses: each sigma_t and albedo
+    volume's, along the axes on which its values change (:attr:`~caustica.scene.description.Volume.voxel_edges`);
+    inf without such a grid."""
+    edges = [np.inf]
+    for m in description.used_media:
+        medium = description.media[m]
         for volume in (medium.sigma_t_volume, medium.albedo_volume):
-            if volume is None:
-                continue
-            to_world = np.linalg.inv(volume.to_local)
-            for axis, n in enumerate(volume.data.shape[2::-1]):   # data is (z, y, x, channels)
-                if n > 1:
-                    edge = min(edge, float(np.linalg.norm(to_world[:3, axis])) / n)
-    return edge
+            if volume is not None:
+                edges += volume.voxel_edges
+    return min(edges)
 
 
 def grid_limited(description, radius: float) -> float:
-    """A default volume radius limited by the scene's medium grids: at most VOXEL_RADIUS_FRACTION of their finest
-    voxel, not below VOXEL_RADIUS_FLOOR of ``radius``.  The beam estimate takes the photons within the radius of a
-    ray, so next to a voxel much denser than the ray's own it counts photons scattered there: in the corpus's
-    test_hetero_sigmat_volpath (16³ voxels 0.094 wide) a row of pixels whose rays run along an empty layer under a
-    dense one was 82 % too bright at the radius of the scene's size (0.125, 256 passes), 25 % at 0.05
-    (docs/media.md)."""
+    """A default volume radius limited by the grids of the media the scene uses: at most VOXEL_RADIUS_FRACTION of
+    their finest voxel (:func:`finest_voxel`), not below VOXEL_RADIUS_FLOOR of ``radius``.  The beam estimate takes
+    the photons within the radius of a ray, so next to a voxel much denser than the ray's own it counts photons
+    scattered there: in the corpus's test_hetero_sigmat_volpath (16³ voxels 0.094 wide) a row of pixels whose rays
+    run along an empty layer under a dense one was 82 % too bright at the radius of the scene's size (0.125, 256
+    passes), 25 % at 0.05 (docs/media.md)."""
     return max(min(radius, VOXEL_RADIUS_FRACTION * finest_voxel(description)), VOXEL_RADIUS_FLOOR * radius)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -224,6 +225,19 @@ class Volume:
     wrap: int = CLAMP
     filename: str = ""
     source: str = ""   # "file:line" for messages
+
+    @cached_property
+    def voxel_edges(self) -> list[float]:
+        """The world length of a voxel's edge along each local axis (x, y, z) on which the values change (a grid
+        constant along an axis, one voxel thick included, has no voxel boundaries there).  Read once: the data are
+        not changed after loading."""
+        to_world = np.linalg.inv(self.to_local)
+        edges = []
+        for axis, n in enumerate(self.data.shape[2::-1]):   # data is (z, y, x, channels)
+            along = np.moveaxis(self.data, 2 - axis, 0)
+            if n > 1 and np.any(along != along[:1]):
+                edges.append(float(np.linalg.norm(to_world[:3, axis])) / n)
+        return edges
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi): the world box holding the unit cube mapped by ``to_world`` (Mitsuba's volume bbox)."""
@@ -510,6 +524,12 @@ class SceneDescription:
         defined but never referenced does not count."""
         return (self.camera.medium >= 0
                 or any(s.interior >= 0 or s.exterior >= 0 or self.may_pass(s.material) for s in self.shapes))
+
+    @property
+    def used_media(self) -> list[int]:
+        """The media the camera or a shape refers to (a medium defined but never referenced is not among them)."""
+        used = {self.camera.medium} | {m for s in self.shapes for m in (s.interior, s.exterior)}
+        return sorted(m for m in used if m >= 0)
 
     @property
     def has_volumes(self) -> bool:
