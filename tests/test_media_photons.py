@@ -648,12 +648,12 @@ def test_one_shot_furnace_filled_with_a_medium_of_albedo_1_keeps_its_radiance(me
     """pm's and spm's volume photons and beam estimate conserve the furnace's radiance (fails without them).
 
     One shot: each photon's slots are kept at once, so 128 bounces rather than 1024 (a few hundred MB, not
-    GB); the cap leaves out about 0.15 % of the light at 64 bounces (measured), roughly its square at 128.  The noise gate (3 % of the expected value) means
-    a bias above about 15 % fails for certain; 16 seeds measured pm within 0.7 % and spm within 2.8 %
-    per channel (|z| < 2.7), spm's photon estimator at 8,000 streams within 0.7 % (|z| < 1.7, one seed's spread 1.7-2.3 %:
-    6 seeds' standard error well inside the gate; 2026-12-07), so smaller biases are not excluded.  Flight weights and roulette are 1 in
-    this grey albedo-1 medium: they are checked through the same tracers by the fog-box tests of sppm and
-    pspm against pt."""
+    GB); the cap leaves out about 0.15 % of the light at 64 bounces (measured), roughly its square at 128.  The
+    noise gate (3 % of the expected value) means a bias above about 15 % fails for certain; 16 seeds measured pm
+    within 0.7 % and spm within 2.8 % per channel (|z| < 2.7), spm's photon estimator at 8,000 streams within 0.7 %
+    (|z| < 1.7; one seed's spread 1.7-2.3 %, so six seeds' standard error is well inside the gate; 2026-12-07), so
+    smaller biases are not excluded.  Flight weights and roulette are 1 in this grey albedo-1 medium: they are
+    checked through the same tracers by the fog-box tests of sppm and pspm against pt."""
     scene = furnace("0.6", "1", "0.3")
     means = np.array([caustica.render(scene, method, seed=s, **ONE_SHOT_FURNACE_KW, **params).image
                       .astype(np.float64).reshape(-1, 3).mean(0) for s in range(6)])
