@@ -35,7 +35,7 @@ from caustica.scene import parse_scene_string
 from caustica.scene.volume_files import write_grid
 from caustica.tables import compile_scene
 from caustica.scene.description import NEAREST, TRILINEAR, Volume
-from caustica.volumes import delta_tracking, majorant_grid, ratio_tracking
+from caustica.volumes import delta_tracking, majorant_grid, ratio_tracking, ratio_tracking_steps
 from imagestats import N_SIGMA, assert_images_agree
 
 RES = 16
@@ -170,6 +170,48 @@ def test_tracked_transmittance_matches_quadrature(tmp_path, mode, delta):
         want = np.exp(-optical_depth(data, o, d, s, mode))
         se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
         assert np.all(np.abs(est.mean(axis=0) - want) <= N_SIGMA * se + 1e-4), (o, est.mean(axis=0), want, se)
+
+
+@kernel
+def _walked_and_tracked(media, ray, s, key, xs, size):
+    """At each distance xs[i] <= s: (the estimate read from one walk of [0, s] in arrays of ``size``, ratio tracking's
+    own from the same numbers), as the beam estimate reads each photon's T."""
+    media = borrowed(media)
+    steps = (np.empty(size), np.empty((size, 3)))
+    n, ended = ratio_tracking_steps(media, 0, ray, s, key, steps)
+    out = np.zeros((xs.shape[0], 2, 3))
+    for i in range(xs.shape[0]):
+        j = np.searchsorted(steps[0][:n], xs[i])
+        if j == n and not ended:
+            w = ratio_tracking(media, 0, ray, xs[i], key)
+        elif j == 0:
+            w = (1.0, 1.0, 1.0)
+        else:
+            w = (steps[1][j - 1, 0], steps[1][j - 1, 1], steps[1][j - 1, 2])
+        t = ratio_tracking(media, 0, ray, xs[i], key)
+        for c in range(3):
+            out[i, 0, c] = w[c]
+            out[i, 1, c] = t[c]
+    return out, n, ended
+
+
+@pytest.mark.parametrize("size", [1024, 3], ids=["walked", "arrays-full"])
+def test_one_walk_of_a_segment_gives_each_distance_ratio_tracking_s_estimate(tmp_path, size):
+    """The beam estimate walks a segment once and reads each photon's T at its distance: the same collisions from the
+    same numbers, so the same estimate as ratio tracking to that distance, bit for bit (at random distances: a
+    distance that falls on a collision to the last bit could round either way); past a walk whose arrays filled up,
+    ratio tracking itself."""
+    data = gradient_grid() * 4.0   # dense: many collisions along the segment
+    write_grid(tmp_path / "grad.vol", data)
+    scene = load(box_scene(grid_medium("grad.vol", '<float name="albedo" value="0.8"/>')), tmp_path)
+    o, target = np.array([-1.5, 0.6, -0.7]), np.array([1.4, 1.8, 0.9])
+    s = float(np.linalg.norm(target - o))
+    ray = (tuple(map(float, o)), tuple((target - o) / s))
+    xs = np.random.default_rng(5).uniform(-0.1, s, 4000)
+    for key in range(1, 41):
+        out, n, ended = _walked_and_tracked(scene.media, ray, s, np.uint64(key * 7919), xs, size)
+        assert (ended and n > 3) if size > 3 else (not ended and n == 3)   # dense enough to fill 3 every time
+        assert np.array_equal(out[:, 0], out[:, 1])
 
 
 @pytest.mark.parametrize("mode", ["trilinear", "nearest"])

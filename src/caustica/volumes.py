@@ -295,6 +295,35 @@ def ratio_tracking(media, m, ray, s, key):
     return (0.0, 0.0, 0.0)
 
 
+@kernel
+def ratio_tracking_steps(media, m, ray, s, key, out):
+    """:func:`ratio_tracking` over [0, s] walked once, for many distances along the ray: ``out`` = (t, T) arrays,
+    t[j] the j-th tentative collision and T[j] (RGB) the product of the factors up to it; so ratio_tracking(media, m,
+    ray, x, key) for x <= s is T[j - 1] with j the collisions before x (1 for none), the same collisions from the
+    same numbers.  Returns (n, ended): the collisions written, and whether the walk reached s (or T fell to 0, where
+    every later estimate is 0); with ``ended`` False the arrays filled up first, and a distance past t[n - 1] needs
+    ratio_tracking itself."""
+    out_t, out_T = out
+    T = (1.0, 1.0, 1.0)
+    t, t1 = clip(media, m, ray[0], ray[1], s)
+    if not t < t1:
+        return 0, True
+    local, state = walk_start(media, m, ray, t)
+    for i in range(out_t.shape[0]):
+        state, mu, hit = advance(media, m, local, state, -math.log(1.0 - uniform(key, i)), t1)
+        if not hit:
+            return i, True
+        st = volume_at(media, media.volumes[m, 0], vec.madd(ray[0], ray[1], state[0]))
+        T = (T[0] * max(mu - st[0], 0.0) / mu, T[1] * max(mu - st[1], 0.0) / mu, T[2] * max(mu - st[2], 0.0) / mu)
+        out_t[i] = state[0]
+        out_T[i, 0] = T[0]
+        out_T[i, 1] = T[1]
+        out_T[i, 2] = T[2]
+        if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
+            return i + 1, True
+    return out_t.shape[0], False
+
+
 @kernel(inline=True)
 def _mix_float(k, x):
     """Key k mixed with every bit of float x (its mantissa and exponent, by frexp)."""

@@ -41,7 +41,7 @@ from ..jit import borrowed, kernel
 from ..media import phase_value
 from ..memory import check_budget
 from ..scene.description import HETEROGENEOUS
-from ..volumes import ratio_tracking, ray_key
+from ..volumes import ratio_tracking, ratio_tracking_steps, ray_key
 from .grid import MAX_DIM, bucket_count
 from .kdtree import depth_left
 
@@ -297,6 +297,11 @@ def _walls_weight(walls, v, t):
     return 1.0 / _disc_inside_two(x0, x1, a, b)
 
 
+#: The collisions of a segment's ratio-tracking walk kept for its photons (:func:`segment_estimate`); a photon past
+#: the last of a walk that fills them is tracked on its own.
+TRACKING_STEPS = 1024
+
+
 @kernel(inline=True)
 def _add_cell(vg, media, seg, k, span, acc, limit):
     """Add to ``acc`` = (a0, a1, a2, found) the photons of grid cell k whose spheres the segment pierces
@@ -306,12 +311,13 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
     1 / the fraction of the disc left (:func:`_walls_weight`), so a disc that reaches past the medium does not
     count the empty part as a density of zero.  In a heterogeneous medium each photon's T(t) is ratio tracked, with
     the numbers of the segment's own transmittance (:func:`caustica.media.segment_attenuation`: one estimate of T
-    along the segment, read at each photon)."""
-    o, d, m, r2, walls = seg
+    along the segment, read at each photon): read from the segment's walk, ``seg[5]`` = (key, (t, T) of its
+    collisions, their count, whether the walk ended: :func:`caustica.volumes.ratio_tracking_steps`), or tracked
+    again past a walk that filled its arrays."""
+    o, d, m, r2, walls, (key, (step_t, step_T), n_steps, ended) = seg
     t_enter, t_exit = span
     a0, a1, a2, found = acc
     tracked = has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS
-    key = ray_key(o, d) if tracked else np.uint64(0)   # the segment's ratio-tracking numbers, the same for each photon
     st0 = media.sigma_t[m, 0]
     st1 = media.sigma_t[m, 1]
     st2 = media.sigma_t[m, 2]
@@ -340,7 +346,13 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
         wi = (float(vg.direction[i, 0]), float(vg.direction[i, 1]), float(vg.direction[i, 2]))
         ph = phase_value(media, m, wi, wo) * cut
         if tracked:
-            T = ratio_tracking(media, m, (o, d), ti, key)
+            j = np.searchsorted(step_t[:n_steps], ti)   # the collisions before ti
+            if j == n_steps and not ended:
+                T = ratio_tracking(media, m, (o, d), ti, key)
+            elif j == 0:
+                T = (1.0, 1.0, 1.0)
+            else:
+                T = (step_T[j - 1, 0], step_T[j - 1, 1], step_T[j - 1, 2])
             a0 += T[0] * ph * vg.power[i, 0]
             a1 += T[1] * ph * vg.power[i, 1]
             a2 += T[2] * ph * vg.power[i, 2]
@@ -358,10 +370,12 @@ def _add_cell(vg, media, seg, k, span, acc, limit):
 
 
 @kernel
-def segment_estimate(vg, media, segment, m, limit):
+def segment_estimate(vg, media, segment, m, limit, steps):
     """Σ_i T(t_i) p(ω_i → −d) Φ_i over the photons whose spheres the segment (o, d, [0, s]) in m pierces (those of
     depth ``limit`` at most; every one for None); ``segment`` = (o, d, s, (the normals of the walls at its start and
-    end, turned into the medium; zero: none)), each photon weighted as :func:`_walls_weight` says.
+    end, turned into the medium; zero: none)), each photon weighted as :func:`_walls_weight` says.  ``steps``:
+    scratch (t, T) arrays for the segment's ratio-tracking walk in a heterogeneous medium, walked once for all its
+    photons.
 
     Without β and the 1 / (π r²): :func:`beam_gather` applies both.  Also returns the photons counted.
     The segment walks the grid's cells in order (a DDA), each photon counted in the cell of its
@@ -384,7 +398,13 @@ def segment_estimate(vg, media, segment, m, limit):
     start, end = _wall(start_wall, d, 0.0, r), _wall(end_wall, d, s, r)
     e0, e1 = start[4], end[4]
     walls = (start, end, (vec.dot(e1, e0), vec.dot(e1, vec.cross(d, e0))))
-    seg = (o, d, m, r * r, walls)
+    tracked = has(media, HETEROGENEOUS) and media.kind[m] == HETEROGENEOUS
+    key = np.uint64(0)
+    n_steps, ended = 0, True
+    if tracked:
+        key = ray_key(o, d)   # the segment's ratio-tracking numbers, the same for each photon
+        n_steps, ended = ratio_tracking_steps(media, m, (o, d), s, key, steps)
+    seg = (o, d, m, r * r, walls, (key, steps, n_steps, ended))
     t_enter = t0
     while t_enter < t1:
         t_exit = min(min(nx, ny), min(nz, t1))
@@ -421,6 +441,7 @@ def beam_gather(vg, media, camera, out, i0, i1):
     seg_o, seg_d, seg_len, seg_beta, seg_medium, seg_vertices, seg_start, seg_end, seg_count = segments
     out, found = out
     norm = 1.0 / (math.pi * vg.radius[0] * vg.radius[0])
+    steps = (np.empty(TRACKING_STEPS), np.empty((TRACKING_STEPS, 3)))
     for i in range(i0, i1):
         acc0 = 0.0
         acc1 = 0.0
@@ -432,7 +453,7 @@ def beam_gather(vg, media, camera, out, i0, i1):
             d = (seg_d[k, 0], seg_d[k, 1], seg_d[k, 2])
             walls = ((seg_start[k, 0], seg_start[k, 1], seg_start[k, 2]), (seg_end[k, 0], seg_end[k, 1], seg_end[k, 2]))
             a, f = segment_estimate(vg, media, (o, d, seg_len[k], walls), seg_medium[k],
-                                    depth_left(max_depth, seg_vertices[k] + 1))   # camera -> k vertices -> the segment
+                                    depth_left(max_depth, seg_vertices[k] + 1), steps)   # camera -> k vertices -> it
             acc0 += seg_beta[k, 0] * a[0]
             acc1 += seg_beta[k, 1] * a[1]
             acc2 += seg_beta[k, 2] * a[2]
