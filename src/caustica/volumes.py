@@ -274,6 +274,14 @@ def delta_tracking(media, m, ray, t_max, key, dim):
     return t, False, (0.0, 0.0, 0.0), dim
 
 
+@kernel(inline=True)
+def _null_factors(media, m, ray, t, mu, T):
+    """T times, per channel, the factor sigma_n / mu = max(mu - sigma_t, 0) / mu of a tentative collision at t of
+    ``ray`` in heterogeneous medium m (mu: the majorant there): ratio tracking's step."""
+    st = volume_at(media, media.volumes[m, 0], vec.madd(ray[0], ray[1], t))
+    return T[0] * max(mu - st[0], 0.0) / mu, T[1] * max(mu - st[1], 0.0) / mu, T[2] * max(mu - st[2], 0.0) / mu
+
+
 @kernel
 def ratio_tracking(media, m, ray, s, key):
     """Per channel, an unbiased estimate of exp(-integral of sigma_t over [0, s]) along ``ray`` = (o, d) in
@@ -288,8 +296,7 @@ def ratio_tracking(media, m, ray, s, key):
         state, mu, hit = advance(media, m, local, state, -math.log(1.0 - uniform(key, i)), t1)
         if not hit:
             return T
-        st = volume_at(media, media.volumes[m, 0], vec.madd(ray[0], ray[1], state[0]))
-        T = (T[0] * max(mu - st[0], 0.0) / mu, T[1] * max(mu - st[1], 0.0) / mu, T[2] * max(mu - st[2], 0.0) / mu)
+        T = _null_factors(media, m, ray, state[0], mu, T)
         if T[0] == 0.0 and T[1] == 0.0 and T[2] == 0.0:
             return T
     return (0.0, 0.0, 0.0)
@@ -298,9 +305,9 @@ def ratio_tracking(media, m, ray, s, key):
 @kernel
 def ratio_tracking_steps(media, m, ray, s, key, out):
     """:func:`ratio_tracking` over [0, s] walked once, for many distances along the ray: ``out`` = (t, T) arrays,
-    t[j] the j-th tentative collision and T[j] (RGB) the product of the factors up to it; so ratio_tracking(media, m,
-    ray, x, key) for x <= s is T[j - 1] with j the collisions before x (1 for none), the same collisions from the
-    same numbers.  Returns (n, ended): the collisions written, and whether the walk reached s (or T fell to 0, where
+    t[j] the j-th tentative collision and T[j] (RGB) the product of the factors up to it (:func:`_null_factors`); so
+    ratio_tracking(media, m, ray, x, key) for x <= s is T[j - 1] with j the collisions before x (1 for none), the same
+    collisions from the same numbers.  Returns (n, ended): the collisions written, and whether the walk reached s (or T fell to 0, where
     every later estimate is 0); with ``ended`` False the arrays filled up first, and a distance past t[n - 1] needs
     ratio_tracking itself."""
     out_t, out_T = out
@@ -313,8 +320,7 @@ def ratio_tracking_steps(media, m, ray, s, key, out):
         state, mu, hit = advance(media, m, local, state, -math.log(1.0 - uniform(key, i)), t1)
         if not hit:
             return i, True
-        st = volume_at(media, media.volumes[m, 0], vec.madd(ray[0], ray[1], state[0]))
-        T = (T[0] * max(mu - st[0], 0.0) / mu, T[1] * max(mu - st[1], 0.0) / mu, T[2] * max(mu - st[2], 0.0) / mu)
+        T = _null_factors(media, m, ray, state[0], mu, T)
         out_t[i] = state[0]
         out_T[i, 0] = T[0]
         out_T[i, 1] = T[1]
