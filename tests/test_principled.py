@@ -12,8 +12,8 @@ bsdfs/microfacet.py's ``*_uv`` kernels in Mitsuba's shading frame from dp/du).
    of both renderers' noise (tests/imagestats.py).  The isotropic microfacet keeps its bits (tests/test_bit_pins.py).
 4. sppm and pm render the opaque principled (their estimates weight each photon by the BSDF) as Mitsuba does; every
    photon method renders a principled glass (spec_trans 1) and metal (metallic 1), which have no diffuse lobe, as
-   Mitsuba does, and refuses the one that transmits beside a diffuse lobe and principledthin; bad values fail in one
-   line.
+   Mitsuba does, and a principled that transmits beside its diffuse lobe and principledthin, lit from both sides;
+   bad values fail in one line.
 """
 from __future__ import annotations
 
@@ -403,19 +403,29 @@ def test_photon_methods_render_principled_glass_and_metal_as_mitsuba(principled_
     assert_images_agree(ours, principled_caustic_mitsuba, label=f"{method} principled caustic")
 
 
-@pytest.mark.parametrize("method, bsdf", [(m, b) for m in ("sppm", "pm", "spm", "pspm")
-                                          for b in ('<bsdf type="principledthin"/>',
-                                                    '<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>')])
-def test_photon_methods_refuse_principled(cli, tmp_path, method, bsdf):
-    """The photon methods, whose estimates evaluate the BSDF, refuse a glossy transmission beside the diffuse lobe
-    (spec_trans, principledthin: photons arriving from the other side, which their gathers do not read)."""
-    kind = bsdf.split('"')[1]
-    path = write_scene(tmp_path, bsdf)
-    code, _, err = cli("render", path, "-m", method, "--res", "8", "-q", "-o", tmp_path / "o.exr")
-    assert code == 2, err
-    line = err.strip()
-    assert "\n" not in line and "g.xml:5" in line and f'"{kind}"' in line and "--method pt" in line, line
-    assert "glossy transmission beside a diffuse lobe" in line and "pm or sppm" not in line, line
+@pytest.fixture(scope="module")
+def backlit_mitsuba(mi, test_scenes_dir):
+    """Mitsuba's path tracer on tests/scenes/principled-backlit.xml at 32 x 32: 4 seeds of 512 spp."""
+    scene = mi.load_file(str(test_scenes_dir / "principled-backlit.xml"), res=32, spp=512)
+    return [np.array(mi.render(scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+
+
+@pytest.mark.parametrize("method, params", [
+    ("sppm", {"passes": 256}), ("pm", PM), ("pspm", {"passes": 256, "streams": 4000}),
+    ("spm", {"streams": 160_000, "spp": 16, "termination": "roulette", "max_bounces": 64})])
+def test_photon_methods_render_a_transmitting_principled_as_mitsuba(backlit_mitsuba, test_scenes_dir, method, params):
+    """A glossy transmission beside the diffuse lobe (principled's spec_trans, principledthin's spec_trans and
+    diff_trans), lit from both sides: each photon method's estimate there weights the photons (or stream records) of
+    both sides by the BSDF in radiance mode (1 / eta² through the principled's refraction: bsdfs.eval_radiance), its
+    direct light takes the lights behind the surface too (sppm's one light sample on either side, pm's shadow rays over
+    both hemispheres: lighting.direct_stratified), and a stream's associated photons meet such a surface's back as a
+    surface that scatters.  Mean within 2 % and 4x4 blocks within 5 sigmas of Mitsuba's path tracer.  Measured
+    (2026-12-07, Mitsuba 4 x 4,096 spp): sppm -0.04 % ± 0.49, pm -0.25 % ± 0.27, spm -0.15 % ± 0.19, pspm -0.06 % ±
+    0.49, no block out.  Without the 1 / eta² pm rendered a sharper panel of the same scene 93 % too bright."""
+    import caustica
+    scene = caustica.load_scene(test_scenes_dir / "principled-backlit.xml")
+    ours = [caustica.render(scene, method, res=32, seed=s, **params).image for s in range(4)]
+    assert_images_agree(ours, backlit_mitsuba, label=f"{method} principled backlit")
 
 
 BAD = {

@@ -225,6 +225,23 @@ def _flux_by_region(pos, power):
     return np.array([w[spot].sum(), w[floor].sum(), w[wall].sum()])
 
 
+@pytest.mark.parametrize("bsdf, leaves", [
+    ('<bsdf type="diffuse"/>', False),
+    ('<bsdf type="twosided"><bsdf type="diffuse"/></bsdf>', True),
+    ('<bsdf type="principled"><float name="spec_trans" value="0.5"/></bsdf>', True),
+    ('<bsdf type="principledthin"/>', True)])
+def test_a_split_photon_aimed_at_a_back_leaves_where_the_back_scatters(bsdf, leaves):
+    """At a specular split an associated photon whose ray meets the back of a surface leaves the stream only where that
+    back scatters (streams.leaves_by): not a one-sided diffuse surface's black back, but a two-sided one's, and an
+    interface's (a diffuse lobe beside a transmitting one: principled with spec_trans, principledthin), which both
+    sides scatter at (bsdfs.oriented)."""
+    from caustica.photons.streams import leaves_by
+    geom, mats, _, _ = xml_scene(f'<shape type="rectangle">{bsdf}</shape>'   # its front faces +z
+                                  '<emitter type="point"><point name="position" x="0" y="5" z="0"/></emitter>').tables
+    assert leaves_by(geom, mats, (0.1, 0.2, -1.0), (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), False) == leaves
+    assert leaves_by(geom, mats, (0.1, 0.2, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), False)   # the front: always
+
+
 def test_split_photons_deposit_what_independent_photons_do():
     """--specular split at r_s -> 0: every photon of a stream meets the glass at the same point and
     then goes its own way, so where the power lands (caustic, floor, wall; mr = 2) must be PM's

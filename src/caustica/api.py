@@ -120,8 +120,8 @@ def check_bsdfs(cls, scene) -> None:
     method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
     reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
     estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
-    direction (``sppm``, ``pm``); a glossy transmission beside a diffuse lobe (principled with spec_trans,
-    principledthin) is refused by every photon method.
+    direction (every photon method); where that BSDF also transmits (principled with spec_trans, principledthin) the
+    photons and lights of both sides, the other side's through the transmission lobe.
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):
@@ -157,13 +157,8 @@ def check_bsdfs(cls, scene) -> None:
         if flags & (GLOSSY_REFLECTION | GLOSSY_TRANSMISSION):
             if mat.kind == ROUGHPLASTIC and getattr(cls, "renders_rough_coated", False):
                 continue
-            if (flags & DIFFUSE_REFLECTION and not flags & GLOSSY_TRANSMISSION
-                    and getattr(cls, "evaluates_bsdfs", False)):
+            if flags & DIFFUSE_REFLECTION and getattr(cls, "evaluates_bsdfs", False):
                 continue
-            if flags & DIFFUSE_REFLECTION and flags & GLOSSY_TRANSMISSION:
-                raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy "
-                                 f"transmission beside a diffuse lobe yet (its gather reads the photons of one side "
-                                 f"only); use --method pt")
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "
                                  f"beside a diffuse one yet (its gather would treat both as Lambertian); use "

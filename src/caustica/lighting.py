@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 
-from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf
+from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf, eval_radiance
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, TEX_OF, TEXTURED_AREA, emitter_point, env_pdf, env_radiance, \
     env_sample, profile, profiled, spot_falloff
 from .geometry import vec
 from .features import has
 from .scene.description import PLASTIC, ROUGHPLASTIC
 from .jit import kernel
+from .transport import ShadingPoint
 from .media import env_shadow_length, escape_transmittance, light_sample, medium_after, phase_pdf, phase_value, \
     power_heuristic, shadow_transmittance
 from .sampling.rng import KRONECKER_ALPHA, kronecker, uniform
@@ -53,7 +54,7 @@ def times_bsdf(bsdf, wi, T):
     ns, uv) as :func:`caustica.photons.grid.grid_range_sum` takes it; T itself when ``bsdf`` is None (a separate
     compilation: Numba prunes the branch, so every other point's arithmetic is what it was)."""
     if bsdf is not None:
-        f, f_scale, _ = eval_pdf(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
+        f, f_scale = eval_radiance(bsdf[0], bsdf[1], bsdf[2], bsdf[3], bsdf[4], bsdf[5], wi)
         return vec.mul(vec.hadamard(T, f), f_scale)
     return T
 
@@ -128,8 +129,20 @@ def direct_stratified(tables, at, key, dim, strata, coated, bsdf):
     lobe (:func:`caustica.bsdfs.coat`, :func:`caustica.bsdfs.rough_coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
     ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (a glossy lobe beside a diffuse one:
-    pplastic, principled), each shadow ray then weighted by f(d, wi) (:func:`times_bsdf`): the radiance towards -d.
+    pplastic, principled), each shadow ray then weighted by f(d, wi) (:func:`times_bsdf`): the radiance towards -d;
+    where that BSDF transmits (principled's spec_trans, principledthin), the lights behind the surface too, on the
+    same numbers (:func:`lights_direct` again with the normals turned to the other side).
     """
+    E = lights_direct(tables, at, key, dim, strata, coated, bsdf)
+    if bsdf is not None and bsdf[0].flags[bsdf[1]] & GLOSSY_TRANSMISSION:
+        behind = ShadingPoint(at.p, vec.neg(at.ng), vec.neg(at.ns), at.ng_front, at.shape, at.medium, at.uv)
+        E = vec.add(E, lights_direct(tables, behind, key, dim, strata, coated, bsdf))
+    return E
+
+
+@kernel(inline=True)
+def lights_direct(tables, at, key, dim, strata, coated, bsdf):
+    """:func:`direct_stratified` over the hemisphere of ``at``'s normals, the same arguments."""
     lights = tables[2]
     E = (0.0, 0.0, 0.0)
     for li in range(lights.kind.shape[0]):

@@ -273,11 +273,22 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
 
 
 @kernel(inline=True)
+def eval_radiance(mats, m, d, ng, ns, uv, wi):
+    """(colour, scale): material m's f = colour · scale from d towards wi as a camera path (radiance) weighs what
+    arrives from wi at a point that evaluates its BSDF: :func:`eval_pdf`'s f, times :func:`camera_scale` on the other
+    side of a glossy transmission lobe (principled's spec_trans), as pbrt-v4's SPPM evaluates f in radiance mode."""
+    c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+    if has(mats, PRINCIPLED) and mats.flags[m] & GLOSSY_TRANSMISSION:
+        scale *= camera_scale(mats, m, d, ng, ns, wi)
+    return c, scale
+
+
+@kernel(inline=True)
 def eval_photon(mats, m, d, ng, ns, uv, wi):
     """(colour, scale): material m's f = colour · scale from d towards wi as a visible point that evaluates its BSDF
-    weighs a photon arriving from wi (:func:`eval_pdf`); on a wrapper's nested row the scale also carries
+    weighs a photon arriving from wi (:func:`eval_radiance`); on a wrapper's nested row the scale also carries
     |cos_s(wi)| / |cos_g(wi)| (:func:`caustica.bsdfs.perturb.gather_shading`), the shading cosine of Mitsuba's f."""
-    c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+    c, scale = eval_radiance(mats, m, d, ng, ns, uv, wi)
     if wrapped(mats, m):
         scale *= gather_shading(ng, ns, wi)
     return c, scale

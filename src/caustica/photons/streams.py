@@ -58,7 +58,7 @@ import numpy as np
 
 from typing import NamedTuple
 
-from ..bsdfs import DIFFUSE_REFLECTION, has_null_lobe, oriented, wrapped
+from ..bsdfs import DIFFUSE_REFLECTION, TRANSMISSION, has_null_lobe, oriented, wrapped
 from ..bsdfs.mixtures import resolve
 from ..features import has
 from ..geometry import vec
@@ -334,14 +334,15 @@ def split_at_specular(tables, key, beam, photons, lead, splitting):
 @kernel(inline=True)
 def leaves_by(geom, mats, o, d, n_from, check_side):
     """Whether an associated photon aimed from o along d leaves its stream at a specular split: its ray must
-    leave the surface o lies on and meet something other than the black back of a one-sided surface."""
+    leave the surface o lies on and meet something other than the black back of a one-sided surface (an interface,
+    a diffuse lobe beside a transmitting one, has none: :func:`caustica.bsdfs.oriented`)."""
     if check_side and vec.dot(d, n_from) <= 0.0:
         return False
     prim, t, b1, b2 = intersect(geom, o, d, 1e30)
     if prim < 0:
         return False
     m = unwrapped(mats, geom.prim_material[prim])
-    if not mats.flags[m] & DIFFUSE_REFLECTION or mats.twosided[m] != 0:
+    if not mats.flags[m] & DIFFUSE_REFLECTION or mats.twosided[m] != 0 or mats.flags[m] & TRANSMISSION:
         return True
     _, ng, _ = surface_at(geom, prim, o, d, t, b1, b2)
     return vec.dot(d, ng) < 0.0

@@ -86,8 +86,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
-    delta_branches, eval_coating, eval_pdf, has_null_lobe, oriented, rough_coat, sample, sample_coating, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, \
+    coat, colour, delta_branches, eval_coating, eval_radiance, has_null_lobe, oriented, rough_coat, sample, \
+    sample_coating, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -283,12 +284,14 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
     goes to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
     key, dim = numbers
+    mats = tables[1]
     write_bsdf_row(at, m, d, pixel)
+    through = mats.flags[m] & GLOSSY_TRANSMISSION != 0   # a transmitting lobe: lights on either side
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
-                                                            uniform(key, dim + 2)), False)
+                                                            uniform(key, dim + 2)), through)
     if not ok:
         return (0.0, 0.0, 0.0)
-    f, f_scale, _ = eval_pdf(tables[1], m, d, at.ng, at.ns, at.uv, wi)
+    f, f_scale = eval_radiance(mats, m, d, at.ng, at.ns, at.uv, wi)
     return vec.mul(vec.hadamard(beta, vec.hadamard(f, contrib)), f_scale)
 
 
