@@ -86,9 +86,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_TRANSMISSION, SMOOTH, TRANSMISSION, \
-    coat, colour, delta_branches, eval_coating, eval_radiance, has_null_lobe, oriented, rough_coat, sample, \
-    sample_coating, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
+    delta_branches, eval_coating, eval_pdf, has_null_lobe, oriented, rough_coat, sample, sample_coating, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -103,7 +102,7 @@ from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, 
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
 from .trace import beside_diffuse
-from .segments import MEDIUM_SEGMENTS, SEGMENT_BYTES, allocate_segments, emitted_along, \
+from .segments import MEDIUM_SEGMENTS, SEGMENT_BYTES, allocate_segments, emitted_along, emission_weighted, \
     end_segment_at_wall, escaped_radiance, first_segment_numbers, segment_inscatter, store_segment, wall_normal
 
 INV_PI = 1.0 / math.pi
@@ -277,21 +276,31 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
 
 @kernel
 def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
-    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled) or on any diffuse
-    lobe under a normal or bump map (its frame perturbed), made as pbrt-v4's
-    SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the photon's
-    direction) (:func:`caustica.photons.grid.grid_range_sum`), and its direct light is one light sample times f
-    (numbers ``numbers`` = (key, dim) on; no MIS: the path ends here).  The BSDF's point (material, d, normals, uv)
-    goes to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
+    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled, principledthin) or
+    on any diffuse lobe under a normal or bump map (its frame perturbed), made as pbrt-v4's SPPM makes every one: its
+    weight is β, the gather weights each photon by the BSDF's value f(d, the photon's direction)
+    (:func:`caustica.photons.grid.grid_range_sum`).  Its direct light, the path ending here: beside a glossy lobe a
+    glossy vertex's, one light sample and one BSDF sample whose ray counts only the emitters it meets (past null
+    boundaries, through media: :func:`caustica.photons.segments.emission_weighted`), combined by MIS (power
+    heuristic), so that a lamp seen through a narrow lobe (frosted glass in front of it) is not left to light sampling
+    alone; on a diffuse lobe alone, one light sample times f (light sampling suits it; the BSDF sample's ray would
+    cost more than it saves).  Numbers ``numbers`` = (key, dim) on.  The BSDF's point (material, d, normals, uv) goes
+    to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
     key, dim = numbers
     mats = tables[1]
     write_bsdf_row(at, m, d, pixel)
-    through = mats.flags[m] & GLOSSY_TRANSMISSION != 0   # a transmitting lobe: lights on either side
+    if mats.flags[m] & GLOSSY:
+        Ld, alive, wi, beta_wi, lobe, pdf, _ = glossy_step(tables, at, m, d, ((0.0, 0.0, 0.0), beta), key, dim)
+        if alive and pdf > 0.0 and not lobe & DELTA:
+            medium = medium_after(tables[3], at.shape, at.ng_front, wi, at.medium)
+            Le = emission_weighted(tables, vec.offset_origin(at.p, at.ng, wi), wi, medium, pdf)
+            Ld = vec.add(Ld, vec.hadamard(beta_wi, Le))
+        return Ld
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
-                                                            uniform(key, dim + 2)), through)
+                                                            uniform(key, dim + 2)), False)
     if not ok:
         return (0.0, 0.0, 0.0)
-    f, f_scale = eval_radiance(mats, m, d, at.ng, at.ns, at.uv, wi)
+    f, f_scale, _ = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
     return vec.mul(vec.hadamard(beta, vec.hadamard(f, contrib)), f_scale)
 
 
