@@ -118,7 +118,7 @@ def check_bsdfs(cls, scene) -> None:
     its photons, or a stream's leading photon, scatter there by the adjoint wrapped BSDF);
     ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe (roughplastic: every photon
     method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
-    reflection lobe beside a diffuse one (pplastic, an opaque principled), whose visible point (sppm) or k-nearest
+    lobe beside a diffuse one (pplastic, principled, principledthin), whose visible point (sppm) or k-nearest
     estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
     direction (every photon method); where that BSDF also transmits (principled with spec_trans, principledthin) the
     photons and lights of both sides, the other side's through the transmission lobe.
@@ -162,7 +162,7 @@ def check_bsdfs(cls, scene) -> None:
             if flags & DIFFUSE_REFLECTION:
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render a glossy lobe "
                                  f"beside a diffuse one yet (its gather would treat both as Lambertian); use "
-                                 f"--method pt, pm or sppm")
+                                 f"--method pt, pm, sppm, spm or pspm")
             if not getattr(cls, "passes_glossy", False):
                 raise SceneError(f"{where}<bsdf type=\"{name}\">: method {cls.name} does not render glossy BSDFs "
                                  f"yet; use --method pt, pm, sppm, spm or pspm")

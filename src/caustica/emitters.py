@@ -58,7 +58,7 @@ import numpy as np
 from .bsdfs.textures import NEAREST, REPEAT, texture_columns, texture_rgb, wrap
 from .geometry import vec
 from .geometry.scene_geometry import Geometry, hit_uv, sample_on_primitive, surface_uv
-from .features import has, specialisable
+from .features import guarded_by, has, specialisable
 from .jit import kernel
 from .sampling.warps import square_to_uniform_sphere
 from .scene.description import BITMAP, CHECKERBOARD, SceneDescription
@@ -454,6 +454,7 @@ def profile(lights, e, d):
     return vec.mul(light_texture(lights, e, (u, v)), inv_cos3)
 
 
+@guarded_by(PROJECTOR, SPOT)
 @kernel(inline=True)
 def profiled(lights, e):
     """Whether light e's intensity varies by :func:`profile` (a projector, a textured spot)."""

@@ -85,6 +85,20 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def guarded_by(*codes: int):
+    """Decorator for a kernel ``f(table, ...)`` that is False whenever ``table`` holds none of ``codes`` (its body is
+    ``(has(table, c1) or ...) and ...``): a call to it is then folded to False before typing, as a ``has`` test is
+    (:class:`caustica.jit.FoldFeatureTests`), so that ``if f(table, ...):`` drops its branch and the callees only that
+    branch reaches are never compiled.  (A kernel is compiled apart and inlined by LLVM only, so the ``has`` inside it
+    cannot prune its caller's branch.)  Put it above ``@kernel``."""
+    mask = bits(*codes)
+
+    def mark(f):
+        f.feature_guard = mask
+        return f
+    return mark
+
+
 @intrinsic
 def has(typingctx, table, code):
     """Whether ``table``'s type says it may hold kind (or feature) ``code``: a constant, so a branch under

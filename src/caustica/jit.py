@@ -224,7 +224,9 @@ class FoldFeatureTests(FunctionPass):
     type follows from the arguments, so that Numba's dead-branch pruning (the pass after it) drops the code it
     guards before type inference.  Typing a call compiles the callee: without this, a scene without plastic still
     compiled plastic's BSDF (and every missing kind's) once, for LLVM to drop from the caller afterwards.  A call
-    whose table is not found this way stays as it was (``has`` is a constant at code generation anyway)."""
+    whose table is not found this way stays as it was (``has`` is a constant at code generation anyway).  A call to a
+    kernel marked :func:`caustica.features.guarded_by` whose table (its first argument) holds none of the features
+    it names is folded to False the same way."""
     _name = "caustica_fold_feature_tests"
 
     def __init__(self):
@@ -236,19 +238,35 @@ class FoldFeatureTests(FunctionPass):
         for block in func_ir.blocks.values():
             for stmt in block.body:
                 if not (isinstance(stmt, ir.Assign) and isinstance(stmt.value, ir.Expr) and stmt.value.op == "call"
-                        and len(stmt.value.args) == 2 and not stmt.value.kws):
+                        and stmt.value.args and not stmt.value.kws):
                     continue
                 try:
                     fn = get_definition(func_ir, stmt.value.func)
-                    code = find_const(func_ir, stmt.value.args[1])
                 except GuardException:
                     continue
-                if not isinstance(fn, (ir.Global, ir.FreeVar)) or fn.value is not has or not isinstance(code, int):
+                if not isinstance(fn, (ir.Global, ir.FreeVar)):
                     continue
+                if fn.value is has:
+                    if len(stmt.value.args) != 2:
+                        continue
+                    try:
+                        code = find_const(func_ir, stmt.value.args[1])
+                    except GuardException:
+                        continue
+                    if not isinstance(code, int):
+                        continue
+                    mask = 1 << code
+                else:   # a kernel marked by features.guarded_by: False where its table holds none of its features
+                    mask = getattr(fn.value, "feature_guard", None)
+                    if mask is None:
+                        continue
                 table = _static_type(func_ir, state.args, stmt.value.args[0])
                 if table is None or not hasattr(table, "instance_class"):
                     continue
-                value = ir.Const(bool(features_of(table.instance_class) >> code & 1), stmt.loc)
+                present = features_of(table.instance_class) & mask != 0
+                if fn.value is not has and present:
+                    continue   # the guarded kernel's value is known at run time only
+                value = ir.Const(present, stmt.loc)
                 defs = func_ir._definitions[stmt.target.name]   # the call's own entry only: the name (a user's
                 defs[defs.index(stmt.value)] = value            # variable) may have other assignments
                 stmt.value = value

@@ -9,7 +9,8 @@
   weighted by multiple importance sampling against the BSDF's (or phase function's) own sampling; the
   matching weights of an emitter or the environment reached by that sampling are :func:`emission_mis`
   and :func:`environment_mis`.  The path tracer takes them at every vertex, the progressive methods'
-  camera paths at the glossy surfaces they pass (:mod:`caustica.photons.visible_points`).
+  camera paths at the glossy surfaces they pass and at their visible points beside a glossy lobe
+  (:mod:`caustica.photons.visible_points`).
 """
 from __future__ import annotations
 

@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..geometry import vec
-from ..features import bits, has, specialisable
+from ..features import bits, guarded_by, has, specialisable
 from ..jit import kernel
 from ..scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, MIXTURES, PLASTIC, PPLASTIC, PRINCIPLED, \
     PRINCIPLEDTHIN, ROUGHCONDUCTOR, ROUGHDIELECTRIC, ROUGHPLASTIC, THINDIELECTRIC, WRAPPERS, SceneDescription
@@ -192,6 +192,7 @@ def null_transmitting(mats: MaterialTable) -> MaterialTable | None:
     return mats._replace(flags=flags)
 
 
+@guarded_by(THINDIELECTRIC)
 @kernel(inline=True)
 def has_null_lobe(mats, m):
     """Whether material m's straight-on lobe is a null event (a thindielectric flagged ``NULL_TRANSMISSION`` by
@@ -276,9 +277,10 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
 def eval_radiance(mats, m, d, ng, ns, uv, wi):
     """(colour, scale): material m's f = colour · scale from d towards wi as a camera path (radiance) weighs what
     arrives from wi at a point that evaluates its BSDF: :func:`eval_pdf`'s f, times :func:`camera_scale` on the other
-    side of a glossy transmission lobe (principled's spec_trans), as pbrt-v4's SPPM evaluates f in radiance mode."""
+    side of a glossy transmission lobe (principled's spec_trans; 1 for principledthin, which does not refract), as
+    pbrt-v4's SPPM evaluates f in radiance mode."""
     c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
-    if has(mats, PRINCIPLED) and mats.flags[m] & GLOSSY_TRANSMISSION:
+    if mats.flags[m] & GLOSSY_TRANSMISSION:
         scale *= camera_scale(mats, m, d, ng, ns, wi)
     return c, scale
 

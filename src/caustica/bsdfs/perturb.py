@@ -27,7 +27,7 @@ import math
 
 from ..geometry import vec
 from ..jit import kernel
-from ..features import has
+from ..features import guarded_by, has
 from ..scene.description import BUMPMAP, NORMALMAP
 from .textures import FILTER, HEIGHT, LUMINANCE, NEAREST, ROW0, TO_UV, WIDTH, WRAP, texel, texture_rgb
 
@@ -132,6 +132,7 @@ def terminator(ng, ns, wo):
     return 2.0 / (1.0 + math.sqrt(1.0 + a2 * max(1.0 - co2, 0.0) / co2))
 
 
+@guarded_by(NORMALMAP, BUMPMAP)
 @kernel(inline=True)
 def wrapped(mats, m):
     """Whether material row m is a wrapper's nested row: its shading normal is perturbed where a ray meets it."""

@@ -18,8 +18,8 @@ it or a cosine-weighted direction on the next two (:func:`.roughplastic.two_lobe
 lobe probability and :func:`local_eval`).  The density is the mixture w D(h) G1(wo, h) / (4 cos θ_o) + (1 - w)
 cos θ_i / π, which :func:`eval_pdf` gives too, and the weight the whole f cos θ_i over it, as Mitsuba's.
 Directions below the shading or the geometric surface are refused.
-Flags ``GLOSSY_REFLECTION | DIFFUSE_REFLECTION``: rendered by ``pt``; the photon methods refuse it as they refuse
-roughplastic (``api.check_bsdfs``).
+Flags ``GLOSSY_REFLECTION | DIFFUSE_REFLECTION``: rendered by every method, the photon methods' estimates weighting
+each photon by f at its direction (``api.check_bsdfs``).
 """
 from __future__ import annotations
 

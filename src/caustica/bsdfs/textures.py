@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ..geometry import vec
-from ..features import has
+from ..features import guarded_by, has
 from ..jit import kernel
 from ..scene.description import CHECKERBOARD, MESH, MESH_ATTRIBUTE
 from .flags import TEXTURED
@@ -253,6 +253,7 @@ def texture_value(mats, t, uv):
     return LUMINANCE[0] * c[0] + LUMINANCE[1] * c[1] + LUMINANCE[2] * c[2]
 
 
+@guarded_by(TEXTURED)
 @kernel(inline=True)
 def needs_uv(mats, m):
     """Whether a texture gives material m's colour, roughness or another scalar parameter: its hits need their

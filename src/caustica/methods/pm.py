@@ -8,7 +8,7 @@
 3. Maps: a kd-tree over each map's positions.
 4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
    indirect light and caustics from the maps' k-nearest radiance estimates.  At a BSDF with a glossy
-   lobe beside its diffuse one (pplastic, an opaque principled) each photon and shadow ray is weighted
+   lobe beside its diffuse one (pplastic, principled, principledthin) each photon and shadow ray is weighted
    by the BSDF's value at its direction (:mod:`caustica.photons.gather`), as sppm's visible points do.
 
 In a scene with media the photons scatter in them (:mod:`caustica.photons.trace`), their

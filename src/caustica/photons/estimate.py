@@ -9,7 +9,7 @@ farthest one used, or R when fewer than k are found, and
 where W is the filter kernel normalised to integrate to 1 over the disc of radius r
 (:mod:`caustica.photons.density_filters`).  This function returns Σ W Φ (irradiance-like, W/m²); the caller applies f_r.
 
-At a BSDF with a glossy lobe beside the diffuse one (pplastic, an opaque principled) nothing is Lambertian to
+At a BSDF with a glossy lobe beside the diffuse one (pplastic, principled, principledthin) nothing is Lambertian to
 take out of the sum: there each record is weighted by the BSDF's value at its own direction,
 
     L(x, ω_o) = Σ_p W(d_p, r) f(ω_o, ω_p) Φ_p,

@@ -25,7 +25,7 @@ probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A
 rays; with a caustic map (PM+C) that estimate is a split point, as sppm's with its caustic photons' own statistics:
 the caustic map's records weighted by A + f_glossy / B (:func:`split_estimate`), and a path that took the coating
 leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  A glossy
-lobe beside a diffuse one (pplastic, an opaque principled) has no lobe to split off: the path ends there and its
+lobe beside a diffuse one (pplastic, principled, principledthin) has no lobe to split off: the path ends there and its
 estimate weights every photon of both maps and every shadow ray by the BSDF's f(d, wi), both lobes
 (:func:`diffuse_estimate`'s ``bsdf``), as sppm's visible points weight their photons: L = β (Σ_shadow f L cos / p +
 Σ_p W f Φ_p).

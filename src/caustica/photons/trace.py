@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features import has
+from ..features import guarded_by, has
 from ..bsdfs import DELTA, DIFFUSE_REFLECTION, entry, eval_pdf, has_null_lobe, oriented, photon_shading, sample, \
     sample_kind, wrapped
 from ..bsdfs.perturb import flip_side
@@ -219,6 +219,7 @@ def scatter_photon(media, medium, ray, key, dim, power, roulette):
     return alive, wo, power, dim
 
 
+@guarded_by(PLASTIC, ROUGHPLASTIC)
 @kernel(inline=True)
 def coated(mats, m):
     """Whether material m is a coated diffuse lobe (plastic, roughplastic), whose photons carry its factor B

@@ -94,7 +94,7 @@ from ..geometry.scene_geometry import intersect
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
 from ..emitters import ENV, env_pdf, radiance_at_hit
-from ..features import has
+from ..features import guarded_by, has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
 from ..media import light_sample, medium_after, power_heuristic, segment_attenuation
@@ -218,9 +218,9 @@ def escape_weight(lights, d, last):
 
 @kernel(inline=True)
 def glossy_step(tables, at, m, d, path, key, dim):
-    """At a glossy surface (rough metal or glass: no visible point here, as in pbrt-v4's SPPM): its direct light by
-    one light sample, MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the
-    BSDF's own sample.  ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density,
+    """At a glossy surface (rough metal or glass: no visible point here, as in pbrt-v4's SPPM), or for the direct light
+    of a visible point beside a glossy lobe (:func:`bsdf_visible_point`): its direct light by one light sample,
+    MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the BSDF's own sample.  ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density,
     dim)."""
     L, beta = path
     ok, term, scale, _, dim = next_event(tables, at, m, d, beta, key, dim)
@@ -339,6 +339,7 @@ def bsdf_point(mats, rows, i):
              r[BSDF_UV + 7]))
 
 
+@guarded_by(ROUGHPLASTIC)
 @kernel(inline=True)
 def split_point(mats, rows, i):
     """Whether visible point i's row is a roughplastic's split point (:func:`split_visible_point`); never in a scene
