@@ -18,7 +18,7 @@ import pytest
 import caustica
 from caustica.bsdfs import MaterialTable
 from caustica.emitters import LightTable
-from caustica.features import ALL, features_of, guarded_by, has, specialised
+from caustica.features import ALL, bits, features_of, guarded_by, has, specialised
 from caustica.jit import KernelCompiler, kernel
 from caustica.scene.description import BUMPMAP, CONDUCTOR, DIELECTRIC, NORMALMAP, PLASTIC
 from caustica.tables import CORE_LIGHTS, CORE_MATERIALS
@@ -140,6 +140,24 @@ def test_a_guarded_kernels_branch_is_not_compiled_where_its_features_are_missing
     every = MaterialTable(*core)
     assert _map_branch(every, 0) == 1.0 and _map_branch(every, -1) == 0.0
     assert len(_under_a_map.signatures) == 1
+
+
+def test_the_media_table_says_whether_paths_meet_media_or_cross_surfaces():
+    """The media table's features: a scene without media holds none (media.in_a_medium is then folded to False, and
+    the loops' medium code is not compiled), a scene with null surfaces (a mask) may cross them (CROSSABLE: shadow
+    rays need media.transmittance), and so does the copy with volpath's null thin dielectric; homogeneous media hold
+    HOMOGENEOUS, not HETEROGENEOUS."""
+    from caustica.media import CROSSABLE
+    from caustica.scene.description import HETEROGENEOUS, HOMOGENEOUS
+    scenes = Path(__file__).resolve().parent / "scenes"
+    every = bits(HOMOGENEOUS, HETEROGENEOUS, CROSSABLE)
+    assert features_of(caustica.load_scene("cornell-diacaustic").media) & every == 0
+    assert features_of(caustica.load_scene(scenes / "mask.xml").media) & every == bits(CROSSABLE)
+    thin = caustica.load_scene(scenes / "thindielectric.xml")
+    assert features_of(thin.media) & every == 0
+    assert features_of(thin.with_null_thin_dielectric().media) & every == bits(CROSSABLE)
+    fog = features_of(caustica.load_scene("cornell-diacaustic-fog").media)   # its medium bounded by a null shape
+    assert fog & every == bits(HOMOGENEOUS, CROSSABLE)
 
 
 @numba.njit(pipeline_class=KernelCompiler)

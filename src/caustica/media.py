@@ -43,7 +43,7 @@ from .emitters import AREA, DIRECTIONAL, ENV, SPOT, choose_light, emitter_point,
     sample_area_emitter, spot_falloff
 from .geometry import vec
 from .geometry.scene_geometry import NO_UV, intersect, occluded, surface_at, surface_uv
-from .features import ALL, bits, has, specialisable, specialised
+from .features import ALL, bits, guarded_by, has, specialisable, specialised
 from .jit import kernel
 from .sampling.rng import uniform
 from .scene.description import BLEND, HENYEY_GREENSTEIN, HETEROGENEOUS, HOMOGENEOUS, MASK, NULL, SceneDescription
@@ -60,6 +60,9 @@ NULL_CROSSINGS_CAP = 256
 #: |g| below which a Henyey-Greenstein phase function is sampled as the isotropic one (its
 #: inverse CDF loses precision as g -> 0); its value is still the exact HG value.
 HG_ISOTROPIC_G = 1e-4
+#: A media table's feature (:mod:`caustica.features`) beside the media's kinds: shadow rays may cross surfaces
+#: (``null_surfaces``), so :func:`shadow_transmittance` needs :func:`transmittance` even in vacuum.
+CROSSABLE = 2
 
 
 @specialisable
@@ -100,8 +103,11 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
     null = any(desc.may_pass(s.material) for s in desc.shapes)
     grids = grid_columns(desc.media, k)
-    # kernels compile the heterogeneous media's code only for a scene that has one (caustica.features)
-    features = ALL if np.any(grids["kind"] == HETEROGENEOUS) else bits(HOMOGENEOUS)
+    # kernels compile the heterogeneous media's code only for a scene that has one, and the media's only for a scene
+    # with media (caustica.features; :func:`in_a_medium`)
+    features = ALL if np.any(grids["kind"] == HETEROGENEOUS) else bits(HOMOGENEOUS) if desc.media else 0
+    if null:
+        features |= bits(CROSSABLE)
     return specialised(MediumTable, features)(sigma_t, albedo, phase, g, interior, exterior,
                                               np.array([desc.camera.medium], np.int32),
                                               np.array([1 if null else 0], np.int8), **grids)
@@ -146,6 +152,14 @@ def sample_distance(media, m, u_channel, u):
     return -math.log(1.0 - u) / s
 
 
+@guarded_by(HOMOGENEOUS, HETEROGENEOUS)
+@kernel(inline=True)
+def in_a_medium(media, medium):
+    """Whether a path in ``medium`` is in one (>= 0); in a scene without media a constant False, folded before typing
+    (:func:`caustica.features.guarded_by`), so the loops' medium code is not compiled for it."""
+    return (has(media, HOMOGENEOUS) or has(media, HETEROGENEOUS)) and medium >= 0
+
+
 @kernel(inline=True)
 def free_flight(geom, media, medium, o, d, key, dim):
     """A photon's next event along o + t d: (prim, t, b1, b2, weight, dim, escaped).
@@ -156,16 +170,16 @@ def free_flight(geom, media, medium, o, d, key, dim):
     ``weight`` the flight's :func:`flight_weight`.  In vacuum only the surface, weight (1, 1, 1).
     ``escaped``: nothing ahead (vacuum, or a channel that does not attenuate, and no surface).
     """
-    if has(media, HETEROGENEOUS) and medium >= 0 and media.kind[medium] == HETEROGENEOUS:
-        return tracked_flight(geom, media, medium, o, d, key, dim)
-    t_flight = np.inf
-    if medium >= 0:
+    if in_a_medium(media, medium):
+        if has(media, HETEROGENEOUS) and media.kind[medium] == HETEROGENEOUS:
+            return tracked_flight(geom, media, medium, o, d, key, dim)
         t_flight = sample_distance(media, medium, uniform(key, dim), uniform(key, dim + 1))
-        dim += 2
-    prim, t, b1, b2 = intersect(geom, o, d, t_flight)
-    if medium < 0 or (prim < 0 and t_flight == np.inf):
-        return prim, t, b1, b2, (1.0, 1.0, 1.0), dim, prim < 0
-    return prim, t, b1, b2, flight_weight(media, medium, t, prim < 0), dim, False
+        prim, t, b1, b2 = intersect(geom, o, d, t_flight)
+        if prim < 0 and t_flight == np.inf:
+            return prim, t, b1, b2, (1.0, 1.0, 1.0), dim + 2, True
+        return prim, t, b1, b2, flight_weight(media, medium, t, prim < 0), dim + 2, False
+    prim, t, b1, b2 = intersect(geom, o, d, np.inf)
+    return prim, t, b1, b2, (1.0, 1.0, 1.0), dim, prim < 0
 
 
 @kernel
@@ -228,16 +242,18 @@ def segment_attenuation(media, m, ray, t):
 def shadow_transmittance(geom, mats, media, o, target, medium):
     """:func:`transmittance`, with the case of every vacuum scene inlined into the caller: no medium and no
     null surface to cross, so the shadow ray is an any-hit test (visible: 1, blocked: 0).  Shadow rays are
-    the bulk of the rays traced; a call that is not inlined passes the scene tables field by field."""
-    if medium < 0 and media.null_surfaces[0] == 0:
-        seg = vec.sub(target, o)
-        dist = vec.length(seg)
-        if dist <= 0.0:
-            return (1.0, 1.0, 1.0), 0
-        if occluded(geom, o, vec.mul(seg, 1.0 / dist), dist):
-            return (0.0, 0.0, 0.0), 1
-        return (1.0, 1.0, 1.0), 1
-    return transmittance(geom, mats, media, o, target, medium)
+    the bulk of the rays traced; a call that is not inlined passes the scene tables field by field.  In a scene
+    without media or null surfaces (the features of ``media``) :func:`transmittance` is not even compiled."""
+    if in_a_medium(media, medium) or has(media, CROSSABLE):   # (neither in a vacuum scene without null surfaces)
+        if medium >= 0 or media.null_surfaces[0] != 0:
+            return transmittance(geom, mats, media, o, target, medium)
+    seg = vec.sub(target, o)
+    dist = vec.length(seg)
+    if dist <= 0.0:
+        return (1.0, 1.0, 1.0), 0
+    if occluded(geom, o, vec.mul(seg, 1.0 / dist), dist):
+        return (0.0, 0.0, 0.0), 1
+    return (1.0, 1.0, 1.0), 1
 
 
 @kernel(inline=True)

@@ -18,10 +18,10 @@ from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_mater
 from .camera import CameraParams, camera_params
 from .emitters import AREA, POINT, TEX_OF, TEXTURED_AREA, LightTable, build_light_table
 from .errors import SceneError
-from .features import ALL, bits, specialised
+from .features import ALL, bits, features_of, specialised
 from .geometry.bounds import shape_bounding_sphere
 from .geometry.scene_geometry import Geometry, build_geometry
-from .media import MediumTable, build_medium_table, light_media
+from .media import CROSSABLE, MediumTable, build_medium_table, light_media
 from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, SceneDescription
 from .scene.transforms import MAX_ABS_FLOAT
 
@@ -60,8 +60,10 @@ class Scene:
         Itself without a thindielectric.  Built once (every pass of sppm asks for it)."""
         if self._null_thin is None:
             flagged = null_transmitting(self.materials)
-            self._null_thin = self if flagged is None else replace(
-                self, materials=flagged, media=self.media._replace(null_surfaces=np.ones(1, np.int8)), _null_thin=None)
+            media = specialised(MediumTable, features_of(self.media) | bits(CROSSABLE))(
+                *self.media._replace(null_surfaces=np.ones(1, np.int8)))
+            self._null_thin = self if flagged is None else replace(self, materials=flagged, media=media,
+                                                                   _null_thin=None)
         return self._null_thin
 
     def light_media(self) -> np.ndarray:

@@ -49,7 +49,7 @@ from ..features import has
 from ..scene.description import HETEROGENEOUS, NULL_THIN_INTEGRATORS, SCENE_INTEGRATORS
 from ..jit import borrowed, kernel, parallel_for
 from ..lighting import emission_mis, environment_mis, next_event
-from ..media import cross_null, free_flight, medium_after, phase_sample
+from ..media import cross_null, free_flight, in_a_medium, medium_after, phase_sample
 from ..sampling.rng import STREAM_CAMERA, pass_stream, path_key, uniform
 from ..transport import CROSSED, SCATTER, ShadingPoint, in_medium, surface_interaction
 from . import register
@@ -159,7 +159,8 @@ def radiance(tables, o, d, key, depths):
             beta = vec.hadamard(beta, w)
             if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
                 break    # absorbed (albedo 0), or a flight no channel can take
-        if prim < 0:     # ---- a scattering event in the medium, at t = the flight's distance
+        if in_a_medium(media, medium) and prim < 0:   # ---- a scattering event in the medium, at t = the flight's
+            #                                              distance (none in a scene without media: not compiled)
             p = vec.madd(o, d, t)
             depth += 1
             if depth >= max_depth:

@@ -131,9 +131,10 @@ def camera_surface(geom, mats, hit, o, d, key, dim):
     p, ng, ns = surface_at(geom, prim, o, d, t, b1, b2)
     front = vec.dot(d, ng) < 0.0
     m = geom.prim_material[prim]
-    uv = surface_uv(geom, prim, o, d, t, b1, b2) if needs_uv(mats, m) or mats.kind[m] == BLEND else NO_UV
+    blend = has(mats, BLEND) and mats.kind[m] == BLEND
+    uv = surface_uv(geom, prim, o, d, t, b1, b2) if needs_uv(mats, m) or blend else NO_UV
     passed = False
-    if mats.kind[m] == BLEND:
+    if blend:
         m, dim = resolve(mats, m, uv, key, dim)
         passed = mats.kind[m] == NULL
     if has(mats, NORMALMAP) and mats.kind[m] == NORMALMAP or has(mats, BUMPMAP) and mats.kind[m] == BUMPMAP:

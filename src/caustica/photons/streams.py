@@ -65,7 +65,7 @@ from ..geometry import vec
 from ..geometry.primitives import borrow
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
 from ..jit import borrowed, kernel, parallel_for
-from ..media import free_flight, medium_after, photon_scatter
+from ..media import free_flight, in_a_medium, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..sampling.warps import square_to_uniform_disk
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL, PLASTIC, ROUGHPLASTIC
@@ -593,7 +593,7 @@ def trace_stream(tables, key, start, rules, i, buf):
         if not alive:
             break
         store, r = record_slot(scattered, stored, i, max_bounces)
-        if prim < 0:
+        if in_a_medium(media, medium) and prim < 0:
             # ---- a scattering event in the medium: a point, no surface the associated photons could aim into
             x = vec.madd(o, d, t)
             alive, wo, stream, dim = stream_medium_event(

@@ -50,7 +50,7 @@ from ..geometry import vec
 from ..geometry.primitives import borrow
 from ..jit import borrowed, kernel, parallel_for
 from ..memory import check_budget
-from ..media import free_flight, medium_after, photon_scatter
+from ..media import free_flight, in_a_medium, medium_after, photon_scatter
 from ..sampling.rng import path_key, uniform
 from ..scene.description import BLEND, MASK, PLASTIC, ROUGHPLASTIC
 from ..transport import CROSSED, TRAPPED, map_frames, surface_interaction
@@ -370,8 +370,8 @@ def trace_one(tables, key, photon, rules, out):
         alive, power = attenuate_photon(power, medium, w)
         if not alive:
             break
-        if prim < 0:
-            # ---- a scattering event in the medium
+        if in_a_medium(media, medium) and prim < 0:
+            # ---- a scattering event in the medium (none in a scene without media: not compiled there)
             p = vec.madd(o, d, t)
             if scattered:
                 records = keep_record(out, records, p, d, power, (0.0, 0.0, 0.0),   # a volume photon: no normal

@@ -97,7 +97,7 @@ from ..emitters import ENV, env_pdf, radiance_at_hit
 from ..features import guarded_by, has
 from ..scene.description import PLASTIC, ROUGHPLASTIC
 from ..lighting import direct_stratified, emission_mis, next_event
-from ..media import light_sample, medium_after, power_heuristic, segment_attenuation
+from ..media import in_a_medium, light_sample, medium_after, power_heuristic, segment_attenuation
 from ..sampling.rng import KRONECKER_ALPHA, STREAM_CAMERA, STREAM_CAMERA_MEDIA, STREAM_CAMERA_SCRAMBLE, kronecker, \
     pass_stream, path_key, sobol02, uniform
 from ..transport import CROSSED, TRAPPED, ShadingPoint, surface_interaction
@@ -542,12 +542,12 @@ def camera_flight(tables, flight, medium, path, n_seg, numbers, out):
     in-scattered light added to ``path`` = (L, β) and β attenuated.  Returns (a slot was free: fewer than
     MEDIUM_SEGMENTS segments so far, L, β, n_seg)."""
     L, beta = path
-    if medium < 0:
-        return True, L, beta, n_seg
-    if n_seg >= MEDIUM_SEGMENTS:
-        return False, L, beta, n_seg
-    Ls, beta = medium_segment(tables, flight, medium, beta, n_seg, numbers, out)
-    return True, vec.add(L, Ls), beta, n_seg + 1
+    if in_a_medium(tables[3], medium):   # (never in a scene without media: not compiled there)
+        if n_seg >= MEDIUM_SEGMENTS:
+            return False, L, beta, n_seg
+        Ls, beta = medium_segment(tables, flight, medium, beta, n_seg, numbers, out)
+        return True, vec.add(L, Ls), beta, n_seg + 1
+    return True, L, beta, n_seg
 
 
 @kernel(inline=True)
