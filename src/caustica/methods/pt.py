@@ -159,8 +159,7 @@ def radiance(tables, o, d, key, depths):
             beta = vec.hadamard(beta, w)
             if beta[0] == 0.0 and beta[1] == 0.0 and beta[2] == 0.0:
                 break    # absorbed (albedo 0), or a flight no channel can take
-        if in_a_medium(media, medium) and prim < 0:   # ---- a scattering event in the medium, at t = the flight's
-            #                                              distance (none in a scene without media: not compiled)
+        if in_a_medium(media, medium) and prim < 0:   # ---- a scattering event in the medium, at the flight's t
             p = vec.madd(o, d, t)
             depth += 1
             if depth >= max_depth:
