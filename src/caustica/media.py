@@ -88,6 +88,16 @@ class MediumTable(NamedTuple):
     cell_majorant: np.ndarray  # float64[C]: per cell, the largest sigma_t a point of it reads, (z, y, x) order
 
 
+def medium_features(heterogeneous: bool, media: bool, crossable: bool) -> int:
+    """The feature set of a media table (:mod:`caustica.features`), rounded to one of three so that a kernel compiles
+    at most three times for it: none (no medium, no null surface: the media's code is not compiled at all,
+    :func:`in_a_medium`), HOMOGENEOUS | CROSSABLE (homogeneous media or surfaces shadow rays cross), or every feature
+    (a heterogeneous medium: its tracking compiled too)."""
+    if heterogeneous:
+        return ALL
+    return bits(HOMOGENEOUS, CROSSABLE) if media or crossable else 0
+
+
 def build_medium_table(desc: SceneDescription) -> MediumTable:
     k = max(1, len(desc.media))
     sigma_t = np.zeros((k, 3))
@@ -103,11 +113,7 @@ def build_medium_table(desc: SceneDescription) -> MediumTable:
     exterior = np.array([s.exterior for s in desc.shapes], np.int32).reshape(-1)
     null = any(desc.may_pass(s.material) for s in desc.shapes)
     grids = grid_columns(desc.media, k)
-    # kernels compile the heterogeneous media's code only for a scene that has one, and the media's only for a scene
-    # with media (caustica.features; :func:`in_a_medium`)
-    features = ALL if np.any(grids["kind"] == HETEROGENEOUS) else bits(HOMOGENEOUS) if desc.media else 0
-    if null:
-        features |= bits(CROSSABLE)
+    features = medium_features(bool(np.any(grids["kind"] == HETEROGENEOUS)), bool(desc.media), null)
     return specialised(MediumTable, features)(sigma_t, albedo, phase, g, interior, exterior,
                                               np.array([desc.camera.medium], np.int32),
                                               np.array([1 if null else 0], np.int8), **grids)

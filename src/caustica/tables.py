@@ -21,8 +21,8 @@ from .errors import SceneError
 from .features import ALL, bits, features_of, specialised
 from .geometry.bounds import shape_bounding_sphere
 from .geometry.scene_geometry import Geometry, build_geometry
-from .media import CROSSABLE, MediumTable, build_medium_table, light_media
-from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, NULL, SceneDescription
+from .media import MediumTable, build_medium_table, light_media, medium_features
+from .scene.description import CONDUCTOR, DIELECTRIC, DIFFUSE, HETEROGENEOUS, HOMOGENEOUS, NULL, SceneDescription
 from .scene.transforms import MAX_ABS_FLOAT
 
 
@@ -60,7 +60,9 @@ class Scene:
         Itself without a thindielectric.  Built once (every pass of sppm asks for it)."""
         if self._null_thin is None:
             flagged = null_transmitting(self.materials)
-            media = specialised(MediumTable, features_of(self.media) | bits(CROSSABLE))(
+            held = features_of(self.media)
+            media = specialised(MediumTable, medium_features(held & bits(HETEROGENEOUS) != 0,
+                                                             held & bits(HOMOGENEOUS) != 0, True))(
                 *self.media._replace(null_surfaces=np.ones(1, np.int8)))
             self._null_thin = self if flagged is None else replace(self, materials=flagged, media=media,
                                                                    _null_thin=None)
