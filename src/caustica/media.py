@@ -61,7 +61,8 @@ NULL_CROSSINGS_CAP = 256
 #: inverse CDF loses precision as g -> 0); its value is still the exact HG value.
 HG_ISOTROPIC_G = 1e-4
 #: A media table's feature (:mod:`caustica.features`) beside the media's kinds: shadow rays may cross surfaces
-#: (``null_surfaces``), so :func:`shadow_transmittance` needs :func:`transmittance` even in vacuum.
+#: (``null_surfaces``), so :func:`shadow_transmittance` needs :func:`transmittance` even in vacuum.  A code beside
+#: the medium kinds' (HOMOGENEOUS 0, HETEROGENEOUS 1): a new kind of medium takes a code other than 2.
 CROSSABLE = 2
 
 
