@@ -160,8 +160,7 @@ def test_the_media_table_says_whether_paths_meet_media_or_cross_surfaces():
     assert features_of(caustica.load_scene("cornell-diacaustic-fog").media) & every == some
 
 
-@pytest.mark.parametrize("name", sorted({case[0] if isinstance(case[0], str) else str(case[0])
-                                         for case in CASES.values() if not isinstance(case[0], tuple)}))
+@pytest.mark.parametrize("name", sorted({str(scene) for scene, _, _ in CASES.values() if not isinstance(scene, tuple)}))
 def test_a_media_tables_features_cover_what_it_holds(name):
     """What the kernels skip where the media table lacks a feature must never be there: a medium index (the camera's,
     a shape's side) needs HOMOGENEOUS, null surfaces (shadow rays crossing) CROSSABLE; the volpath copy too.  Over the

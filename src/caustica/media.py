@@ -161,10 +161,17 @@ def sample_distance(media, m, u_channel, u):
 
 @guarded_by(HOMOGENEOUS, HETEROGENEOUS)
 @kernel(inline=True)
+def holds_media(media):
+    """Whether the media table may hold a medium; in a scene without media a constant False, folded before typing
+    (:func:`caustica.features.guarded_by`), so the code only media reach is not compiled for it."""
+    return has(media, HOMOGENEOUS) or has(media, HETEROGENEOUS)
+
+
+@guarded_by(HOMOGENEOUS, HETEROGENEOUS)
+@kernel(inline=True)
 def in_a_medium(media, medium):
-    """Whether a path in ``medium`` is in one (>= 0); in a scene without media a constant False, folded before typing
-    (:func:`caustica.features.guarded_by`), so the loops' medium code is not compiled for it."""
-    return (has(media, HOMOGENEOUS) or has(media, HETEROGENEOUS)) and medium >= 0
+    """Whether a path in ``medium`` is in one (>= 0): :func:`holds_media` at run time, so folded the same way."""
+    return holds_media(media) and medium >= 0
 
 
 @kernel(inline=True)

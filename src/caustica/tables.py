@@ -60,13 +60,16 @@ class Scene:
         Itself without a thindielectric.  Built once (every pass of sppm asks for it)."""
         if self._null_thin is None:
             flagged = null_transmitting(self.materials)
-            held = features_of(self.media)
-            media = specialised(MediumTable, medium_features(held & bits(HETEROGENEOUS) != 0,
-                                                             held & bits(HOMOGENEOUS) != 0, True))(
-                *self.media._replace(null_surfaces=np.ones(1, np.int8)))
-            self._null_thin = self if flagged is None else replace(self, materials=flagged, media=media,
-                                                                   _null_thin=None)
+            self._null_thin = self if flagged is None else replace(
+                self, materials=flagged, media=self._crossable_media(), _null_thin=None)
         return self._null_thin
+
+    def _crossable_media(self) -> MediumTable:
+        """The media table saying shadow rays may cross surfaces (``null_surfaces``), its features re-rounded
+        (:func:`caustica.media.medium_features`) so that :func:`caustica.media.shadow_transmittance` keeps that code."""
+        held = features_of(self.media)
+        features = medium_features(held & bits(HETEROGENEOUS) != 0, held & bits(HOMOGENEOUS) != 0, True)
+        return specialised(MediumTable, features)(*self.media._replace(null_surfaces=np.ones(1, np.int8)))
 
     def light_media(self) -> np.ndarray:
         """int32[L]: the medium each light emits into (:func:`caustica.media.light_media`); probed once, as every

@@ -26,8 +26,9 @@ through the sheet), or a cosine-weighted direction above (or below).  The weight
 
 Flags ``DIFFUSE_REFLECTION | GLOSSY_REFLECTION | GLOSSY_TRANSMISSION`` (Mitsuba's lobes; its diffuse transmission is
 smooth and transmits, which ``GLOSSY_TRANSMISSION`` covers for the loops: both sides scatter, lights behind the
-sheet are sampled): rendered by every method, as a transmitting principled is (api.check_bsdfs).  No refraction: ``eta`` 1 and
-no 1 / eta² for a camera path.  Directions on the wrong side of the geometric surface for their lobe are refused.
+sheet are sampled): rendered by every method, as a transmitting principled is (api.check_bsdfs).  No refraction:
+``eta`` 1 and no 1 / eta² for a camera path.  Directions on the wrong side of the geometric surface for their lobe are
+refused.
 """
 from __future__ import annotations
 

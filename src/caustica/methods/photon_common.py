@@ -275,8 +275,8 @@ class StreamedBSDFs:
     renders_coated = True    # plastic: a record carries the coating's factor B of each photon's direction
     renders_rough_coated = True   # roughplastic: the same (streams.stream_at_diffuse)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit, per associated photon too (associated_surface)
-    evaluates_bsdfs = True   # pplastic, principled, principledthin: the estimate weights each record by f at its direction
-    #                          (a stream record's: its leading photon's), as pm's and sppm's photons
+    evaluates_bsdfs = True   # pplastic, principled, principledthin: the estimate weights each record by f at its
+    #                          direction (a stream record's: its leading photon's), as pm's and sppm's photons
     renders_normal_maps = True   # normalmap, bumpmap: the leading photon's wrapped bounce (trace.bounce_at), each
     #                              associated photon's own hit resolved (streams.unwrapped); visible points: pm's, sppm's
 

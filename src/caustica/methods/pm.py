@@ -44,7 +44,7 @@ class PhotonMapping(OneShot):
     summary = "photon mapping: a global map, plus a caustic map with --caustic-photons (PM+C)"
     renders_coated = True    # plastic: its lobes apart in gather_radiance, visible_point and trace_one (api.check_bsdfs)
     renders_rough_coated = True   # roughplastic: its glossy lobe sampled alone, as sppm's (gather_radiance)
-    evaluates_bsdfs = True   # pplastic, principled, principledthin: photons and shadow rays weighted by f (gather.diffuse_estimate)
+    evaluates_bsdfs = True   # pplastic, principled(thin): photons and shadow rays weighted by f (diffuse_estimate)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)

@@ -49,7 +49,7 @@ class StochasticProgressivePhotonMapping(ProgressivePhotonMethod):
     summary = "stochastic progressive photon mapping: per-pixel radii shrink pass by pass"
     renders_coated = True    # plastic: its lobes apart in visible_point and trace_one (api.check_bsdfs)
     renders_rough_coated = True   # roughplastic: the same, its glossy lobe sampled alone
-    evaluates_bsdfs = True   # pplastic, principled, principledthin: visible points weight photons by f (bsdf_visible_point)
+    evaluates_bsdfs = True   # pplastic, principled(thin): visible points weight photons by f (bsdf_visible_point)
     passes_glossy = True     # rough metal and glass: camera paths and photons sample them (api.check_bsdfs)
     renders_mixtures = True  # mask, blendbsdf: resolved at each hit (transport.surface_interaction; api.check_bsdfs)
     renders_normal_maps = True   # normalmap, bumpmap: visible points there evaluate f (trace.bounce: adjoint weights)

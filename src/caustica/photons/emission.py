@@ -49,8 +49,7 @@ from ..emitters import AREA, DIRECTIONAL, ENV, PROJECTOR, SPOT, TEX_OF, choose_l
 from ..geometry import vec
 from ..features import has
 from ..jit import kernel
-from ..media import photon_medium
-from ..scene.description import HETEROGENEOUS, HOMOGENEOUS
+from ..media import holds_media, photon_medium
 from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere, square_to_uniform_cone, square_to_uniform_disk, \
     square_to_uniform_sphere
@@ -90,7 +89,7 @@ def start_medium(tables, light_medium, key, ray):
     :func:`caustica.media.photon_medium` of the light that :func:`emit_photon` and :func:`emit_caustic_photon` chose
     with the photon's number 0 (``light_medium`` as :meth:`caustica.tables.Scene.light_media` gives it)."""
     geom, _, lights, media = tables
-    if not (has(media, HOMOGENEOUS) or has(media, HETEROGENEOUS)):
+    if not holds_media(media):
         return -1   # a scene without media (its code not compiled)
     li, _, _ = choose_light(lights, uniform(key, 0))
     return photon_medium(geom, media, light_medium, li, ray[0], ray[1])

@@ -106,8 +106,8 @@ def wall_normal(ng, crossed, medium_before, medium_after):
 def emission_weighted(tables, o, d, medium, pdf_dir):
     """Emission reaching o from along d (past null boundaries, attenuated), each emitter weighted by MIS.
 
-    d was sampled with solid-angle density pdf_dir (a phase function's, or a visible point's BSDF's); an area emitter met at
-    distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
+    d was sampled with solid-angle density pdf_dir (a phase function's, or a visible point's BSDF's); an area
+    emitter met at distance r with cosine cos_l is weighted by the power heuristic against light sampling's density
     select_pdf r² / (area cos_l), as :func:`caustica.media.light_sample` samples it.
     pdf_dir < 0: no MIS (weight 1).  A ray that meets nothing sees the environment (weighted likewise against
     its light sampling).  Emitters on null surfaces crossed count, as in the path

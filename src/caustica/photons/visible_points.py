@@ -220,8 +220,8 @@ def escape_weight(lights, d, last):
 def glossy_step(tables, at, m, d, path, key, dim):
     """At a glossy surface (rough metal or glass: no visible point here, as in pbrt-v4's SPPM), or for the direct light
     of a visible point beside a glossy lobe (:func:`bsdf_visible_point`): its direct light by one light sample,
-    MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the BSDF's own sample.  ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density,
-    dim)."""
+    MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the BSDF's own sample.
+    ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density, dim)."""
     L, beta = path
     ok, term, scale, _, dim = next_event(tables, at, m, d, beta, key, dim)
     if ok:
