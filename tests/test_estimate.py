@@ -211,10 +211,11 @@ def test_empty_map_and_nothing_in_range():
 @pytest.mark.parametrize("filt", FILTER_NAMES)
 def test_bsdf_weighted_estimate_matches_brute_force(filt):
     """At a point that evaluates its BSDF (pplastic: pm's gather there) each of the k nearest records is weighted by
-    f(d, -its direction): the estimate against the same records summed by hand with the BSDF's own eval_pdf; the
+    f(d, -its direction) of the lobes the point holds, pplastic's diffuse lobe (its glossy lobe is the camera path's:
+    bsdfs.splits_lobes): the estimate against the same records summed by hand with the BSDF's own eval_part; the
     records, their count and r are those of the plain estimate (the weights change nothing else)."""
     import types
-    from caustica.bsdfs import build_material_table, eval_pdf
+    from caustica.bsdfs import DIFFUSE_PART, build_material_table, eval_part
     from caustica.geometry.scene_geometry import NO_UV
     from caustica.scene.description import GGX, PPLASTIC, Material
     mats = build_material_table(types.SimpleNamespace(materials=[Material(
@@ -241,7 +242,8 @@ def test_bsdf_weighted_estimate_matches_brute_force(filt):
             want = np.zeros(3)
             for j in range(count):
                 i = idx[j]
-                c, scale, _ = eval_pdf(mats, 0, d, up, up, NO_UV, tuple(-pmap.direction[i].astype(np.float64)))
+                c, scale, _ = eval_part(mats, 0, d, up, up, NO_UV, tuple(-pmap.direction[i].astype(np.float64)),
+                                        DIFFUSE_PART)
                 want += filter_weight(FILTERS[filt], d2[j], r2) * scale * np.array(c) * pmap.power[i]
             np.testing.assert_allclose(weighted, want, rtol=1e-9)
 

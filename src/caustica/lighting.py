@@ -4,19 +4,19 @@
   stratified points on each area light (or the fixed centres of the n x n grid), point, spot, projector and
   directional lights exactly, through media and null boundaries.  It returns an irradiance-like E that the caller scales by
   f_r = ρ / π; at a point that evaluates its BSDF (pplastic, principled: pm's gather) each shadow ray is weighted by
-  the BSDF's f instead, and it returns the radiance.
+  the BSDF's f instead (of the lobes the point holds: :func:`caustica.bsdfs.eval_radiance`), and it returns the
+  radiance.
 * :func:`next_event` — one light sample (:func:`caustica.media.light_sample`) at any scattering point,
   weighted by multiple importance sampling against the BSDF's (or phase function's) own sampling; the
   matching weights of an emitter or the environment reached by that sampling are :func:`emission_mis`
   and :func:`environment_mis`.  The path tracer takes them at every vertex, the progressive methods'
-  camera paths at the glossy surfaces they pass and at their visible points beside a glossy lobe
-  (:mod:`caustica.photons.visible_points`).
+  camera paths at the glossy surfaces and glossy lobes they pass (:mod:`caustica.photons.visible_points`).
 """
 from __future__ import annotations
 
 import math
 
-from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_pdf, eval_radiance
+from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_part, eval_pdf, eval_radiance
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, TEX_OF, TEXTURED_AREA, emitter_point, env_pdf, env_radiance, \
     env_sample, profile, profiled, spot_falloff
 from .geometry import vec
@@ -129,8 +129,8 @@ def direct_stratified(tables, at, key, dim, strata, coated, bsdf):
     the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta or glossy coating over a diffuse
     lobe (:func:`caustica.bsdfs.coat`, :func:`caustica.bsdfs.rough_coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
-    ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (a glossy lobe beside a diffuse one:
-    pplastic, principled), each shadow ray then weighted by f(d, wi) (:func:`times_bsdf`): the radiance towards -d;
+    ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (the diffuse lobes beside glossy ones:
+    pplastic, principled), each shadow ray then weighted by their f(d, wi) (:func:`times_bsdf`): the radiance towards -d;
     where that BSDF transmits (principled's spec_trans, principledthin), the lights behind the surface too, on the
     same numbers (:func:`lights_direct` again with the normals turned to the other side).
     """
@@ -283,10 +283,13 @@ def profiled_direct(tables, at, li, coated, bsdf):
 
 
 @kernel(inline=True)
-def next_event(tables, at, m, d, beta, key, dim):
+def next_event(tables, at, m, d, beta, key, dim, lobes=None):
     """Next-event estimation at ``at`` (a surface of material m, or a point in a medium) for a path arriving along
     d with throughput β: one light sample (numbers dim .. dim + 2), weighted by MIS against the BSDF's or the
-    phase function's sampling for area lights.  Returns (ok, term, scale, shadow rays, dim): L += term · scale.
+    phase function's sampling for area lights.  With ``lobes`` = (part, P), the lobes ``part`` of a material that
+    splits its lobes (:func:`caustica.bsdfs.eval_part`) alone, P the probability that its sampling picks one of
+    them: their f, and MIS against their sampling given that pick (density over P).  Returns (ok, term, scale,
+    shadow rays, dim): L += term · scale.
     """
     mats, media = tables[1], tables[3]
     through = at.shape >= 0 and mats.flags[m] & GLOSSY_TRANSMISSION != 0   # lights on either side
@@ -297,7 +300,11 @@ def next_event(tables, at, m, d, beta, key, dim):
     if at.shape < 0:
         w_l = power_heuristic(pdf_light, phase_pdf(media, at.medium, d, wi)) if is_area else 1.0
         return True, vec.hadamard(beta, contrib), w_l * phase_value(media, at.medium, d, wi), shadow, dim + 3
-    f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
+    if lobes is None:
+        f, f_scale, pdf_bsdf = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
+    else:
+        f, f_scale, pdf_bsdf = eval_part(mats, m, d, at.ng, at.ns, at.uv, wi, lobes[0])
+        pdf_bsdf /= lobes[1]
     if through:
         f_scale *= camera_scale(mats, m, d, at.ng, at.ns, wi)
     w_l = power_heuristic(pdf_light, pdf_bsdf) if is_area else 1.0

@@ -10,6 +10,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
   relative IOR crossed, and the path's dimension past the random numbers it used (no caller counts);
 * :func:`eval_pdf` — f towards a given direction (a colour times a scalar, so next-event estimation
   keeps one multiplication order) and the density :func:`sample` would give it;
+* :func:`splits_lobes`, :func:`glossy_share`, :func:`eval_part` — a BSDF's glossy lobes beside its diffuse ones taken
+  apart, for the photon methods' camera paths (which follow a glossy lobe and gather photons on the diffuse ones);
 * :func:`colour` — material m's colour at surface coordinates uv (its texture's, or ``rgb[m]``), which every
   BSDF and loop reads rather than ``rgb`` (:mod:`.textures`);
 * :func:`resolve` — a mixture (``mask``, ``blendbsdf``: :mod:`.mixtures`) met by a ray becomes one of its parts (or
@@ -22,7 +24,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
   each branch sees in expectation (the visible-point pass).
 
 Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf`` for a smooth one or
-``delta_branches`` for a delta one), add it to :data:`BSDFS` and one line to each dispatch function
+``delta_branches`` for a delta one; with glossy lobes beside a diffuse one also ``glossy_share`` and ``eval_part``,
+for :func:`splits_lobes`), add it to :data:`BSDFS` and one line to each dispatch function
 below (``if has(mats, FOO) and kind == FOO:``, so scenes without it compile none of its code: :mod:`caustica.features`), and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
 walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
 delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
@@ -47,8 +50,9 @@ from .textures import ALPHA_U, ALPHA_V, ANISO, PARAM
 from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  (part of the interface)
 from .perturb import gather_shading, perturbed_normal, photon_shading, terminator, wrapped  # noqa: F401  (part of the interface)
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
-from .flags import ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_REFLECTION, \
-    GLOSSY_LOBES, GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
+from .flags import ALL_LOBES, ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_LOBES, DIFFUSE_PART, \
+    DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, GLOSSY_PART, GLOSSY_REFLECTION, GLOSSY_LOBES, GLOSSY_TRANSMISSION, \
+    NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
@@ -276,10 +280,14 @@ def eval_pdf(mats, m, d, ng, ns, uv, wi):
 @kernel(inline=True)
 def eval_radiance(mats, m, d, ng, ns, uv, wi):
     """(colour, scale): material m's f = colour · scale from d towards wi as a camera path (radiance) weighs what
-    arrives from wi at a point that evaluates its BSDF: :func:`eval_pdf`'s f, times :func:`camera_scale` on the other
-    side of a glossy transmission lobe (principled's spec_trans; 1 for principledthin, which does not refract), as
-    pbrt-v4's SPPM evaluates f in radiance mode."""
-    c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
+    arrives from wi at a visible point that evaluates its BSDF: :func:`eval_pdf`'s f (the diffuse lobes' alone where
+    glossy ones are beside them, :func:`splits_lobes`), times :func:`camera_scale` on the other side of a glossy
+    transmission lobe (principled's spec_trans; 1 for principledthin, which does not refract), as pbrt-v4's SPPM
+    evaluates f in radiance mode."""
+    if splits_lobes(mats, m):
+        c, scale, _ = eval_part(mats, m, d, ng, ns, uv, wi, DIFFUSE_PART)
+    else:
+        c, scale, _ = eval_pdf(mats, m, d, ng, ns, uv, wi)
     if mats.flags[m] & GLOSSY_TRANSMISSION:
         scale *= camera_scale(mats, m, d, ng, ns, wi)
     return c, scale
@@ -317,6 +325,51 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
     if has(mats, PRINCIPLEDTHIN) and kind == PRINCIPLEDTHIN:
         return principledthin.eval_pdf(mats, m, d, ng, ns, uv, wi)
     return (0.0, 0.0, 0.0), 0.0, 0.0
+
+
+@guarded_by(PPLASTIC, PRINCIPLED, PRINCIPLEDTHIN)
+@kernel(inline=True)
+def splits_lobes(mats, m):
+    """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principled,
+    principledthin with a diffuse lobe): it picks one as :func:`sample` does, goes on by a glossy one and makes its
+    visible point on a diffuse one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no
+    photon estimate goes through a narrow glossy lobe (caustica.photons.visible_points).  Never in a scene without
+    those kinds."""
+    if not (has(mats, PPLASTIC) or has(mats, PRINCIPLED) or has(mats, PRINCIPLEDTHIN)):
+        return False
+    kind = mats.kind[m]
+    return (kind == PPLASTIC or kind == PRINCIPLED or kind == PRINCIPLEDTHIN) and mats.flags[m] & GLOSSY != 0 and \
+        mats.flags[m] & DIFFUSE_REFLECTION != 0
+
+
+@kernel(inline=True)
+def glossy_share(mats, m, d, ns, uv):
+    """For a material that :func:`splits_lobes`, the probability P_G that :func:`sample` picks a glossy lobe for a ray
+    along d: it does not depend on the numbers that make the direction, so a camera path that goes on only by a
+    glossy lobe's sample takes that branch with probability P_G."""
+    kind = mats.kind[m]
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
+        return pplastic.glossy_share(mats, m, d, ns, uv)
+    if has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        return principled.glossy_share(mats, m, d, ns, uv)
+    return principledthin.glossy_share(mats, m, d, ns, uv)
+
+
+@kernel(inline=True)
+def eval_part(mats, m, d, ng, ns, uv, wi, part):
+    """:func:`eval_pdf` of a material that :func:`splits_lobes`, its diffuse or glossy lobes alone (``part``,
+    :data:`.flags.DIFFUSE_PART` or :data:`.flags.GLOSSY_PART`): f and the density with which :func:`sample` picks
+    one of those lobes and returns wi (so the two parts' densities add up to :func:`eval_pdf`'s)."""
+    kind = mats.kind[m]
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
+        c, scale, pdf = pplastic.eval_part(mats, m, d, ng, ns, uv, wi, part)
+    elif has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        c, scale, pdf = principled.eval_part(mats, m, d, ng, ns, uv, wi, part)
+    else:
+        c, scale, pdf = principledthin.eval_part(mats, m, d, ng, ns, uv, wi, part)
+    if (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.terminator[m]:
+        scale *= terminator(ng, ns, wi)
+    return c, scale, pdf
 
 
 @kernel(inline=True)

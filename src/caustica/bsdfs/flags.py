@@ -17,11 +17,21 @@ DELTA_TRANSMISSION = 16
 #: straight-on transmission is Mitsuba's ``Null`` lobe, a crossing that is no scattering event (not counted in
 #: the path's depth; a shadow ray passes with the BSDF's :func:`caustica.bsdfs.null_transmission`).
 NULL_TRANSMISSION = 32
+#: Reported by :func:`caustica.bsdfs.sample` as a sampled lobe, never set on a material: a diffuse transmission
+#: (principledthin's), reported with ``GLOSSY_TRANSMISSION`` (for the loops, a lobe that transmits).
+DIFFUSE_TRANSMISSION = 64
 
 DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
 GLOSSY = GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 SMOOTH = DIFFUSE_REFLECTION | GLOSSY_REFLECTION | GLOSSY_TRANSMISSION
 TRANSMISSION = GLOSSY_TRANSMISSION | DELTA_TRANSMISSION
+#: The lobes a visible point holds where a BSDF has glossy lobes beside them (:func:`caustica.bsdfs.glossy_share`).
+DIFFUSE_LOBES = DIFFUSE_REFLECTION | DIFFUSE_TRANSMISSION
+
+#: Which lobes an evaluation takes (:func:`caustica.bsdfs.eval_part`): all of them, the diffuse ones (with a
+#: principled's sheen) or the glossy ones, with the density of :func:`caustica.bsdfs.sample` picking one of those
+#: lobes and giving the direction.
+ALL_LOBES, DIFFUSE_PART, GLOSSY_PART = 0, 1, 2
 
 #: Feature codes of a material table beyond its kinds (:mod:`caustica.features`; a kind's code is the kind itself):
 #: some colour, opacity, weight or normal comes from a texture; some BSDF has a glossy lobe; some microfacet roughness

@@ -29,7 +29,7 @@ from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import PPLASTIC
 from . import microfacet as mf
-from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION
+from .flags import ALL_LOBES, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric
 from .plastic import SPEC_WEIGHT, specular
 from .roughplastic import two_lobe_eval_pdf, two_lobe_sample
@@ -41,9 +41,10 @@ INV_PI = 1.0 / math.pi
 
 
 @kernel
-def local_eval(mats, m, wo, wl, uv):
+def local_eval(mats, m, wo, wl, uv, part=ALL_LOBES):
     """f (RGB, both lobes) and the sampling density of the local direction wl from wo (both above the surface), the
-    diffuse reflectance read at surface coordinates uv."""
+    diffuse reflectance read at surface coordinates uv; ``part`` (:data:`.flags.ALL_LOBES`): one lobe alone, f and
+    the density of picking it and sampling wl."""
     dist, alpha, eta = mats.distribution[m], mats.alpha[m], mats.eta[m]
     w = mats.coating[m, SPEC_WEIGHT]
     h = vec.normalize(vec.add(wo, wl))
@@ -54,9 +55,12 @@ def local_eval(mats, m, wo, wl, uv):
     F_o, _ = fresnel_dielectric(wo[2], eta)
     F_i, _ = fresnel_dielectric(wl[2], eta)
     diff = (1.0 - F_o) * (1.0 - F_i) * INV_PI
-    f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(colour(mats, m, uv), diff))
-    pdf = w * dh * g1o / (4.0 * wo[2]) + (1.0 - w) * wl[2] * INV_PI
-    return f, pdf
+    if part == ALL_LOBES:
+        f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(colour(mats, m, uv), diff))
+        return f, w * dh * g1o / (4.0 * wo[2]) + (1.0 - w) * wl[2] * INV_PI
+    if part == GLOSSY_PART:
+        return vec.mul(specular(mats, m), spec), w * dh * g1o / (4.0 * wo[2])
+    return vec.mul(colour(mats, m, uv), diff), (1.0 - w) * wl[2] * INV_PI
 
 
 @kernel(inline=True)
@@ -75,3 +79,15 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """:func:`caustica.bsdfs.eval_pdf`: :func:`.roughplastic.two_lobe_eval_pdf` with this module's local_eval."""
     return two_lobe_eval_pdf(local_eval, mats, m, (d, ng, ns), uv, wi)
+
+
+@kernel
+def eval_part(mats, m, d, ng, ns, uv, wi, part):
+    """:func:`eval_pdf` of one lobe alone (``part``, :func:`local_eval`)."""
+    return two_lobe_eval_pdf(local_eval, mats, m, (d, ng, ns), uv, wi, part)
+
+
+@kernel
+def glossy_share(mats, m, d, ns, uv):
+    """The probability that :func:`sample` picks the glossy lobe: w, whatever the direction."""
+    return mats.coating[m, SPEC_WEIGHT]

@@ -52,7 +52,7 @@ from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import PRINCIPLED, PRINCIPLED_PARAMS
 from . import microfacet as mf
-from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
+from .flags import ALL_LOBES, DIFFUSE_PART, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric
 from . import textures
 from .flags import TEXTURED
@@ -271,9 +271,11 @@ def probabilities(p, F, front):
 
 
 @kernel
-def local_eval(mats, m, wo, wi, uv):
+def local_eval(mats, m, wo, wi, uv, part=ALL_LOBES):
     """(f RGB, density) towards the local direction wi from wo (cos θ_o != 0), Mitsuba's ``eval`` over |cos θ_i| and
-    its ``pdf`` (module docstring); the base colour read at uv."""
+    its ``pdf`` (module docstring); the base colour read at uv.  ``part`` (:data:`.flags.ALL_LOBES`): the diffuse
+    lobes (diffuse and sheen) or the glossy ones (specular reflection and transmission, clearcoat) alone, f and the
+    density of sampling one of them and wi."""
     p = params(mats, m, uv)
     dist, au, av = alphas(mats, m, p, uv)
     eta = mats.eta[m]
@@ -296,18 +298,19 @@ def local_eval(mats, m, wo, wi, uv):
     D = mf.D_uv(dist, au, av, h)
     G = mf.smith_g1_uv(dist, au, av, wo, h) * mf.smith_g1_uv(dist, au, av, wi, h)
     f = zero
-    if comp_r and F > 0.0:
+    glossy, diffuse = part != DIFFUSE_PART, part != GLOSSY_PART
+    if comp_r and F > 0.0 and glossy:
         f = vec.mul(spec_fresnel(p, base, F, c, front, eta), D * G / (4.0 * co * ci))
-    if spec_trans != 0.0 and bsdf > 0.0 and comp_t and F < 1.0:
+    if spec_trans != 0.0 and bsdf > 0.0 and comp_t and F < 1.0 and glossy:
         den = c + eta_p * vec.dot(wi, h)
         t = bsdf * abs((1.0 - F) * D * G * eta_p * eta_p * c * vec.dot(wi, h) / (wo[2] * den * den)) / ci
         f = vec.add(f, vec.mul((math.sqrt(base[0]), math.sqrt(base[1]), math.sqrt(base[2])), t))
-    if p[CLEARCOAT] > 0.0 and comp_r and front:
+    if p[CLEARCOAT] > 0.0 and comp_r and front and glossy:
         fcc = schlick(0.04, c, eta)
         g = ggx_g1_fixed(wo, h, 0.25) * ggx_g1_fixed(wi, h, 0.25)
         v = p[CLEARCOAT] * 0.25 * fcc * gtr1(p[CC_ALPHA], h[2]) * g
         f = vec.add(f, (v, v, v))
-    if brdf > 0.0 and reflect and front:
+    if brdf > 0.0 and reflect and front and diffuse:
         cd = vec.dot(h, wi)
         lam = retro_diffuse(p, co, ci, cd)
         f = vec.add(f, vec.mul(base, brdf * INV_PI * lam))
@@ -329,13 +332,13 @@ def local_eval(mats, m, wo, wi, uv):
         jac = abs(1.0 / (4.0 * wh))
     pm = D * mf.smith_g1_uv(dist, au, av, wo_up, h) * abs(vec.dot(wo_up, h)) / wo_up[2]
     pdf = 0.0
-    if comp_r:
+    if comp_r and glossy:
         pdf += ps * pm * jac
-    if reflect:
+    if reflect and diffuse:
         pdf += pd * wi[2] * INV_PI
-    if spec_trans != 0.0 and comp_t:
+    if spec_trans != 0.0 and comp_t and glossy:
         pdf += pt * pm * jac
-    if p[CLEARCOAT] != 0.0 and comp_r:
+    if p[CLEARCOAT] != 0.0 and comp_r and glossy:
         pdf += pc * h[2] * gtr1(p[CC_ALPHA], h[2]) * jac
     return f, pdf
 
@@ -406,15 +409,41 @@ def local_pair(d, ng, ns, uv, wi):
     return (vec.dot(wi, ng) * vec.dot(d, ng) < 0.0) == (wo[2] * wl[2] > 0.0), wo, wl
 
 
+@kernel(inline=True)
+def paired_eval(local_eval, mats, m, frame, uv, wi, part):
+    """(RGB f, 1, density) of ``local_eval`` (this module's or :mod:`.principledthin`'s, lobes ``part``) at the pair of
+    :func:`local_pair`, ``frame`` = (d, ng, ns); zero on the wrong side of the geometric surface for the lobe wi would
+    come from."""
+    d, ng, ns = frame
+    ok, wo, wl = local_pair(d, ng, ns, uv, wi)
+    if not ok:
+        return (0.0, 0.0, 0.0), 0.0, 0.0
+    f, pdf = local_eval(mats, m, wo, wl, uv, part)
+    return f, 1.0, pdf
+
+
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """f towards wi as (RGB f, 1) and :func:`sample`'s density of wi (Mitsuba's ``pdf``); zero on the wrong side of
     the geometric surface for the lobe wi would come from."""
-    ok, wo, wl = local_pair(d, ng, ns, uv, wi)
-    if not ok:
-        return (0.0, 0.0, 0.0), 0.0, 0.0
-    f, pdf = local_eval(mats, m, wo, wl, uv)
-    return f, 1.0, pdf
+    return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, ALL_LOBES)
+
+
+@kernel
+def eval_part(mats, m, d, ng, ns, uv, wi, part):
+    """:func:`eval_pdf` of the lobes ``part`` names alone (:func:`local_eval`)."""
+    return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, part)
+
+
+@kernel
+def glossy_share(mats, m, d, ns, uv):
+    """The probability that :func:`sample` picks a glossy lobe (specular reflection or transmission, clearcoat) from
+    -d: 1 - the diffuse lobe's probability on the front, where it does not depend on the sampled microfacet; 1 from
+    the back, which has no diffuse lobe."""
+    if vec.dot(d, ns) >= 0.0:
+        return 1.0
+    pd, _, _, _ = probabilities(params(mats, m, uv), 0.0, True)
+    return 1.0 - pd
 
 
 @kernel

@@ -38,10 +38,11 @@ from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import GGX, PRINCIPLEDTHIN, PRINCIPLEDTHIN_PARAMS
 from . import microfacet as mf
-from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION, GLOSSY_TRANSMISSION
+from .flags import ALL_LOBES, DIFFUSE_PART, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY_PART, GLOSSY_REFLECTION, \
+    GLOSSY_TRANSMISSION
 from .optics import fresnel_dielectric
 from .principled import (ANISO, DIFF_RATE, FLATNESS, ROUGH, SHEEN, SHEEN_TINT, SPEC_RATE, SPEC_TINT, SPEC_TRANS,
-                         INV_PI, dist_params, local_pair, params, retro_diffuse, schlick, schlick_weight, tint)
+                         INV_PI, dist_params, paired_eval, params, retro_diffuse, schlick, schlick_weight, tint)
 from .textures import colour
 
 KIND = PRINCIPLEDTHIN
@@ -98,9 +99,11 @@ def visible_pdf(au, av, wo, h):
 
 
 @kernel
-def local_eval(mats, m, wo, wi, uv):
+def local_eval(mats, m, wo, wi, uv, part=ALL_LOBES):
     """(f RGB, density) towards the local direction wi from wo (wo[2] != 0), Mitsuba's ``eval`` over |cos θ_i| and
-    its ``pdf`` (module docstring); the base colour read at uv."""
+    its ``pdf`` (module docstring); the base colour read at uv.  ``part`` (:data:`.flags.ALL_LOBES`): the diffuse
+    lobes (reflection with its sheen, transmission) or the glossy ones (specular reflection and transmission) alone,
+    f and the density of sampling one of them and wi."""
     zero = (0.0, 0.0, 0.0)
     if wo[2] == 0.0 or wi[2] == 0.0:
         return zero, 0.0
@@ -123,7 +126,8 @@ def local_eval(mats, m, wo, wi, uv):
     comp_r = reflect and c > 0.0 and wih > 0.0
     comp_t = (not reflect) and c > 0.0 and wih < 0.0
     f = zero     # f |cos θ_i|, as Mitsuba's eval
-    if s > 0.0 and (comp_r or comp_t):
+    glossy, diffuse = part != DIFFUSE_PART, part != GLOSSY_PART
+    if s > 0.0 and (comp_r or comp_t) and glossy:
         F, _ = fresnel_dielectric(c, eta)
         if comp_r:
             spec = (F, F, F)
@@ -139,7 +143,7 @@ def local_eval(mats, m, wo, wi, uv):
         else:
             g = mf.smith_g1_uv(GGX, tu, tv, wo, h) * mf.smith_g1_uv(GGX, tu, tv, wi, h)
             f = vec.mul(base, s * (1.0 - F) * mf.D_uv(GGX, tu, tv, h) * g / (4.0 * co))
-    if reflect and s < 1.0 and t < 1.0:
+    if reflect and s < 1.0 and t < 1.0 and diffuse:
         cd = vec.dot(h, wi)
         lam = retro_diffuse(p, co, ci, cd)
         f = vec.add(f, vec.mul(base, (1.0 - s) * ci * INV_PI * (1.0 - t) * lam))
@@ -152,20 +156,20 @@ def local_eval(mats, m, wo, wi, uv):
                                        k))
             else:
                 f = vec.add(f, (k, k, k))
-    if (not reflect) and s < 1.0 and t > 0.0:
+    if (not reflect) and s < 1.0 and t > 0.0 and diffuse:
         f = vec.add(f, vec.mul(base, (1.0 - s) * t * INV_PI * ci))
     # the density
     psr, pst, pdr, pdt = probabilities(p)
     pdf = 0.0
-    if s > 0.0:
+    if s > 0.0 and glossy:
         jac = abs(1.0 / (4.0 * vec.dot(wr, h)))
         if comp_r:
             pdf += psr * visible_pdf(au, av, wo, h) * jac
         if comp_t:
             pdf += pst * visible_pdf(tu, tv, wo, h) * jac
-    if reflect:
+    if reflect and diffuse:
         pdf += pdr * ci * INV_PI
-    else:
+    elif diffuse:
         pdf += pdt * ci * INV_PI
     return vec.mul(f, 1.0 / ci), pdf
 
@@ -201,13 +205,13 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
         ok = True
     else:
         wl = vec.neg(square_to_cosine_hemisphere(u1, u2))
-        lobe = GLOSSY_TRANSMISSION
+        lobe = GLOSSY_TRANSMISSION | DIFFUSE_TRANSMISSION
         ok = True
     wl = vec.mul(wl, sign)
     wi = vec.from_local(s_, t_, ns, wl)
     # the geometric surface: a reflection leaves on wo's side of it, a transmission on the other
     across = vec.dot(wi, ng) * vec.dot(d, ng)
-    if not (ok and wl[2] != 0.0 and (across > 0.0 if lobe == GLOSSY_TRANSMISSION else across < 0.0)):
+    if not (ok and wl[2] != 0.0 and (across > 0.0 if lobe & GLOSSY_TRANSMISSION else across < 0.0)):
         return False, wi, zero, 0.0, lobe, 1.0, dim + 3
     f, pdf = local_eval(mats, m, wo, wl, uv)
     if not pdf > 0.0:
@@ -218,8 +222,18 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """:func:`caustica.bsdfs.principled.eval_pdf` for the thin sheet (its :func:`local_eval`, its :func:`sample`)."""
-    ok, wo, wl = local_pair(d, ng, ns, uv, wi)
-    if not ok:
-        return (0.0, 0.0, 0.0), 0.0, 0.0
-    f, pdf = local_eval(mats, m, wo, wl, uv)
-    return f, 1.0, pdf
+    return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, ALL_LOBES)
+
+
+@kernel
+def eval_part(mats, m, d, ng, ns, uv, wi, part):
+    """:func:`eval_pdf` of the lobes ``part`` names alone (:func:`local_eval`)."""
+    return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, part)
+
+
+@kernel
+def glossy_share(mats, m, d, ns, uv):
+    """The probability that :func:`sample` picks a glossy lobe (specular reflection or transmission), the same from
+    either side and any direction."""
+    psr, pst, _, _ = probabilities(params(mats, m, uv))
+    return psr + pst

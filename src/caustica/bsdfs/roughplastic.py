@@ -32,7 +32,7 @@ from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import ROUGHPLASTIC
 from . import microfacet as mf
-from .flags import DIFFUSE_REFLECTION, GLOSSY_REFLECTION
+from .flags import ALL_LOBES, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric, refract
 from .plastic import SPEC_WEIGHT, TABLE, TABLE_RES, base, specular
 
@@ -99,9 +99,10 @@ def choice(mats, m, t_o):
 
 
 @kernel
-def local_eval(mats, m, wo, wl, uv):
+def local_eval(mats, m, wo, wl, uv, part=ALL_LOBES):
     """f (RGB, both lobes) and the sampling density of the local direction wl from wo (both above the surface), the
-    diffuse reflectance read at surface coordinates uv."""
+    diffuse reflectance read at surface coordinates uv; ``part`` (:data:`.flags.ALL_LOBES`): one lobe alone, f and
+    the density of picking it and sampling wl."""
     dist, alpha, eta = mats.distribution[m], mats.alpha[m], mats.eta[m]
     t_o = transmittance(mats, m, wo[2])
     P = choice(mats, m, t_o)
@@ -111,9 +112,12 @@ def local_eval(mats, m, wo, wl, uv):
     F, _ = fresnel_dielectric(vec.dot(wo, h), eta)
     spec = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     diff = t_o * transmittance(mats, m, wl[2]) * INV_PI / (eta * eta)
-    f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m, uv), diff))
-    pdf = P * dh * g1o / (4.0 * wo[2]) + (1.0 - P) * wl[2] * INV_PI
-    return f, pdf
+    if part == ALL_LOBES:
+        f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m, uv), diff))
+        return f, P * dh * g1o / (4.0 * wo[2]) + (1.0 - P) * wl[2] * INV_PI
+    if part == GLOSSY_PART:
+        return vec.mul(specular(mats, m), spec), P * dh * g1o / (4.0 * wo[2])
+    return vec.mul(base(mats, m, uv), diff), (1.0 - P) * wl[2] * INV_PI
 
 
 @kernel(inline=True)
@@ -156,15 +160,15 @@ def two_lobe_sample(probability, local_eval, mats, m, frame, uv, key, dim):
 
 
 @kernel(inline=True)
-def two_lobe_eval_pdf(local_eval, mats, m, frame, uv, wi):
+def two_lobe_eval_pdf(local_eval, mats, m, frame, uv, wi, part=ALL_LOBES):
     """:func:`eval_pdf` for a glossy lobe beside a diffuse one, shared with :mod:`.pplastic` (which differs only in
-    ``local_eval``); ``frame`` = (d, ng, ns)."""
+    ``local_eval``); ``frame`` = (d, ng, ns); ``part`` as :func:`caustica.bsdfs.eval_part`'s (pplastic's only)."""
     d, ng, ns = frame
     s, t, wo = mf.local_frame(ns, d)
     wl = mf.to_local(s, t, ns, wi)
     if wo[2] <= 0.0 or wl[2] <= 0.0 or vec.dot(ng, wi) <= 0.0:
         return (0.0, 0.0, 0.0), 0.0, 0.0
-    f, pdf = local_eval(mats, m, wo, wl, uv)
+    f, pdf = local_eval(mats, m, wo, wl, uv, part)
     return f, 1.0, pdf
 
 

@@ -7,9 +7,10 @@
    a caustic map; the global map then leaves those paths out.
 3. Maps: a kd-tree over each map's positions.
 4. Camera pass (:mod:`caustica.methods.photon_common`): direct light by shadow rays,
-   indirect light and caustics from the maps' k-nearest radiance estimates.  At a BSDF with a glossy
-   lobe beside its diffuse one (pplastic, principled, principledthin) each photon and shadow ray is weighted
-   by the BSDF's value at its direction (:mod:`caustica.photons.gather`), as sppm's visible points do.
+   indirect light and caustics from the maps' k-nearest radiance estimates.  At a BSDF with glossy
+   lobes beside its diffuse one (pplastic, principled, principledthin) the camera path picks a lobe as the BSDF's
+   sampling does: a glossy one it follows, at a diffuse one each photon and shadow ray is weighted by the diffuse
+   lobes' f at its direction (:mod:`caustica.photons.gather`), as sppm's visible points do.
 
 In a scene with media the photons scatter in them (:mod:`caustica.photons.trace`), their
 volume photons (those of the aimed photons too) are gathered along the camera rays by the beam

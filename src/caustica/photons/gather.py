@@ -24,11 +24,12 @@ camera pass takes it (:func:`caustica.photons.visible_points.rough_coating_step`
 probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A / (1 - P), B on photons and shadow
 rays; with a caustic map (PM+C) that estimate is a split point, as sppm's with its caustic photons' own statistics:
 the caustic map's records weighted by A + f_glossy / B (:func:`split_estimate`), and a path that took the coating
-leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  A glossy
-lobe beside a diffuse one (pplastic, principled, principledthin) has no lobe to split off: the path ends there and its
-estimate weights every photon of both maps and every shadow ray by the BSDF's f(d, wi), both lobes
-(:func:`diffuse_estimate`'s ``bsdf``), as sppm's visible points weight their photons: L = β (Σ_shadow f L cos / p +
-Σ_p W f Φ_p).
+leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  At glossy
+lobes beside a diffuse one (pplastic, principled, principledthin) the path picks a lobe as the BSDF's sampling does
+(:func:`caustica.photons.visible_points.lobe_choice`, as sppm's): a glossy one it follows as a glossy vertex of those
+lobes, else it ends there and its estimate weights every photon of both maps and every shadow ray by the diffuse
+lobes' f(d, wi) (:func:`diffuse_estimate`'s ``bsdf``, :func:`caustica.bsdfs.eval_radiance`), as sppm's visible points
+weight their photons: L = β / (1 - P) (Σ_shadow f L cos / p + Σ_p W f Φ_p).
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ import math
 import numpy as np
 
 from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, \
-    delta_branches, has_null_lobe, oriented, resolve, wrapped
+    delta_branches, has_null_lobe, oriented, resolve, splits_lobes, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
 from ..emitters import ENV, env_radiance, radiance_at_hit
@@ -51,7 +52,7 @@ from ..scene.description import BLEND, BUMPMAP, NORMALMAP, NULL, PLASTIC, ROUGHP
 from ..transport import ShadingPoint, unwrap, with_tangent
 from .estimate import flux_density, none_admitted
 from .visible_points import BSDF_MATERIAL, bsdf_point, claim_at, claim_onward, claimed, escape_weight, glossy_step, \
-    rough_coating_step, seen_weight, split_diffuse, split_point
+    lobe_choice, rough_coating_step, seen_weight, split_diffuse, split_point
 
 SPLIT_STACK = 8
 #: Glass splits a camera ray into both branches only at its first SPLIT_DEPTH specular
@@ -243,6 +244,17 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
             return False, L, beta, d, depth, last, crossed, 0, top, dim
         L, alive, wi, beta, lobe, pdf, dim = glossy_step(tables, at, m, d, (L, beta), key, dim)
         return alive, L, beta, wi, depth, (lobe & DELTA != 0, pdf, p), 0, 0, top, dim
+    if splits_lobes(mats, m):
+        # glossy lobes beside diffuse ones (pplastic, principled, principledthin; under a map too): a glossy one picked
+        # goes on as a glossy vertex of those lobes alone, else the estimate here weighs each shadow ray and photon by
+        # the diffuse lobes' f(d, wi) (as sppm's visible points: lobe_choice)
+        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, (L, beta), key, dim)
+        if glossy:
+            if not alive or depth + 1 > max_specular:
+                return False, L, beta, d, depth + 1, last, crossed, 0, top, dim
+            return True, L, vec.hadamard(beta, w), wi, depth + 1, (False, pdf, p), 0, 0, top, dim
+        E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
+        return False, vec.add(L, vec.hadamard(vec.hadamard(beta, w), E)), beta, d, depth, last, crossed, q, top, dim
     if has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC and not wrap:
         # a glossy coating over a diffuse lobe: its lobe as a glossy vertex with probability P, else estimate
         take_coat, (wc, P, w_coat, A), L, pdf, _, dim = rough_coating_step(
@@ -259,9 +271,8 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
         L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
         return False, L, beta, d, depth, last, crossed, q, top, dim
     if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
-        # a glossy lobe beside a diffuse one (pplastic, principled), or any diffuse lobe under a map: no lobe to
-        # split off; the estimate here weighs each shadow ray and photon by the BSDF's f(d, wi), both lobes, in the
-        # perturbed frame (as sppm's visible points)
+        # any other diffuse lobe under a map (a roughplastic's too): the estimate here weighs each shadow ray and
+        # photon by the BSDF's f(d, wi), in the perturbed frame (as sppm's visible points)
         E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
         return False, vec.add(L, vec.hadamard(beta, E)), beta, d, depth, last, crossed, q, top, dim
     if null_lobe:
@@ -417,9 +428,9 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
     W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
-    point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (a glossy
-    lobe beside a diffuse one; its weight is then β) weighs each photon by that BSDF (:func:`flux_density`'s
-    ``bsdf``); at a roughplastic's split point (the camera pass's ``claim``; its weight β / (1 - P)) the global map's
+    point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (the
+    diffuse lobes beside glossy ones, or a diffuse lobe under a map; its weight then β, or β / (1 - P)) weighs each
+    photon by that BSDF's lobes it holds (:func:`flux_density`'s ``bsdf``); at a roughplastic's split point (the camera pass's ``claim``; its weight β / (1 - P)) the global map's
     records are weighted by the diffuse lobe's A and the caustic map's by A + f_glossy / B.
     """
     gmap, cmap = maps

@@ -55,6 +55,15 @@ SPPM: the path takes one light sample there, MIS-weighted against the BSDF's sam
 next is weighted to match (:func:`seen_weight`).  Glossy bounces count towards ``max_specular``; a path that
 reaches it ends (its light beyond is lost, as a path tracer's past its depth).
 
+**Glossy lobes beside diffuse ones** (pplastic, principled, principledthin: :func:`caustica.bsdfs.splits_lobes`): the
+path picks a lobe as the BSDF's own sampling picks it (:func:`lobe_choice`).  A glossy one (probability P) makes a
+glossy vertex of the glossy lobes alone, everything over P; a diffuse one makes the visible point here, weight
+β / (1 − P), which holds the diffuse lobes alone: the photons and its light sample are weighed by their f
+(:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole BSDF instead, which leaves a narrow glossy
+lobe to the few photons that arrive within it: a frosted panel of roughness 0.01 in front of a lit wall rendered
+black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  Unlike roughplastic's split points these
+claim no caustic: the glossy lobes' share of one is the camera path's.
+
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
 estimate, so the numbers that matter most are drawn from low-discrepancy sequences
 indexed by the pass, each randomised per pixel (keys of ``STREAM_CAMERA_SCRAMBLE``):
@@ -86,8 +95,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, TRANSMISSION, coat, colour, \
-    delta_branches, eval_coating, eval_pdf, has_null_lobe, oriented, rough_coat, sample, sample_coating, wrapped
+from ..bsdfs import DELTA, DIFFUSE_LOBES, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_PART, GLOSSY_TRANSMISSION, \
+    SMOOTH, TRANSMISSION, coat, colour, delta_branches, eval_coating, eval_part, eval_radiance, glossy_share, \
+    has_null_lobe, oriented, rough_coat, sample, sample_coating, splits_lobes, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -233,6 +243,36 @@ def glossy_step(tables, at, m, d, path, key, dim):
     return L, alive, wi, beta, lobe, pdf, dim
 
 
+@kernel
+def lobe_choice(tables, at, m, d, path, key, dim):
+    """At a material with glossy lobes beside diffuse ones (:func:`caustica.bsdfs.splits_lobes`), one lobe picked as
+    its own sampling picks it (numbers dim + 3 on).  A glossy one (probability P, :func:`caustica.bsdfs.glossy_share`)
+    makes this a glossy vertex of the glossy lobes alone: one light sample (numbers dim .. dim + 2) MIS-weighted
+    against their sampling given that pick, then the sample itself, both over P.  A diffuse one makes the visible point
+    here, weight β / (1 - P), which holds the diffuse lobes alone (:func:`caustica.bsdfs.eval_radiance`).  So no
+    photon estimate goes through a narrow glossy lobe (a frosted panel of roughness 0.01 was black, but for a few
+    fireflies, when photons were weighed by its whole BSDF).  ``path`` = (L, β).  Returns (glossy, L, alive, the new
+    direction, the weight β is multiplied by for it or for the visible point, the glossy sample's density given the
+    pick, dim)."""
+    mats = tables[1]
+    L, beta = path
+    P = glossy_share(mats, m, d, at.ns, at.uv)
+    alive, wi, _, _, lobe, eta, dim_on = sample(mats, m, d, at.ng, at.ns, at.uv, key, dim + 3)
+    if lobe & DIFFUSE_LOBES:
+        w = 1.0 / (1.0 - P)
+        return False, L, False, wi, (w, w, w), 0.0, dim_on
+    ok, term, scale, _, _ = next_event(tables, at, m, d, beta, key, dim, (GLOSSY_PART, P))
+    if ok:
+        L = vec.madd(L, term, scale / P)
+    f, f_scale, pdf = eval_part(mats, m, d, at.ng, at.ns, at.uv, wi, GLOSSY_PART)
+    if not (alive and pdf > 0.0):
+        return True, L, False, wi, (0.0, 0.0, 0.0), 0.0, dim_on
+    scale = f_scale * abs(vec.dot(wi, at.ns)) / pdf
+    if lobe & TRANSMISSION:
+        scale /= eta * eta   # radiance is compressed into the denser medium
+    return True, L, True, wi, vec.mul(f, scale), pdf / P, dim_on
+
+
 @kernel(inline=True)
 def delta_step(tables, at, m, d, path, u):
     """At a mirror or glass: the direction the path takes and β for it (glass: the branch u picks, with the emitters
@@ -276,31 +316,32 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
 
 @kernel
 def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
-    """A visible point on a BSDF with a glossy lobe beside its diffuse one (pplastic, principled, principledthin) or
-    on any diffuse lobe under a normal or bump map (its frame perturbed), made as pbrt-v4's SPPM makes every one: its
-    weight is β, the gather weights each photon by the BSDF's value f(d, the photon's direction)
-    (:func:`caustica.photons.grid.grid_range_sum`).  Its direct light, the path ending here: beside a glossy lobe a
+    """A visible point that evaluates its BSDF: on the diffuse lobes of a BSDF with glossy ones beside them
+    (:func:`lobe_choice` picked them), or on any diffuse lobe under a normal or bump map (its frame perturbed), made as
+    pbrt-v4's SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the
+    photon's direction) of the lobes it holds (:func:`caustica.bsdfs.eval_photon`,
+    :func:`caustica.photons.grid.grid_range_sum`).  Its direct light, the path ending here: one light sample times that
+    f (on either side where a diffuse lobe transmits).  On roughplastic under a map (its glossy lobe not split off) a
     glossy vertex's, one light sample and one BSDF sample whose ray counts only the emitters it meets (past null
-    boundaries, through media: :func:`caustica.photons.segments.emission_weighted`), combined by MIS (power
-    heuristic), so that a lamp seen through a narrow lobe (frosted glass in front of it) is not left to light sampling
-    alone; on a diffuse lobe alone, one light sample times f (light sampling suits it; the BSDF sample's ray would
-    cost more than it saves).  Numbers ``numbers`` = (key, dim) on.  The BSDF's point (material, d, normals, uv) goes
-    to row i of ``pixel`` = (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
+    boundaries, through media: :func:`caustica.photons.segments.emission_weighted`), combined by MIS (power heuristic).
+    Numbers ``numbers`` = (key, dim) on.  The BSDF's point (material, d, normals, uv) goes to row i of ``pixel`` =
+    (i, :attr:`VisiblePoints.bsdf`).  Returns the direct light, β included."""
     key, dim = numbers
     mats = tables[1]
     write_bsdf_row(at, m, d, pixel)
-    if mats.flags[m] & GLOSSY:
+    if mats.flags[m] & GLOSSY and not splits_lobes(mats, m):
         Ld, alive, wi, beta_wi, lobe, pdf, _ = glossy_step(tables, at, m, d, ((0.0, 0.0, 0.0), beta), key, dim)
         if alive and pdf > 0.0 and not lobe & DELTA:
             medium = medium_after(tables[3], at.shape, at.ng_front, wi, at.medium)
             Le = emission_weighted(tables, vec.offset_origin(at.p, at.ng, wi), wi, medium, pdf)
             Ld = vec.add(Ld, vec.hadamard(beta_wi, Le))
         return Ld
+    through = splits_lobes(mats, m) and mats.flags[m] & GLOSSY_TRANSMISSION != 0   # a diffuse transmission
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
-                                                            uniform(key, dim + 2)), False)
+                                                            uniform(key, dim + 2)), through)
     if not ok:
         return (0.0, 0.0, 0.0)
-    f, f_scale, _ = eval_pdf(mats, m, d, at.ng, at.ns, at.uv, wi)
+    f, f_scale = eval_radiance(mats, m, d, at.ng, at.ns, at.uv, wi)
     return vec.mul(vec.hadamard(beta, vec.hadamard(f, contrib)), f_scale)
 
 
@@ -428,8 +469,9 @@ def delta_vertex(tables, at, m, d, path, branch):
 def diffuse_vertex(tables, at, m, d, path, branch, rules):
     """The visible point on a surface with a diffuse lobe, unless a coating over it is taken instead
     (:func:`coating_step`, :func:`rough_coating_step`; ``rules`` = (params as :func:`visible_point` takes them, the
-    last specular vertex allowed, the pixel's row of :attr:`VisiblePoints.bsdf`)).  Under a normal or bump map, or
-    beside a glossy lobe (pplastic, principled), the point evaluates the BSDF (:func:`bsdf_visible_point`).
+    last specular vertex allowed, the pixel's row of :attr:`VisiblePoints.bsdf`)), or a glossy lobe beside it
+    (:func:`lobe_choice`: pplastic, principled, principledthin).  Under a normal or bump map, or beside a glossy lobe,
+    the point evaluates the BSDF (:func:`bsdf_visible_point`).
     ``path`` = (L, β); ``branch`` = (first_glass, numbers, dim) as :func:`branch_number` takes it.  Returns (found,
     its normal, its weight W, L with its direct light, take the coating, (wc, P, its weight, A) with P < 0 without a
     coating, the coating's sampled density, first_glass, dim)."""
@@ -440,6 +482,16 @@ def diffuse_vertex(tables, at, m, d, path, branch, rules):
     flags = mats.flags[m]
     zero = (0.0, 0.0, 0.0)
     take_coat, coating, pdf_coat = False, (zero, -1.0, zero, zero), 0.0
+    if splits_lobes(mats, m):
+        # glossy lobes beside diffuse ones (pplastic, principled, principledthin; under a map too): a glossy one taken
+        # as a coating's lobe is, else the visible point on the diffuse ones (its normal the geometric one under a map)
+        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, path, numbers[0], dim)
+        if glossy:
+            return False, zero, zero, L, True, (wi, -1.0, w, zero), pdf, first_glass, dim
+        w = vec.hadamard(beta, w)
+        Ld = bsdf_visible_point(tables, at, m, d, w, (numbers[0], dim), pixel)
+        return True, at.ng if wrapped(mats, m) else at.ns, w, vec.add(L, Ld), take_coat, coating, pdf_coat, \
+            first_glass, dim
     if wrapped(mats, m):
         # a diffuse lobe under a map: the visible point evaluates the BSDF in its perturbed frame (at.ns); its
         # normal for the same-side test is the geometric one (the photons' records carry theirs)
@@ -513,9 +565,9 @@ def camera_vertex(tables, at, m, d, path, counters, branch, rules):
         return VISIBLE if found else ENDED, n, w, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
     after_delta = (True, mis[1], mis[2])   # emitters the path meets next count in full
     if take_coat:
-        # plastic's delta coating added its first hit's emission above; a glossy one did not
+        # plastic's delta coating added its first hit's emission above; a glossy one (or lobe) did not
         counted, beta = flags & DELTA != 0, vec.hadamard(beta, w_coat)
-        if has(mats, ROUGHPLASTIC) and not counted:   # a glossy coating: its light sample was MIS-weighted
+        if has(mats, GLOSSY_LOBES) and not counted:   # a glossy coating or lobe: its light sample was MIS-weighted
             if w_coat[0] == 0.0 and w_coat[1] == 0.0 and w_coat[2] == 0.0:   # its sample fell below the surface
                 return ENDED, zero, zero, (L, beta, False, mis), d, (0, k, depth), first_glass, dim
             after_delta = (False, pdf_coat, at.p)
