@@ -222,6 +222,27 @@ def test_integrator_note_for_media_scenes(tmp_path):
                             f"them (as Mitsuba's volpath does)")
 
 
+def test_a_note_for_a_medium_whose_mesh_faces_inwards(tmp_path, cli):
+    """A mesh holding an interior medium with its faces turned inwards puts the medium outside it, where Mitsuba's
+    camera paths (and pt's) keep it after they leave the mesh: the photon methods get a note (SceneDescription.
+    media_note), so does a flipped sphere; pt gets none, nor does the same cube facing outwards, or an open mesh (a
+    rectangle)."""
+    fog = '<medium type="homogeneous" id="fog"/>'
+    shape = '<shape type="{}">{}<bsdf type="dielectric"/><ref name="interior" id="fog"/></shape>'
+    flip = '<boolean name="flip_normals" value="true"/>'
+    inward = parse_scene_string(scene(fog + shape.format("cube", flip)))
+    note = inward.media_note("sppm")
+    assert note is not None and "<string>:4" in note and "faces inwards" in note and "--method sppm" in note
+    assert inward.media_note("pt") is None
+    assert "faces inwards" in parse_scene_string(scene(fog + shape.format("sphere", flip))).media_note("spm")
+    for ok in (shape.format("cube", ""), shape.format("rectangle", flip), shape.format("sphere", "")):
+        assert parse_scene_string(scene(fog + ok)).media_note("pm") is None
+    path = tmp_path / "inward.xml"
+    path.write_text(scene(fog + shape.format("cube", flip) + LIGHT))
+    code, _, err = cli("render", str(path), "--method", "sppm", "--passes", "1", "--res", "8", "-o", tmp_path / "o.exr")
+    assert code == 0 and "note: the shape at" in err
+
+
 # ----------------------------------------------------------------------------- the built-in fog scene
 
 def test_fog_scene_is_the_diacaustic_scene_in_fog():

@@ -284,6 +284,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "threads": threads,
         "timings": timings,
         "integrator_note": scene.description.integrator_note(method, settings),
+        "media_note": scene.description.media_note(method),
         "rfilter": _rfilter_stats(scene.description.camera.rfilter),
         **stats,
     }

@@ -215,16 +215,18 @@ def _build_parser():
 
 
 def _note_integrator(scene, method: str, params: dict) -> None:
-    """One line on stderr when the scene's <integrator> is not what this render does -- after the method's checks
-    of the scene, so that a scene the method refuses gets its one-line error alone."""
+    """One line on stderr when the scene's <integrator> is not what this render does, and one when a medium's mesh
+    faces inwards (SceneDescription.media_note) -- after the method's checks of the scene, so that a scene the method
+    refuses gets its one-line error alone."""
     from . import methods
     from .api import check_bsdfs
     cls = methods.get(method)
     check_bsdfs(cls, scene)
     note = scene.description.integrator_note(
         method, methods.params.resolve(method, cls.params, methods.scene_params(cls, scene.description, params)))
-    if note:
-        print(f"caustica: note: {note}", file=sys.stderr)
+    for line in (note, scene.description.media_note(method)):
+        if line:
+            print(f"caustica: note: {line}", file=sys.stderr)
 
 
 def _default_stem(scene: str) -> str:
