@@ -225,7 +225,7 @@ def test_integrator_note_for_media_scenes(tmp_path):
 def test_a_note_for_a_medium_whose_mesh_faces_inwards(tmp_path, cli):
     """A mesh holding an interior medium with its faces turned inwards puts the medium outside it, where Mitsuba's
     camera paths (and pt's) keep it after they leave the mesh: the photon methods get a note (SceneDescription.
-    media_note), so does a flipped sphere; pt gets none, nor does the same cube facing outwards, or an open mesh (a
+    media_note), so does a flipped sphere; pt gets none, nor does the same cube facing outwards, or a flat mesh (a
     rectangle)."""
     fog = '<medium type="homogeneous" id="fog"/>'
     shape = '<shape type="{}">{}<bsdf type="dielectric"/><ref name="interior" id="fog"/></shape>'

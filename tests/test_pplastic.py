@@ -32,7 +32,12 @@ import caustica
 from caustica import bsdfs
 from caustica.bsdfs import microfacet as mf
 from caustica.bsdfs.plastic import SPEC_WEIGHT
+from caustica.jit import borrowed, kernel
+from caustica.photons.visible_points import lobe_choice
+from caustica.sampling.rng import path_key
 from caustica.scene.description import BECKMANN, GGX, PPLASTIC, Material
+from caustica.geometry.scene_geometry import NO_UV
+from caustica.transport import ShadingPoint
 from imagestats import assert_images_agree
 from test_glossy import assert_refused_in_one_line, assert_sampled_density_is_the_pdf, draw, eval_many, incident, \
     render_both, write_scene
@@ -368,3 +373,39 @@ def test_pm_in_a_haze_matches_mitsuba_volpath(mi, tmp_path, test_scenes_dir):
     stats = photon_method_matches_mitsuba(mi, pplastic_variant(tmp_path, test_scenes_dir, haze=True), "pm",
                                           dict(PM, spp=4), "pplastic in a haze, pm")
     assert stats["volume_photons"] > 0
+
+
+@kernel
+def _lobe_choices(tables, d, ns, n, out):
+    """out[i] = (glossy, alive, the weight's first channel) of visible_points.lobe_choice at material 0 for a ray along
+    d at the origin of the plane z = 0, shading normal ns, numbers path_key(3, 1, i)."""
+    tables = borrowed(tables)
+    up = (0.0, 0.0, 1.0)
+    at = ShadingPoint((0.0, 0.0, 0.0), up, ns, up, 0, -1, NO_UV)
+    for i in range(n):
+        glossy, _, alive, _, w, _, _ = lobe_choice(tables, at, 0, d, ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)),
+                                                   (path_key(3, 1, i), 2), False)
+        out[i, 0], out[i, 1], out[i, 2] = glossy, alive, w[0]
+
+
+def test_a_black_pplastics_lobe_choice_is_finite_below_its_shading_normal(tmp_path):
+    """pplastic with a black diffuse lobe: its sampling picks the glossy lobe with probability P = 1, but where the
+    camera's direction lies below the shading normal (a smooth mesh's silhouette, a map) it reports its failed sample
+    as diffuse; the camera path's lobe choice gave that visible point the weight 1 / (1 - P) = inf, and sppm's pixel
+    NaN (found by review, 2026-12-07).  Its weight is now 0 there (the diffuse lobe is 0 too), and finite elsewhere."""
+    path = tmp_path / "black.xml"
+    path.write_text('<scene version="3.0.0"><sensor type="perspective"/><shape type="rectangle"><bsdf type="pplastic">'
+                    '<rgb name="diffuse_reflectance" '
+                    'value="0"/><float name="alpha" value="0.2"/></bsdf></shape><shape type="rectangle"><transform '
+                    'name="to_world"><translate z="2"/></transform><emitter type="area"/></shape></scene>')
+    scene = caustica.load_scene(path)
+    d = tuple(np.array([0.9, 0.0, -0.3]) / np.linalg.norm([0.9, 0.0, -0.3]))   # above the plane, below ns
+    ns = (0.8, 0.0, 0.6)
+    assert np.dot(d, ns) > 0.0
+    out = np.zeros((200, 3))
+    _lobe_choices(scene.tables, d, ns, 200, out)
+    assert np.isfinite(out).all() and (out[:, 0] == 0.0).all() and (out[:, 2] == 0.0).all()
+    out[:] = 0.0
+    _lobe_choices(scene.tables, d, (0.0, 0.0, 1.0), 200, out)   # above the shading normal: always the glossy lobe
+    assert np.isfinite(out).all() and (out[:, 0] == 1.0).all()
+

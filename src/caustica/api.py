@@ -117,11 +117,12 @@ def check_bsdfs(cls, scene) -> None:
     map weight each photon, or stream record, by the BSDF in the perturbed frame, except under a delta coating, and
     its photons, or a stream's leading photon, scatter there by the adjoint wrapped BSDF);
     ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe (roughplastic: every photon
-    method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — another glossy
-    lobe beside a diffuse one (pplastic, principled, principledthin), whose visible point (sppm) or k-nearest
-    estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
-    direction (every photon method); where that BSDF also transmits (principled with spec_trans, principledthin) the
-    photons and lights of both sides, the other side's through the transmission lobe.
+    method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — other glossy
+    lobes beside a diffuse one (pplastic, principled, principledthin), which a camera path takes apart: it follows a
+    glossy lobe as the BSDF's sampling picks it, else its visible point (sppm) or k-nearest estimate (pm) weights each
+    photon, and each shadow ray of its direct light, by the diffuse lobes at the photon's (ray's) direction (every
+    photon method); where those transmit (principledthin's diffuse transmission) the photons and lights of both
+    sides.
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import math
 
-from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_part, eval_pdf, eval_radiance
+from .bsdfs import GLOSSY_TRANSMISSION, camera_scale, entry, eval_part, eval_pdf, eval_radiance, \
+    held_lobes_transmit
 from .emitters import AREA, DIRECTIONAL, ENV, SPOT, TEX_OF, TEXTURED_AREA, emitter_point, env_pdf, env_radiance, \
     env_sample, profile, profiled, spot_falloff
 from .geometry import vec
@@ -129,13 +130,14 @@ def direct_stratified(tables, at, key, dim, strata, coated, bsdf):
     the lit side; ng_front: the front.  ``coated``: -1, or a material with a delta or glossy coating over a diffuse
     lobe (:func:`caustica.bsdfs.coat`, :func:`caustica.bsdfs.rough_coat`), whose factor B on the light's side (:func:`caustica.bsdfs.entry`) then
     weights each shadow ray.  Returns E per channel, before the diffuse BRDF ρ / π (or the coated lobe's A).
-    ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (the diffuse lobes beside glossy ones:
-    pplastic, principled), each shadow ray then weighted by their f(d, wi) (:func:`times_bsdf`): the radiance towards -d;
-    where that BSDF transmits (principled's spec_trans, principledthin), the lights behind the surface too, on the
-    same numbers (:func:`lights_direct` again with the normals turned to the other side).
+    ``bsdf``: None, or (mats, m, d, ng, ns, uv), a point that evaluates its BSDF (the diffuse lobes beside glossy ones
+    of pplastic, principled and principledthin, or a diffuse lobe under a map), each shadow ray then weighted by the
+    held lobes' f(d, wi) (:func:`times_bsdf`, :func:`caustica.bsdfs.eval_radiance`): the radiance towards -d; where
+    those lobes transmit (principledthin's diffuse transmission: :func:`caustica.bsdfs.held_lobes_transmit`), the
+    lights behind the surface too, on the same numbers (:func:`lights_direct` again with the normals turned).
     """
     E = lights_direct(tables, at, key, dim, strata, coated, bsdf)
-    if bsdf is not None and bsdf[0].flags[bsdf[1]] & GLOSSY_TRANSMISSION:
+    if bsdf is not None and held_lobes_transmit(bsdf[0], bsdf[1]):
         behind = ShadingPoint(at.p, vec.neg(at.ng), vec.neg(at.ns), at.ng_front, at.shape, at.medium, at.uv)
         E = vec.add(E, lights_direct(tables, behind, key, dim, strata, coated, bsdf))
     return E

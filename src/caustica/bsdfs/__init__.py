@@ -51,8 +51,8 @@ from .mixtures import mixture_columns, pass_probability, resolve  # noqa: F401  
 from .perturb import gather_shading, perturbed_normal, photon_shading, terminator, wrapped  # noqa: F401  (part of the interface)
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
 from .flags import ALL_LOBES, ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_LOBES, DIFFUSE_PART, \
-    DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, GLOSSY_PART, GLOSSY_REFLECTION, GLOSSY_LOBES, GLOSSY_TRANSMISSION, \
-    NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (the flags are part of the interface)
+    DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, GLOSSY_PART, GLOSSY_REFLECTION, GLOSSY_LOBES, \
+    GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (part of the interface)
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
@@ -330,11 +330,11 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 @guarded_by(PPLASTIC, PRINCIPLED, PRINCIPLEDTHIN)
 @kernel(inline=True)
 def splits_lobes(mats, m):
-    """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principled,
-    principledthin with a diffuse lobe): it picks one as :func:`sample` does, goes on by a glossy one and makes its
-    visible point on a diffuse one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no
-    photon estimate goes through a narrow glossy lobe (caustica.photons.visible_points).  Never in a scene without
-    those kinds."""
+    """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principledthin,
+    and principled where metallic and spec_trans leave it a diffuse lobe): it picks one as :func:`sample` does, goes on
+    by a glossy one and makes its visible point on a diffuse one, which then holds the diffuse lobes alone
+    (:func:`eval_radiance`), so that no photon estimate goes through a narrow glossy lobe
+    (caustica.photons.visible_points).  Never in a scene without those kinds."""
     if not (has(mats, PPLASTIC) or has(mats, PRINCIPLED) or has(mats, PRINCIPLEDTHIN)):
         return False
     kind = mats.kind[m]
@@ -352,7 +352,16 @@ def glossy_share(mats, m, d, ns, uv):
         return pplastic.glossy_share(mats, m, d, ns, uv)
     if has(mats, PRINCIPLED) and kind == PRINCIPLED:
         return principled.glossy_share(mats, m, d, ns, uv)
-    return principledthin.glossy_share(mats, m, d, ns, uv)
+    if has(mats, PRINCIPLEDTHIN):
+        return principledthin.glossy_share(mats, m, d, ns, uv)
+    return 0.0
+
+
+@kernel(inline=True)
+def held_lobes_transmit(mats, m):
+    """Whether the lobes a visible point holds at material m (:func:`eval_radiance`'s) transmit, so that lights behind
+    the surface light it: principledthin's diffuse transmission (a principled's diffuse lobe reflects only)."""
+    return has(mats, PRINCIPLEDTHIN) and mats.kind[m] == PRINCIPLEDTHIN
 
 
 @kernel(inline=True)
@@ -365,8 +374,10 @@ def eval_part(mats, m, d, ng, ns, uv, wi, part):
         c, scale, pdf = pplastic.eval_part(mats, m, d, ng, ns, uv, wi, part)
     elif has(mats, PRINCIPLED) and kind == PRINCIPLED:
         c, scale, pdf = principled.eval_part(mats, m, d, ng, ns, uv, wi, part)
-    else:
+    elif has(mats, PRINCIPLEDTHIN):
         c, scale, pdf = principledthin.eval_part(mats, m, d, ng, ns, uv, wi, part)
+    else:
+        c, scale, pdf = (0.0, 0.0, 0.0), 0.0, 0.0
     if (has(mats, NORMALMAP) or has(mats, BUMPMAP)) and mats.terminator[m]:
         scale *= terminator(ng, ns, wi)
     return c, scale, pdf

@@ -9,12 +9,13 @@ farthest one used, or R when fewer than k are found, and
 where W is the filter kernel normalised to integrate to 1 over the disc of radius r
 (:mod:`caustica.photons.density_filters`).  This function returns Σ W Φ (irradiance-like, W/m²); the caller applies f_r.
 
-At a BSDF with a glossy lobe beside the diffuse one (pplastic, principled, principledthin) nothing is Lambertian to
-take out of the sum: there each record is weighted by the BSDF's value at its own direction,
+At the diffuse lobes beside a glossy one (pplastic, principled, principledthin: the camera path takes the glossy
+one apart) and at a diffuse lobe under a map nothing is Lambertian to take out of the sum: there each record is
+weighted by the value of the lobes the point holds at its own direction (:func:`caustica.bsdfs.eval_photon`),
 
     L(x, ω_o) = Σ_p W(d_p, r) f(ω_o, ω_p) Φ_p,
 
-and the sum is the radiance itself (``bsdf``; pbrt-v4's SPPM weights its photons so).
+and the sum is the radiance itself (``bsdf``; pbrt-v4's SPPM weights its photons so, by the whole BSDF).
 """
 from __future__ import annotations
 

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, \
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, \
     delta_branches, has_null_lobe, oriented, resolve, splits_lobes, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
@@ -88,8 +88,9 @@ def diffuse_estimate(tables, lookup, params, at, lobe_b, bsdf, key, dim):
     to every emitter (numbers from ``dim`` on; weighted by B of plastic ``lobe_b``'s coating, -1 for none) and
     both maps' k-nearest estimates.  ``lookup`` = (maps, estimate, (indices, squared distances), (max_depth, k):
     the records the estimates take, :func:`~caustica.photons.estimate.flux_density`).  With ``bsdf`` =
-    (mats, m, d, ng, ns, uv) (a glossy lobe beside the diffuse one) every shadow ray and every photon is weighted by
-    the BSDF's f(d, wi) instead, and E is the radiance towards -d; None elsewhere (the Lambertian arithmetic, a
+    (mats, m, d, ng, ns, uv) (the diffuse lobes beside a glossy one, or a diffuse lobe under a map) every shadow ray
+    and every photon is weighted by the f(d, wi) of the lobes the point holds instead (:func:`caustica.bsdfs.
+    eval_radiance`), and E is the radiance towards -d; None elsewhere (the Lambertian arithmetic, a
     separate compilation).  Returns (E, the dimension past the shadow rays' numbers, k-nearest searches made)."""
     (gmap, cmap), (k_g, r_g, k_c, r_c, filt), scratch, limit = lookup
     n_strata, fixed_grid = params[0], params[1]
@@ -248,9 +249,9 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
         # glossy lobes beside diffuse ones (pplastic, principled, principledthin; under a map too): a glossy one picked
         # goes on as a glossy vertex of those lobes alone, else the estimate here weighs each shadow ray and photon by
         # the diffuse lobes' f(d, wi) (as sppm's visible points: lobe_choice)
-        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, (L, beta), key, dim)
+        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, (L, beta), (key, dim), depth >= max_specular)
         if glossy:
-            if not alive or depth + 1 > max_specular:
+            if not alive:
                 return False, L, beta, d, depth + 1, last, crossed, 0, top, dim
             return True, L, vec.hadamard(beta, w), wi, depth + 1, (False, pdf, p), 0, 0, top, dim
         E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
@@ -270,7 +271,7 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
         E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
         L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
         return False, L, beta, d, depth, last, crossed, q, top, dim
-    if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
+    if wrap and flags & DIFFUSE_REFLECTION:
         # any other diffuse lobe under a map (a roughplastic's too): the estimate here weighs each shadow ray and
         # photon by the BSDF's f(d, wi), in the perturbed frame (as sppm's visible points)
         E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
@@ -427,7 +428,7 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
-    W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
+    W_i = β ρ / π, or β, β / (1 - P) where a row names a material, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
     point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (the
     diffuse lobes beside glossy ones, or a diffuse lobe under a map; its weight then β, or β / (1 - P)) weighs each
     photon by that BSDF's lobes it holds (:func:`flux_density`'s ``bsdf``); at a roughplastic's split point (the camera pass's ``claim``; its weight β / (1 - P)) the global map's

@@ -20,8 +20,8 @@ photon records) with their cells' keys: a query takes an event only if its key i
 of the cells it scans, so the cells that share a bucket never mix.  Points outside the
 box are clamped into its border cells (the distance test stays exact).
 
-A visible point on a BSDF that is not Lambertian (a glossy lobe beside the diffuse one) weights each event by
-its BSDF at the event's direction (:func:`grid_range_sum`'s ``bsdf``), so the grid then keeps the events'
+A visible point on a BSDF that is not Lambertian (the diffuse lobes beside a glossy one, a diffuse lobe under a map)
+weights each event by the lobes it holds at the event's direction (:func:`grid_range_sum`'s ``bsdf``), so the grid then keeps the events'
 directions too (``direction``; empty otherwise).
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ records come in photon order and the maps are identical for any thread count.
   (:func:`wrapped_bounce`: the perturbed normal Mitsuba's flip picks by the side it leaves to, the terminator's
   shadowing on its arriving side, the shading and geometric cosines exchanged);
   its records there carry the geometric normal, for the same-side test, and no coating's factor: the visible
-  points there weight each photon by the whole BSDF in their own perturbed frame.
+  points there weight each photon by the BSDF (its diffuse lobes, beside glossy ones) in their own perturbed frame.
 
 What is stored obeys SPEC §2 (surfaces and volume alike): an event only after the photon has
 scattered at least once, so no direct light.  Kinds: CAUSTIC / VOLUME_CAUSTIC when every earlier
@@ -224,7 +224,7 @@ def scatter_photon(media, medium, ray, key, dim, power, roulette):
 def coated(mats, m):
     """Whether material m is a coated diffuse lobe (plastic, roughplastic), whose photons carry its factor B
     (:func:`caustica.bsdfs.entry`: what of the light arriving enters the coating) in their records.  Not under a
-    normal or bump map: visible points there weight each photon by the whole BSDF (api.check_bsdfs refuses a delta
+    normal or bump map: visible points there weight each photon by the BSDF (api.check_bsdfs refuses a delta
     coating there)."""
     if wrapped(mats, m):
         return False

@@ -95,9 +95,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_LOBES, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_PART, GLOSSY_TRANSMISSION, \
-    SMOOTH, TRANSMISSION, coat, colour, delta_branches, eval_coating, eval_part, eval_radiance, glossy_share, \
-    has_null_lobe, oriented, rough_coat, sample, sample_coating, splits_lobes, wrapped
+from ..bsdfs import DELTA, DIFFUSE_LOBES, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_PART, SMOOTH, TRANSMISSION, \
+    coat, colour, delta_branches, eval_coating, eval_part, eval_radiance, glossy_share, has_null_lobe, \
+    held_lobes_transmit, oriented, rough_coat, sample, sample_coating, splits_lobes, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -229,7 +229,7 @@ def escape_weight(lights, d, last):
 @kernel(inline=True)
 def glossy_step(tables, at, m, d, path, key, dim):
     """At a glossy surface (rough metal or glass: no visible point here, as in pbrt-v4's SPPM), or for the direct light
-    of a visible point beside a glossy lobe (:func:`bsdf_visible_point`): its direct light by one light sample,
+    of a visible point on roughplastic under a map (:func:`bsdf_visible_point`): its direct light by one light sample,
     MIS-weighted against the BSDF's sampling (:func:`caustica.lighting.next_event`), then the BSDF's own sample.
     ``path`` = (L, β).  Returns (L, alive, the new direction, β for it, the lobe, its density, dim)."""
     L, beta = path
@@ -244,29 +244,38 @@ def glossy_step(tables, at, m, d, path, key, dim):
 
 
 @kernel
-def lobe_choice(tables, at, m, d, path, key, dim):
+def lobe_choice(tables, at, m, d, path, numbers, last):
     """At a material with glossy lobes beside diffuse ones (:func:`caustica.bsdfs.splits_lobes`), one lobe picked as
-    its own sampling picks it (numbers dim + 3 on).  A glossy one (probability P, :func:`caustica.bsdfs.glossy_share`)
-    makes this a glossy vertex of the glossy lobes alone: one light sample (numbers dim .. dim + 2) MIS-weighted
-    against their sampling given that pick, then the sample itself, both over P.  A diffuse one makes the visible point
-    here, weight β / (1 - P), which holds the diffuse lobes alone (:func:`caustica.bsdfs.eval_radiance`).  So no
-    photon estimate goes through a narrow glossy lobe (a frosted panel of roughness 0.01 was black, but for a few
-    fireflies, when photons were weighed by its whole BSDF).  ``path`` = (L, β).  Returns (glossy, L, alive, the new
-    direction, the weight β is multiplied by for it or for the visible point, the glossy sample's density given the
-    pick, dim)."""
+    its own sampling picks it (numbers ``numbers`` = (key, dim): dim + 3 on).  A glossy one (probability P,
+    :func:`caustica.bsdfs.glossy_share`) makes this a glossy vertex of the glossy lobes alone: one light sample
+    (numbers dim .. dim + 2) MIS-weighted against their sampling given that pick, then the sample itself, both over P.
+    A diffuse one makes the visible point here, weight β / (1 - P), which holds the diffuse lobes alone
+    (:func:`caustica.bsdfs.eval_radiance`).  So no photon estimate goes through a narrow glossy lobe (a frosted panel
+    of roughness 0.01 was black, but for a few fireflies, when photons were weighed by its whole BSDF).  At the
+    ``last`` specular vertex allowed the visible point is made with weight β, no glossy vertex may follow (the
+    glossy lobes' light is lost there, as roughplastic's coating's: :func:`rough_coating_step`).  ``path`` = (L, β).
+    Returns (glossy, L, alive, the new direction, the weight β is multiplied by for it or for the visible point, the
+    glossy sample's density given the pick, dim)."""
     mats = tables[1]
     L, beta = path
+    key, dim = numbers
+    zero = (0.0, 0.0, 0.0)
+    if last:
+        return False, L, False, d, (1.0, 1.0, 1.0), 0.0, dim
     P = glossy_share(mats, m, d, at.ns, at.uv)
     alive, wi, _, _, lobe, eta, dim_on = sample(mats, m, d, at.ng, at.ns, at.uv, key, dim + 3)
     if lobe & DIFFUSE_LOBES:
-        w = 1.0 / (1.0 - P)
+        # P = 1 only where the sample failed (below the shading surface: pplastic), where the diffuse lobes are 0 too
+        w = 1.0 / (1.0 - P) if P < 1.0 else 0.0
         return False, L, False, wi, (w, w, w), 0.0, dim_on
+    if not P > 0.0:   # a failed sample reported as glossy where no glossy lobe is (principledthin at a grazing wo)
+        return True, L, False, wi, zero, 0.0, dim_on
     ok, term, scale, _, _ = next_event(tables, at, m, d, beta, key, dim, (GLOSSY_PART, P))
     if ok:
         L = vec.madd(L, term, scale / P)
     f, f_scale, pdf = eval_part(mats, m, d, at.ng, at.ns, at.uv, wi, GLOSSY_PART)
     if not (alive and pdf > 0.0):
-        return True, L, False, wi, (0.0, 0.0, 0.0), 0.0, dim_on
+        return True, L, False, wi, zero, 0.0, dim_on
     scale = f_scale * abs(vec.dot(wi, at.ns)) / pdf
     if lobe & TRANSMISSION:
         scale /= eta * eta   # radiance is compressed into the denser medium
@@ -336,7 +345,7 @@ def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
             Le = emission_weighted(tables, vec.offset_origin(at.p, at.ng, wi), wi, medium, pdf)
             Ld = vec.add(Ld, vec.hadamard(beta_wi, Le))
         return Ld
-    through = splits_lobes(mats, m) and mats.flags[m] & GLOSSY_TRANSMISSION != 0   # a diffuse transmission
+    through = held_lobes_transmit(mats, m)   # principledthin's diffuse transmission: lights behind it too
     contrib, wi, _, _, _, ok, _ = light_sample(tables, at, (uniform(key, dim), uniform(key, dim + 1),
                                                             uniform(key, dim + 2)), through)
     if not ok:
@@ -485,7 +494,7 @@ def diffuse_vertex(tables, at, m, d, path, branch, rules):
     if splits_lobes(mats, m):
         # glossy lobes beside diffuse ones (pplastic, principled, principledthin; under a map too): a glossy one taken
         # as a coating's lobe is, else the visible point on the diffuse ones (its normal the geometric one under a map)
-        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, path, numbers[0], dim)
+        glossy, L, alive, wi, w, pdf, dim = lobe_choice(tables, at, m, d, path, (numbers[0], dim), last)
         if glossy:
             return False, zero, zero, L, True, (wi, -1.0, w, zero), pdf, first_glass, dim
         w = vec.hadamard(beta, w)
@@ -503,10 +512,6 @@ def diffuse_vertex(tables, at, m, d, path, branch, rules):
     elif has(mats, ROUGHPLASTIC) and mats.kind[m] == ROUGHPLASTIC:
         # a glossy coating over a diffuse lobe: the coating's lobe, else the visible point here
         take_coat, coating, L, pdf_coat, first_glass, dim = rough_coating_step(tables, at, m, d, path, branch, last)
-    elif has(mats, GLOSSY_LOBES) and flags & GLOSSY and flags & DIFFUSE_REFLECTION:
-        # a glossy lobe beside a diffuse one (pplastic, principled): the visible point evaluates the BSDF
-        Ld = bsdf_visible_point(tables, at, m, d, beta, (numbers[0], dim), pixel)
-        return True, at.ns, beta, vec.add(L, Ld), take_coat, coating, pdf_coat, first_glass, dim
     if flags & SMOOTH and not take_coat:
         w, Ld = visible_point_here(tables, at, m, beta, (coating[1], coating[3]), numbers, params, dim)
         if has(mats, ROUGHPLASTIC) and params[5] and mats.kind[m] == ROUGHPLASTIC and coating[1] >= 0.0:
@@ -764,7 +769,7 @@ class VisiblePoints(NamedTuple):
     """One pass's visible point of each pixel (every entry written by the camera pass)."""
     position: np.ndarray   # float64[n, 3]
     normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side (ng under a normal or bump map)
-    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0, β / (1 - P) at a split point)
+    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0, β / (1 - P) at a split point or beside glossy lobes)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
     bsdf: np.ndarray       # float64[n, BSDF_COLUMNS] (or [n, 1] in a scene without such a BSDF: its first column

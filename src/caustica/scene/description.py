@@ -312,6 +312,20 @@ class Shape:
     exterior: int = -1
 
 
+def signed_volume(mesh: Mesh, chunk: int = 1 << 18) -> tuple[float, float]:
+    """(the volume a mesh's winding encloses, its area): positive where its faces point outwards, negative where
+    they point inwards (a closed mesh; an open one's depends on where it is); flat, about 0 against area^1.5.  About
+    the vertices' mean, in chunks of triangles (no array over the whole mesh)."""
+    p = mesh.positions - mesh.positions.mean(axis=0)
+    volume = area = 0.0
+    for i in range(0, len(mesh.triangles), chunk):
+        t = mesh.triangles[i:i + chunk]
+        a, b, c = p[t[:, 0]], p[t[:, 1]], p[t[:, 2]]
+        volume += float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0
+        area += float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()) / 2.0
+    return volume, area
+
+
 @dataclass
 class PointLight:
     """A point light (Mitsuba 3's ``point``), or a spot light (``spot``) when ``axis`` is given: then its
@@ -565,10 +579,8 @@ class SceneDescription:
                 inside_out.append(s.source or s.id or "a sphere")
             if s.interior < 0 or s.mesh is None or len(s.mesh.triangles) == 0:
                 continue
-            p = s.mesh.positions - s.mesh.positions.mean(axis=0)
-            a, b, c = (p[s.mesh.triangles[:, k]] for k in range(3))
-            volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0
-            if volume < -0.1 * float(np.prod(np.ptp(p, axis=0))):   # clearly turned inside out, not merely open
+            volume, area = signed_volume(s.mesh)
+            if volume < -1e-3 * area ** 1.5:   # clearly turned inside out, not a flat or open mesh's rounding
                 inside_out.append(s.source or s.id or "a mesh")
         if not inside_out:
             return None
