@@ -428,11 +428,12 @@ def gather_at_visible_points(maps, estimate, points, out, i0, i1):
 
     The one-shot methods' surface estimate at visible points found by the camera pass in media
     (:func:`caustica.photons.visible_points.camera_pass`): ``points`` = (position, normal, found, weight
-    W_i = β ρ / π, or β, β / (1 - P) where a row names a material, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
+    W_i = β ρ / π, the BSDF rows, the material table, the camera path's segments to each point, max_depth or None):
     point i takes the records of depth max_depth - segments[i] at most.  A point whose row names a material (the
-    diffuse lobes beside glossy ones, or a diffuse lobe under a map; its weight then β, or β / (1 - P)) weighs each
-    photon by that BSDF's lobes it holds (:func:`flux_density`'s ``bsdf``); at a roughplastic's split point (the camera pass's ``claim``; its weight β / (1 - P)) the global map's
-    records are weighted by the diffuse lobe's A and the caustic map's by A + f_glossy / B.
+    diffuse lobes beside glossy ones, or a diffuse lobe under a map; its weight then β / (1 - P), or β) weighs each
+    photon by the lobes it holds (:func:`flux_density`'s ``bsdf``); at a roughplastic's split point (the camera
+    pass's ``claim``; its weight β / (1 - P)) the global map's records are weighted by the diffuse lobe's A and the
+    caustic map's by A + f_glossy / B.
     """
     gmap, cmap = maps
     gmap, cmap = borrowed(gmap), borrowed(cmap)

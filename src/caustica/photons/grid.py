@@ -21,8 +21,8 @@ of the cells it scans, so the cells that share a bucket never mix.  Points outsi
 box are clamped into its border cells (the distance test stays exact).
 
 A visible point on a BSDF that is not Lambertian (the diffuse lobes beside a glossy one, a diffuse lobe under a map)
-weights each event by the lobes it holds at the event's direction (:func:`grid_range_sum`'s ``bsdf``), so the grid then keeps the events'
-directions too (``direction``; empty otherwise).
+weights each event by the lobes it holds at the event's direction (:func:`grid_range_sum`'s ``bsdf``), so the
+grid then keeps the events' directions too (``direction``; empty otherwise).
 """
 from __future__ import annotations
 

@@ -327,9 +327,9 @@ def visible_point_here(tables, at, m, beta, coating, numbers, params, dim):
 def bsdf_visible_point(tables, at, m, d, beta, numbers, pixel):
     """A visible point that evaluates its BSDF: on the diffuse lobes of a BSDF with glossy ones beside them
     (:func:`lobe_choice` picked them), or on any diffuse lobe under a normal or bump map (its frame perturbed), made as
-    pbrt-v4's SPPM makes every one: its weight is β, the gather weights each photon by the BSDF's value f(d, the
-    photon's direction) of the lobes it holds (:func:`caustica.bsdfs.eval_photon`,
-    :func:`caustica.photons.grid.grid_range_sum`).  Its direct light, the path ending here: one light sample times that
+    pbrt-v4's SPPM makes every one: its weight is β (β / (1 - P) after a lobe choice, passed as ``beta``), the gather
+    weights each photon by the BSDF's value f(d, the photon's direction) of the lobes it holds
+    (:func:`caustica.bsdfs.eval_photon`, :func:`caustica.photons.grid.grid_range_sum`).  Its direct light, the path ending here: one light sample times that
     f (on either side where a diffuse lobe transmits).  On roughplastic under a map (its glossy lobe not split off) a
     glossy vertex's, one light sample and one BSDF sample whose ray counts only the emitters it meets (past null
     boundaries, through media: :func:`caustica.photons.segments.emission_weighted`), combined by MIS (power heuristic).
@@ -769,7 +769,8 @@ class VisiblePoints(NamedTuple):
     """One pass's visible point of each pixel (every entry written by the camera pass)."""
     position: np.ndarray   # float64[n, 3]
     normal: np.ndarray     # float64[n, 3]: shading normal on the viewed side (ng under a normal or bump map)
-    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0, β / (1 - P) at a split point or beside glossy lobes)
+    weight: np.ndarray     # float64[n, 3]: W = β ρ / π (β where material >= 0, β / (1 - P) beside glossy lobes and
+    #                        at a split point)
     found: np.ndarray      # bool[n]
     direct: np.ndarray     # float64[n, 3]: the radiance the path saw directly (emitters, direct light)
     bsdf: np.ndarray       # float64[n, BSDF_COLUMNS] (or [n, 1] in a scene without such a BSDF: its first column
