@@ -208,18 +208,22 @@ def test_empty_map_and_nothing_in_range():
 
 # ----------------------------------------------------------------------------- a BSDF that is evaluated
 
+@pytest.mark.parametrize("alpha", [0.2, 0.05])
 @pytest.mark.parametrize("filt", FILTER_NAMES)
-def test_bsdf_weighted_estimate_matches_brute_force(filt):
+def test_bsdf_weighted_estimate_matches_brute_force(filt, alpha):
     """At a point that evaluates its BSDF (pplastic: pm's gather there) each of the k nearest records is weighted by
-    f(d, -its direction) of the lobes the point holds, pplastic's diffuse lobe (its glossy lobe is the camera path's:
-    bsdfs.splits_lobes): the estimate against the same records summed by hand with the BSDF's own eval_part; the
-    records, their count and r are those of the plain estimate (the weights change nothing else)."""
+    f(d, -its direction) of the lobes the point holds: the whole BSDF at alpha 0.2, the diffuse lobe alone at 0.05,
+    whose narrow glossy lobe is the camera path's (bsdfs.splits_lobes): the estimate against the same records summed
+    by hand with the BSDF's own eval_pdf or eval_part; the records, their count and r are those of the plain estimate
+    (the weights change nothing else)."""
     import types
-    from caustica.bsdfs import DIFFUSE_PART, build_material_table, eval_part
+    from caustica.bsdfs import ALL_LOBES, DIFFUSE_PART, build_material_table, eval_part
     from caustica.geometry.scene_geometry import NO_UV
     from caustica.scene.description import GGX, PPLASTIC, Material
     mats = build_material_table(types.SimpleNamespace(materials=[Material(
-        PPLASTIC, (0.6, 0.3, 0.1), int_ior=1.6, ext_ior=1.0, specular=(0.9, 0.8, 1.0), distribution=GGX, alpha=0.2)]))
+        PPLASTIC, (0.6, 0.3, 0.1), int_ior=1.6, ext_ior=1.0, specular=(0.9, 0.8, 1.0), distribution=GGX,
+        alpha=alpha)]))
+    part = ALL_LOBES if alpha >= 0.1 else DIFFUSE_PART
     rng = np.random.default_rng(5)
     n = 3000
     pos = np.zeros((n, 3))
@@ -243,7 +247,7 @@ def test_bsdf_weighted_estimate_matches_brute_force(filt):
             for j in range(count):
                 i = idx[j]
                 c, scale, _ = eval_part(mats, 0, d, up, up, NO_UV, tuple(-pmap.direction[i].astype(np.float64)),
-                                        DIFFUSE_PART)
+                                        part)
                 want += filter_weight(FILTERS[filt], d2[j], r2) * scale * np.array(c) * pmap.power[i]
             np.testing.assert_allclose(weighted, want, rtol=1e-9)
 

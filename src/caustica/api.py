@@ -118,11 +118,10 @@ def check_bsdfs(cls, scene) -> None:
     its photons, or a stream's leading photon, scatter there by the adjoint wrapped BSDF);
     ``renders_rough_coated = True`` — a glossy coating over a separable diffuse lobe (roughplastic: every photon
     method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — other glossy
-    lobes beside a diffuse one (pplastic, principled, principledthin), which a camera path takes apart: it follows a
-    glossy lobe as the BSDF's sampling picks it, else its visible point (sppm) or k-nearest estimate (pm) weights each
-    photon, and each shadow ray of its direct light, by the diffuse lobes at the photon's (ray's) direction (every
-    photon method); where those transmit (principledthin's diffuse transmission) the photons and lights of both
-    sides.
+    lobes beside a diffuse one (pplastic, principled, principledthin), whose visible point (sppm) or k-nearest
+    estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
+    direction (every photon method), the photons and lights of both sides where it transmits; a narrow glossy lobe a
+    camera path takes apart first (bsdfs.splits_lobes), the point then weighing by the diffuse lobes alone.
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):

@@ -52,7 +52,7 @@ from .perturb import gather_shading, perturbed_normal, photon_shading, terminato
 from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP
 from .flags import ALL_LOBES, ANISOTROPIC, DELTA, DELTA_REFLECTION, DELTA_TRANSMISSION, DIFFUSE_LOBES, DIFFUSE_PART, \
     DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, GLOSSY_PART, GLOSSY_REFLECTION, GLOSSY_LOBES, \
-    GLOSSY_TRANSMISSION, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401  (part of the interface)
+    GLOSSY_TRANSMISSION, NARROW_ALPHA, NARROW_GLOSSY, NULL_TRANSMISSION, SMOOTH, TEXTURED, TRANSMISSION  # noqa: F401
 
 #: kind code -> module; a kind not listed here (NULL) has no BSDF: rays cross it (caustica.transport).
 BSDFS = {DIFFUSE: diffuse, CONDUCTOR: conductor, DIELECTRIC: dielectric, ROUGHCONDUCTOR: roughconductor,
@@ -133,6 +133,10 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             if mat.kind == PRINCIPLED and any(c not in textured and coating[i, c] == 1.0
                                               for c in (principled.METALLIC, principled.SPEC_TRANS)):
                 flags[i] &= ~DIFFUSE_REFLECTION   # metallic or spec_trans 1: no diffuse or sheen lobe (glossy only)
+            if narrowest_glossy_alpha(mat, float(alpha[i]), float(alpha_v[i])) < NARROW_ALPHA:
+                flags[i] |= NARROW_GLOSSY
+        if mat.kind == PPLASTIC and alpha[i] < NARROW_ALPHA:
+            flags[i] |= NARROW_GLOSSY
         if mat.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC):   # specular_reflectance (dielectric.tints)
             coating[i, plastic.SPEC:plastic.SPEC + 3] = mat.specular
         if mat.kind in (PLASTIC, ROUGHPLASTIC, PPLASTIC):
@@ -158,6 +162,22 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
                          cond_k, coating, *texture_columns(desc.materials, params), *mixture_columns(desc.materials),
                          np.array([1 if m.terminator else 0 for m in desc.materials] or [0], np.int8),
                          wrapped_rows(desc, m), attribute_table(desc))
+
+
+def narrowest_glossy_alpha(mat, alpha_u: float, alpha_v: float) -> float:
+    """The smallest microfacet roughness a principled or principledthin material's glossy lobes may have: its
+    (alpha_u, alpha_v) from roughness and anisotropic, principled's clearcoat lobe (alpha from 0.1 down to 0.001 as
+    clearcoat_gloss goes to 1), principledthin's transmission (alpha times 0.65 eta - 0.35); 0 where roughness,
+    anisotropic, clearcoat_gloss or eta comes from a texture (any value may occur)."""
+    p, textured = mat.principled, mat.param_textures
+    if {"roughness", "anisotropic", "clearcoat_gloss", "eta"} & set(textured):
+        return 0.0
+    a = min(alpha_u, alpha_v)
+    if mat.kind == PRINCIPLED and (p.get("clearcoat", 0.0) > 0.0 or "clearcoat" in textured):
+        a = min(a, 0.1 + (0.001 - 0.1) * p.get("clearcoat_gloss", 0.0))
+    if mat.kind == PRINCIPLEDTHIN and (p.get("spec_trans", 0.0) > 0.0 or "spec_trans" in textured):
+        a = min(a, a * (0.65 * p.get("eta", 1.5) - 0.35))
+    return a
 
 
 def wrapped_rows(desc: SceneDescription, m: int) -> np.ndarray:
@@ -331,15 +351,18 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 @kernel(inline=True)
 def splits_lobes(mats, m):
     """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principledthin,
-    and principled where metallic and spec_trans leave it a diffuse lobe): it picks one as :func:`sample` does, goes on
-    by a glossy one and makes its visible point on a diffuse one, which then holds the diffuse lobes alone
-    (:func:`eval_radiance`), so that no photon estimate goes through a narrow glossy lobe
-    (caustica.photons.visible_points).  Never in a scene without those kinds."""
+    and principled where metallic and spec_trans leave it a diffuse lobe; ``NARROW_GLOSSY``: some glossy lobe may be
+    narrower than :data:`.flags.NARROW_ALPHA`): it picks one as :func:`sample` does, goes on by a glossy one and makes
+    its visible point on a diffuse one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no
+    photon estimate goes through a narrow glossy lobe (caustica.photons.visible_points).  Broader lobes stay in the
+    visible point's estimate, weighed with the photons: the choice costs noise there.  Never in a scene without those
+    kinds."""
     if not (has(mats, PPLASTIC) or has(mats, PRINCIPLED) or has(mats, PRINCIPLEDTHIN)):
         return False
     kind = mats.kind[m]
-    return (kind == PPLASTIC or kind == PRINCIPLED or kind == PRINCIPLEDTHIN) and mats.flags[m] & GLOSSY != 0 and \
-        mats.flags[m] & DIFFUSE_REFLECTION != 0
+    flags = mats.flags[m]
+    return (kind == PPLASTIC or kind == PRINCIPLED or kind == PRINCIPLEDTHIN) and flags & NARROW_GLOSSY != 0 and \
+        flags & GLOSSY != 0 and flags & DIFFUSE_REFLECTION != 0
 
 
 @kernel(inline=True)
@@ -360,8 +383,11 @@ def glossy_share(mats, m, d, ns, uv):
 @kernel(inline=True)
 def held_lobes_transmit(mats, m):
     """Whether the lobes a visible point holds at material m (:func:`eval_radiance`'s) transmit, so that lights behind
-    the surface light it: principledthin's diffuse transmission (a principled's diffuse lobe reflects only)."""
-    return has(mats, PRINCIPLEDTHIN) and mats.kind[m] == PRINCIPLEDTHIN
+    the surface light it: a transmitting BSDF's, but where it :func:`splits_lobes` only principledthin's (its diffuse
+    transmission; a principled's diffuse lobe reflects only)."""
+    if splits_lobes(mats, m):
+        return has(mats, PRINCIPLEDTHIN) and mats.kind[m] == PRINCIPLEDTHIN
+    return mats.flags[m] & GLOSSY_TRANSMISSION != 0
 
 
 @kernel(inline=True)

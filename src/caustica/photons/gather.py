@@ -24,12 +24,14 @@ camera pass takes it (:func:`caustica.photons.visible_points.rough_coating_step`
 probability P, as a glossy vertex, else the diffuse lobe's estimate with f_r = A / (1 - P), B on photons and shadow
 rays; with a caustic map (PM+C) that estimate is a split point, as sppm's with its caustic photons' own statistics:
 the caustic map's records weighted by A + f_glossy / B (:func:`split_estimate`), and a path that took the coating
-leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  At glossy
-lobes beside a diffuse one (pplastic, principled, principledthin) the path picks a lobe as the BSDF's sampling does
+leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  At narrow glossy
+lobes beside a diffuse one (pplastic, principled, principledthin: bsdfs.splits_lobes) the path picks a lobe as the
+BSDF's sampling does
 (:func:`caustica.photons.visible_points.lobe_choice`, as sppm's): a glossy one it follows as a glossy vertex of those
 lobes, else it ends there and its estimate weights every photon of both maps and every shadow ray by the diffuse
 lobes' f(d, wi) (:func:`diffuse_estimate`'s ``bsdf``, :func:`caustica.bsdfs.eval_radiance`), as sppm's visible points
-weight their photons: L = β / (1 - P) (Σ_shadow f L cos / p + Σ_p W f Φ_p).
+weight their photons: L = β / (1 - P) (Σ_shadow f L cos / p + Σ_p W f Φ_p).  At broader ones the estimate weighs
+them by the whole BSDF (L = β (Σ_shadow f L cos / p + Σ_p W f Φ_p)).
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ import math
 
 import numpy as np
 
-from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY_LOBES, SMOOTH, coat, colour, \
+from ..bsdfs import ANISOTROPIC, DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, SMOOTH, coat, colour, \
     delta_branches, has_null_lobe, oriented, resolve, splits_lobes, wrapped
 from ..bsdfs.textures import needs_tangent, needs_uv
 from ..camera import generate_ray, pixel_of
@@ -271,9 +273,10 @@ def camera_vertex(tables, lookups, at, m, path, stack, key, dim):
         E, dim, q = diffuse_estimate(tables, lookup, params, at, m, None, key, dim)
         L = vec.add(L, vec.hadamard(beta, vec.hadamard(vec.mul(A, 1.0 / (1.0 - P)), E)))
         return False, L, beta, d, depth, last, crossed, q, top, dim
-    if wrap and flags & DIFFUSE_REFLECTION:
-        # any other diffuse lobe under a map (a roughplastic's too): the estimate here weighs each shadow ray and
-        # photon by the BSDF's f(d, wi), in the perturbed frame (as sppm's visible points)
+    if (has(mats, GLOSSY_LOBES) and flags & GLOSSY or wrap) and flags & DIFFUSE_REFLECTION:
+        # a broad glossy lobe beside a diffuse one (pplastic, principled), or any other diffuse lobe under a map: the
+        # estimate here weighs each shadow ray and photon by the whole BSDF's f(d, wi), in the perturbed frame (as
+        # sppm's visible points)
         E, dim, q = diffuse_estimate(tables, lookup, params, at, -1, (mats, m, d, at.ng, at.ns, at.uv), key, dim)
         return False, vec.add(L, vec.hadamard(beta, E)), beta, d, depth, last, crossed, q, top, dim
     if null_lobe:
