@@ -102,10 +102,11 @@ def test_timed_renders_run_alone_on_a_worker_with_all_its_threads(tmp_path, monk
     # two halves, two timed points and PM+C (and Mitsuba's point)
     assert len(renders) == 5 + (convergence.mitsuba_module() is not None)
     spans = sorted((s["start"], s["stop"]) for t in renders for s in t["startstops"] if s["action"] == "compute")
-    # one after the other.  Dask stamps a task's end late (by up to ~25 ms seen on a loaded machine),
-    # while renders side by side overlap by most of a render (without the slot: 4 overlaps of whole
-    # renders); so an overlap must stay under a quarter of the shorter render
-    assert all(stop <= next_start + 0.25 * min(stop - start, next_stop - next_start)
+    # one after the other.  Dask stamps a task's end late (by up to ~25 ms seen on a loaded machine; 93 ms of a
+    # 308 ms render once under the whole suite's four processes on 2 cores, 2026-12-07), while renders side by
+    # side overlap by most of a render (without the slot: 4 overlaps of whole renders); so an overlap must
+    # stay under half the shorter render, midway between the two
+    assert all(stop <= next_start + 0.5 * min(stop - start, next_stop - next_start)
                for (start, stop), (next_start, next_stop) in zip(spans, spans[1:])), spans
     timed = [r for r in res["rows"] if r["budget_s"] is not None]
     assert {r["label"] for r in timed} >= {"pt", "SPPM"}
