@@ -29,10 +29,10 @@ from ..geometry import vec
 from ..jit import kernel
 from ..scene.description import PPLASTIC
 from . import microfacet as mf
-from .flags import ALL_LOBES, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION
+from .flags import ALL_LOBES, DIFFUSE_REFLECTION, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric
 from .plastic import SPEC_WEIGHT, specular
-from .roughplastic import two_lobe_eval_pdf, two_lobe_sample
+from .roughplastic import lobe_sum, two_lobe_eval_pdf, two_lobe_sample
 from .textures import colour
 
 KIND = PPLASTIC
@@ -55,12 +55,8 @@ def local_eval(mats, m, wo, wl, uv, part=ALL_LOBES):
     F_o, _ = fresnel_dielectric(wo[2], eta)
     F_i, _ = fresnel_dielectric(wl[2], eta)
     diff = (1.0 - F_o) * (1.0 - F_i) * INV_PI
-    if part == ALL_LOBES:
-        f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(colour(mats, m, uv), diff))
-        return f, w * dh * g1o / (4.0 * wo[2]) + (1.0 - w) * wl[2] * INV_PI
-    if part == GLOSSY_PART:
-        return vec.mul(specular(mats, m), spec), w * dh * g1o / (4.0 * wo[2])
-    return vec.mul(colour(mats, m, uv), diff), (1.0 - w) * wl[2] * INV_PI
+    return lobe_sum(part, (vec.mul(specular(mats, m), spec), w * dh * g1o / (4.0 * wo[2])),
+                    (vec.mul(colour(mats, m, uv), diff), (1.0 - w) * wl[2] * INV_PI))
 
 
 @kernel(inline=True)

@@ -222,12 +222,13 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
 @kernel
 def eval_pdf(mats, m, d, ng, ns, uv, wi):
     """:func:`caustica.bsdfs.principled.eval_pdf` for the thin sheet (its :func:`local_eval`, its :func:`sample`)."""
-    return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, ALL_LOBES)
+    return eval_part(mats, m, d, ng, ns, uv, wi, ALL_LOBES)
 
 
 @kernel
 def eval_part(mats, m, d, ng, ns, uv, wi, part):
-    """:func:`eval_pdf` of the lobes ``part`` names alone (:func:`local_eval`)."""
+    """:func:`eval_pdf` of the lobes ``part`` names alone: :func:`.principled.paired_eval` with this module's
+    :func:`local_eval`."""
     return paired_eval(local_eval, mats, m, (d, ng, ns), uv, wi, part)
 
 

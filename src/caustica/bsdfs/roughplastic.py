@@ -32,7 +32,7 @@ from ..sampling.rng import uniform
 from ..sampling.warps import square_to_cosine_hemisphere
 from ..scene.description import ROUGHPLASTIC
 from . import microfacet as mf
-from .flags import ALL_LOBES, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION
+from .flags import ALL_LOBES, DIFFUSE_PART, DIFFUSE_REFLECTION, GLOSSY_PART, GLOSSY_REFLECTION
 from .optics import fresnel_dielectric, refract
 from .plastic import SPEC_WEIGHT, TABLE, TABLE_RES, base, specular
 
@@ -112,12 +112,19 @@ def local_eval(mats, m, wo, wl, uv, part=ALL_LOBES):
     F, _ = fresnel_dielectric(vec.dot(wo, h), eta)
     spec = F * dh * g1o * mf.smith_g1(dist, alpha, wl, h) / (4.0 * wo[2] * wl[2])
     diff = t_o * transmittance(mats, m, wl[2]) * INV_PI / (eta * eta)
-    if part == ALL_LOBES:
-        f = vec.add(vec.mul(specular(mats, m), spec), vec.mul(base(mats, m, uv), diff))
-        return f, P * dh * g1o / (4.0 * wo[2]) + (1.0 - P) * wl[2] * INV_PI
+    return lobe_sum(part, (vec.mul(specular(mats, m), spec), P * dh * g1o / (4.0 * wo[2])),
+                    (vec.mul(base(mats, m, uv), diff), (1.0 - P) * wl[2] * INV_PI))
+
+
+@kernel(inline=True)
+def lobe_sum(part, glossy, diffuse):
+    """(f, pdf) of the lobes ``part`` names (:data:`.flags.ALL_LOBES`, ``GLOSSY_PART``, ``DIFFUSE_PART``) from the
+    glossy and the diffuse lobe's (f, pdf): both summed, the glossy first; shared with :mod:`.pplastic`."""
     if part == GLOSSY_PART:
-        return vec.mul(specular(mats, m), spec), P * dh * g1o / (4.0 * wo[2])
-    return vec.mul(base(mats, m, uv), diff), (1.0 - P) * wl[2] * INV_PI
+        return glossy
+    if part == DIFFUSE_PART:
+        return diffuse
+    return vec.add(glossy[0], diffuse[0]), glossy[1] + diffuse[1]
 
 
 @kernel(inline=True)
