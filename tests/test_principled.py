@@ -403,16 +403,23 @@ def test_photon_methods_render_principled_glass_and_metal_as_mitsuba(principled_
     assert_images_agree(ours, principled_caustic_mitsuba, label=f"{method} principled caustic")
 
 
-@pytest.fixture(scope="module")
-def backlit_mitsuba(mi, test_scenes_dir):
-    """Mitsuba's path tracer on tests/scenes/principled-backlit.xml at 32 x 32: 4 seeds of 512 spp."""
-    scene = mi.load_file(str(test_scenes_dir / "principled-backlit.xml"), res=32, spp=512)
+def mitsuba_at_32(mi, path):
+    """Mitsuba's path tracer on the scene file ``path`` at 32 x 32: 4 seeds of 512 spp."""
+    scene = mi.load_file(str(path), res=32, spp=512)
     return [np.array(mi.render(scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
 
 
-@pytest.mark.parametrize("method, params", [
-    ("sppm", {"passes": 256}), ("pm", PM), ("pspm", {"passes": 256, "streams": 4000}),
-    ("spm", {"streams": 160_000, "spp": 16, "termination": "roulette", "max_bounces": 64})])
+#: Every photon method with parameters that bring a 32 x 32 scene of tests/scenes within Mitsuba's noise.
+PHOTON_METHODS_AT_32 = [("sppm", {"passes": 256}), ("pm", PM), ("pspm", {"passes": 256, "streams": 4000}),
+                        ("spm", {"streams": 160_000, "spp": 16, "termination": "roulette", "max_bounces": 64})]
+
+
+@pytest.fixture(scope="module")
+def backlit_mitsuba(mi, test_scenes_dir):
+    return mitsuba_at_32(mi, test_scenes_dir / "principled-backlit.xml")
+
+
+@pytest.mark.parametrize("method, params", PHOTON_METHODS_AT_32)
 def test_photon_methods_render_a_transmitting_principled_as_mitsuba(backlit_mitsuba, test_scenes_dir, method, params):
     """A glossy transmission beside the diffuse lobe (principled's spec_trans, principledthin's spec_trans and
     diff_trans), lit from both sides: each photon method's estimate there weights the photons (or stream records) of
@@ -531,14 +538,10 @@ def glossy_share_of(mats, d):
 
 @pytest.fixture(scope="module")
 def sharp_panel_mitsuba(mi, test_scenes_dir):
-    """Mitsuba's path tracer on tests/scenes/principled-sharp-panel.xml at 32 x 32: 4 seeds of 512 spp."""
-    scene = mi.load_file(str(test_scenes_dir / "principled-sharp-panel.xml"), res=32, spp=512)
-    return [np.array(mi.render(scene, spp=512, seed=s), dtype=np.float32)[..., :3] for s in (1, 2, 3, 4)]
+    return mitsuba_at_32(mi, test_scenes_dir / "principled-sharp-panel.xml")
 
 
-@pytest.mark.parametrize("method, params", [
-    ("sppm", {"passes": 256}), ("pm", PM), ("pspm", {"passes": 256, "streams": 4000}),
-    ("spm", {"streams": 160_000, "spp": 16, "termination": "roulette", "max_bounces": 64})])
+@pytest.mark.parametrize("method, params", PHOTON_METHODS_AT_32)
 def test_photon_methods_see_through_a_narrow_glossy_lobe_as_mitsuba(sharp_panel_mitsuba, test_scenes_dir, method,
                                                                      params):
     """A lit wall seen through a nearly smooth frosted panel (principled: spec_trans 0.9 beside its diffuse lobe,

@@ -564,15 +564,11 @@ class SceneDescription:
         from .builtin import builtin_scene_names
         return self.source in builtin_scene_names()
 
-    def media_note(self, method: str) -> str | None:
-        """For a photon method, one line naming the shapes that hold an interior medium and face inwards (a mesh whose
-        volume, from its winding, comes out negative; a sphere with flip_normals): Mitsuba puts a shape's interior
-        medium behind its faces, so outside such a shape, and a camera path (Mitsuba's, and pt's) that leaves the shape
-        keeps that medium however far it goes, a state of the path that a photon estimate cannot share (a published
-        scene, sapo17's texture-scanner cube: sppm 10 % darker than Mitsuba, -0.4 % with the faces turned).  None
-        otherwise, and for pt, which follows Mitsuba's rule."""
-        if method == "pt":
-            return None
+    @cached_property
+    def inside_out_shapes(self) -> list[str]:
+        """Where the shapes are that hold an interior medium and face inwards (:meth:`media_note`): a mesh whose
+        signed volume is clearly negative, a sphere with flip_normals.  Computed once per scene (the command line's
+        note and the render's sidecar both ask)."""
         inside_out = []
         for s in self.shapes:
             if s.interior >= 0 and s.kind == SPHERE and s.flip_normals:
@@ -582,7 +578,17 @@ class SceneDescription:
             volume, area = signed_volume(s.mesh)
             if volume < -1e-3 * area ** 1.5:   # clearly turned inside out, not a flat or open mesh's rounding
                 inside_out.append(s.source or s.id or "a mesh")
-        if not inside_out:
+        return inside_out
+
+    def media_note(self, method: str) -> str | None:
+        """For a photon method, one line naming the shapes that hold an interior medium and face inwards (a mesh whose
+        volume, from its winding, comes out negative; a sphere with flip_normals): Mitsuba puts a shape's interior
+        medium behind its faces, so outside such a shape, and a camera path (Mitsuba's, and pt's) that leaves the shape
+        keeps that medium however far it goes, a state of the path that a photon estimate cannot share (a published
+        scene, sapo17's texture-scanner cube: sppm 10 % darker than Mitsuba, -0.4 % with the faces turned).  None
+        otherwise, and for pt, which follows Mitsuba's rule."""
+        inside_out = self.inside_out_shapes
+        if method == "pt" or not inside_out:
             return None
         return (f"the shape at {', '.join(inside_out[:3])}{' and others' if len(inside_out) > 3 else ''} "
                 f"faces inwards, so its interior medium lies outside it; Mitsuba (and --method pt) keep that medium "
