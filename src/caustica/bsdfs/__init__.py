@@ -10,7 +10,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
   relative IOR crossed, and the path's dimension past the random numbers it used (no caller counts);
 * :func:`eval_pdf` — f towards a given direction (a colour times a scalar, so next-event estimation
   keeps one multiplication order) and the density :func:`sample` would give it;
-* :func:`splits_lobes`, :func:`glossy_share`, :func:`eval_part` — a BSDF's glossy lobes beside its diffuse ones taken
+* :func:`splits_lobes`, :func:`glossy_share`, :func:`glossy_pick`, :func:`sample_glossy`, :func:`eval_part` — a BSDF's
+  glossy lobes beside its diffuse ones taken
   apart, for the photon methods' camera paths (which follow a glossy lobe and gather photons on the diffuse ones);
 * :func:`colour` — material m's colour at surface coordinates uv (its texture's, or ``rgb[m]``), which every
   BSDF and loop reads rather than ``rgb`` (:mod:`.textures`);
@@ -24,8 +25,8 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
   each branch sees in expectation (the visible-point pass).
 
 Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf`` for a smooth one or
-``delta_branches`` for a delta one; with glossy lobes beside a diffuse one also ``glossy_share`` and ``eval_part``,
-for :func:`splits_lobes`), add it to :data:`BSDFS` and one line to each dispatch function
+``delta_branches`` for a delta one; with glossy lobes beside a diffuse one also ``glossy_share``,
+``glossy_albedo``, ``sample_glossy`` and ``eval_part``, for :func:`splits_lobes`), add it to :data:`BSDFS` and one line to each dispatch function
 below (``if has(mats, FOO) and kind == FOO:``, so scenes without it compile none of its code: :mod:`caustica.features`), and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
 walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
 delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
@@ -352,7 +353,8 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 def splits_lobes(mats, m):
     """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principledthin,
     and principled where metallic and spec_trans leave it a diffuse lobe; ``NARROW_GLOSSY``: some glossy lobe may be
-    narrower than :data:`.flags.NARROW_ALPHA`): it picks one as :func:`sample` does, goes on by a glossy one and makes
+    narrower than :data:`.flags.NARROW_ALPHA`): it picks its glossy or its diffuse lobes (:func:`glossy_pick`), goes on by
+    the glossy ones (:func:`sample_glossy`) and makes
     its visible point on a diffuse one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no
     photon estimate goes through a narrow glossy lobe (caustica.photons.visible_points).  Broader lobes stay in the
     visible point's estimate, weighed with the photons: the choice costs noise there.  Never in a scene without those
@@ -378,6 +380,47 @@ def glossy_share(mats, m, d, ns, uv):
     if has(mats, PRINCIPLEDTHIN):
         return principledthin.glossy_share(mats, m, d, ns, uv)
     return 0.0
+
+
+@kernel(inline=True)
+def glossy_pick(mats, m, d, ns, uv, P):
+    """For a material that :func:`splits_lobes`, the probability Q with which a camera path takes its glossy lobes
+    (:func:`caustica.photons.visible_points.lobe_choice`), P being :func:`glossy_share`: the mean of P and the glossy
+    lobes' share of the light the BSDF scatters from -d (each module's ``glossy_albedo``).  A sampling rate alone
+    (Mitsuba's: a plastic's by its reflectances, a principled's one half) sends most camera paths along a glossy lobe
+    that carries a few per cent of the light, and the diffuse visible point's photons are then weighed by 1 / (1 - P);
+    the share alone starves a narrow highlight (docs/results.md measures the three).  The mean keeps 1 / Q within 2 / P and
+    1 / (1 - Q) within 2 / (1 - P); Q is P where P is 0 or 1."""
+    if not (P > 0.0 and P < 1.0):
+        return P
+    kind = mats.kind[m]
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
+        g, dif = pplastic.glossy_albedo(mats, m, d, ns, uv)
+    elif has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        g, dif = principled.glossy_albedo(mats, m, d, ns, uv)
+    elif has(mats, PRINCIPLEDTHIN):
+        g, dif = principledthin.glossy_albedo(mats, m, d, ns, uv)
+    else:
+        g, dif = 0.0, 0.0
+    if not g + dif > 0.0:
+        return P
+    return 0.5 * (P + g / (g + dif))
+
+
+@kernel(inline=True)
+def sample_glossy(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` of the glossy lobes alone of a material that :func:`splits_lobes`: its density is
+    :func:`eval_part`'s (``GLOSSY_PART``) over :func:`glossy_share`; u in [0, 1) picks among them as :func:`sample`'s
+    first number would, the direction from numbers = (key, dim) on, as :func:`sample`'s."""
+    kind = mats.kind[m]
+    if has(mats, PPLASTIC) and kind == PPLASTIC:
+        return pplastic.sample_glossy(mats, m, d, ng, ns, uv, numbers, u)
+    if has(mats, PRINCIPLED) and kind == PRINCIPLED:
+        return principled.sample_glossy(mats, m, d, ng, ns, uv, numbers, u)
+    if has(mats, PRINCIPLEDTHIN):
+        return principledthin.sample_glossy(mats, m, d, ng, ns, uv, numbers, u)
+    zero = (0.0, 0.0, 0.0)
+    return False, zero, zero, 0.0, GLOSSY_REFLECTION, 1.0, numbers[1] + 3
 
 
 @kernel(inline=True)

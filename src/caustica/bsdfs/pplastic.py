@@ -87,3 +87,29 @@ def eval_part(mats, m, d, ng, ns, uv, wi, part):
 def glossy_share(mats, m, d, ns, uv):
     """The probability that :func:`sample` picks the glossy lobe: w, whatever the direction."""
     return mats.coating[m, SPEC_WEIGHT]
+
+
+@kernel
+def glossy_albedo(mats, m, d, ns, uv):
+    """(glossy, diffuse): about how much of the light from -d each lobe reflects (luminance-free means), for
+    :func:`caustica.bsdfs.glossy_pick`: F(cos θ_o) specular_reflectance and (1 - F(cos θ_o))² diffuse_reflectance
+    (the light refracted in and, about as much, out)."""
+    co = -vec.dot(d, ns)
+    if co <= 0.0:
+        return 0.0, 0.0
+    F, _ = fresnel_dielectric(co, mats.eta[m])
+    s, c = specular(mats, m), colour(mats, m, uv)
+    return F * (s[0] + s[1] + s[2]) / 3.0, (1.0 - F) * (1.0 - F) * (c[0] + c[1] + c[2]) / 3.0
+
+
+@kernel(inline=True)
+def glossy_only(mats, m, wo):
+    """The glossy lobe's probability in :func:`sample_glossy`: 1."""
+    return 1.0
+
+
+@kernel
+def sample_glossy(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` of the glossy lobe alone, numbers = (key, dim) (its density there is :func:`eval_part`'s over
+    w); u, the number that would pick the lobe, is not needed."""
+    return two_lobe_sample(glossy_only, local_eval, mats, m, (d, ng, ns), uv, numbers[0], numbers[1])

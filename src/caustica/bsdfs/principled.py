@@ -347,6 +347,20 @@ def local_eval(mats, m, wo, wi, uv, part=ALL_LOBES):
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample` and the module's docstring: ``eta`` the relative IOR crossed by a
     refraction (1 otherwise); the weight leaves a refraction's 1 / eta² to the camera path."""
+    return sample_lobes(mats, m, d, ng, ns, uv, (key, dim), -1.0)
+
+
+@kernel
+def sample_glossy(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` of the glossy lobes alone (its density there is :func:`eval_part`'s over
+    :func:`glossy_share`), u in [0, 1) picking one of them as :func:`sample`'s first number would."""
+    return sample_lobes(mats, m, d, ng, ns, uv, numbers, u)
+
+
+@kernel(inline=True)
+def sample_lobes(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` (numbers = (key, dim)), or with u >= 0 :func:`sample_glossy`."""
+    key, dim = numbers
     s, t, wo = mf.shading_frame(ns, d, uv)   # about the front shading normal where the surface transmits
     zero = (0.0, 0.0, 0.0)
     p = params(mats, m, uv)
@@ -361,6 +375,8 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     c = vec.dot(wo, hm)
     F, cos_t, eta_it = fresnel(c, mats.eta[m])
     pd, pc, pt, _ = probabilities(p, F, front)
+    if u >= 0.0:   # the glossy lobes follow the diffuse one in the choice
+        u0 = pd + u * (1.0 - pd)
     eta_out = 1.0
     if u0 < pd:
         wl = square_to_cosine_hemisphere(u1, u2)
@@ -444,6 +460,25 @@ def glossy_share(mats, m, d, ns, uv):
         return 1.0
     pd, _, _, _ = probabilities(params(mats, m, uv), 0.0, True)
     return 1.0 - pd
+
+
+@kernel
+def glossy_albedo(mats, m, d, ns, uv):
+    """(glossy, diffuse): about how much of the light from -d the glossy lobes and the diffuse one scatter, for
+    :func:`caustica.bsdfs.glossy_pick`, luminances: the specular reflection's Fresnel at the macro-surface
+    (:func:`spec_fresnel`), the transmission's (1 - metallic) spec_trans (1 - F), the clearcoat's 0.25 clearcoat F;
+    the diffuse lobe's (1 - metallic) (1 - spec_trans) (1 - F) base.  Nothing from the back (no diffuse lobe)."""
+    co = -vec.dot(d, ns)
+    if co <= 0.0:
+        return 1.0, 0.0
+    p = params(mats, m, uv)
+    base = colour(mats, m, uv)
+    eta = mats.eta[m]
+    F, _, _ = fresnel(co, eta)
+    metallic, spec_trans = p[METALLIC], p[SPEC_TRANS]
+    glossy = vec.dot(spec_fresnel(p, base, F, co, True, eta), LUM) + (1.0 - metallic) * spec_trans * (1.0 - F) + \
+        0.25 * p[CLEARCOAT] * schlick(0.04, co, 1.5)
+    return glossy, (1.0 - metallic) * (1.0 - spec_trans) * (1.0 - F) * vec.dot(base, LUM)
 
 
 @kernel

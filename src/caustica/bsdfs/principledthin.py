@@ -177,6 +177,20 @@ def local_eval(mats, m, wo, wi, uv, part=ALL_LOBES):
 @kernel
 def sample(mats, m, d, ng, ns, uv, key, dim):
     """See :func:`caustica.bsdfs.sample` and the module's docstring: ``eta`` 1 (a thin sheet bends nothing)."""
+    return sample_lobes(mats, m, d, ng, ns, uv, (key, dim), -1.0)
+
+
+@kernel
+def sample_glossy(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` of the glossy lobes alone (its density there is :func:`eval_part`'s over
+    :func:`glossy_share`), u in [0, 1) picking one of them as :func:`sample`'s first number would."""
+    return sample_lobes(mats, m, d, ng, ns, uv, numbers, u)
+
+
+@kernel(inline=True)
+def sample_lobes(mats, m, d, ng, ns, uv, numbers, u):
+    """:func:`sample` (numbers = (key, dim)), or with u >= 0 :func:`sample_glossy`."""
+    key, dim = numbers
     s_, t_, wo = mf.shading_frame(ns, d, uv)   # about the front shading normal (the sheet transmits)
     zero = (0.0, 0.0, 0.0)
     if wo[2] == 0.0:
@@ -186,6 +200,8 @@ def sample(mats, m, d, ng, ns, uv, key, dim):
     sign = 1.0 if wo[2] > 0.0 else -1.0
     wu = vec.mul(wo, sign)     # wo turned above the sheet
     psr, pst, pdr, _ = probabilities(p)
+    if u >= 0.0:   # the glossy lobes come first in the choice
+        u0 = u * (psr + pst)
     if u0 < psr or u0 < psr + pst:
         au, av, tu, tv = lobe_alphas(p)
         refl = u0 < psr
@@ -238,3 +254,15 @@ def glossy_share(mats, m, d, ns, uv):
     either side and any direction."""
     psr, pst, _, _ = probabilities(params(mats, m, uv))
     return psr + pst
+
+
+@kernel
+def glossy_albedo(mats, m, d, ns, uv):
+    """(glossy, diffuse): about how much of the light from -d the glossy lobes and the diffuse ones scatter, for
+    :func:`caustica.bsdfs.glossy_pick`: spec_trans (F + (1 - F) base) and (1 - spec_trans) base, base's mean."""
+    p = params(mats, m, uv)
+    s = p[SPEC_TRANS]
+    F, _ = fresnel_dielectric(abs(vec.dot(d, ns)), p[ETA])
+    c = colour(mats, m, uv)
+    base = (c[0] + c[1] + c[2]) / 3.0
+    return s * (F + (1.0 - F) * base), (1.0 - s) * base

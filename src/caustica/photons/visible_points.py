@@ -58,14 +58,17 @@ reaches it ends (its light beyond is lost, as a path tracer's past its depth).
 **Narrow glossy lobes beside diffuse ones** (pplastic, principled, principledthin with some glossy lobe's roughness
 below :data:`caustica.bsdfs.NARROW_ALPHA`: :func:`caustica.bsdfs.splits_lobes`; broader ones the visible point weighs
 with the photons, as pbrt-v4's SPPM, :func:`bsdf_visible_point`): the
-path picks a lobe as the BSDF's own sampling picks it (:func:`lobe_choice`).  A glossy one (probability P) makes a
-glossy vertex of the glossy lobes alone, everything over P; a diffuse one makes the visible point here, weight
-β / (1 − P), which holds the diffuse lobes alone: the photons and its light sample are weighed by their f
-(:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole BSDF instead, which leaves a narrow glossy
+path picks the glossy lobes or the diffuse ones (:func:`lobe_choice`).  A glossy pick (probability Q,
+:func:`caustica.bsdfs.glossy_pick`: the mean of the BSDF's own sampling rate P and the glossy lobes' share of its
+albedo) makes a glossy vertex of the glossy lobes alone, sampled as the BSDF samples them, everything over Q; a
+diffuse one makes the visible point here, weight β / (1 − Q), which holds the diffuse lobes alone: the photons and its
+light sample are weighed by their f (:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole BSDF instead, which leaves a narrow glossy
 lobe to the few photons that arrive within it: a frosted panel of roughness 0.01 in front of a lit wall rendered
 black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The choice costs noise, so broad lobes
 are not split: on a pplastic floor of roughness 0.15 under a caustic the split raised the noise by 60 % at equal
-passes.  Unlike roughplastic's split points these claim no caustic: the glossy lobes' share of one is the camera
+passes; picking by P alone (Mitsuba's rate: two thirds glossy on that plastic) left the floor under a caustic of
+roughness 0.05 with 1.7x the per-pixel deviation outside the highlight that Q leaves (docs/methods.md).  Unlike
+roughplastic's split points these claim no caustic: the glossy lobes' share of one is the camera
 path's.
 
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
@@ -99,9 +102,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..bsdfs import DELTA, DIFFUSE_LOBES, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_PART, SMOOTH, TRANSMISSION, \
-    coat, colour, delta_branches, eval_coating, eval_part, eval_radiance, glossy_share, has_null_lobe, \
-    held_lobes_transmit, oriented, rough_coat, sample, sample_coating, splits_lobes, wrapped
+from ..bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, GLOSSY_LOBES, GLOSSY_PART, SMOOTH, TRANSMISSION, \
+    coat, colour, delta_branches, eval_coating, eval_part, eval_radiance, glossy_pick, glossy_share, has_null_lobe, \
+    held_lobes_transmit, oriented, rough_coat, sample, sample_coating, sample_glossy, splits_lobes, wrapped
 from ..camera import generate_ray, pixel_of
 from ..geometry import vec
 from ..geometry.scene_geometry import intersect
@@ -249,11 +252,12 @@ def glossy_step(tables, at, m, d, path, key, dim):
 
 @kernel
 def lobe_choice(tables, at, m, d, path, numbers, last):
-    """At a material with glossy lobes beside diffuse ones (:func:`caustica.bsdfs.splits_lobes`), one lobe picked as
-    its own sampling picks it (numbers ``numbers`` = (key, dim): dim + 3 on).  A glossy one (probability P,
-    :func:`caustica.bsdfs.glossy_share`) makes this a glossy vertex of the glossy lobes alone: one light sample
-    (numbers dim .. dim + 2) MIS-weighted against their sampling given that pick, then the sample itself, both over P.
-    A diffuse one makes the visible point here, weight β / (1 - P), which holds the diffuse lobes alone
+    """At a material with glossy lobes beside diffuse ones (:func:`caustica.bsdfs.splits_lobes`), its glossy lobes or
+    its diffuse ones picked (numbers ``numbers`` = (key, dim): dim + 3 picks, dim + 3 .. dim + 5 sample).  The glossy
+    ones, with probability Q (:func:`caustica.bsdfs.glossy_pick`), make this a glossy vertex of the glossy lobes alone:
+    one light sample (numbers dim .. dim + 2) MIS-weighted against their sampling (:func:`caustica.bsdfs.sample_glossy`,
+    density eval_part's over the BSDF's own rate P, :func:`caustica.bsdfs.glossy_share`), then that sample, both over
+    Q.  The diffuse ones make the visible point here, weight β / (1 - Q), which holds the diffuse lobes alone
     (:func:`caustica.bsdfs.eval_radiance`).  So no photon estimate goes through a narrow glossy lobe (a frosted panel
     of roughness 0.01 was black, but for a few fireflies, when photons were weighed by its whole BSDF).  At the
     ``last`` specular vertex allowed the visible point is made with weight β, no glossy vertex may follow (the
@@ -267,20 +271,20 @@ def lobe_choice(tables, at, m, d, path, numbers, last):
     if last:
         return False, L, False, d, (1.0, 1.0, 1.0), 0.0, dim
     P = glossy_share(mats, m, d, at.ns, at.uv)
-    alive, wi, _, _, lobe, eta, dim_on = sample(mats, m, d, at.ng, at.ns, at.uv, key, dim + 3)
-    if lobe & DIFFUSE_LOBES:
-        # P = 1 only where the sample failed (below the shading surface: pplastic), where the diffuse lobes are 0 too
-        w = 1.0 / (1.0 - P) if P < 1.0 else 0.0
-        return False, L, False, wi, (w, w, w), 0.0, dim_on
-    if not P > 0.0:   # a failed sample reported as glossy where no glossy lobe is (principledthin at a grazing wo)
-        return True, L, False, wi, zero, 0.0, dim_on
+    Q = glossy_pick(mats, m, d, at.ns, at.uv, P)
+    u = uniform(key, dim + 3)
+    if not u < Q:
+        w = 1.0 / (1.0 - Q)
+        return False, L, False, d, (w, w, w), 0.0, dim + 6
     ok, term, scale, _, _ = next_event(tables, at, m, d, beta, key, dim, (GLOSSY_PART, P))
     if ok:
-        L = vec.madd(L, term, scale / P)
+        L = vec.madd(L, term, scale / Q)
+    alive, wi, _, _, lobe, eta, dim_on = sample_glossy(mats, m, d, at.ng, at.ns, at.uv, (key, dim + 3), u / Q)
     f, f_scale, pdf = eval_part(mats, m, d, at.ng, at.ns, at.uv, wi, GLOSSY_PART)
     if not (alive and pdf > 0.0):
         return True, L, False, wi, zero, 0.0, dim_on
-    scale = f_scale * abs(vec.dot(wi, at.ns)) / pdf
+    # the glossy lobes' density given this pick is pdf / P
+    scale = f_scale * abs(vec.dot(wi, at.ns)) * P / (pdf * Q)
     if lobe & TRANSMISSION:
         scale /= eta * eta   # radiance is compressed into the denser medium
     return True, L, True, wi, vec.mul(f, scale), pdf / P, dim_on
