@@ -302,7 +302,8 @@ def main(argv=None) -> int:
         try:
             ours, row["spp_c"], row["t_c"], info = render_caustica(scene, args.method, res, args.cap,
                                                                         args.max_spp, settings)
-            row["note"] = "; ".join(n for n in (info.get("integrator_note"), info.get("media_note")) if n)
+            row["note"] = "; ".join(n for n in (info.get("integrator_note"), info.get("media_note"),
+                                                *info.get("scene_notes", ())) if n)
             if res[0] * scene.height != res[1] * scene.width:
                 row["note"] = (row["note"] + f"; aspect ratio changed from {scene.width}x{scene.height}").strip("; ")
         except Exception as exc:

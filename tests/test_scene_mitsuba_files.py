@@ -230,9 +230,51 @@ def test_film_settings_that_change_nothing_in_the_image_are_accepted(mi):
         parse_scene_string(scene("", film(f'<string name="component_format" value="{fmt}"/>')))
 
 
+@pytest.mark.parametrize("fmt, written", [("luminance", "luminance (Y)"), ("luminance_alpha", "(Y, A)"),
+                                         ("xyz", "CIE XYZ (X, Y, Z)"), ("xyza", "(X, Y, Z, A)")])
+def test_a_pixel_format_other_than_rgb_renders_rgb_with_a_note(mi, tmp_path, fmt, written):
+    """The same light in other channels (issue 20: a pixel format is accepted): the image is caustica's linear sRGB,
+    and the description carries one note with the film's line and what Mitsuba would write."""
+    xml = scene("", film(f'<string name="pixel_format" value="{fmt}"/>'))
+    mi.load_string(xml)
+    path = write(tmp_path / "film.xml", xml)
+    desc = load_scene_file(path)
+    assert (desc.camera.width, desc.camera.height) == (32, 24)
+    assert len(desc.loader_notes) == 1 and desc.loader_notes[0].startswith(f"{path}:4: pixel_format='{fmt}'") and \
+        "linear sRGB" in desc.loader_notes[0] and written in desc.loader_notes[0], desc.loader_notes
+    assert load_scene_file(write(tmp_path / "plain.xml", scene("", film("")))).loader_notes == []
+
+
+def test_the_first_of_several_sensors_is_rendered_as_mitsuba_renders_it(mi, tmp_path):
+    """Mitsuba 3 loads every <sensor> and its render() takes the first: caustica reads and checks them all, renders the
+    first (the one Mitsuba's sensors()[0] is) and says so in one note; a fault in another is still reported."""
+    second = sensor('<float name="fov" value="70"/>').replace("0, 0, 5", "0, 0, 9")
+    xml = scene("", sensor('<float name="fov" value="30"/>') + "\n" + second + "\n" + second)
+    theirs = mi.load_string(xml).sensors()
+    assert len(theirs) == 3 and np.array(theirs[0].world_transform().matrix)[2, 3] == 5.0   # the first one's origin
+    path = write(tmp_path / "sensors.xml", xml)
+    desc = load_scene_file(path)
+    assert desc.camera.fov_deg == 30.0
+    assert desc.loader_notes == ["the scene has 3 <sensor>s: caustica renders the first, as Mitsuba's render() does "
+                                 "by default; the other 2 (line 4, line 5) are read, not rendered"]
+    bad = write(tmp_path / "bad.xml", xml.replace('value="70"', 'value="-70"', 1))
+    assert "fov" in one_line_error(bad)
+
+
+def test_a_comment_holding_two_dashes_is_read_as_mitsuba_reads_it(mi, tmp_path):
+    """XML forbids '--' inside a comment and expat refuses it; Mitsuba's parser takes it (published scenes open with
+    a licence header of lines beginning '--', NVlabs/sionna's), and so does caustica, with the lines kept."""
+    header = "<!--\n-- SPDX-License-Identifier: Apache-2.0\n-- two -- dashes --->\n"
+    xml = header + scene('<shape type="sphere"><float name="radius" value="-1"/></shape>').split("\n", 1)[1]
+    mi.load_string(xml.replace('value="-1"', 'value="1"'))
+    path = write(tmp_path / "dashes.xml", xml)
+    msg = one_line_error(path)
+    assert msg.startswith(f"{path}:7: <float name=\"radius\">"), msg   # the line after the three of the comment
+    assert load_scene_file(write(tmp_path / "ok.xml", xml.replace('value="-1"', 'value="1"'))).camera.fov_deg == 45.0
+    assert "malformed XML" in one_line_error(write(tmp_path / "open.xml", "<!-- -- never closed\n" + scene("")))
+
+
 @pytest.mark.parametrize("inner, words", [
-    ('<string name="pixel_format" value="luminance"/>',
-     "pixel_format='luminance' is not supported: caustica's images are linear RGB; supported: rgb, rgba"),
     ('<string name="pixel_format" value="cmyk"/>', "unknown pixel_format 'cmyk'; supported: rgb, rgba, luminance"),
     ('<string name="file_format" value="png"/>', "unknown file_format 'png'; supported: openexr, exr, rgbe, pfm"),
     ('<string name="component_format" value="int8"/>', "unknown component_format 'int8'"),

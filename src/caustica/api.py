@@ -285,6 +285,7 @@ def render(scene, method: str = "pt", *, spp: int | None = None, res=None, seed:
         "timings": timings,
         "integrator_note": scene.description.integrator_note(method, settings),
         "media_note": scene.description.media_note(method),
+        "scene_notes": list(scene.description.loader_notes),
         "rfilter": _rfilter_stats(scene.description.camera.rfilter),
         **stats,
     }

@@ -215,16 +215,17 @@ def _build_parser():
 
 
 def _note_integrator(scene, method: str, params: dict) -> None:
-    """One line on stderr when the scene's <integrator> is not what this render does, and one when a medium's mesh
-    faces inwards (SceneDescription.media_note) -- after the method's checks of the scene, so that a scene the method
-    refuses gets its one-line error alone."""
+    """One line on stderr when the scene's <integrator> is not what this render does, one when a medium's mesh
+    faces inwards (SceneDescription.media_note) and one for each thing the loader accepted and renders otherwise
+    than Mitsuba would (SceneDescription.loader_notes) -- after the method's checks of the scene, so that a scene the
+    method refuses gets its one-line error alone."""
     from . import methods
     from .api import check_bsdfs
     cls = methods.get(method)
     check_bsdfs(cls, scene)
     note = scene.description.integrator_note(
         method, methods.params.resolve(method, cls.params, methods.scene_params(cls, scene.description, params)))
-    for line in (note, scene.description.media_note(method)):
+    for line in (note, scene.description.media_note(method), *scene.description.loader_notes):
         if line:
             print(f"caustica: note: {line}", file=sys.stderr)
 

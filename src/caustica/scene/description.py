@@ -530,6 +530,9 @@ class SceneDescription:
     environment: Environment | None = None   # at most one (as in Mitsuba)
     directional_lights: list[DirectionalLight] = field(default_factory=list)
     projectors: list[Projector] = field(default_factory=list)
+    #: What the loader accepted and renders otherwise than Mitsuba would, one sentence each ("file:line: ..."): a
+    #: sensor past the first, a pixel format other than RGB.  Printed as notes, kept in the render's sidecar.
+    loader_notes: list[str] = field(default_factory=list)
 
     @property
     def has_media(self) -> bool:

@@ -230,7 +230,9 @@ FILM_PROPS = {"hdrfilm": {"width": INT, "height": INT,
 #: image's values), the rest only change how Mitsuba stores the file.
 FILE_FORMATS = ("openexr", "exr", "rgbe", "pfm")
 PIXEL_FORMATS = ("rgb", "rgba")
-OTHER_PIXEL_FORMATS = ("luminance", "luminance_alpha", "xyz", "xyza")
+#: Pixel formats accepted with a note (caustica's images stay linear sRGB) and what Mitsuba writes for each.
+OTHER_PIXEL_FORMATS = {"luminance": "luminance (Y)", "luminance_alpha": "luminance and alpha (Y, A)",
+                       "xyz": "CIE XYZ (X, Y, Z)", "xyza": "CIE XYZ and alpha (X, Y, Z, A)"}
 COMPONENT_FORMATS = ("float16", "float32", "uint32")
 #: Mitsuba 3's samplers: each takes sample_count as the samples per pixel; which points it draws only changes the
 #: noise, so caustica uses its own (seed, jitter and strength are accepted and do not change the expected image).
@@ -320,6 +322,27 @@ MAX_INCLUDE_DEPTH = 32
 _XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
+_COMMENT = re.compile(r"<!--(.*?)-->", re.S)
+_COMMENT_BYTES = re.compile(rb"<!--(.*?)-->", re.S)
+
+
+def _lenient_comments(text: str | bytes) -> str | bytes | None:
+    """The text with each '--' inside a comment written '- ' and a '-' ending one written ' ' (lengths and lines
+    kept), or None where no comment has either.  XML forbids both and expat refuses them; Mitsuba's parser (pugixml)
+    takes them, and published scenes have them (a licence header of lines beginning '--')."""
+    pattern, dash, mended = (_COMMENT_BYTES, b"-", (b"--", b"- ")) if isinstance(text, bytes) else \
+        (_COMMENT, "-", ("--", "- "))
+
+    def mend(match):
+        inner = match.group(1).replace(*mended)
+        if inner.endswith(dash):
+            inner = inner[:-1] + mended[1][1:]
+        return match.group(0)[:4] + inner + match.group(0)[-3:]
+
+    out = pattern.sub(mend, text)
+    return None if out == text else out
+
+
 def _parse_xml(text: str | bytes, source: str, folder: Path | None = None) -> Node:
     """Parse XML text into a Node tree; SceneError with file and line for malformed XML.
 
@@ -364,6 +387,9 @@ def _parse_xml(text: str | bytes, source: str, folder: Path | None = None) -> No
                          f"supported: UTF-8 (Mitsuba's), UTF-16, US-ASCII and single-byte encodings "
                          f"such as ISO-8859-1 or cp1252") from None
     except xml.parsers.expat.ExpatError as exc:
+        lenient = _lenient_comments(text)
+        if lenient is not None:
+            return _parse_xml(lenient, source, folder)
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
         raise SceneError(f"{source}:{exc.lineno}: malformed XML: {msg} (column {exc.offset + 1})") from None
     if not root:
@@ -478,6 +504,8 @@ class _Loader:
         self.medium_of_node: dict[int, int] = {}
         self.used_params: set[str] = set()
         self.errors: list[str] = []          # every problem found, for the one report
+        self.loader_notes: list[str] = []    # what is accepted and rendered otherwise (SceneDescription.loader_notes)
+        self.other_sensors: list[Node] = []  # the <sensor>s after the first (read, not rendered)
         self.error_keys: set = set()
         self.files: list[Path] = []  # every file read (meshes), so that no output overwrites one
         self.search_paths: list[Path] = []   # the <path> folders, in the order declared
@@ -1830,9 +1858,11 @@ class _Loader:
             if not fprops.has(name):
                 continue
             v = fprops.get(name).strip().lower()
-            if v in other:
-                self.fail(fprops.node_of(name), f"{name}={quoted(v)} is not supported: caustica's images are "
-                                                f"linear RGB", supported=list(allowed))
+            if v in other:   # the same light in other channels: the issue's "accepted", with a note
+                at = fprops.node_of(name)
+                self.loader_notes.append(f"{self.at(at)}: {name}={quoted(v)}: caustica writes linear sRGB "
+                                         f"(R, G, B), where Mitsuba would write {OTHER_PIXEL_FORMATS[v]}")
+                continue
             if v not in allowed:
                 self.fail(fprops.node_of(name), f"unknown {name} {quoted(v)}", supported=list(allowed) + list(other))
         crop = {}
@@ -1972,12 +2002,19 @@ class _Loader:
                 self.record(exc)
         self.check_mesh_attributes(shapes)
         self.raise_errors()
+        if self.other_sensors:
+            n = len(self.other_sensors)
+            lines = ", ".join(f"line {s.line}" if s.source in ("", self.source) else self.at(s)
+                              for s in self.other_sensors)
+            self.loader_notes.append(f"the scene has {n + 1} <sensor>s: caustica renders the first, as Mitsuba's "
+                                     f"render() does by default; {'the other' if n == 1 else f'the other {n}'} "
+                                     f"({lines}) {'is' if n == 1 else 'are'} read, not rendered")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=self.point_lights, spp=spp, integrator=settings.type, media=self.media,
                                 integrator_props=settings.props, source=self.source,
                                 integrator_source=settings.source, integrator_settings=settings,
                                 environment=self.environment_emitter, directional_lights=self.directional_lights,
-                                projectors=self.projectors)
+                                projectors=self.projectors, loader_notes=self.loader_notes)
 
     def environment(self, node: Node) -> Environment:
         """A ``constant`` or ``envmap`` emitter (Mitsuba 3's): uniform radiance, or a latitude-longitude image."""
@@ -2185,9 +2222,11 @@ class _Loader:
             integrator_node = node
             settings = self.integrator(node)
         elif tag == "sensor":
-            if camera is not None:
-                self.fail(node, "only one <sensor> is supported")
-            camera, spp = self.sensor(node)
+            if camera is None:
+                camera, spp = self.sensor(node)
+            else:   # read and checked as Mitsuba loads it; its render() takes the first sensor unless told
+                self.sensor(node)
+                self.other_sensors.append(node)
         elif tag == "bsdf":
             self.material_index(node)
         elif tag == "texture":   # declared for a BSDF's <ref>; read (and checked) here
