@@ -86,6 +86,36 @@ INDEPENDENT = (
            ("LICENSE", "scenes/cornell-box/scene.xml", "scenes/cornell-box/LICENSE.txt", "scenes/torus/scene.xml",
             "scenes/torus/meshes.serialized", "scenes/veach-mis/scene.xml", "scenes/veach-mis/LICENSE.txt"),
            "GPL-3.0 (LICENSE); cornell-box and veach-mis are Bitterli's scenes, CC0 (their LICENSE.txt)."),
+    # Added 2026-12-07 (docs/scenes.md): seven more repositories, found by a search for complete scenes that
+    # Mitsuba 3.9.1 loads (a helper's search; each loaded from a clean copy of just these paths).
+    Source("colour-science/colour-mitsuba", "693379cc0e8f935cd39b4bc01038277fde8baac5",
+           ("LICENSE", "colour_mitsuba/cornell_box.xml", "colour_mitsuba/cornell_box/include",
+            "colour_mitsuba/cornell_box/geometry", "colour_mitsuba/include/integrator.xml"),
+           "BSD-3-Clause (LICENSE)."),
+    Source("NVlabs/sionna", "3ec2138ba269405e737e5823ecebef1663832115",
+           ("LICENSE", "sionna/rt/scenes/simple_street_canyon_with_cars", "sionna/rt/scenes/etoile"),
+           "Apache-2.0 (LICENSE); release v0.19.2, the last with sionna/rt/scenes."),
+    Source("SojeongKim-42/denoising-nerf", "8d2557c28b1096e9f13a7e7b609d591aebe8cb24",
+           ("scenes/banner_01/scene.xml", "scenes/banner_01/meshes"),
+           "No licence file (checked 2026-12-07): fetched to test with, not to share. The scene may derive from "
+           "one of the Mitsuba team's banner scenes."),
+    Source("gmf128/mitsuba-quickstart", "c9c680f562fa9ab1e92a2684df433bd6f147ed4b",
+           ("scenes/shader_ball/scene.xml", "scenes/shader_ball/envmap.exr", "scenes/shader_ball/matpreview.serialized"),
+           "No licence file (checked 2026-12-07): fetched to test with, not to share. Its mesh is Mitsuba's material "
+           "preview (matpreview.serialized), its scene file the author's."),
+    Source("pani-vishal/reconstruction", "29426bc5a677e0ce0e3aabd899e6478a28c8b3c1",
+           ("scenes/cbox.xml", "scenes/textures/charuco.png",
+            *[f"scenes/meshes/{m}" for m in ("cbox_luminaire.obj", "cbox_floor.obj", "cbox_ceiling.obj",
+                                             "cbox_back.obj", "cbox_greenwall.obj", "cbox_redwall.obj",
+                                             "tex_plane.obj", "tex_plane.mtl")]),
+           "No licence file (checked 2026-12-07): fetched to test with, not to share. A Cornell box after Mitsuba's "
+           "tutorial one, with a textured plane of the author's."),
+    Source("danielwujecki/mitsuba3-acoustic-experiments", "65c6ec914837d41956c4adcb65a1db55805a19ba",
+           ("LICENSE", "data/scenes/rgb_debug.xml"),
+           "BSD-3-Clause (LICENSE)."),
+    Source("s1752729916/mitsuba-synthetic-polar", "b8032f33cfd70d46b12bd4644f989dc2d73d5727",
+           ("untitled.xml", "meshes/Cube.ply"),
+           "No licence file (checked 2026-12-07): fetched to test with, not to share."),
 )
 
 
