@@ -192,12 +192,12 @@ XYZ_TO_SRGB = np.array([[3.240479, -1.537150, -0.498535], [-0.969256, 1.875991, 
 
 def as_linear_srgb(scene, image):
     """Mitsuba's developed film as caustica's image: its first three channels, from XYZ where the film writes XYZ; a
-    luminance film cannot be compared channel by channel (an error)."""
+    luminance film (Mitsuba prints its format as y or ya) cannot be compared channel by channel (an error)."""
     fmt = re.search(r"pixel_format = (\w+)", str(scene.sensors()[0].film()))
-    fmt = fmt.group(1) if fmt else "rgb"
+    fmt = fmt.group(1).lower() if fmt else "rgb"
     if fmt.startswith("xyz"):
         return image[..., :3] @ XYZ_TO_SRGB.T
-    if fmt.startswith("luminance"):
+    if fmt in ("y", "ya") or fmt.startswith("luminance") or image.shape[-1] < 3:
         raise RuntimeError(f"Mitsuba's film writes {fmt}: not compared with caustica's RGB")
     return image[..., :3]
 
@@ -206,7 +206,8 @@ def cached_mitsuba(cache, rel, res, cap, max_spp, render):
     """Mitsuba's (images, spp, seconds) for this scene and budget, from ``cache`` (a folder) or ``render()``."""
     if cache is None:
         return render()
-    key = cache / f"{rel.replace('/', '__')[:-4]}__{res[0]}x{res[1]}__cap{cap:g}__max{max_spp}.npz"
+    # "srgb": the images as caustica's linear sRGB (as_linear_srgb); a cache of before it may hold an XYZ film's
+    key = cache / f"{rel.replace('/', '__')[:-4]}__{res[0]}x{res[1]}__cap{cap:g}__max{max_spp}__srgb.npz"
     if key.is_file():
         with np.load(key) as z:
             return list(z["images"]), int(z["spp"]), float(z["seconds"])

@@ -255,10 +255,21 @@ def test_the_first_of_several_sensors_is_rendered_as_mitsuba_renders_it(mi, tmp_
     path = write(tmp_path / "sensors.xml", xml)
     desc = load_scene_file(path)
     assert desc.camera.fov_deg == 30.0
-    assert desc.loader_notes == ["the scene has 3 <sensor>s: caustica renders the first, as Mitsuba's render() does "
-                                 "by default; the other 2 (line 4, line 5) are read, not rendered"]
+    assert desc.loader_notes == [f"{path}: the scene has 3 <sensor>s: caustica renders the first, as Mitsuba's "
+                                 "render() does by default; the other 2 (line 4, line 5) are read, not rendered"]
     bad = write(tmp_path / "bad.xml", xml.replace('value="70"', 'value="-70"', 1))
     assert "fov" in one_line_error(bad)
+    # what reading the others leaves behind is dropped: the first sensor's far_clip is the one checked (here it
+    # would hide the sphere 5 away), a later one's inline medium is not the scene's, nor its film's note
+    sphere = '<shape type="sphere"/>'
+    clipped = scene(sphere, sensor('<float name="fov" value="30"/><float name="far_clip" value="2"/>') + "\n" +
+                    second.replace('<float name="fov" value="70"/>', '<float name="fov" value="70"/><medium '
+                                   'type="homogeneous" name="medium"/>').replace(
+                        "</sensor>", film('<string name="pixel_format" value="xyz"/>').split("</transform>", 1)[1]))
+    mi.load_string(clipped)
+    assert "far_clip" in one_line_error(write(tmp_path / "clipped.xml", clipped))
+    desc = load_scene_file(write(tmp_path / "unclipped.xml", clipped.replace('value="2"', 'value="20"')))
+    assert desc.media == [] and len(desc.loader_notes) == 1, (desc.media, desc.loader_notes)
 
 
 def test_a_comment_holding_two_dashes_is_read_as_mitsuba_reads_it(mi, tmp_path):

@@ -91,7 +91,7 @@ def glossy_share(mats, m, d, ns, uv):
 
 @kernel
 def glossy_albedo(mats, m, d, ns, uv):
-    """(glossy, diffuse): about how much of the light from -d each lobe reflects (luminance-free means), for
+    """(glossy, diffuse): about how much of the light from -d each lobe reflects (the channels' means), for
     :func:`caustica.bsdfs.glossy_pick`: F(cos θ_o) specular_reflectance and (1 - F(cos θ_o))² diffuse_reflectance
     (the light refracted in and, about as much, out)."""
     co = -vec.dot(d, ns)

@@ -67,7 +67,7 @@ lobe to the few photons that arrive within it: a frosted panel of roughness 0.01
 black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The choice costs noise, so broad lobes
 are not split: on a pplastic floor of roughness 0.15 under a caustic the split raised the noise by 60 % at equal
 passes; picking by P alone (Mitsuba's rate: two thirds glossy on that plastic) left the floor under a caustic of
-roughness 0.05 with 1.7x the per-pixel deviation outside the highlight that Q leaves (docs/methods.md).  Unlike
+roughness 0.05 with 1.7x the per-pixel deviation outside the highlight that Q leaves (docs/results.md).  Unlike
 roughplastic's split points these claim no caustic: the glossy lobes' share of one is the camera
 path's.
 

@@ -530,8 +530,9 @@ class SceneDescription:
     environment: Environment | None = None   # at most one (as in Mitsuba)
     directional_lights: list[DirectionalLight] = field(default_factory=list)
     projectors: list[Projector] = field(default_factory=list)
-    #: What the loader accepted and renders otherwise than Mitsuba would, one sentence each ("file:line: ..."): a
-    #: sensor past the first, a pixel format other than RGB.  Printed as notes, kept in the render's sidecar.
+    #: What the loader accepted and renders otherwise than Mitsuba would, one sentence each, after the file (and the
+    #: line) it concerns: the sensors past the first, a pixel format other than RGB.  Printed as notes, kept in the
+    #: render's sidecar (``scene_notes``).
     loader_notes: list[str] = field(default_factory=list)
 
     @property

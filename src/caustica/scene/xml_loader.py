@@ -322,24 +322,25 @@ MAX_INCLUDE_DEPTH = 32
 _XML_ENCODING = re.compile(rb"""\A\s*<\?xml[^>]*?encoding\s*=\s*["']([^"']*)["']""")
 
 
-_COMMENT = re.compile(r"<!--(.*?)-->", re.S)
-_COMMENT_BYTES = re.compile(rb"<!--(.*?)-->", re.S)
-
-
 def _lenient_comments(text: str | bytes) -> str | bytes | None:
     """The text with each '--' inside a comment written '- ' and a '-' ending one written ' ' (lengths and lines
     kept), or None where no comment has either.  XML forbids both and expat refuses them; Mitsuba's parser (pugixml)
-    takes them, and published scenes have them (a licence header of lines beginning '--')."""
-    pattern, dash, mended = (_COMMENT_BYTES, b"-", (b"--", b"- ")) if isinstance(text, bytes) else \
-        (_COMMENT, "-", ("--", "- "))
-
-    def mend(match):
-        inner = match.group(1).replace(*mended)
+    takes them, and published scenes have them (a licence header of lines beginning '--').  One pass with find, up
+    to a comment left open (an error either way): linear in the text's length."""
+    opening, closing, dash, twice, mended = ("<!--", "-->", "-", "--", "- ") if isinstance(text, str) else \
+        (b"<!--", b"-->", b"-", b"--", b"- ")
+    parts, pos = [], 0
+    while True:
+        start = text.find(opening, pos)
+        end = text.find(closing, start + 4) if start >= 0 else -1
+        if end < 0:
+            break
+        inner = text[start + 4:end].replace(twice, mended)
         if inner.endswith(dash):
-            inner = inner[:-1] + mended[1][1:]
-        return match.group(0)[:4] + inner + match.group(0)[-3:]
-
-    out = pattern.sub(mend, text)
+            inner = inner[:-1] + mended[1:]
+        parts += [text[pos:start + 4], inner]
+        pos = end
+    out = text[:0].join(parts) + text[pos:]
     return None if out == text else out
 
 
@@ -1768,6 +1769,20 @@ class _Loader:
             self.fail(node, f"{what}: {exc}")
 
     # -- sensor -----------------------------------------------------------------------
+    def other_sensor(self, node: Node) -> None:
+        """A <sensor> after the first: read and checked as the first is (so that its faults are reported), then
+        dropped with what reading it left behind (its far_clip, an inline medium, its film's notes), since only the
+        first is rendered."""
+        far_clip_node, n_media, n_notes = self.far_clip_node, len(self.media), len(self.loader_notes)
+        try:
+            self.sensor(node)
+        finally:
+            self.far_clip_node = far_clip_node
+            del self.media[n_media:], self.loader_notes[n_notes:]
+            for key in [k for k, i in self.medium_of_node.items() if i >= n_media]:
+                del self.medium_of_node[key]
+        self.other_sensors.append(node)
+
     def sensor(self, node: Node) -> tuple[Camera, int]:
         props = self.plugin(node, SENSOR_PROPS, ("film", "sampler", "medium", "ref"))
         projection = "orthographic" if node.attrs["type"] == "orthographic" else "perspective"
@@ -2006,7 +2021,7 @@ class _Loader:
             n = len(self.other_sensors)
             lines = ", ".join(f"line {s.line}" if s.source in ("", self.source) else self.at(s)
                               for s in self.other_sensors)
-            self.loader_notes.append(f"the scene has {n + 1} <sensor>s: caustica renders the first, as Mitsuba's "
+            self.loader_notes.append(f"{self.source}: the scene has {n + 1} <sensor>s: caustica renders the first, as Mitsuba's "
                                      f"render() does by default; {'the other' if n == 1 else f'the other {n}'} "
                                      f"({lines}) {'is' if n == 1 else 'are'} read, not rendered")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
@@ -2225,8 +2240,7 @@ class _Loader:
             if camera is None:
                 camera, spp = self.sensor(node)
             else:   # read and checked as Mitsuba loads it; its render() takes the first sensor unless told
-                self.sensor(node)
-                self.other_sensors.append(node)
+                self.other_sensor(node)
         elif tag == "bsdf":
             self.material_index(node)
         elif tag == "texture":   # declared for a BSDF's <ref>; read (and checked) here
