@@ -581,11 +581,56 @@ def test_pspm_stream_radius_follows_only_the_pixels_that_gather(diacaustic):
     from caustica.methods.params import Settings
     from caustica.methods.progressive import initial_radius
 
-    settings = Settings("pspm", {"stream_radius": 5.0, "radius": None})
+    settings = Settings("pspm", {"stream_radius": 5.0, "radius": None, "width": 64, "height": 64})
     r0 = initial_radius(diacaustic, settings)
     radius = np.concatenate([np.full(60, r0), np.full(40, 0.2 * r0)])
     assert stream_radius(diacaustic, settings, radius) == pytest.approx(5.0 * 0.2)
     assert stream_radius(diacaustic, settings, np.full(10, r0)) == 5.0    # the first pass
+
+
+def _framed_plane(tmp_path, camera: str, extra: str = "") -> caustica.Scene:
+    """A plane of 20 x 20 at z = 0 seen square on from z = 5 by ``camera``, a light above it to the side; ``extra``
+    more shapes."""
+    path = tmp_path / "framed.xml"
+    path.write_text(f"""<scene version="3.0.0">
+  {camera}
+  <shape type="rectangle"><transform name="to_world"><scale value="10"/></transform><bsdf type="diffuse"/></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="180"/>
+    <translate x="3" z="4"/></transform><emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+  {extra}
+</scene>""")
+    return caustica.load_scene(path)
+
+
+PINHOLE = ('<sensor type="perspective"><float name="fov" value="{fov}"/><transform name="to_world"><lookat '
+           'origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform></sensor>')
+
+
+def test_the_default_radius_is_at_most_four_pixels_where_the_camera_meets_the_scene(tmp_path):
+    """R_0 defaults to 0.01 of the scene's diagonal, at most FOOTPRINT_PIXELS pixel widths where the camera meets the
+    scene (the median over a grid of the film): a camera framing a small part of a scene blurred it over tens of
+    pixels (docs/progressive.md: a held-out scene at 20.6).  The footprint is depth times a pixel's width at unit
+    depth, through a glass ball and a null surface (straight on), and a pixel's width for an orthographic camera."""
+    from caustica.methods.progressive import FOOTPRINT_PIXELS
+    wide = _framed_plane(tmp_path, PINHOLE.format(fov=90))
+    diag = 0.01 * float(np.linalg.norm(wide.geometry.scene_box[3:] - wide.geometry.scene_box[:3]))
+    assert wide.pixel_footprint(64, 64) == pytest.approx(5.0 * 2.0 / 64, rel=1e-6)
+    assert caustica.render(wide, "sppm", res=64, passes=1).stats["initial_radius"] == pytest.approx(diag)   # 20 px
+    narrow = _framed_plane(tmp_path, PINHOLE.format(fov=2), '<shape type="sphere"><point name="center" x="0" y="0" '
+                           'z="2"/><float name="radius" value="0.5"/><bsdf type="dielectric"/></shape><shape '
+                           'type="rectangle"><transform name="to_world"><translate z="3"/></transform><bsdf '
+                           'type="null"/></shape>')
+    fp = 5.0 * 2.0 * math.tan(math.radians(1.0)) / 32
+    assert narrow.pixel_footprint(32, 32) == pytest.approx(fp, rel=1e-6)
+    for method in ("sppm", "pspm"):
+        assert caustica.render(narrow, method, res=32, passes=1).stats["initial_radius"] == \
+            pytest.approx(FOOTPRINT_PIXELS * fp)
+    assert caustica.render(narrow, "sppm", res=32, passes=1, radius=0.5).stats["initial_radius"] == 0.5  # given
+    ortho = _framed_plane(tmp_path, '<sensor type="orthographic"><transform name="to_world"><lookat origin="0, 0, 5" '
+                                    'target="0, 0, 0" up="0, 1, 0"/><scale value="0.2"/></transform></sensor>')
+    assert ortho.pixel_footprint(16, 16) == pytest.approx(2 * 0.2 / 16, rel=1e-6)
+    empty = _framed_plane(tmp_path, PINHOLE.replace("0, 0, 0", "0, 0, 10").format(fov=10))   # looks away
+    assert empty.pixel_footprint(8, 8) == math.inf
 
 
 def test_time_budget_stops_between_passes(diacaustic):

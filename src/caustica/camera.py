@@ -18,7 +18,8 @@ import numpy as np
 
 from .errors import SceneError
 from .geometry import vec
-from .jit import kernel
+from .geometry.scene_geometry import intersect
+from .jit import borrowed, kernel
 from .sampling.filters import FILTER_KINDS, GAUSSIAN, film_position, filter_radius
 from .sampling.rng import lens_key, uniform
 from .sampling.warps import square_to_uniform_disk
@@ -126,3 +127,38 @@ def _thin_lens_ray(cam, local, key):
     d = vec.normalize(_to_world(cam.basis, dc))
     o = vec.add((cam.origin[0], cam.origin[1], cam.origin[2]), _to_world(cam.basis, a))
     return vec.madd(o, d, cam.near_clip / dc[2]), d
+
+
+@kernel
+def pixel_footprints(cam, geom, stops, n, out):
+    """The width of a pixel (scene units) where the rays through an n x n grid of film points (pixel-centre spaced)
+    first meet a surface of a material with ``stops[m]`` (one a visible point may lie on), going straight on through
+    the others (glass, mirrors, media's boundaries: the footprint is a guide, not a ray differential): out[i] = that
+    point's depth along the view axis times a pixel's width at unit depth, or an orthographic pixel's width; inf
+    where the ray meets none (caustica.tables.Scene.pixel_footprint)."""
+    geom = borrowed(geom)
+    view = vec.normalize(_to_world(cam.basis, (0.0, 0.0, 1.0)))
+    origin = (cam.origin[0], cam.origin[1], cam.origin[2])
+    for k in range(n * n):
+        sx, sy = (k % n + 0.5) / n, (k // n + 0.5) / n
+        if cam.orthographic:
+            o, d = _orthographic_ray(cam, sx, sy)
+        else:
+            local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
+            d = vec.normalize(_to_world(cam.basis, local))
+            o = vec.madd(origin, d, cam.near_clip * vec.length(local))
+        out[k] = np.inf
+        for _ in range(64):
+            prim, t, _, _ = intersect(geom, o, d, 1e30)
+            if prim < 0:
+                break
+            o = vec.madd(o, d, t)
+            if stops[geom.prim_material[prim]]:
+                if cam.orthographic:
+                    out[k] = 2.0 * cam.tan_half_x / cam.width * vec.length(_to_world(cam.basis, (1.0, 0.0, 0.0)))
+                else:
+                    out[k] = vec.dot(vec.sub(o, origin), view) * 2.0 * cam.tan_half_x / cam.width
+                break
+            # past the surface along d, by vec.offset_origin's distance
+            o = vec.madd(o, d, 64.0 * (1e-7 * (1.0 + max(abs(o[0]), max(abs(o[1]), abs(o[2])))) + 1e-9))
+

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features, \
-    null_transmitting
-from .camera import CameraParams, camera_params
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, MaterialTable, build_material_table, \
+    material_features, null_transmitting
+from .camera import CameraParams, camera_params, pixel_footprints
 from .emitters import AREA, POINT, TEX_OF, TEXTURED_AREA, LightTable, build_light_table
 from .errors import SceneError
 from .features import ALL, bits, features_of, specialised
@@ -38,9 +38,26 @@ class Scene:
     _null_thin: Scene | None = field(default=None, repr=False, compare=False)
     _light_media: np.ndarray | None = field(default=None, repr=False, compare=False)
 
+    _footprints: dict = field(default_factory=dict, repr=False, compare=False)
+
     @property
     def name(self) -> str:
         return self.description.source
+
+    def pixel_footprint(self, width: int, height: int) -> float:
+        """The median width of a pixel (scene units) where the camera's rays through a 16 x 16 grid of the film first
+        meet a surface that may hold a visible point (a diffuse or glossy lobe; straight on through the others:
+        :func:`caustica.camera.pixel_footprints`) at this resolution; inf where none does.  Computed once a
+        resolution."""
+        if (width, height) not in self._footprints:
+            n = 16
+            out = np.empty(n * n)
+            stops = np.ascontiguousarray((self.materials.flags & (DIFFUSE_REFLECTION | DIFFUSE_TRANSMISSION | GLOSSY))
+                                         != 0)
+            pixel_footprints(self.camera(width, height), self.geometry, stops, n, out)
+            hits = out[np.isfinite(out)]
+            self._footprints[(width, height)] = float(np.median(hits)) if hits.size else np.inf
+        return self._footprints[(width, height)]
 
     @property
     def has_media(self) -> bool:

@@ -49,8 +49,12 @@ from .params import RADIUS_ALLOWED, RADIUS_MAX, Param, in_radius_range
 from .independent import IndependentPasses
 from .photon_common import ESTIMATE_PARAMS, GRID_LIMIT_HELP, SceneDepths, grid_limited, radius_setting
 
-#: The default initial radius, as a fraction of the scene's bounding-box diagonal.
+#: The default initial radius, as a fraction of the scene's bounding-box diagonal ...
 RADIUS_FRACTION = 0.01
+#: ... and at most this many pixel widths where the camera meets the scene (tables.Scene.pixel_footprint, the median
+#: over a grid of the film): a camera that frames a small part of a scene (a material sample, a street in a city)
+#: would blur it over tens of pixels (docs/progressive.md).  The paper's Cornell boxes at 256 px have 3.05.
+FOOTPRINT_PIXELS = 4.0
 #: The default initial radius of separate caustic statistics, as a fraction of R_0 (see docs/progressive.md).
 CAUSTIC_RADIUS_SCALE = 0.6
 #: The default initial radius of the volume estimate (scenes with media), as a fraction of R_0.
@@ -69,7 +73,8 @@ _ESTIMATE = {p.name: p for p in ESTIMATE_PARAMS}
 #: Parameters of the progressive gather and its camera pass.
 PROGRESSIVE_PARAMS = (
     Param("radius", float, None, "initial gather radius R_0 in scene units "
-                                 f"(default: {RADIUS_FRACTION} of the scene's bounding-box diagonal)",
+                                 f"(default: {RADIUS_FRACTION} of the scene's bounding-box diagonal, at most "
+                                 f"{FOOTPRINT_PIXELS:g} pixel widths where the camera meets the scene)",
           in_radius_range, RADIUS_ALLOWED),
     Param("alpha", float, 2.0 / 3.0, "fraction of new photons kept per pass (SPPM's α)",
           lambda a: ALPHA_MIN <= a < 1.0, f"at least {ALPHA_MIN:g} and below 1 (a smaller alpha makes a pass's "
@@ -265,8 +270,12 @@ def update_statistics(alpha, old, vp_found, vp_weight, gathered, new):
 
 
 def initial_radius(scene, settings) -> float:
-    """R_0 of the surface estimate: ``radius``, else RADIUS_FRACTION of the scene's bounding-box diagonal."""
-    return radius_setting(scene, settings, "radius", RADIUS_FRACTION)
+    """R_0 of the surface estimate: ``radius``, else RADIUS_FRACTION of the scene's bounding-box diagonal, at most
+    FOOTPRINT_PIXELS pixel widths where the camera meets the scene at the render's resolution."""
+    r = radius_setting(scene, settings, "radius", RADIUS_FRACTION)
+    if settings.radius is not None:
+        return r
+    return min(r, FOOTPRINT_PIXELS * scene.pixel_footprint(settings.width, settings.height))
 
 
 def initial_volume_radius(scene, settings) -> float:
