@@ -100,7 +100,8 @@ INDEPENDENT = (
            "No licence file (checked 2026-12-07): fetched to test with, not to share. The scene may derive from "
            "one of the Mitsuba team's banner scenes."),
     Source("gmf128/mitsuba-quickstart", "c9c680f562fa9ab1e92a2684df433bd6f147ed4b",
-           ("scenes/shader_ball/scene.xml", "scenes/shader_ball/envmap.exr", "scenes/shader_ball/matpreview.serialized"),
+           ("scenes/shader_ball/scene.xml", "scenes/shader_ball/envmap.exr",
+            "scenes/shader_ball/matpreview.serialized"),
            "No licence file (checked 2026-12-07): fetched to test with, not to share. Its mesh is Mitsuba's material "
            "preview (matpreview.serialized), its scene file the author's."),
     Source("pani-vishal/reconstruction", "29426bc5a677e0ce0e3aabd899e6478a28c8b3c1",

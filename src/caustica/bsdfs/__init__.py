@@ -26,9 +26,10 @@ A BSDF is one module here (``diffuse``, ``conductor``, ``dielectric``, ``thindie
 
 Adding a BSDF: write its module (``KIND``, ``FLAGS``, ``sample``, and ``eval_pdf`` for a smooth one or
 ``delta_branches`` for a delta one; with glossy lobes beside a diffuse one also ``glossy_share``,
-``glossy_albedo``, ``sample_glossy`` and ``eval_part``, for :func:`splits_lobes`), add it to :data:`BSDFS` and one line to each dispatch function
-below (``if has(mats, FOO) and kind == FOO:``, so scenes without it compile none of its code: :mod:`caustica.features`), and read its parameters in the scene loader (``scene/xml_loader.py``); docs/architecture.md
-walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
+``glossy_albedo``, ``sample_glossy`` and ``eval_part``, for :func:`splits_lobes`), add it to :data:`BSDFS` and one
+line to each dispatch function below (``if has(mats, FOO) and kind == FOO:``, so scenes without it compile none of
+its code: :mod:`caustica.features`), and read its parameters in the scene loader (``scene/xml_loader.py``);
+docs/architecture.md walks through it.  ``sample`` returns ``(ok, wi, weight, pdf, lobe, eta, dim)``: ``pdf`` is 0 for a
 delta lobe, ``eta`` 1 unless the lobe transmits.  Radiance carried through a refraction is further
 scaled by 1 / eta² (solid-angle compression); camera paths apply it, photons (importance) do not; for
 :func:`eval_pdf`'s f towards a refracted direction :func:`camera_scale` gives that factor.
@@ -353,12 +354,11 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 def splits_lobes(mats, m):
     """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principledthin,
     and principled where metallic and spec_trans leave it a diffuse lobe; ``NARROW_GLOSSY``: some glossy lobe may be
-    narrower than :data:`.flags.NARROW_ALPHA`): it picks its glossy or its diffuse lobes (:func:`glossy_pick`), goes on by
-    the glossy ones (:func:`sample_glossy`) and makes
-    its visible point on a diffuse one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no
-    photon estimate goes through a narrow glossy lobe (caustica.photons.visible_points).  Broader lobes stay in the
-    visible point's estimate, weighed with the photons: the choice costs noise there.  Never in a scene without those
-    kinds."""
+    narrower than :data:`.flags.NARROW_ALPHA`): it picks its glossy or its diffuse lobes (:func:`glossy_pick`), goes on
+    by the glossy ones (:func:`sample_glossy`) and makes its visible point on a diffuse one, which then holds the
+    diffuse lobes alone (:func:`eval_radiance`), so that no photon estimate goes through a narrow glossy lobe
+    (caustica.photons.visible_points).  Broader lobes stay in the visible point's estimate, weighed with the photons:
+    the choice costs noise there.  Never in a scene without those kinds."""
     if not (has(mats, PPLASTIC) or has(mats, PRINCIPLED) or has(mats, PRINCIPLEDTHIN)):
         return False
     kind = mats.kind[m]
@@ -389,8 +389,8 @@ def glossy_pick(mats, m, d, ns, uv, P):
     lobes' share of the light the BSDF scatters from -d (each module's ``glossy_albedo``).  A sampling rate alone
     (Mitsuba's: a plastic's by its reflectances, a principled's one half) sends most camera paths along a glossy lobe
     that carries a few per cent of the light, and the diffuse visible point's photons are then weighed by 1 / (1 - P);
-    the share alone starves a narrow highlight (docs/results.md measures the three).  The mean keeps 1 / Q within 2 / P and
-    1 / (1 - Q) within 2 / (1 - P); Q is P where P is 0 or 1."""
+    the share alone starves a narrow highlight (docs/results.md measures the three).  The mean keeps 1 / Q within
+    2 / P and 1 / (1 - Q) within 2 / (1 - P); Q is P where P is 0 or 1."""
     if not (P > 0.0 and P < 1.0):
         return P
     kind = mats.kind[m]

@@ -61,8 +61,9 @@ with the photons, as pbrt-v4's SPPM, :func:`bsdf_visible_point`): the
 path picks the glossy lobes or the diffuse ones (:func:`lobe_choice`).  A glossy pick (probability Q,
 :func:`caustica.bsdfs.glossy_pick`: the mean of the BSDF's own sampling rate P and the glossy lobes' share of its
 albedo) makes a glossy vertex of the glossy lobes alone, sampled as the BSDF samples them, everything over Q; a
-diffuse one makes the visible point here, weight β / (1 − Q), which holds the diffuse lobes alone: the photons and its
-light sample are weighed by their f (:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole BSDF instead, which leaves a narrow glossy
+diffuse one makes the visible point here, weight β / (1 − Q), which holds the diffuse lobes alone: the photons and
+its light sample are weighed by their f (:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole
+BSDF instead, which leaves a narrow glossy
 lobe to the few photons that arrive within it: a frosted panel of roughness 0.01 in front of a lit wall rendered
 black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The choice costs noise, so broad lobes
 are not split: on a pplastic floor of roughness 0.15 under a caustic the split raised the noise by 60 % at equal

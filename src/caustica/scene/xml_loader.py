@@ -2021,8 +2021,9 @@ class _Loader:
             n = len(self.other_sensors)
             lines = ", ".join(f"line {s.line}" if s.source in ("", self.source) else self.at(s)
                               for s in self.other_sensors)
-            self.loader_notes.append(f"{self.source}: the scene has {n + 1} <sensor>s: caustica renders the first, as Mitsuba's "
-                                     f"render() does by default; {'the other' if n == 1 else f'the other {n}'} "
+            self.loader_notes.append(f"{self.source}: the scene has {n + 1} <sensor>s: caustica renders the first, "
+                                     f"as Mitsuba's render() does by default; "
+                                     f"{'the other' if n == 1 else f'the other {n}'} "
                                      f"({lines}) {'is' if n == 1 else 'are'} read, not rendered")
         return SceneDescription(camera=camera, shapes=shapes, materials=self.materials,
                                 point_lights=self.point_lights, spp=spp, integrator=settings.type, media=self.media,
