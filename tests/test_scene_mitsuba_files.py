@@ -272,6 +272,26 @@ def test_the_first_of_several_sensors_is_rendered_as_mitsuba_renders_it(mi, tmp_
     assert desc.media == [] and len(desc.loader_notes) == 1, (desc.media, desc.loader_notes)
 
 
+def test_a_volume_texture_loads_unused_and_is_refused_where_a_shape_uses_it(mi, tmp_path):
+    """Mitsuba's tutorial LEGO scene declares a diffuse BSDF whose reflectance is a `volume` texture and uses it
+    nowhere.  caustica looks textures up at (u, v), not at a world position, so it reads and checks such a texture
+    (its grid's file too) and refuses it only where a shape's BSDF uses it, naming both."""
+    from caustica.scene.volume_files import write_grid
+    write_grid(tmp_path / "red.vol", np.full((2, 2, 2, 3), 0.5, np.float32))
+    bsdf = ('<bsdf type="diffuse" id="vol"><texture type="volume" name="reflectance"><volume type="gridvolume" '
+            'name="volume"><string name="filename" value="red.vol"/></volume></texture></bsdf>')
+    unused = write(tmp_path / "unused.xml", scene(bsdf + '<shape type="sphere"/>'))
+    mi.load_file(str(unused))
+    assert load_scene_file(unused).materials   # loads
+    used = write(tmp_path / "used.xml", scene(bsdf + '<shape type="sphere"><ref id="vol"/></shape>'))
+    mi.load_file(str(used))
+    msg = one_line_error(used)
+    assert msg.startswith(f"{used}:5: a volume texture") and f"the sphere at {used}:5" in msg and \
+        "checkerboard, bitmap" in msg, msg
+    missing = write(tmp_path / "missing.xml", scene(bsdf.replace("red.vol", "absent.vol") + '<shape type="sphere"/>'))
+    assert "absent.vol" in one_line_error(missing)
+
+
 def test_a_comment_holding_two_dashes_is_read_as_mitsuba_reads_it(mi, tmp_path):
     """XML forbids '--' inside a comment and expat refuses it; Mitsuba's parser takes it (published scenes open with
     a licence header of lines beginning '--', NVlabs/sionna's), and so does caustica, with the lines kept."""
@@ -487,8 +507,8 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     expected = [
         (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
         (4, "<rfilter type=\"mitchell\">: unknown rfilter type 'mitchell'; supported: box, tent, gaussian"),
-        (5, "<texture type=\"volume\" id=\"checks\">: unknown texture type 'volume'; supported: "
-            "checkerboard, bitmap, mesh_attribute"),
+        (5, "<texture type=\"volume\" id=\"checks\">: a volume texture holds one <volume name=\"volume\">; "
+            "supported: <volume type=\"gridvolume\" name=\"volume\">"),
         (6, "<bsdf type=\"blendbsdf\" id=\"blend\">: a blendbsdf nests exactly 2 BSDFs, found 0"),
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
         (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),

@@ -189,6 +189,10 @@ class Texture:
     source: str = ""  # "file:line" for messages
     attribute: str = ""
     scale: float = 1.0
+    #: Why this texture cannot be rendered, for one that is read and checked as Mitsuba 3 loads it (a ``volume``
+    #: texture: its value at a surface point's world position) but may only stay unused: a shape whose BSDF or emitter
+    #: reads it is refused (``xml_loader``'s ``check_textures_used``); the texture is then a 1 x 1 BITMAP of no weight.
+    unrenderable: str = ""
 
 
 # Phase functions of a medium.

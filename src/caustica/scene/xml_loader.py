@@ -138,6 +138,9 @@ TEXTURE_PROPS = {
     "mesh_attribute": {"name": STR, "scale": FLOAT},
     # one value everywhere, as given (no colour conversion): a float, an rgb or a vector
     "rawconstant": {"value": COLOR + POINT},
+    # a <volume name="volume"> looked up at the surface point's world position: read and checked, but only when no
+    # shape uses it (Texture.unrenderable)
+    "volume": {},
 }
 BITMAP_FORMATS = ("auto", "variant", "float16", "fp16", "uint8")
 #: The BSDF parameters a texture may give (the colour each BSDF's ``rgb`` holds).
@@ -279,7 +282,8 @@ DEFAULT_EMITTER_REFLECTANCE = (0.0, 0.0, 0.0)
 
 #: The plugin tables and nested elements the one report checks in elements it cannot build.
 LINT_CHILDREN = {"shape": ("bsdf", "ref", "emitter", "medium"), "sensor": ("film", "sampler", "medium", "ref"),
-                 "film": ("rfilter",), "medium": ("phase", "volume"), "bsdf": ("texture", "ref", "bsdf")}
+                 "film": ("rfilter",), "medium": ("phase", "volume"), "bsdf": ("texture", "ref", "bsdf"),
+                 "texture": ("volume",)}
 
 SUPPORTED = {"shape": SHAPE_PROPS, "bsdf": BSDF_PROPS, "emitter": EMITTER_PROPS,
              "sensor": SENSOR_PROPS, "film": FILM_PROPS, "sampler": SAMPLER_PROPS,
@@ -1099,7 +1103,9 @@ class _Loader:
 
     def build_texture(self, node: Node) -> Texture:
         """A <texture type="checkerboard">, "bitmap", "mesh_attribute" or "rawconstant", with Mitsuba's defaults."""
-        props = self.plugin(node, TEXTURE_PROPS, ("texture", "ref"))
+        props = self.plugin(node, TEXTURE_PROPS, ("texture", "ref", "volume"))
+        if node.attrs["type"] == "volume":
+            return self.volume_texture(node, props)
         if props.objects:
             self.fail(props.objects[0], "a texture inside a texture is not supported",
                       supported=["<rgb>, <float> or <spectrum> colours"])
@@ -1146,6 +1152,39 @@ class _Loader:
         except SceneError as exc:
             self.fail(where, str(exc))
         return Texture(BITMAP, texels=texels, filter=modes["filter_type"], wrap=modes["wrap_mode"], **common)
+
+    def volume_texture(self, node: Node, props: Props) -> Texture:
+        """A <texture type="volume">: its <volume name="volume"> read and checked (a gridvolume's file too) as Mitsuba
+        loads it, kept as unrenderable (:attr:`Texture.unrenderable`): caustica's textures are looked up at a surface
+        point's (u, v), and this one at its world position."""
+        volumes = [obj for obj in props.objects if obj.tag == "volume"]
+        if len(volumes) != 1 or len(props.objects) != 1 or volumes[0].attrs.get("name", "volume") != "volume":
+            self.fail(node, "a volume texture holds one <volume name=\"volume\">",
+                      supported=['<volume type="gridvolume" name="volume">', '<volume type="constvolume">'])
+        self.medium_volume(props, volumes[0], "volume", 0.5, 1.0)
+        return Texture(BITMAP, texels=np.zeros((1, 1, 3), np.float32), id=node.attrs.get("id", ""),
+                       source=self.at(node), unrenderable="a volume texture (looked up at the surface point's world "
+                                                          "position, not at its (u, v))")
+
+    def check_textures_used(self, shapes: list[Shape]) -> None:
+        """Each shape's BSDF (its parts too) and area emitter read only textures caustica renders: an unrenderable one
+        (:attr:`Texture.unrenderable`) is an error where a shape uses it, as the one report's."""
+        def textures(m, seen=()):
+            mat = self.materials[m]
+            yield from (t for t in (mat.texture, mat.mix_texture, *mat.alpha_textures,
+                                    *(mat.param_textures or {}).values()) if t is not None)
+            for j in getattr(mat, "nested", ()) or ():
+                if j >= 0 and j not in seen:
+                    yield from textures(j, seen + (m,))
+        for shape in shapes:
+            used = list(textures(shape.material)) if 0 <= shape.material < len(self.materials) else []
+            for tex in used + [shape.emitter_texture]:
+                if tex is not None and tex.unrenderable:
+                    named = f" {shape.id!r}" if shape.id else ""
+                    self.errors.append(f"{tex.source}: {tex.unrenderable} is not supported where a shape uses it "
+                                       f"(here the {shape.kind}{named} at {shape.source}); it may be declared "
+                                       f"unused, as Mitsuba loads it; supported: checkerboard, bitmap, "
+                                       f"mesh_attribute, rawconstant")
 
     def check_mesh_attributes(self, shapes: list[Shape]) -> None:
         """Each shape whose BSDF (or a mixture's part) reads a mesh_attribute texture is a mesh holding that attribute,
@@ -2016,6 +2055,7 @@ class _Loader:
             except SceneError as exc:
                 self.record(exc)
         self.check_mesh_attributes(shapes)
+        self.check_textures_used(shapes)
         self.raise_errors()
         if self.other_sensors:
             n = len(self.other_sensors)
