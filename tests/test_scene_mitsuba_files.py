@@ -288,8 +288,20 @@ def test_a_volume_texture_loads_unused_and_is_refused_where_a_shape_uses_it(mi, 
     msg = one_line_error(used)
     assert msg.startswith(f"{used}:5: a volume texture") and f"the sphere at {used}:5" in msg and \
         "checkerboard, bitmap" in msg, msg
+    twice = write(tmp_path / "twice.xml", scene(bsdf + '<shape type="sphere"><ref id="vol"/></shape>'
+                                                '<shape type="cube"><ref id="vol"/></shape>'))
+    msg = one_line_error(twice)   # one error a texture, however many shapes use it
+    assert "the sphere at" in msg and "and 1 other shape)" in msg, msg
     missing = write(tmp_path / "missing.xml", scene(bsdf.replace("red.vol", "absent.vol") + '<shape type="sphere"/>'))
     assert "absent.vol" in one_line_error(missing)
+    constant = write(tmp_path / "constant.xml", scene('<bsdf type="diffuse"><texture type="volume" '
+                                                      'name="reflectance"/></bsdf>'))
+    mi.load_file(str(constant))
+    assert load_scene_file(constant).materials   # no volume: Mitsuba's constant 0.75
+    spot = write(tmp_path / "spot.xml", scene('<emitter type="spot"><texture type="volume" name="texture"><volume '
+                                              'type="gridvolume" name="volume"><string name="filename" value="red.vol"/>'
+                                              '</volume></texture></emitter><shape type="sphere"/>'))
+    assert "spot emitter's texture cannot be a volume texture" in one_line_error(spot)   # always used
 
 
 def test_a_comment_holding_two_dashes_is_read_as_mitsuba_reads_it(mi, tmp_path):
@@ -485,7 +497,7 @@ def test_integrator_setting_errors(tmp_path, inner, words):
 MANY = """<sensor type="perspective"><float name="fov" value="45"/>
 <film type="hdrfilm"><string name="pixel_format" value="rgb"/><boolean name="banner" value="no"/>
 <rfilter type="mitchell"/></film></sensor>
-<texture type="volume" id="checks"/>
+<texture type="noise" id="checks"/>
 <bsdf type="blendbsdf" id="blend"/>
 <shape type="torus"/>
 <shape type="sphere"><float name="radius" value="1"/><float name="smoothness" value="1"/>
@@ -507,8 +519,8 @@ def test_every_problem_is_listed_in_one_message(tmp_path, capsys):
     expected = [
         (3, '<boolean name="banner">: value=\'no\' is not a boolean'),
         (4, "<rfilter type=\"mitchell\">: unknown rfilter type 'mitchell'; supported: box, tent, gaussian"),
-        (5, "<texture type=\"volume\" id=\"checks\">: a volume texture holds one <volume name=\"volume\">; "
-            "supported: <volume type=\"gridvolume\" name=\"volume\">"),
+        (5, "<texture type=\"noise\" id=\"checks\">: unknown texture type 'noise'; supported: "
+            "checkerboard, bitmap, mesh_attribute, rawconstant, volume"),
         (6, "<bsdf type=\"blendbsdf\" id=\"blend\">: a blendbsdf nests exactly 2 BSDFs, found 0"),
         (7, "<shape type=\"torus\">: unknown shape type 'torus'; supported: rectangle, cube, sphere"),
         (8, "<float name=\"smoothness\">: unknown property 'smoothness' of <shape type=\"sphere\">; supported: "),

@@ -133,7 +133,7 @@ def _thin_lens_ray(cam, local, key):
 def pixel_footprints(cam, geom, stops, n, out):
     """The width of a pixel (scene units) where the rays through an n x n grid of film points (pixel-centre spaced)
     first meet a surface of a material with ``stops[m]`` (one a visible point may lie on), going straight on through
-    the others (glass, mirrors, media's boundaries: the footprint is a guide, not a ray differential): out[i] = that
+    the others (glass, mirrors, rough metal, media's boundaries: a guide, not a ray differential): out[i] = that
     point's depth along the view axis times a pixel's width at unit depth, or an orthographic pixel's width; inf
     where the ray meets none (caustica.tables.Scene.pixel_footprint)."""
     geom = borrowed(geom)

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .bsdfs import DELTA, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GLOSSY, MaterialTable, build_material_table, \
-    material_features, null_transmitting
+from .bsdfs import DELTA, DIFFUSE_REFLECTION, GLOSSY, MaterialTable, build_material_table, material_features, \
+    null_transmitting
 from .camera import CameraParams, camera_params, pixel_footprints
 from .emitters import AREA, POINT, TEX_OF, TEXTURED_AREA, LightTable, build_light_table
 from .errors import SceneError
@@ -46,14 +46,14 @@ class Scene:
 
     def pixel_footprint(self, width: int, height: int) -> float:
         """The median width of a pixel (scene units) where the camera's rays through a 16 x 16 grid of the film first
-        meet a surface that may hold a visible point (a diffuse or glossy lobe; straight on through the others:
-        :func:`caustica.camera.pixel_footprints`) at this resolution; inf where none does.  Computed once a
+        meet a surface that may hold a visible point (a diffuse reflection lobe, as the camera passes make them:
+        :func:`caustica.photons.visible_points.camera_vertex`; straight on through the others, mirrors and rough metal
+        too: :func:`caustica.camera.pixel_footprints`) at this resolution; inf where none does.  Computed once a
         resolution."""
         if (width, height) not in self._footprints:
             n = 16
             out = np.empty(n * n)
-            stops = np.ascontiguousarray((self.materials.flags & (DIFFUSE_REFLECTION | DIFFUSE_TRANSMISSION | GLOSSY))
-                                         != 0)
+            stops = np.ascontiguousarray((self.materials.flags & DIFFUSE_REFLECTION) != 0)
             pixel_footprints(self.camera(width, height), self.geometry, stops, n, out)
             hits = out[np.isfinite(out)]
             self._footprints[(width, height)] = float(np.median(hits)) if hits.size else np.inf

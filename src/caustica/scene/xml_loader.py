@@ -1158,11 +1158,14 @@ class _Loader:
         loads it, kept as unrenderable (:attr:`Texture.unrenderable`): caustica's textures are looked up at a surface
         point's (u, v), and this one at its world position."""
         volumes = [obj for obj in props.objects if obj.tag == "volume"]
-        if len(volumes) != 1 or len(props.objects) != 1 or volumes[0].attrs.get("name", "volume") != "volume":
-            self.fail(node, "a volume texture holds one <volume name=\"volume\">",
+        if len(volumes) != len(props.objects) or len(volumes) > 1 or \
+                any(v.attrs.get("name", "volume") != "volume" for v in volumes):
+            self.fail(node, "a volume texture holds at most one <volume name=\"volume\">",
                       supported=['<volume type="gridvolume" name="volume">', '<volume type="constvolume">'])
-        self.medium_volume(props, volumes[0], "volume", 0.5, 1.0)
-        return Texture(BITMAP, texels=np.zeros((1, 1, 3), np.float32), id=node.attrs.get("id", ""),
+        # none: Mitsuba's constant 0.75 (it takes no number or colour there)
+        self.medium_volume(props, volumes[0] if volumes else None, "volume", 0.75, 1.0)
+        # a placeholder of no weight (never rendered); mid-grey passes the parameters' range checks
+        return Texture(BITMAP, texels=np.full((1, 1, 3), 0.5, np.float32), id=node.attrs.get("id", ""),
                        source=self.at(node), unrenderable="a volume texture (looked up at the surface point's world "
                                                           "position, not at its (u, v))")
 
@@ -1176,15 +1179,18 @@ class _Loader:
             for j in getattr(mat, "nested", ()) or ():
                 if j >= 0 and j not in seen:
                     yield from textures(j, seen + (m,))
+        users: dict[int, tuple[Texture, list[Shape]]] = {}
         for shape in shapes:
             used = list(textures(shape.material)) if 0 <= shape.material < len(self.materials) else []
             for tex in used + [shape.emitter_texture]:
                 if tex is not None and tex.unrenderable:
-                    named = f" {shape.id!r}" if shape.id else ""
-                    self.errors.append(f"{tex.source}: {tex.unrenderable} is not supported where a shape uses it "
-                                       f"(here the {shape.kind}{named} at {shape.source}); it may be declared "
-                                       f"unused, as Mitsuba loads it; supported: checkerboard, bitmap, "
-                                       f"mesh_attribute, rawconstant")
+                    users.setdefault(id(tex), (tex, []))[1].append(shape)
+        for tex, by in users.values():   # one error a texture, naming its first user
+            named = f" {by[0].id!r}" if by[0].id else ""
+            others = f" and {len(by) - 1} other shape{'s' if len(by) > 2 else ''}" if len(by) > 1 else ""
+            self.errors.append(f"{tex.source}: {tex.unrenderable} is not supported where a shape uses it (here the "
+                               f"{by[0].kind}{named} at {by[0].source}{others}); it may be declared unused, as "
+                               f"Mitsuba loads it; supported: checkerboard, bitmap, mesh_attribute, rawconstant")
 
     def check_mesh_attributes(self, shapes: list[Shape]) -> None:
         """Each shape whose BSDF (or a mixture's part) reads a mesh_attribute texture is a mesh holding that attribute,
@@ -2175,6 +2181,9 @@ class _Loader:
             if name in props.props or name in out:
                 self.fail(obj, f"'{name}' is given twice")
             tex = self.texture(obj)
+            if tex.unrenderable and kind != "area":   # a spot's or projector's texture is always used
+                self.fail(obj, f"a {kind} emitter's texture cannot be {tex.unrenderable}",
+                          supported=["bitmap", "checkerboard"])
             if tex.kind == MESH_ATTRIBUTE:
                 self.fail(obj, f"a {kind} emitter's texture cannot be a mesh_attribute"
                                + (" (not supported)" if kind == "area" else " (an emitter has no mesh)"),
