@@ -245,6 +245,22 @@ def test_a_pixel_format_other_than_rgb_renders_rgb_with_a_note(mi, tmp_path, fmt
     assert load_scene_file(write(tmp_path / "plain.xml", scene("", film("")))).loader_notes == []
 
 
+@pytest.mark.parametrize("kind", ["perspective", "thinlens"])
+def test_a_perspective_camera_that_scales_is_refused_as_mitsuba_refuses_it(mi, tmp_path, kind):
+    """Mitsuba 3: "Scale factors in the camera-to-world transformation are not allowed!" (caustica stretched the view
+    instead); a mirror (scale -1) is no scale."""
+    lens = '<float name="aperture_radius" value="0"/>' if kind == "thinlens" else ""
+    scaled = scene("", f'<sensor type="{kind}">{lens}<transform name="to_world"><scale x="2" y="1" z="1"/>'
+                       f'<translate z="5"/></transform></sensor>')
+    with pytest.raises(RuntimeError, match="Scale factors"):
+        mi.load_string(scaled)
+    path = write(tmp_path / "scaled.xml", scaled)
+    assert one_line_error(path).startswith(f"{path}:3: ") and "must not scale" in one_line_error(path)
+    mirrored = scaled.replace('x="2"', 'x="-1"')
+    mi.load_string(mirrored)
+    assert parse_scene_string(mirrored).camera is not None
+
+
 def test_the_first_of_several_sensors_is_rendered_as_mitsuba_renders_it(mi, tmp_path):
     """Mitsuba 3 loads every <sensor> and its render() takes the first: caustica reads and checks them all, renders the
     first (the one Mitsuba's sensors()[0] is) and says so in one note; a fault in another is still reported."""

@@ -105,7 +105,7 @@ def test_thin_lens_matches_mitsuba(mi, test_scenes_dir, focus):
      r'<transform name="to_world">: the transform is degenerate'),
     ('<sensor type="thinlens"><float name="aperture_radius" value="0.1"/>\n'
      '<transform name="to_world"><scale value="2"/></transform>\n</sensor>',
-     r'<transform name="to_world">: a thin lens\'s to_world must not'),
+     r'<transform name="to_world">: a perspective sensor\'s to_world must not scale'),
 ], ids=["flat-orthographic", "scaled-thin-lens"])
 def test_a_sensor_transform_mitsuba_refuses_is_refused(tmp_path, sensor, message):
     """A zero scale (a flat orthographic view) and a thin lens's scaling to_world: one error naming file and line."""

@@ -1843,6 +1843,12 @@ class _Loader:
                           supported=["0"])
         to_world = props.get("to_world")
         to_world = np.eye(4) if to_world is None else to_world
+        if projection == "perspective" and np.any(np.abs(np.diag(to_world[:3, :3].T @ to_world[:3, :3]) - 1.0) > 1e-3):
+            # Mitsuba 3's perspective and thinlens: "Scale factors in the camera-to-world transformation are not
+            # allowed!" (a scale would stretch the view, which fov and fov_axis give)
+            self.fail(props.node_of("to_world"), "a perspective sensor's to_world must not scale (as in Mitsuba 3, "
+                                                 "which refuses it: the view's size is its fov)",
+                      supported=["lookat, rotate, translate, a mirror (scale -1)"])
         radius, focus = 0.0, far
         if node.attrs["type"] == "thinlens":
             if not props.has("aperture_radius"):
