@@ -191,7 +191,7 @@ class Texture:
     scale: float = 1.0
     #: Why this texture cannot be rendered, for one that is read and checked as Mitsuba 3 loads it (a ``volume``
     #: texture: its value at a surface point's world position) but may only stay unused: a shape whose BSDF or emitter
-    #: reads it is refused (``xml_loader``'s ``check_textures_used``); the texture is then a 1 x 1 BITMAP of no weight.
+    #: reads it is refused (``xml_loader``'s ``check_textures_used``); it holds a 1 x 1 mid-grey BITMAP, never rendered.
     unrenderable: str = ""
 
 
