@@ -1169,19 +1169,26 @@ class _Loader:
                        source=self.at(node), unrenderable="a volume texture (looked up at the surface point's world "
                                                           "position, not at its (u, v))")
 
+    def material_textures(self, m: int, seen: tuple = ()):
+        """(texture, role) of every texture material m and its parts (a mixture's, a wrapper's) read: role "colour"
+        (``texture``), "weight" (``mix_texture``: a mixture's weight, a map) or "parameter" (roughness, principled's
+        scalars), in that order, each material's before its parts'."""
+        mat = self.materials[m]
+        for tex, role in ((mat.texture, "colour"), (mat.mix_texture, "weight"),
+                          *((t, "parameter") for t in (*mat.alpha_textures, *(mat.param_textures or {}).values()))):
+            if tex is not None:
+                yield tex, role
+        for j in getattr(mat, "nested", ()) or ():
+            if j >= 0 and j not in seen:
+                yield from self.material_textures(j, seen + (m,))
+
     def check_textures_used(self, shapes: list[Shape]) -> None:
         """Each shape's BSDF (its parts too) and area emitter read only textures caustica renders: an unrenderable one
         (:attr:`Texture.unrenderable`) is an error where a shape uses it, as the one report's."""
-        def textures(m, seen=()):
-            mat = self.materials[m]
-            yield from (t for t in (mat.texture, mat.mix_texture, *mat.alpha_textures,
-                                    *(mat.param_textures or {}).values()) if t is not None)
-            for j in getattr(mat, "nested", ()) or ():
-                if j >= 0 and j not in seen:
-                    yield from textures(j, seen + (m,))
         users: dict[int, tuple[Texture, list[Shape]]] = {}
         for shape in shapes:
-            used = list(textures(shape.material)) if 0 <= shape.material < len(self.materials) else []
+            used = [t for t, _ in self.material_textures(shape.material)] \
+                if 0 <= shape.material < len(self.materials) else []
             for tex in used + [shape.emitter_texture]:
                 if tex is not None and tex.unrenderable:
                     users.setdefault(id(tex), (tex, []))[1].append(shape)
@@ -1195,20 +1202,14 @@ class _Loader:
     def check_mesh_attributes(self, shapes: list[Shape]) -> None:
         """Each shape whose BSDF (or a mixture's part) reads a mesh_attribute texture is a mesh holding that attribute,
         of 3 or 1 channels for a colour (Mitsuba's eval: 1 is grey) and 1 for a mixture's weight (its eval_1)."""
-        def uses(m, seen=()):
-            mat = self.materials[m]
-            if mat.texture is not None and mat.texture.kind == MESH_ATTRIBUTE:
-                yield mat.texture, (1, 3), "a colour"
-            mix = getattr(mat, "mix_texture", None)
-            if mix is not None and mix.kind == MESH_ATTRIBUTE:
-                yield mix, (1,), "a mixture's weight"
-            for j in getattr(mat, "nested", ()) or ():
-                if j >= 0 and j not in seen:
-                    yield from uses(j, seen + (m,))
+        needs = {"colour": ((1, 3), "a colour"), "weight": ((1,), "a mixture's weight")}
         for shape in shapes:
             if not 0 <= shape.material < len(self.materials):
                 continue
-            for tex, dims, what in uses(shape.material):
+            for tex, role in self.material_textures(shape.material):
+                if tex.kind != MESH_ATTRIBUTE or role not in needs:
+                    continue
+                dims, what = needs[role]
                 attrs = (shape.mesh.attributes or {}) if shape.mesh is not None else None
                 if attrs is None:
                     self.errors.append(f"{tex.source}: mesh_attribute {quoted(tex.attribute)} is on the {shape.kind} "
