@@ -91,6 +91,12 @@ def generate_ray(cam, px, py, u1, u2, key):
     local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
     if cam.aperture_radius > 0.0:
         return _thin_lens_ray(cam, local, key)
+    return _pinhole_ray(cam, local)
+
+
+@kernel(inline=True)
+def _pinhole_ray(cam, local):
+    """The pinhole ray through the camera-space point ``local`` (z = 1): (origin on the near plane, unit direction)."""
     d = vec.normalize(_to_world(cam.basis, local))
     # Start on the near plane (Mitsuba ignores geometry closer than near_clip).
     zlen = vec.length(local)
@@ -144,9 +150,7 @@ def pixel_footprints(cam, geom, stops, n, out):
         if cam.orthographic:
             o, d = _orthographic_ray(cam, sx, sy)
         else:
-            local = (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0)
-            d = vec.normalize(_to_world(cam.basis, local))
-            o = vec.madd(origin, d, cam.near_clip * vec.length(local))
+            o, d = _pinhole_ray(cam, (cam.tan_half_x * (1.0 - 2.0 * sx), cam.tan_half_y * (1.0 - 2.0 * sy), 1.0))
         out[k] = np.inf
         for _ in range(64):
             prim, t, _, _ = intersect(geom, o, d, 1e30)
