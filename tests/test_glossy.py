@@ -359,7 +359,7 @@ def test_streams_store_nothing_on_glossy_surfaces(tmp_path, test_scenes_dir, spl
     scene = caustica.load_scene(test_scenes_dir / "glossy-caustic.xml")
     n, n_fa, mr = 5_000, 4, 4
     buf = StreamBuffers(n, n_fa, mr, split=split)
-    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.05, mr, TERMINATION_CAP, split=split)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.05, mr, TERMINATION_CAP)
     stored = buf.rec.kind != EMPTY
     assert np.count_nonzero(stored) > n // 50
     assoc = np.concatenate([buf.assoc.position[r * n_fa:r * n_fa + c]

@@ -280,7 +280,7 @@ def test_split_photons_count_their_streams_events():
     scene = compile_scene(parse_scene_string(PANEL_AND_BALL, ".", None, "panel.xml"))
     n, n_fa, mr = 100_000, 10, 4
     buf = StreamBuffers(n, n_fa, mr, split=True)
-    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.3, mr, TERMINATION_CAP, split=True)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 0.3, mr, TERMINATION_CAP)
     lead = buf.depth[buf.rec.kind != EMPTY]
     stored = buf.split.kind != EMPTY
     split = buf.split.depth[stored]

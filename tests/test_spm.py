@@ -17,7 +17,8 @@ import pytest
 
 import caustica
 from caustica.errors import ParameterError
-from caustica.photons.streams import StreamBuffers, StreamMap, trace_stream_pass
+from caustica.features import features_of
+from caustica.photons.streams import StreamBuffers, StreamMap, may_split, trace_stream_pass
 from caustica.photons.records import CAUSTIC, EMPTY, TraceBuffers
 from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON, STREAM_SPM
@@ -242,6 +243,17 @@ def test_a_split_photon_aimed_at_a_back_leaves_where_the_back_scatters(bsdf, lea
     assert leaves_by(geom, mats, (0.1, 0.2, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), False)   # the front: always
 
 
+def test_only_buffers_made_for_splitting_let_a_stream_pass_compile_the_split():
+    """Under ``--specular merge`` the split buffer's type holds no record kind, so ``may_split`` is folded to False
+    before typing and the stream kernels never compile the split photons' tracer (features.guarded_by, tested in
+    test_features); the bit pins hold both kinds of pass to their images."""
+    merge, split = StreamBuffers(10, 2, 1), StreamBuffers(10, 2, 1, split=True)
+    assert not merge.splits and merge.split.kind.shape == (0,)
+    assert features_of(merge.split) & may_split.feature_guard == 0
+    assert split.splits and split.split.kind.shape == (10 * 2 * 2,)
+    assert features_of(split.split) & may_split.feature_guard != 0
+
+
 def test_split_photons_deposit_what_independent_photons_do():
     """--specular split at r_s -> 0: every photon of a stream meets the glass at the same point and
     then goes its own way, so where the power lands (caustic, floor, wall; mr = 2) must be PM's
@@ -256,7 +268,7 @@ def test_split_photons_deposit_what_independent_photons_do():
     split, pm = [], []
     for seed in range(batches):
         buf = StreamBuffers(n, n_fa, mr, True)
-        trace_stream_pass(scene, buf, seed, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_CAP, split=True)
+        trace_stream_pass(scene, buf, seed, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_CAP)
         pos, _, power, _ = buf.events("photons")
         split.append(_flux_by_region(pos, power))
         n_pm = n * (n_fa + 1)
@@ -288,7 +300,7 @@ def test_split_photons_under_roulette_never_raise_their_power():
     scene = xml_scene(COLOURED_ROOM_WITH_GLASS, "red-room-glass.xml")
     n, n_fa, mr = 4_000, 4, 1024
     buf = StreamBuffers(n, n_fa, mr, True)
-    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_ROULETTE, split=True)
+    trace_stream_pass(scene, buf, 3, STREAM_SPM, n, n_fa, 1e-4, mr, TERMINATION_ROULETTE)
     stored = buf.split.kind != EMPTY
     share = 4 * math.pi * 10.0 / n / (n_fa + 1)                   # Φ = 4π I over n streams of n_fa + 1 photons
     assert stored.sum() > n                                        # split photons bounce on in the room

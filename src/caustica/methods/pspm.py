@@ -142,7 +142,7 @@ class ProgressiveStreamedPhotonMapping(StreamedBSDFs, ProgressivePhotonMethod):
         bar = progress(total=n, desc="stream tracing", unit="stream")
         terminate = TERMINATIONS[settings.termination]
         compile_s = trace_stream_pass(scene, buf, settings.seed, pass_stream(STREAM_SPM, pass_index), n, n_fa, r_s,
-                                      mr, terminate, split=split, spread=settings.medium_scattering == "spread",
+                                      mr, terminate, spread=settings.medium_scattering == "spread",
                                       threads=settings.threads, progress=bar)
         bar.close()
         n_c = cls.caustic_photons_per_pass(scene, settings)

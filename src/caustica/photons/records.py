@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..features import specialisable, specialised
 from .kdtree import KdTree, build_kdtree, memory_bytes as tree_bytes, normal_bounds
 
 # Record kinds in the tracing buffers.
@@ -98,6 +99,7 @@ def empty_photon_map() -> PhotonMap:
     return build_photon_map(z, z, z, z)
 
 
+@specialisable
 class TraceBuffers(NamedTuple):
     """Photon records as structures of arrays.  Tracing writes path i into slots of its own, [i*m, (i+1)*m), so
     threads need no atomics (:func:`caustica.photons.trace.trace_photon_pass` appends the rest of a longer path
@@ -122,6 +124,14 @@ def allocate_buffers(n_paths: int, slots_per_path: int) -> TraceBuffers:
     return TraceBuffers(np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
                         np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
                         np.zeros(n, np.int8), np.zeros(n, np.uint16))
+
+
+def no_records() -> TraceBuffers:
+    """A buffer of no slots whose type says so (no record kind: :mod:`caustica.features`), for a pass that stores
+    nothing there: the code that would write to it is dropped from its kernels before typing
+    (:func:`caustica.photons.streams.may_split`)."""
+    v = np.zeros((0, 3), np.float32)
+    return specialised(TraceBuffers, 0)(v, v, v, v, np.zeros(0, np.int8), np.zeros(0, np.uint16))
 
 
 def map_from_buffers(buf: TraceBuffers, kinds: tuple[int, ...]) -> PhotonMap:

@@ -60,7 +60,7 @@ from typing import NamedTuple
 
 from ..bsdfs import DIFFUSE_REFLECTION, TRANSMISSION, has_null_lobe, oriented, wrapped
 from ..bsdfs.mixtures import resolve
-from ..features import has
+from ..features import guarded_by, has
 from ..geometry import vec
 from ..geometry.primitives import borrow
 from ..geometry.scene_geometry import NO_UV, intersect, surface_at, surface_uv
@@ -72,7 +72,7 @@ from ..scene.description import BLEND, BUMPMAP, MASK, NORMALMAP, NULL, PLASTIC, 
 from ..transport import CROSSED, TRAPPED, surface_interaction
 from .emission import emit_photon, start_medium
 from .records import (CAUSTIC, EMPTY, INDIRECT, MAX_RECORD_DEPTH, SLOT_BYTES, VOLUME_CAUSTIC, VOLUME_INDIRECT,
-                      allocate_buffers, build_photon_map, build_photon_map_with_order)
+                      allocate_buffers, build_photon_map, build_photon_map_with_order, no_records)
 from .trace import SPECULAR_CAP, TERMINATION_DECAY, TERMINATION_ROULETTE, beside_diffuse, bounce_at, \
     count_bounce, record_factor, record_power, trace_one
 
@@ -87,6 +87,15 @@ ASSOCIATED_CROSSINGS = 16
 
 #: What a stream does at a scattering event in a medium (``--medium-scattering``).
 MEDIUM_SCATTERING = ("merge", "spread")
+
+
+@guarded_by(INDIRECT, CAUSTIC)
+@kernel(inline=True)
+def may_split(split_buf):
+    """Whether ``split_buf`` can take split photons' records: False, folded before typing, for
+    :func:`~caustica.photons.records.no_records` (``--specular merge``), so that a stream pass that cannot split
+    never compiles :func:`split_off` and the photon tracer behind it (1-2 s of ``make render``'s cold start)."""
+    return has(split_buf, INDIRECT) or has(split_buf, CAUSTIC)
 
 
 @kernel(inline=True)
@@ -259,7 +268,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
             continue  # escaped: merged into the leading photon
         m = unwrapped(mats, m)
         if not mats.flags[m] & DIFFUSE_REFLECTION:
-            if split:
+            if may_split(split_buf) and split:
                 split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror, glass or glossy surface: merged (or split off)
@@ -422,7 +431,7 @@ def stream_at_specular(tables, key, beam, stream, splitting):
     Returns (the stream, with no associated photon left, split photons added)."""
     lead, p_assoc, n_alive = stream
     k = 0
-    if splitting[0] and n_alive > 0:
+    if may_split(splitting[2]) and splitting[0] and n_alive > 0:
         lead, k = split_at_specular(tables, key, beam, (n_alive, p_assoc), lead, splitting)
         n_alive = 0
     lead = vec.madd(lead, p_assoc, float(n_alive))
@@ -649,10 +658,11 @@ def trace_stream(tables, key, start, rules, i, buf):
 
 
 def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bounces, termination, *,
-                      split=False, spread=False, threads=None, progress=None) -> float:
+                      spread=False, threads=None, progress=None) -> float:
     """Trace ``n_streams`` streams of (seed, stream) into ``buf`` (a :class:`StreamBuffers`) on the thread
-    pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE."""
-    rules = (n_assoc, float(r_s), max_bounces, termination, bool(split), bool(spread))
+    pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE; the associated
+    photons split off at mirrors and glass (``--specular split``) when the buffers were made for it."""
+    rules = (n_assoc, float(r_s), max_bounces, termination, buf.splits, bool(spread))
     return parallel_for(trace_streams, n_streams,
                         (scene.tables, scene.light_media(), (seed, stream, n_streams), rules, buf.kernel_args),
                         threads=threads, progress=progress)
@@ -689,8 +699,10 @@ class StreamBuffers:
         self.rec = StreamRecords(*(np.zeros((s, 3), f) for _ in range(6)), np.zeros(s, np.int32),
                                  np.zeros(s, np.int8))
         self.assoc = AssociatedPhotons(*(np.zeros((a, 3), f) for _ in range(3)), np.zeros(a, f))
-        # split photons: at most n_assoc per stream, mr + 1 slots each
-        self.split = allocate_buffers(n_streams * n_assoc if split else 0, max_bounces + 1)
+        # split photons (--specular split): at most n_assoc per stream, mr + 1 slots each; else none, which the
+        # stream kernels then compile without (may_split)
+        self.splits = bool(split)
+        self.split = allocate_buffers(n_streams * n_assoc, max_bounces + 1) if split else no_records()
         self.depth = np.zeros(s, np.uint16)   # each record's depth: segments from the light (TraceBuffers.depth)
         self.n_assoc = n_assoc
 
