@@ -12,13 +12,16 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 
 import caustica
 from caustica.errors import ParameterError
 from caustica.features import features_of
-from caustica.photons.streams import StreamBuffers, StreamMap, may_split, trace_stream_pass
+from caustica.jit import KernelCompiler
+from caustica.photons.streams import StreamBuffers, StreamMap, may_split, place_associated, split_off, \
+    trace_stream_pass
 from caustica.photons.records import CAUSTIC, EMPTY, TraceBuffers
 from caustica.photons.trace import TERMINATION_CAP, TERMINATION_ROULETTE, trace_photon_pass
 from caustica.sampling.rng import STREAM_PHOTON, STREAM_SPM
@@ -243,15 +246,36 @@ def test_a_split_photon_aimed_at_a_back_leaves_where_the_back_scatters(bsdf, lea
     assert leaves_by(geom, mats, (0.1, 0.2, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), False)   # the front: always
 
 
+def _takes(signatures, cls) -> bool:
+    """Whether any of a dispatcher's signatures holds a tuple of class ``cls``, at any depth."""
+    def walk(t):
+        yield t
+        for sub in getattr(t, "types", ()) or ():
+            yield from walk(sub)
+    return any(getattr(t, "instance_class", None) is cls for sig in signatures for a in sig for t in walk(a))
+
+
 def test_only_buffers_made_for_splitting_let_a_stream_pass_compile_the_split():
     """Under ``--specular merge`` the split buffer's type holds no record kind, so ``may_split`` is folded to False
-    before typing and the stream kernels never compile the split photons' tracer (features.guarded_by, tested in
-    test_features); the bit pins hold both kinds of pass to their images."""
+    before typing and the stream kernels never type a call to the split photons' tracer (``split_off``, and the
+    photon tracer behind it).  ``place_associated`` is compiled afresh here (uncached), so every callee it types is
+    compiled or loaded, and so listed in the callee's signatures, whatever the kernel cache holds; the bit pins hold
+    both kinds of pass to their images."""
     merge, split = StreamBuffers(10, 2, 1), StreamBuffers(10, 2, 1, split=True)
     assert not merge.splits and merge.split.kind.shape == (0,)
     assert features_of(merge.split) & may_split.feature_guard == 0
     assert split.splits and split.split.kind.shape == (10 * 2 * 2,)
     assert features_of(split.split) & may_split.feature_guard != 0
+    fresh = numba.njit(pipeline_class=KernelCompiler)(place_associated.py_func)
+    tables = xml_scene(GLASS_OVER_FLOOR, "glass-floor.xml").tables
+    beam = ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -1.0), 0.05)
+    path = (0, 0, -1, 0, False, 0, (1, 0))
+    no_split = type(merge.split)
+    for buf in (merge, split):   # no associated photon alive: it only compiles
+        fresh(tables, beam, np.uint64(1), 8, (0, (0.0, 0.0, 0.0)), (False, 0, buf.assoc), (buf.splits, path, buf.split))
+    assert _takes(fresh.signatures, no_split)
+    assert not _takes(split_off.signatures, no_split)
+    assert _takes(split_off.signatures, type(split.split))
 
 
 def test_split_photons_deposit_what_independent_photons_do():

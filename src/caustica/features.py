@@ -14,6 +14,9 @@ dead-branch pruning drops the branch and the callees only it reaches are never c
 code kept is the same, so the images are bit for bit those of the code compiled for every kind (the bit pins and
 tests/test_features.py hold it).  A table of the base class (built by hand, in tests) holds every feature.
 
+A pass's buffers may be typed the same way: a stream pass that cannot split gets a split buffer of no record kind
+(:func:`caustica.photons.records.no_records`), so that :func:`caustica.photons.streams.may_split` folds to False.
+
 Each feature set compiles its kernels once more, so :func:`caustica.tables.specialise` rounds a scene's materials and
 lights up to one of two sets each, and :func:`caustica.media.medium_features` its media to one of three.
 """

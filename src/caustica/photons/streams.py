@@ -662,6 +662,9 @@ def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bou
     """Trace ``n_streams`` streams of (seed, stream) into ``buf`` (a :class:`StreamBuffers`) on the thread
     pool; returns the compile seconds.  ``termination`` is TERMINATION_CAP or TERMINATION_ROULETTE; the associated
     photons split off at mirrors and glass (``--specular split``) when the buffers were made for it."""
+    if buf.rec.kind.shape[0] != n_streams * (max_bounces + 1) or buf.n_assoc != n_assoc:
+        raise ValueError(f"stream buffers of {buf.rec.kind.shape[0]} record slots and {buf.n_assoc} associated photons "
+                         f"each do not fit {n_streams} streams of {n_assoc} with {max_bounces} bounces")
     rules = (n_assoc, float(r_s), max_bounces, termination, buf.splits, bool(spread))
     return parallel_for(trace_streams, n_streams,
                         (scene.tables, scene.light_media(), (seed, stream, n_streams), rules, buf.kernel_args),
