@@ -135,8 +135,9 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
             if mat.kind == PRINCIPLED and any(c not in textured and coating[i, c] == 1.0
                                               for c in (principled.METALLIC, principled.SPEC_TRANS)):
                 flags[i] &= ~DIFFUSE_REFLECTION   # metallic or spec_trans 1: no diffuse or sheen lobe (glossy only)
-            if narrowest_glossy_alpha(mat, float(alpha[i]), float(alpha_v[i])) < NARROW_ALPHA:
-                flags[i] |= NARROW_GLOSSY
+            if narrowest_glossy_alpha(mat, float(alpha[i]), float(alpha_v[i])) < NARROW_ALPHA or \
+                    flags[i] & GLOSSY_TRANSMISSION and flags[i] & DIFFUSE_REFLECTION and transmits_glossily(mat):
+                flags[i] |= NARROW_GLOSSY   # (a glossy transmission: taken apart however broad; flags.NARROW_GLOSSY)
         if mat.kind == PPLASTIC and alpha[i] < NARROW_ALPHA:
             flags[i] |= NARROW_GLOSSY
         if mat.kind in (DIELECTRIC, ROUGHDIELECTRIC, THINDIELECTRIC):   # specular_reflectance (dielectric.tints)
@@ -180,6 +181,12 @@ def narrowest_glossy_alpha(mat, alpha_u: float, alpha_v: float) -> float:
     if mat.kind == PRINCIPLEDTHIN and (p.get("spec_trans", 0.0) > 0.0 or "spec_trans" in textured):
         a = min(a, a * (0.65 * p.get("eta", 1.5) - 0.35))
     return a
+
+
+def transmits_glossily(mat) -> bool:
+    """Whether a principled or principledthin material has a glossy transmission lobe: ``spec_trans`` above 0, or
+    from a texture (principled's is also weighted by 1 - metallic: its flags say whether it transmits at all)."""
+    return mat.principled.get("spec_trans", 0.0) > 0.0 or "spec_trans" in mat.param_textures
 
 
 def wrapped_rows(desc: SceneDescription, m: int) -> np.ndarray:
@@ -354,11 +361,12 @@ def eval_pdf_kind(mats, m, d, ng, ns, uv, wi):
 def splits_lobes(mats, m):
     """Whether material m has glossy lobes beside diffuse ones that a camera path takes apart (pplastic, principledthin,
     and principled where metallic and spec_trans leave it a diffuse lobe; ``NARROW_GLOSSY``: some glossy lobe may be
-    narrower than :data:`.flags.NARROW_ALPHA`): it picks its glossy or its diffuse lobes (:func:`glossy_pick`), goes on
-    by the glossy ones (:func:`sample_glossy`) and makes its visible point on a diffuse one, which then holds the
-    diffuse lobes alone (:func:`eval_radiance`), so that no photon estimate goes through a narrow glossy lobe
-    (caustica.photons.visible_points).  Broader lobes stay in the visible point's estimate, weighed with the photons:
-    the choice costs noise there.  Never in a scene without those kinds."""
+    narrower than :data:`.flags.NARROW_ALPHA`, or transmits): it picks its glossy or its diffuse lobes
+    (:func:`glossy_pick`), goes on by the glossy ones (:func:`sample_glossy`) and makes its visible point on a diffuse
+    one, which then holds the diffuse lobes alone (:func:`eval_radiance`), so that no photon estimate goes through a
+    narrow glossy lobe or across the surface (caustica.photons.visible_points).  Broader reflections stay in the
+    visible point's estimate, weighed with the photons: the choice costs noise there.  Never in a scene without those
+    kinds."""
     if not (has(mats, PPLASTIC) or has(mats, PRINCIPLED) or has(mats, PRINCIPLEDTHIN)):
         return False
     kind = mats.kind[m]

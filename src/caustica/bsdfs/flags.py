@@ -21,12 +21,16 @@ NULL_TRANSMISSION = 32
 #: (principledthin's), reported with ``GLOSSY_TRANSMISSION`` (for the loops, a lobe that transmits).
 DIFFUSE_TRANSMISSION = 64
 #: Set by the material table on a row with glossy lobes beside diffuse ones (pplastic, principled, principledthin) some
-#: glossy lobe of which may be narrower than :data:`NARROW_ALPHA`: the photon methods' camera paths take its lobes
-#: apart (:func:`caustica.bsdfs.splits_lobes`).
+#: glossy lobe of which may be narrower than :data:`NARROW_ALPHA`, or one of which transmits (principled's and
+#: principledthin's ``spec_trans``, however broad): the photon methods' camera paths take its lobes apart
+#: (:func:`caustica.bsdfs.splits_lobes`).
 NARROW_GLOSSY = 128
-#: The microfacet roughness below which a glossy lobe beside a diffuse one is taken apart rather than weighed into
-#: photon estimates (docs/results.md, 2026-12-07: at alpha 1e-4 a panel weighed so was 12 % dark with sppm; at 0.09 it
-#: agreed with Mitsuba; at 0.15 the split cost 60 % more noise on a floor under a caustic).  A judgement.
+#: The microfacet roughness below which a glossy reflection beside a diffuse lobe is taken apart rather than weighed
+#: into photon estimates.  Measured (docs/results.md, "Which glossy lobes a camera path takes apart", 2026-12-07,
+#: ``benchmarks/narrow_threshold.py``): on a pplastic floor in the Cornell box, which reflects the lit walls, taking
+#: the lobe apart gave 2.3x, 1.6x and 1.07x lower error at alpha 0.05, 0.1 and 0.2, and 1.05x higher at 0.4; on a
+#: floor that reflects only a small light and a caustic, 1.3-1.4x higher at every alpha from 0.05 to 0.2.  A
+#: judgement between the two.  A glossy transmission is taken apart at any alpha: a panel's cost 4-220x less error.
 NARROW_ALPHA = 0.1
 
 DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
