@@ -1,14 +1,15 @@
 """Where a glossy lobe is narrow enough for the photon methods' camera paths to take it apart: ``bsdfs.NARROW_ALPHA``.
 
-Two scenes (``--scene``): ``pplastic``, tests/scenes/plastic-caustic.xml with a ``pplastic`` floor of microfacet
+Three scenes (``--scene``): ``pplastic``, tests/scenes/plastic-caustic.xml with a ``pplastic`` floor of microfacet
 alpha a (GGX; ``--values`` are alphas): a glass ball's caustic and a small light's highlight on it; ``panel``,
 tests/scenes/principled-sharp-panel.xml, a frosted ``principled`` panel (``spec_trans`` 0.9) in front of a lit wall,
 seen through the panel's glossy transmission (``--values`` are roughnesses r; alpha r²); ``box``, the paper's
 diacaustic Cornell box with its floor a GGX ``pplastic`` of alpha a, which reflects the lit walls and the caustic.
 For each value, ``sppm`` at a fixed number of passes and several seeds, twice: with the glossy lobe taken apart
 (``split``: a camera path picks the glossy or the diffuse lobes, :func:`caustica.bsdfs.glossy_pick`) and with the whole
-BSDF at the visible point (``whole``: photons weighted by the BSDF).  The threshold is set for the run by assigning
-``caustica.bsdfs.NARROW_ALPHA`` (1: every lobe split, 0: none) before the scene is loaded.  Against Mitsuba 3's path
+BSDF at the visible point (``whole``: photons weighted by the BSDF).  The choice is set for the run by assigning
+``caustica.bsdfs.NARROW_ALPHA`` (1: every lobe split, 0: none) and, for ``whole``, ``caustica.bsdfs.transmits_glossily``
+(a glossy transmission is split at any alpha otherwise) before the scene's tables are built.  Against Mitsuba 3's path
 tracer (``scalar_rgb``, two halves of ``--ref-spp`` each, cached in out/refs/), printed per value and variant: one
 render's relative RMSE, and with the reference's own noise taken out; the seeds' mean image's error (what is left is
 mostly bias); the image mean against the reference's; seconds per render.
@@ -39,7 +40,6 @@ REFS = ROOT / "out" / "refs"
 DEFAULT_VALUES = {"pplastic": "0.05,0.09,0.1,0.12,0.15", "panel": "0.1,0.2,0.25,0.3,0.35", "box": "0.05,0.1,0.2,0.4"}
 BOX = ROOT / "src" / "caustica" / "scene" / "builtin" / "cornell-diacaustic.xml"
 BOX_FLOOR = '<rotate x="1" angle="-90"/></transform>\n        <ref id="white"/>'
-
 
 
 def scene_file(scene: str, value: float, folder: Path) -> tuple[Path, dict, float]:
@@ -83,7 +83,7 @@ def reference(mi, path: Path, defaults: dict, res: int, spp: int, label: str) ->
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", choices=sorted(DEFAULT_VALUES), default="pplastic")
-    ap.add_argument("--values", help="alphas (pplastic) or roughnesses (panel); default: "
+    ap.add_argument("--values", help="alphas (pplastic, box) or roughnesses (panel); default: "
                     + "; ".join(f"{k} {v}" for k, v in DEFAULT_VALUES.items()))
     ap.add_argument("--passes", type=int, default=128)
     ap.add_argument("--seeds", type=int, default=8)
@@ -97,7 +97,7 @@ def main() -> None:
           f"{args.seeds} seeds, {args.res} px; Mitsuba path tracer 2 x {args.ref_spp} spp")
     print("| value | alpha | variant | one render's relRMSE (noise out) | the seeds' mean's relRMSE (noise out) "
           "| mean / ref | s a render |\n| ---: | ---: | --- | ---: | ---: | ---: | ---: |")
-    default = caustica.bsdfs.NARROW_ALPHA
+    default = caustica.bsdfs.NARROW_ALPHA, caustica.bsdfs.transmits_glossily
     with tempfile.TemporaryDirectory() as tmp:
         for value in (float(v) for v in (args.values or DEFAULT_VALUES[args.scene]).split(",")):
             path, defaults, alpha = scene_file(args.scene, value, Path(tmp))
@@ -106,6 +106,8 @@ def main() -> None:
             ref_noise = 0.5 * rel_rmse(ref_a, ref_b)   # the two halves' mean's own error
             for variant, threshold in (("split", 1.0), ("whole", 0.0)):
                 caustica.bsdfs.NARROW_ALPHA = threshold
+                if variant == "whole":
+                    caustica.bsdfs.transmits_glossily = lambda mat: False
                 try:
                     scene = caustica.load_scene(str(path), res=str(args.res), **defaults)
                     caustica.render(scene, "sppm", passes=2, seed=999)   # warm-up: kernels compiled or loaded
@@ -114,7 +116,7 @@ def main() -> None:
                                        for s in range(args.seeds)]).astype(np.float64)
                     per_render = (time.perf_counter() - t0) / args.seeds
                 finally:
-                    caustica.bsdfs.NARROW_ALPHA = default
+                    caustica.bsdfs.NARROW_ALPHA, caustica.bsdfs.transmits_glossily = default
                 one = float(np.mean([rel_rmse(im, ref) for im in images]))
                 mean_img = images.mean(axis=0)
                 of_mean = rel_rmse(mean_img, ref)

@@ -120,8 +120,9 @@ def check_bsdfs(cls, scene) -> None:
     method, its lobes apart as plastic's); ``evaluates_bsdfs = True`` — other glossy
     lobes beside a diffuse one (pplastic, principled, principledthin), whose visible point (sppm) or k-nearest
     estimate (pm) weights each photon, and each shadow ray of its direct light, by the BSDF at the photon's (ray's)
-    direction (every photon method), the photons and lights of both sides where it transmits; a narrow glossy lobe a
-    camera path takes apart first (bsdfs.splits_lobes), the point then weighing by the diffuse lobes alone.
+    direction (every photon method), the photons and lights of both sides where a diffuse lobe transmits; a narrow
+    glossy lobe, or a glossy transmission, a camera path takes apart first (bsdfs.splits_lobes), the point then
+    weighing by the diffuse lobes alone.
     """
     for mat in scene.description.materials:
         if mat.kind in WRAPPERS and not getattr(cls, "renders_normal_maps", False):

@@ -168,18 +168,16 @@ def build_material_table(desc: SceneDescription) -> MaterialTable:
 
 
 def narrowest_glossy_alpha(mat, alpha_u: float, alpha_v: float) -> float:
-    """The smallest microfacet roughness a principled or principledthin material's glossy lobes may have: its
-    (alpha_u, alpha_v) from roughness and anisotropic, principled's clearcoat lobe (alpha from 0.1 down to 0.001 as
-    clearcoat_gloss goes to 1), principledthin's transmission (alpha times 0.65 eta - 0.35); 0 where roughness,
-    anisotropic, clearcoat_gloss or eta comes from a texture (any value may occur)."""
+    """The smallest microfacet roughness a principled or principledthin material's reflecting glossy lobes may have:
+    its (alpha_u, alpha_v) from roughness and anisotropic, principled's clearcoat lobe (alpha from 0.1 down to 0.001 as
+    clearcoat_gloss goes to 1); 0 where roughness, anisotropic or clearcoat_gloss comes from a texture (any value may
+    occur).  (A glossy transmission is taken apart whatever its roughness: :func:`transmits_glossily`.)"""
     p, textured = mat.principled, mat.param_textures
-    if {"roughness", "anisotropic", "clearcoat_gloss", "eta"} & set(textured):
+    if {"roughness", "anisotropic", "clearcoat_gloss"} & set(textured):
         return 0.0
     a = min(alpha_u, alpha_v)
     if mat.kind == PRINCIPLED and (p.get("clearcoat", 0.0) > 0.0 or "clearcoat" in textured):
         a = min(a, 0.1 + (0.001 - 0.1) * p.get("clearcoat_gloss", 0.0))
-    if mat.kind == PRINCIPLEDTHIN and (p.get("spec_trans", 0.0) > 0.0 or "spec_trans" in textured):
-        a = min(a, a * (0.65 * p.get("eta", 1.5) - 0.35))
     return a
 
 

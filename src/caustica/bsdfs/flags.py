@@ -25,12 +25,13 @@ DIFFUSE_TRANSMISSION = 64
 #: principledthin's ``spec_trans``, however broad): the photon methods' camera paths take its lobes apart
 #: (:func:`caustica.bsdfs.splits_lobes`).
 NARROW_GLOSSY = 128
-#: The microfacet roughness below which a glossy reflection beside a diffuse lobe is taken apart rather than weighed
-#: into photon estimates.  Measured (docs/results.md, "Which glossy lobes a camera path takes apart", 2026-12-07,
-#: ``benchmarks/narrow_threshold.py``): on a pplastic floor in the Cornell box, which reflects the lit walls, taking
-#: the lobe apart gave 2.3x, 1.6x and 1.07x lower error at alpha 0.05, 0.1 and 0.2, and 1.05x higher at 0.4; on a
-#: floor that reflects only a small light and a caustic, 1.3-1.4x higher at every alpha from 0.05 to 0.2.  A
-#: judgement between the two.  A glossy transmission is taken apart at any alpha: a panel's cost 4-220x less error.
+#: The microfacet roughness below which glossy lobes that only reflect, beside a diffuse lobe, are taken apart rather
+#: than weighed into photon estimates.  Measured (docs/results.md, "Which glossy lobes a camera path takes apart",
+#: 2026-12-07, ``benchmarks/narrow_threshold.py``): on a pplastic floor in the Cornell box, which reflects the lit
+#: walls, taking the lobe apart gave 2.3x, 1.6x and 1.07x lower error at alpha 0.05, 0.1 and 0.2, and 1.05x higher at
+#: 0.4; on a floor that reflects only a small light and a caustic, 1.3-1.4x higher at every alpha from 0.05 to 0.2.  A
+#: judgement between the two.  A glossy transmission is taken apart at any alpha: through a frosted panel that gave
+#: 4-220x less error.
 NARROW_ALPHA = 0.1
 
 DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION

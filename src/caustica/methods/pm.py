@@ -10,8 +10,8 @@
    indirect light and caustics from the maps' k-nearest radiance estimates.  At a BSDF with glossy
    lobes beside its diffuse one (pplastic, principled, principledthin) each photon and shadow ray is weighted by the
    BSDF's f at its direction (:mod:`caustica.photons.gather`), as sppm's visible points do; where a glossy lobe is
-   narrow the camera path first picks the glossy lobes or the diffuse ones (bsdfs.glossy_pick), follows the glossy
-   ones, and weighs by the diffuse lobes alone where it picked those.
+   narrow or transmits the camera path first picks the glossy lobes or the diffuse ones (bsdfs.glossy_pick), follows
+   the glossy ones, and weighs by the diffuse lobes alone where it picked those.
 
 In a scene with media the photons scatter in them (:mod:`caustica.photons.trace`), their
 volume photons (those of the aimed photons too) are gathered along the camera rays by the beam

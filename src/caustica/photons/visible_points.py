@@ -56,21 +56,22 @@ next is weighted to match (:func:`seen_weight`).  Glossy bounces count towards `
 reaches it ends (its light beyond is lost, as a path tracer's past its depth).
 
 **Narrow glossy lobes beside diffuse ones** (pplastic, principled, principledthin with some glossy lobe's roughness
-below :data:`caustica.bsdfs.NARROW_ALPHA`: :func:`caustica.bsdfs.splits_lobes`; broader ones the visible point weighs
-with the photons, as pbrt-v4's SPPM, :func:`bsdf_visible_point`): the
-path picks the glossy lobes or the diffuse ones (:func:`lobe_choice`).  A glossy pick (probability Q,
-:func:`caustica.bsdfs.glossy_pick`: the mean of the BSDF's own sampling rate P and the glossy lobes' share of its
-albedo) makes a glossy vertex of the glossy lobes alone, sampled as the BSDF samples them, everything over Q; a
-diffuse one makes the visible point here, weight β / (1 − Q), which holds the diffuse lobes alone: the photons and
+below :data:`caustica.bsdfs.NARROW_ALPHA`, or with a glossy transmission at any roughness:
+:func:`caustica.bsdfs.splits_lobes`; broader reflections the visible point weighs with the photons, as pbrt-v4's SPPM,
+:func:`bsdf_visible_point`): the path picks the glossy lobes or the diffuse ones (:func:`lobe_choice`).  A glossy pick
+(probability Q, :func:`caustica.bsdfs.glossy_pick`: the mean of the BSDF's own sampling rate P and the glossy lobes'
+share of its albedo) makes a glossy vertex of the glossy lobes alone, sampled as the BSDF samples them, everything over
+Q; a diffuse one makes the visible point here, weight β / (1 − Q), which holds the diffuse lobes alone: the photons and
 its light sample are weighed by their f (:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole
-BSDF instead, which leaves a narrow glossy
-lobe to the few photons that arrive within it: a frosted panel of roughness 0.01 in front of a lit wall rendered
-black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The choice costs noise, so broad lobes
-are not split: on a pplastic floor of roughness 0.15 under a caustic the split raised the noise by 60 % at equal
-passes; picking by P alone (Mitsuba's rate: two thirds glossy on that plastic) left the floor under a caustic of
-roughness 0.05 with 1.7x the per-pixel deviation outside the highlight that Q leaves (docs/results.md).  Unlike
-roughplastic's split points these claim no caustic: the glossy lobes' share of one is the camera
-path's.
+BSDF instead, which leaves a narrow glossy lobe to the few photons that arrive within it: a frosted panel of roughness
+0.01 in front of a lit wall rendered black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The
+choice costs noise where the lobe reflects little but lights (a third more error on a floor under a caustic,
+benchmarks/narrow_threshold.py), so broad reflections are not split; a glossy transmission is, however broad (4-220x
+less error through a frosted panel, where photons on the panel are few).  On a pplastic floor of roughness 0.15 under a
+caustic the split raised the noise by 60 % at equal passes before Q; picking by P alone (Mitsuba's rate: two thirds
+glossy on that plastic) left the floor under a caustic of roughness 0.05 with 1.7x the per-pixel deviation outside the
+highlight that Q leaves (docs/results.md).  Unlike roughplastic's split points these claim no caustic: the glossy lobes'
+share of one is the camera path's.
 
 **Samples stratified over the passes.**  A pixel's passes are the samples of one
 estimate, so the numbers that matter most are drawn from low-discrepancy sequences
