@@ -65,7 +65,7 @@ Q; a diffuse one makes the visible point here, weight β / (1 − Q), which hold
 its light sample are weighed by their f (:func:`bsdf_visible_point`).  pbrt-v4's SPPM weighs the photons by the whole
 BSDF instead, which leaves a narrow glossy lobe to the few photons that arrive within it: a frosted panel of roughness
 0.01 in front of a lit wall rendered black but for a few fireflies (tests/test_principled.py; sppm 12 % dark).  The
-choice costs noise where the lobe reflects little but lights (a third more error on a floor under a caustic,
+choice costs noise where the lobe sees little but the lights (a third more error on a floor under a caustic,
 benchmarks/narrow_threshold.py), so broad reflections are not split; a glossy transmission is, however broad (4-220x
 less error through a frosted panel, where photons on the panel are few).  On a pplastic floor of roughness 0.15 under a
 caustic the split raised the noise by 60 % at equal passes before Q; picking by P alone (Mitsuba's rate: two thirds
