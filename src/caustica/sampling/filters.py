@@ -82,11 +82,6 @@ _GAUSSIAN_BIAS = math.exp(-0.5 * GAUSSIAN_CUTOFF ** 2)
 
 
 @kernel
-def _gaussian_density(z):
-    return max(0.0, math.exp(-0.5 * z * z) - _GAUSSIAN_BIAS)
-
-
-@kernel
 def _gaussian_cdf(z):
     return _SQRT_HALF_PI * math.erf(z * _INV_SQRT2) - _GAUSSIAN_BIAS * z
 

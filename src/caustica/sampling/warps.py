@@ -43,10 +43,3 @@ def square_to_uniform_cone(u1, u2, cos_max):
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
     phi = 2.0 * math.pi * u2
     return (sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t)
-
-
-@kernel
-def square_to_triangle(u1, u2):
-    """Uniform barycentrics (b1, b2) on a triangle (square-root parametrisation)."""
-    s = math.sqrt(u1)
-    return (1.0 - s, u2 * s)
