@@ -155,13 +155,6 @@ def local_frame(n, d):
 
 
 @kernel
-def sample_half(dist, alpha, wo, key, dim):
-    """A visible microfacet normal h seen from wo (numbers dim, dim + 1; :func:`sample_visible`) and c = wo · h."""
-    h = sample_visible(dist, alpha, wo, uniform(key, dim), uniform(key, dim + 1))
-    return h, vec.dot(wo, h)
-
-
-@kernel
 def reflect(wo, h, c):
     """wo mirrored about the microfacet normal h, c = wo · h (local frame)."""
     return (2.0 * c * h[0] - wo[0], 2.0 * c * h[1] - wo[1], 2.0 * c * h[2] - wo[2])
@@ -228,7 +221,8 @@ def sample_visible_uv(dist, au, av, wi, u1, u2):
 
 @kernel
 def sample_half_uv(dist, au, av, wo, key, dim):
-    """:func:`sample_half` with roughness au along s and av along t."""
+    """A visible microfacet normal h seen from wo, of roughness au along s and av along t (numbers dim, dim + 1;
+    :func:`sample_visible_uv`), and c = wo · h."""
     h = sample_visible_uv(dist, au, av, wo, uniform(key, dim), uniform(key, dim + 1))
     return h, vec.dot(wo, h)
 
