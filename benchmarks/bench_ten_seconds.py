@@ -1,6 +1,7 @@
 """The issue's 10-second goal: caustica's progressive methods against Mitsuba 3 at equal wall time.
 
-    python benchmarks/bench_ten_seconds.py [--budget 10] [--seeds 0] [--res 256] [--threads N]
+    python benchmarks/bench_ten_seconds.py [--budget 10] [--seeds 0] [--res 256] [--ref-res 256] [--threads N]
+                                           [--only LABEL] [--set KEY=VALUE]
 
 For cornell-diacaustic and cornell-catacaustic: each configuration below renders once
 untimed (a warm-up: kernels compiled or loaded), then with ``time_s=BUDGET``; Mitsuba 3's
@@ -51,6 +52,25 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
+def _setting(item: str) -> tuple:
+    """KEY=VALUE of ``--set``: the value as an int, a float or the text."""
+    key, _, text = item.partition("=")
+    for kind in (int, float):
+        try:
+            return key, kind(text)
+        except ValueError:
+            pass
+    return key, text
+
+
+def box_average(image, k: int):
+    """``image`` averaged over k x k blocks of pixels (k = 1: itself)."""
+    if k == 1:
+        return image
+    h, w = image.shape[0] // k, image.shape[1] // k
+    return image[:h * k, :w * k].reshape(h, k, w, k, -1).mean(axis=(1, 3))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=float, default=10.0, help="seconds per render (default 10)")
@@ -61,23 +81,35 @@ def main() -> None:
     ap.add_argument("--only", action="append", help="run only the configurations whose label contains this "
                                                     "text (may be given more than once)")
     ap.add_argument("--json", type=Path, help="also write the rows to this file")
+    ap.add_argument("--ref-res", type=int, help="the references' size (default: --res); a larger --res, a multiple of "
+                                                "it, is box-averaged down to it (the scenes' box filter makes that the "
+                                                "same pixel integrals)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a parameter added to every configuration run (its label says so); repeatable")
     args = ap.parse_args()
+    ref_res = args.ref_res or args.res
+    if args.res % ref_res:
+        raise SystemExit(f"--res {args.res} is not a multiple of --ref-res {ref_res}")
+    extra = dict(_setting(item) for item in args.set)
     refs = args.refs or shared_refs_dir()
     if refs is None:
         raise SystemExit("no reference folder: pass --refs or set CAUSTICA_SHARED")
     mi = mitsuba_module()
     seeds = [int(s) for s in args.seeds.split(",")]
-    configs = [c for c in CONFIGS if args.only is None or any(o in c[0] for o in args.only)]
+    configs = [(label + (f" [{', '.join(args.set)}]" if extra else ""), method, {**params, **extra})
+               for label, method, params in CONFIGS if args.only is None or any(o in label for o in args.only)]
+    down = args.res // ref_res
     print(f"# {platform.machine()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d %H:%M')}, "
-          f"{args.res}x{args.res}, budget {args.budget:g} s, seeds {seeds}, "
+          f"{args.res}x{args.res}{f' averaged to {ref_res}' if down > 1 else ''}, budget {args.budget:g} s, "
+          f"seeds {seeds}, "
           f"Mitsuba {'yes' if mi is not None else 'not installed'}")
     print("| scene | seed | renderer | passes / spp | wall s | caustic relRMSE | whole relRMSE | load |")
     print("| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: |")
     rows = []
     for name in SCENES:
-        ref = read_exr(refs / f"{name}_{args.res}.exr")[..., :3]
-        ref_spp = json.loads((refs / f"{name}_{args.res}.json").read_text())["spp"]
-        mask = read_png_mask(refs / f"{name}_{args.res}_caustic_mask.png")
+        ref = read_exr(refs / f"{name}_{ref_res}.exr")[..., :3]
+        ref_spp = json.loads((refs / f"{name}_{ref_res}.json").read_text())["spp"]
+        mask = read_png_mask(refs / f"{name}_{ref_res}_caustic_mask.png")
         scene = caustica.load_scene(name)
         for label, method, params in configs:   # warm-up: compile or load the kernels
             caustica.render(scene, method, res=args.res, passes=2, threads=args.threads, **params)
@@ -89,12 +121,14 @@ def main() -> None:
                 r = caustica.render(scene, method, res=args.res, seed=seed, time_s=args.budget,
                                     threads=args.threads, **params)
                 wall = time.perf_counter() - t0
+                image = box_average(r.image, down)
                 row = {"scene": name, "seed": seed, "label": label, "passes": r.stats["passes"], "wall_s": wall,
-                       "caustic": rel_rmse(r.image, ref, mask), "whole": rel_rmse(r.image, ref), "load": before}
+                       "caustic": rel_rmse(image, ref, mask), "whole": rel_rmse(image, ref), "load": before}
                 got.append(row)
             if mi is not None:
                 before = load()
                 image, wall, spp = mitsuba_equal_time(mi, name, args.res, args.budget, seed)
+                image = box_average(image, down)
                 got.append({"scene": name, "seed": seed, "label": "Mitsuba 3 path (scalar_rgb)", "passes": spp,
                             "wall_s": wall, "caustic": rel_rmse(image, ref, mask), "whole": rel_rmse(image, ref),
                             "load": before})
