@@ -97,7 +97,8 @@ def main() -> None:
           f"{args.seeds} seeds, {args.res} px; Mitsuba path tracer 2 x {args.ref_spp} spp")
     print("| value | alpha | variant | one render's relRMSE (noise out) | the seeds' mean's relRMSE (noise out) "
           "| mean / ref | s a render |\n| ---: | ---: | --- | ---: | ---: | ---: | ---: |")
-    default = caustica.bsdfs.NARROW_ALPHA, caustica.bsdfs.transmits_glossily
+    # transmits_glossily exists since 90ad41d; before it a glossy transmission followed NARROW_ALPHA alone
+    default = caustica.bsdfs.NARROW_ALPHA, getattr(caustica.bsdfs, "transmits_glossily", None)
     with tempfile.TemporaryDirectory() as tmp:
         for value in (float(v) for v in (args.values or DEFAULT_VALUES[args.scene]).split(",")):
             path, defaults, alpha = scene_file(args.scene, value, Path(tmp))
@@ -106,7 +107,7 @@ def main() -> None:
             ref_noise = 0.5 * rel_rmse(ref_a, ref_b)   # the two halves' mean's own error
             for variant, threshold in (("split", 1.0), ("whole", 0.0)):
                 caustica.bsdfs.NARROW_ALPHA = threshold
-                if variant == "whole":
+                if variant == "whole" and default[1] is not None:
                     caustica.bsdfs.transmits_glossily = lambda mat: False
                 try:
                     scene = caustica.load_scene(str(path), res=str(args.res), **defaults)
@@ -116,7 +117,9 @@ def main() -> None:
                                        for s in range(args.seeds)]).astype(np.float64)
                     per_render = (time.perf_counter() - t0) / args.seeds
                 finally:
-                    caustica.bsdfs.NARROW_ALPHA, caustica.bsdfs.transmits_glossily = default
+                    caustica.bsdfs.NARROW_ALPHA = default[0]
+                    if default[1] is not None:
+                        caustica.bsdfs.transmits_glossily = default[1]
                 one = float(np.mean([rel_rmse(im, ref) for im in images]))
                 mean_img = images.mean(axis=0)
                 of_mean = rel_rmse(mean_img, ref)
