@@ -163,6 +163,5 @@ def pixel_footprints(cam, geom, stops, n, out):
                 else:
                     out[k] = vec.dot(vec.sub(o, origin), view) * 2.0 * cam.tan_half_x / cam.width
                 break
-            # past the surface along d, by vec.offset_origin's distance
-            o = vec.madd(o, d, 64.0 * (1e-7 * (1.0 + max(abs(o[0]), max(abs(o[1]), abs(o[2])))) + 1e-9))
+            o = vec.offset_origin(o, d, d)   # straight on, past the surface along d
 
