@@ -22,7 +22,9 @@ No asserts: numbers to read.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -33,6 +35,9 @@ import caustica
 import caustica.bsdfs
 from caustica.experiments.convergence import rel_rmse
 from caustica.experiments.mitsuba import mitsuba_module
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_caustic_goals import mitsuba_render  # noqa: E402  (Mitsuba's mean image in calls of 256 spp)
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = ROOT / "tests" / "scenes"
@@ -62,22 +67,18 @@ def scene_file(scene: str, value: float, folder: Path) -> tuple[Path, dict, floa
 
 
 def reference(mi, path: Path, defaults: dict, res: int, spp: int, label: str) -> tuple[np.ndarray, np.ndarray]:
-    """Mitsuba's path tracer in two halves of ``spp`` each (cached)."""
+    """Mitsuba's path tracer in two halves of ``spp`` each, of independent seeds (cached in out/refs/)."""
     cache = REFS / f"narrow-threshold-{label}-{res}-{spp}.npz"
     if cache.exists():
         z = np.load(cache)
         return z["a"], z["b"]
     scene = mi.load_file(str(path), res=res, **defaults)
-    halves = []
-    for half in range(2):
-        acc = np.zeros((res, res, 3))
-        chunk = min(spp, 4096)
-        for k in range(spp // chunk):
-            acc += np.array(mi.render(scene, spp=chunk, seed=half * 1000 + k), np.float64)[..., :3]
-        halves.append(acc / (spp // chunk))
+    a, b = mitsuba_render(mi, scene, spp, 0), mitsuba_render(mi, scene, spp, 100_000)
     REFS.mkdir(parents=True, exist_ok=True)
-    np.savez(cache, a=halves[0], b=halves[1])
-    return halves[0], halves[1]
+    tmp = cache.with_suffix(".tmp.npz")
+    np.savez(tmp, a=a, b=b)
+    os.replace(tmp, cache)
+    return a, b
 
 
 def main() -> None:
