@@ -278,6 +278,17 @@ def test_only_buffers_made_for_splitting_let_a_stream_pass_compile_the_split():
     assert _takes(split_off.signatures, type(split.split))
 
 
+def test_stream_buffers_made_for_another_pass_are_refused():
+    """trace_stream_pass writes n_streams x (max_bounces + 1) records and n_assoc photons each: buffers of another
+    size are refused before the kernels run (they would write past their end)."""
+    scene = xml_scene(GLASS_OVER_FLOOR, "glass-floor.xml")
+    buf = StreamBuffers(10, 2, 1)
+    for n, n_fa, mr in ((20, 2, 1), (10, 3, 1), (10, 2, 2)):
+        with pytest.raises(ValueError, match="do not fit"):
+            trace_stream_pass(scene, buf, 0, STREAM_SPM, n, n_fa, 0.1, mr, TERMINATION_CAP)
+    trace_stream_pass(scene, buf, 0, STREAM_SPM, 10, 2, 0.1, 1, TERMINATION_CAP)   # its own size: traced
+
+
 def test_split_photons_deposit_what_independent_photons_do():
     """--specular split at r_s -> 0: every photon of a stream meets the glass at the same point and
     then goes its own way, so where the power lands (caustic, floor, wall; mr = 2) must be PM's
