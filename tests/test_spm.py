@@ -272,7 +272,7 @@ def test_only_buffers_made_for_splitting_let_a_stream_pass_compile_the_split():
     path = (0, 0, -1, 0, False, 0, (1, 0))
     no_split = type(merge.split)
     for buf in (merge, split):   # no associated photon alive: it only compiles
-        fresh(tables, beam, np.uint64(1), 8, (0, (0.0, 0.0, 0.0)), (False, 0, buf.assoc), (buf.splits, path, buf.split))
+        fresh(tables, beam, np.uint64(1), 8, (0, (0.0, 0.0, 0.0)), (False, 0, buf.assoc), (path, buf.split))
     assert _takes(fresh.signatures, no_split)
     assert not _takes(split_off.signatures, no_split)
     assert _takes(split_off.signatures, type(split.split))

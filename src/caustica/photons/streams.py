@@ -234,8 +234,9 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     Returns (landed, split off, entered): ``landed`` photons met a diffuse surface and are written, when ``out`` =
     (store, first slot, assoc) says store, to assoc slots from the first on, each with the factor B of a coated
     diffuse lobe it landed on (1 elsewhere; ``entered`` sums them: :func:`store_stream_record`); the rest merge into the
-    leading photon — except, with ``splitting`` = (split, split_path, split_buf) split, those whose ray
-    meets a mirror or glass, which leave the stream as photons of their own (:func:`split_off`).  A mixture
+    leading photon — except, with ``splitting`` = (split_path, split_buf) and a buffer that can take them
+    (:func:`may_split`), those whose ray meets a mirror or glass, which leave the stream as photons of their own
+    (:func:`split_off`).  A mixture
     is resolved per photon (:func:`associated_surface`); one that takes a part that stores nothing there merges,
     so it is stored with the leading photon's factor.  A normal or bump map is resolved per photon to its nested row
     (:func:`unwrapped`), whose record carries the geometric normal and no coating's factor, as the photon tracer's
@@ -248,7 +249,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     o, n_from, _, _, _ = beam
     n_alive, p_assoc = photons
     store, a0, assoc = out
-    split, split_path, split_buf = splitting
+    split_path, split_buf = splitting
     check_side = vec.dot(n_from, n_from) > 0.5
     landed = 0
     n_split = 0
@@ -268,7 +269,7 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
             continue  # escaped: merged into the leading photon
         m = unwrapped(mats, m)
         if not mats.flags[m] & DIFFUSE_REFLECTION:
-            if may_split(split_buf) and split:
+            if may_split(split_buf):
                 split_off(tables, key, o, d, p_assoc, split_path, n_split, split_buf)
                 n_split += 1
             continue  # met a mirror, glass or glossy surface: merged (or split off)
@@ -325,7 +326,7 @@ def split_at_specular(tables, key, beam, photons, lead, splitting):
     geom, mats, _, _ = tables
     o, n_from, _, _, _ = beam
     n_alive, p_assoc = photons
-    _, split_path, split_buf = splitting
+    split_path, split_buf = splitting
     check_side = vec.dot(n_from, n_from) > 0.5
     k = 0
     for j in range(n_alive):
@@ -425,13 +426,15 @@ def stream_medium_event(tables, medium, beam, key, dim, stream, rules, out):
 
 
 @kernel(inline=True)
-def stream_at_specular(tables, key, beam, stream, splitting):
-    """At the leading photon's mirror or glass: its associated photons split off (``--specular split``, once per
-    stream at most, as none is left after it: :func:`split_at_specular`) or merge into it.
-    Returns (the stream, with no associated photon left, split photons added)."""
+def stream_at_specular(tables, key, beam, stream, m, splitting):
+    """At the leading photon's mirror or glass, material m: its associated photons split off (``--specular split``,
+    once per stream at most, as none is left after it: :func:`split_at_specular`) or merge into it.  Where volpath's
+    thin dielectric reflects (straight on it is :func:`null_thin_crossing`) they merge even so: split off, each would
+    draw the reflection again (R² of them).  Returns (the stream, with no associated photon left, split photons
+    added)."""
     lead, p_assoc, n_alive = stream
     k = 0
-    if may_split(splitting[2]) and splitting[0] and n_alive > 0:
+    if may_split(splitting[1]) and n_alive > 0 and not has_null_lobe(tables[1], m):
         lead, k = split_at_specular(tables, key, beam, (n_alive, p_assoc), lead, splitting)
         n_alive = 0
     lead = vec.madd(lead, p_assoc, float(n_alive))
@@ -467,23 +470,20 @@ def stream_at_diffuse(tables, key, dim, beam, stream, hit, out, splitting):
 def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
     """What the stream does at a surface, ``hit`` = (prim, m, uv, front, ng, ns): at a mirror, glass or glossy surface
     (:func:`stream_at_specular`, before the side is known) or at a diffuse surface that scatters on this side
-    (:func:`stream_at_diffuse`, ``out`` as it takes it).  Where volpath's thin dielectric reflects (straight on it is
-    :func:`null_thin_crossing`), the associated photons merge even with ``splitting`` = (split, split_path,
-    split_buf) split: split off, each would draw the reflection again (R² of them).  Returns (scatters, diffuse, ng,
-    ns turned to the ray, the stream, the split photons so far (split_path's with those added here), dim)."""
+    (:func:`stream_at_diffuse`, ``out`` as it takes it), ``splitting`` = (split_path, split_buf).  Returns (scatters,
+    diffuse, ng, ns turned to the ray, the stream, the split photons so far (split_path's with those added here),
+    dim)."""
     _, mats, _, _ = tables
     prim, m, uv, front, ng, ns = hit
-    split, split_path, split_buf = splitting
     diffuse = mats.flags[m] & DIFFUSE_REFLECTION
     k = 0
     if not diffuse:
-        stream, k = stream_at_specular(tables, key, beam, stream,
-                                       (split and not has_null_lobe(mats, m), split_path, split_buf))
+        stream, k = stream_at_specular(tables, key, beam, stream, m, splitting)
     scatters, ng, ns = oriented(mats, m, front, ng, ns)
     if scatters and diffuse:
         stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (prim, m, uv, front, ng, ns), out,
                                            splitting)
-    return scatters, diffuse, ng, ns, stream, split_path[1] + k, dim
+    return scatters, diffuse, ng, ns, stream, splitting[0][1] + k, dim
 
 
 @kernel(inline=True)
@@ -577,13 +577,15 @@ def stream_goes_indirect(geom, mats, prim, diffuse):
 @kernel
 def trace_stream(tables, key, start, rules, i, buf):
     """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium)
-    into records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``; ``rules`` = (n_assoc, r_s, mr, termination, split,
-    spread).  The stream moves as one: in a medium every photon takes the leading photon's flight weight.  At a
-    medium event, a surface and a bounce: :func:`stream_medium_event`, :func:`stream_at_surface`, :func:`stream_bounce`.
+    into records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``; ``rules`` = (n_assoc, r_s, mr, termination, spread).
+    Its associated photons split off at mirrors and glass where ``buf``'s split buffer can take them
+    (:func:`may_split`).  The stream moves as one: in a medium every photon takes the leading photon's flight weight.
+    At a medium event, a surface and a bounce: :func:`stream_medium_event`, :func:`stream_at_surface`,
+    :func:`stream_bounce`.
     """
     geom, mats, _, media = tables
     o, d, e_s, n_from, medium = start
-    n_assoc, r_s, max_bounces, termination, split, spread = rules
+    n_assoc, r_s, max_bounces, termination, spread = rules
     rec, assoc, split_buf, depth = buf
     zero = (0.0, 0.0, 0.0)
     stream = emitted_stream(e_s, n_assoc)
@@ -638,7 +640,7 @@ def trace_stream(tables, key, start, rules, i, buf):
         scatters, diffuse, ng, ns, stream, n_split, dim = stream_at_surface(
             tables, key, dim, (o, n_from, p, d, r_s), stream, (prim, m, uv, front, ng, ns),
             (store, r, INDIRECT if diffuse_like else CAUSTIC, n_assoc, rec, assoc),
-            (split, (i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)), split_buf))
+            ((i * n_assoc, n_split, medium, bounces, scattered, events, (max_bounces, termination)), split_buf))
         if not scatters:
             break  # absorbed by the black back of a one-sided surface
         if diffuse:
@@ -665,7 +667,7 @@ def trace_stream_pass(scene, buf, seed, stream, n_streams, n_assoc, r_s, max_bou
     if buf.rec.kind.shape[0] != n_streams * (max_bounces + 1) or buf.n_assoc != n_assoc:
         raise ValueError(f"stream buffers of {buf.rec.kind.shape[0]} record slots and {buf.n_assoc} associated photons "
                          f"each do not fit {n_streams} streams of {n_assoc} with {max_bounces} bounces")
-    rules = (n_assoc, float(r_s), max_bounces, termination, buf.splits, bool(spread))
+    rules = (n_assoc, float(r_s), max_bounces, termination, bool(spread))
     return parallel_for(trace_streams, n_streams,
                         (scene.tables, scene.light_media(), (seed, stream, n_streams), rules, buf.kernel_args),
                         threads=threads, progress=progress)
