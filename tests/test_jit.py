@@ -77,12 +77,15 @@ twin = _prim_count.from_python
 tres = twin.overloads[tsig]
 assert tres.library.get_pointer_to_function(tres.fndesc.llvm_cpython_wrapper_name) != 0
 assert not isinstance(tres.library, LinkOnlyLibrary)
+# ... which has no C wrapper: nothing calls a twin from C
+assert tres.library.get_pointer_to_function(tres.fndesc.llvm_cfunc_wrapper_name) == 0
 print("ok")
 """
 
 
 def test_specialisations_and_wrappers_of_freshly_compiled_kernels():
-    """One int64 specialisation for a constant argument; no Python wrapper on kernel-to-kernel calls."""
+    """One int64 specialisation for a constant argument; no Python wrapper on kernel-to-kernel calls, no C wrapper on
+    the Python-called twin."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env["CAUSTICA_NO_CACHE"] = "1"
     proc = subprocess.run([sys.executable, "-c", _SPECIALISATION_CHECKS], env=env, capture_output=True,

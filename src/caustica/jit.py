@@ -479,7 +479,10 @@ class Kernel(CPUDispatcher):
     was about half the compile time of a small kernel.  So a kernel is compiled
     without them, and a call from Python goes to :attr:`from_python`, a twin
     compiled (and cached) separately with its wrapper: only the kernels Python
-    actually calls (range kernels, builders, tests) pay for one.
+    actually calls (range kernels, builders, tests) pay for one.  Nothing calls a
+    twin from C, so it has no C wrapper either: for a twin that takes the scene
+    tables (92 arrays for the diacaustic) that wrapper was 1,089 lines of IR, and
+    dropping it took 0.7 s off ``spm``'s compile (docs/results.md, 2026-12-07).
 
     Calls from kernels are typed with plain argument types, never literal ones:
     while Numba infers a caller's types it may resolve a call with a constant's
@@ -498,7 +501,7 @@ class Kernel(CPUDispatcher):
 
     @property
     def from_python(self):
-        """The same kernel with its Python wrapper (compiled on the first call from Python)."""
+        """The same kernel with its Python wrapper and no C one (compiled on the first call from Python)."""
         with _TWIN_LOCK:
             if self._from_python is None:
                 f = self.py_func
@@ -507,7 +510,8 @@ class Kernel(CPUDispatcher):
                 twin.__qualname__ = f.__qualname__ + "_from_python"  # its own cache entry
                 twin.__doc__ = f.__doc__
                 twin.__module__ = f.__module__
-                self._from_python = _Twin(py_func=twin, locals={}, targetoptions=dict(_OPTIONS, nopython=True),
+                self._from_python = _Twin(py_func=twin, locals={}, targetoptions=dict(_OPTIONS, nopython=True,
+                                                                                no_cfunc_wrapper=True),
                                           pipeline_class=KernelCompiler)
                 if CACHE_SERIAL:
                     self._from_python.enable_caching()
