@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 from numba import njit, typeof
+from numba.core.unsafe.refcount import get_refcount
 
 from caustica.geometry.bvh import _stable_sort
 from caustica.jit import BorrowedTuple, borrowed, kernel
@@ -117,6 +118,83 @@ def test_binding_a_borrowed_tuple_generates_no_reference_counting(monkeypatch):
         refops[ty] = len(re.findall(r'call void @"?NRT_(?:incref|decref)', ir))
     assert refops[plain] >= 2 * len(scene.geometry)           # every array, at every binding
     assert refops[BorrowedTuple(plain)] <= 4                  # only the one array taken out of it
+
+
+def _sum_first(a):
+    return a[0] + a[1]
+
+
+def test_a_kernel_does_not_count_references_to_its_arguments(monkeypatch):
+    """The caller holds a kernel's arguments for the whole call, so the kernel pipeline
+    (``jit.ArgumentsBorrowedLower``) writes no reference counting where a variable is bound to one; Numba's own
+    pipeline writes a pair for each array."""
+    from numba.core import codegen
+
+    from caustica.jit import KernelCompiler
+
+    generated = []
+    add_ir_module = codegen.CPUCodeLibrary.add_ir_module
+    monkeypatch.setattr(codegen.CPUCodeLibrary, "add_ir_module",
+                        lambda lib, mod: (generated.append(str(mod)), add_ir_module(lib, mod))[1])
+    refops = {}
+    for name, options in (("numba", {}), ("kernel", {"pipeline_class": KernelCompiler})):
+        generated.clear()
+        njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, **options)(_sum_first).compile((typeof(np.ones(2)),))
+        refops[name] = len(re.findall(r'call void @"?NRT_(?:incref|decref)', "".join(generated)))
+    assert refops["numba"] >= 2
+    assert refops["kernel"] == 0
+
+
+@kernel
+def _returns_it(a):
+    return a
+
+
+@kernel
+def _rebinds_it(a, n):
+    if n > 0:
+        a = np.zeros(n)
+    return a.sum()
+
+
+@kernel
+def _packs_it(a):
+    t = (a, a)
+    b, _ = t
+    return b[0]
+
+
+@kernel
+def _returns_it_packed(a, x):
+    return (a, x)
+
+
+@kernel
+def _reference_counts(n):
+    """An array's reference count (its meminfo's) before and after kernels read, rebind, repack and return it n
+    times each (LLVM's pruning removes only pairs, so a count can never rise or fall by the optimiser alone)."""
+    a = np.arange(4.0)
+    before = get_refcount(a)
+    total = 0.0
+    for _ in range(n):
+        total += _rebinds_it(a, 0) + _rebinds_it(a, 3) + _packs_it(a) + _returns_it(a)[1]
+    return before, get_refcount(a), total
+
+
+def test_arguments_keep_their_reference_counts():
+    """Kernels that read, rebind, repack or return an array argument leave its reference count as it was, plus the
+    references they return: a kernel that released a reference it never took (ArgumentsBorrowedLower without its
+    delvar) would free an array its caller still holds (that mutation crashes this test).  Counted inside a kernel
+    (the array's meminfo), and from Python for calls to the twins."""
+    before, after, total = _reference_counts(50)
+    assert total == 50 * 7.0 and after == before
+    a = np.arange(4.0)
+    before = sys.getrefcount(a)
+    for _ in range(100):
+        assert _rebinds_it(a, 0) == 6.0 and _rebinds_it(a, 3) == 0.0 and _packs_it(a) == 0.0
+    assert sys.getrefcount(a) == before
+    kept = [_returns_it(a) for _ in range(10)] + [_returns_it_packed(a, 1.0)[0] for _ in range(10)]
+    assert all(k is a for k in kept) and sys.getrefcount(a) == before + 20
 
 
 def _pass_on(geom):
