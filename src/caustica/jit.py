@@ -93,8 +93,8 @@ from numba.core.cpu import CPUContext
 from numba.core.datamodel.models import OpaqueModel, PrimitiveModel
 from numba.core.environment import lookup_environment
 from numba.core.imputils import lower_builtin, lower_constant, lower_getattr_generic
-from numba.core.lowering import Lower
 from numba.core.ir_utils import GuardException, find_const, get_definition
+from numba.core.lowering import Lower
 from numba.core.registry import CPUDispatcher
 from numba.core.typed_passes import NativeLowering, NopythonTypeInference
 from numba.core.untyped_passes import WithLifting
@@ -441,7 +441,7 @@ class ArgumentsBorrowedLower(Lower):
     The caller holds every argument until the call returns (a kernel's caller, or the Python wrapper of a twin), so
     the pair Numba writes is redundant; LLVM removed most of them again, but only after Numba had written, for every
     array a tuple argument holds (the scene tables: 92), the field extractions down to its counter.  That was 12 %
-    of the IR lowered for ``make render``'s scene (157,500 -> 139,100 instructions).  Numba's counting stays for an
+    of the IR lowered for ``make render``'s scene (157,500 -> 139,200 instructions).  Numba's counting stays for an
     omitted argument (a constant), in a generator, and for a variable with more than one definition (which Numba's
     SSA form never leaves an argument's: each later assignment gets a name of its own)."""
 

@@ -236,9 +236,8 @@ def place_associated(tables, beam, key, dim, photons, out, splitting):
     diffuse lobe it landed on (1 elsewhere; ``entered`` sums them: :func:`store_stream_record`); the rest merge into the
     leading photon — except, with ``splitting`` = (split_path, split_buf) and a buffer that can take them
     (:func:`may_split`), those whose ray meets a mirror or glass, which leave the stream as photons of their own
-    (:func:`split_off`).  A mixture
-    is resolved per photon (:func:`associated_surface`); one that takes a part that stores nothing there merges,
-    so it is stored with the leading photon's factor.  A normal or bump map is resolved per photon to its nested row
+    (:func:`split_off`).  A mixture is resolved per photon (:func:`associated_surface`); one that takes a part that
+    stores nothing there merges, so it is stored with the leading photon's factor.  A normal or bump map is resolved per photon to its nested row
     (:func:`unwrapped`), whose record carries the geometric normal and no coating's factor, as the photon tracer's
     (the visible points there weight each photon by the BSDF in their own perturbed frame).  A photon
     whose direction q - o points into the surface o lies on (``n_from``, facing the side the stream
@@ -475,6 +474,7 @@ def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
     dim)."""
     _, mats, _, _ = tables
     prim, m, uv, front, ng, ns = hit
+    split_path = splitting[0]
     diffuse = mats.flags[m] & DIFFUSE_REFLECTION
     k = 0
     if not diffuse:
@@ -483,7 +483,7 @@ def stream_at_surface(tables, key, dim, beam, stream, hit, out, splitting):
     if scatters and diffuse:
         stream, k, dim = stream_at_diffuse(tables, key, dim, beam, stream, (prim, m, uv, front, ng, ns), out,
                                            splitting)
-    return scatters, diffuse, ng, ns, stream, splitting[0][1] + k, dim
+    return scatters, diffuse, ng, ns, stream, split_path[1] + k, dim
 
 
 @kernel(inline=True)
@@ -578,10 +578,8 @@ def stream_goes_indirect(geom, mats, prim, diffuse):
 def trace_stream(tables, key, start, rules, i, buf):
     """Stream i from ``start`` = (o, d, its power E_s, the normal n_from of the surface it leaves, its medium)
     into records [i * (mr + 1), (i + 1) * (mr + 1)) of ``buf``; ``rules`` = (n_assoc, r_s, mr, termination, spread).
-    Its associated photons split off at mirrors and glass where ``buf``'s split buffer can take them
-    (:func:`may_split`).  The stream moves as one: in a medium every photon takes the leading photon's flight weight.
-    At a medium event, a surface and a bounce: :func:`stream_medium_event`, :func:`stream_at_surface`,
-    :func:`stream_bounce`.
+    The stream moves as one: in a medium every photon takes the leading photon's flight weight.  At a medium event,
+    a surface and a bounce: :func:`stream_medium_event`, :func:`stream_at_surface`, :func:`stream_bounce`.
     """
     geom, mats, _, media = tables
     o, d, e_s, n_from, medium = start
