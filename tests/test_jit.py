@@ -184,7 +184,7 @@ def _reference_counts(n):
 def test_arguments_keep_their_reference_counts():
     """Kernels that read, rebind, repack or return an array argument leave its reference count as it was, plus the
     references they return: a kernel that released a reference it never took (ArgumentsBorrowedLower without its
-    delvar) would free an array its caller still holds (that mutation crashes this test).  Counted inside a kernel
+    delvar) would free an array its caller still holds (with that mutation this test fails).  Counted inside a kernel
     (the array's meminfo), and from Python for calls to the twins."""
     before, after, total = _reference_counts(50)
     assert total == 50 * 7.0 and after == before
