@@ -92,7 +92,7 @@ def _llvm_timed(f, key):
 newpassmanagers.FunctionPassManager.run = _llvm_timed(newpassmanagers.FunctionPassManager.run, "function passes")
 newpassmanagers.ModulePassManager.run = _llvm_timed(newpassmanagers.ModulePassManager.run, "module passes")
 codegen.JitEngine.finalize_object = _llvm_timed(codegen.JitEngine.finalize_object, "machine code")
-codegen.ll.parse_assembly = _llvm_timed(ll.parse_assembly, "parsing IR")
+ll.parse_assembly = _llvm_timed(ll.parse_assembly, "parsing IR")   # (Numba calls it as ll.parse_assembly)
 t0, c0 = time.perf_counter(), time.process_time()
 import caustica
 scene = caustica.load_scene(sys.argv[1])
