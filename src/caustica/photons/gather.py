@@ -26,10 +26,10 @@ rays; with a caustic map (PM+C) that estimate is a split point, as sppm's with i
 the caustic map's records weighted by A + f_glossy / B (:func:`split_estimate`), and a path that took the coating
 leaves out what it then meets through caustic casters alone (:func:`gather_radiance`'s ``claim``).  At narrow glossy
 lobes beside a diffuse one, or a glossy transmission beside one (pplastic, principled, principledthin:
-bsdfs.splits_lobes) the path picks its glossy lobes or
-its diffuse ones (:func:`caustica.photons.visible_points.lobe_choice`, as sppm's): the glossy ones it follows as a
-glossy vertex of those lobes, else it ends there and its estimate weights every photon of both maps and every shadow
-ray by the diffuse lobes' f(d, wi) (:func:`diffuse_estimate`'s ``bsdf``, :func:`caustica.bsdfs.eval_radiance`), as
+bsdfs.splits_lobes) the path picks its glossy lobes or its diffuse ones
+(:func:`caustica.photons.visible_points.lobe_choice`, as sppm's): the glossy ones it follows as a glossy vertex of
+those lobes, else it ends there and its estimate weights every photon of both maps and every shadow ray by the
+diffuse lobes' f(d, wi) (:func:`diffuse_estimate`'s ``bsdf``, :func:`caustica.bsdfs.eval_radiance`), as
 sppm's visible points weight their photons: L = β / (1 - Q) (Σ_shadow f L cos / p + Σ_p W f Φ_p).  At broader
 reflections the estimate weighs them by the whole BSDF (L = β (Σ_shadow f L cos / p + Σ_p W f Φ_p)).
 """
